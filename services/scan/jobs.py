@@ -1,0 +1,51 @@
+"""Job handler ``scan.inspect``: one JSON report and one preview PLY per input cloud."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+from services.pointcloud.ply import PlyError, read_ply, write_ply
+from services.scan.inspect import decimate, inspect_cloud
+from supervisor.engine.context import JobContext
+from supervisor.engine.errors import JobInputError
+
+PLY_MEDIA_TYPE = "application/x-ply"
+
+
+def inspect_scan(ctx: JobContext) -> dict:
+    clouds = [a for a in ctx.inputs if a.media_type == PLY_MEDIA_TYPE]
+    if not clouds:
+        raise JobInputError("scan.inspect needs at least one PLY artifact as input")
+    params = ctx.params
+    reports = {}
+    share = 1.0 / len(clouds)
+    for number, artifact in enumerate(clouds):
+        base = number * share
+        ctx.progress(base, f"reading {artifact.name}")
+        try:
+            cloud = read_ply(artifact.path)
+        except PlyError as exc:
+            raise JobInputError(f"{artifact.name}: {exc}") from exc
+        ctx.progress(base + 0.3 * share, f"measuring {artifact.name}")
+        report = inspect_cloud(cloud, spacing_sample=params.spacing_sample)
+        ctx.progress(base + 0.6 * share, f"decimating {artifact.name}")
+        preview = decimate(
+            cloud, max_points=params.preview_points, spacing_mm=report.mean_spacing_mm
+        )
+        stem = Path(artifact.name).stem
+        preview_path = ctx.workdir / f"{stem}-preview.ply"
+        write_ply(preview_path, preview, comments=(f"preview of artifact {artifact.id}",))
+        ctx.progress(base + 0.9 * share, f"storing results for {artifact.name}")
+        ctx.add_artifact_file(
+            preview_path,
+            kind="preview",
+            name=preview_path.name,
+            media_type=PLY_MEDIA_TYPE,
+            meta={"source_artifact_id": artifact.id, "point_count": len(preview.points)},
+        )
+        body = {"source_artifact_id": artifact.id, **asdict(report)}
+        ctx.add_artifact_json(body, kind="report", name=f"{stem}-report.json")
+        reports[str(artifact.id)] = body
+    ctx.progress(1.0, "done")
+    return {"reports": reports}

@@ -1,0 +1,31 @@
+"""Job kinds of the scan service (imported by the API: keep it light)."""
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from supervisor.engine.registry import JobKind, register
+
+
+class ScanInspectParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    preview_points: int = Field(
+        100_000, ge=1_000, le=5_000_000, description="Point budget of the decimated preview."
+    )
+    spacing_sample: int = Field(
+        20_000, ge=100, le=1_000_000, description="Points sampled to estimate the spacing."
+    )
+
+
+SCAN_INSPECT = register(
+    JobKind(
+        name="scan.inspect",
+        queue="scan",
+        handler="services.scan.jobs:inspect_scan",
+        params=ScanInspectParams,
+        description=(
+            "Checks a PLY point cloud and reports point count, bounds, spacing, density and "
+            "finiteness (a JSON `report` artifact) and writes a decimated `preview` PLY."
+        ),
+        input_kinds=("scan", "cloud"),
+    )
+)

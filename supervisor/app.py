@@ -1,0 +1,96 @@
+"""The supervisor's FastAPI application."""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+
+from fastapi import APIRouter, FastAPI
+
+from supervisor import health
+from supervisor.artifacts.router import router as artifacts_router
+from supervisor.auth.router import router as auth_router
+from supervisor.defects.router import router as defects_router
+from supervisor.engine.embedded import EmbeddedPool
+from supervisor.engine.maintenance import MaintenanceLoop, resend_queued
+from supervisor.engine.runtime import Runtime
+from supervisor.inspections.router import router as inspections_router
+from supervisor.jobs.router import router as jobs_router
+from supervisor.judgments.router import router as judgments_router
+from supervisor.migrate import current_revision, head_revision
+from supervisor.problems import install_problem_handlers
+from supervisor.settings import Settings, get_settings
+from supervisor.users.router import router as users_router
+
+log = logging.getLogger("vista")
+API_PREFIX = "/api/v1"
+
+
+class SchemaOutOfDate(RuntimeError):
+    pass
+
+
+def check_schema(url: str) -> None:
+    current, head = current_revision(url), head_revision()
+    if current != head:
+        raise SchemaOutOfDate(
+            f"the database is at migration {current or 'none'} but this vista needs {head}: "
+            "run `vista migrate` first"
+        )
+
+
+def create_app(
+    settings: Settings | None = None, *, runtime: Runtime | None = None, run_engine: bool = True
+) -> FastAPI:
+    """The API. With ``run_engine`` it also runs the job engine's background parts:
+    the embedded worker pool (no broker) and the maintenance loop."""
+    settings = settings or get_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):  # noqa: ANN202
+        rt = runtime or Runtime.create(settings)
+        check_schema(rt.db.url)
+        app.state.runtime = rt
+        pool, loop = None, None
+        if run_engine:
+            if rt.dispatcher.polls_database and settings.embedded_workers > 0:
+                pool = EmbeddedPool(settings, settings.embedded_workers)
+                pool.start()
+            resend_queued(rt, only_undispatched=False)
+            loop = MaintenanceLoop(rt)
+            loop.start()
+        app.state.pool = pool
+        try:
+            yield
+        finally:
+            if loop is not None:
+                loop.stop()
+            if pool is not None:
+                pool.stop()
+            if runtime is None:
+                rt.db.dispose()
+
+    app = FastAPI(
+        title="vista supervisor",
+        version="1.0",
+        summary="Inspections, artifacts, processing runs, defects and reviewers' judgments.",
+        lifespan=lifespan,
+        openapi_url=f"{API_PREFIX}/openapi.json",
+        docs_url="/docs",
+    )
+    install_problem_handlers(app)
+    api = APIRouter(prefix=API_PREFIX)
+    for router in (
+        auth_router,
+        users_router,
+        inspections_router,
+        artifacts_router,
+        jobs_router,
+        defects_router,
+        judgments_router,
+    ):
+        api.include_router(router)
+    app.include_router(api)
+    app.include_router(health.router, include_in_schema=False)
+    app.include_router(health.router, prefix=API_PREFIX)
+    return app

@@ -1,0 +1,32 @@
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, ConfigDict
+
+ARTIFACT_KIND_PATTERN = r"^[a-z][a-z0-9_.-]{0,31}$"
+MEDIA_TYPES = {
+    "application/x-ply": ".ply",
+    "application/json": ".json",
+    "application/octet-stream": "",
+    "image/png": ".png",
+    "text/plain": ".txt",
+    "text/csv": ".csv",
+    "model/gltf-binary": ".glb",
+}
+
+
+class ArtifactOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    inspection_id: int
+    kind: str
+    name: str
+    media_type: str
+    size_bytes: int
+    sha256: str
+    meta: dict
+    job_id: int | None
+    created_by: int | None
+    created_at: datetime

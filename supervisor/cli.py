@@ -1,0 +1,183 @@
+"""The ``vista`` command."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from pathlib import Path
+
+import typer
+
+from supervisor.settings import get_settings
+
+app = typer.Typer(
+    help="vista: 3D inspection — supervisor, job workers, benchmarks.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+)
+user_app = typer.Typer(help="Manage users.", no_args_is_help=True)
+bench_app = typer.Typer(help="Benchmarks: print a table and write JSON.", no_args_is_help=True)
+app.add_typer(user_app, name="user")
+app.add_typer(bench_app, name="bench")
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+@app.command()
+def migrate(revision: str = typer.Option("head", help="Target revision.")) -> None:
+    """Create or upgrade the database schema (VISTA_DATABASE_URL, default a SQLite file)."""
+    from supervisor.migrate import current_revision, upgrade
+
+    settings = get_settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    url = settings.resolved_database_url
+    try:
+        upgrade(url, revision)
+    except Exception as exc:  # noqa: BLE001 - shown to the user
+        _fail(f"migration failed on {_redact(url)}: {exc}")
+    typer.echo(f"database {_redact(url)} is at migration {current_revision(url)}")
+
+
+def _redact(url: str) -> str:
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)
+
+
+@app.command()
+def serve(
+    host: str = typer.Option(None, help="Default VISTA_HOST (127.0.0.1)."),
+    port: int = typer.Option(None, help="Default VISTA_PORT (8000)."),
+) -> None:
+    """Serve the supervisor API (and, without a broker, the embedded job engine)."""
+    import uvicorn
+
+    from supervisor.app import SchemaOutOfDate, check_schema, create_app
+
+    settings = get_settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        check_schema(settings.resolved_database_url)
+    except SchemaOutOfDate as exc:
+        _fail(str(exc))
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    engine = (
+        f"dramatiq via {_redact(settings.broker_url)}"
+        if settings.broker_url
+        else (f"embedded, {settings.embedded_workers} worker processes")
+    )
+    typer.echo(
+        f"vista supervisor on http://{host or settings.host}:{port or settings.port} "
+        f"(database {_redact(settings.resolved_database_url)}; jobs {engine})"
+    )
+    uvicorn.run(
+        create_app(settings),
+        host=host or settings.host,
+        port=port or settings.port,
+        log_level="info",
+    )
+
+
+@app.command()
+def worker(
+    queues: str = typer.Option(None, help="Comma-separated queues; default all."),
+    processes: int = typer.Option(1, min=1, help="Worker processes."),
+    threads: int = typer.Option(1, min=1, help="Threads per process (jobs at once each)."),
+) -> None:
+    """Run Dramatiq workers for the given queues (needs VISTA_BROKER_URL)."""
+    from supervisor.engine.registry import load_kinds
+    from supervisor.engine.registry import queues as known_queues
+
+    settings = get_settings()
+    if not settings.broker_url:
+        _fail(
+            "vista worker needs VISTA_BROKER_URL (redis://… or amqp://…); without a broker "
+            "`vista serve` runs jobs itself"
+        )
+    load_kinds(settings.extra_job_kinds)
+    available = known_queues()
+    wanted = [q.strip() for q in queues.split(",") if q.strip()] if queues else available
+    unknown = sorted(set(wanted) - set(available))
+    if unknown:
+        _fail(f"unknown queue(s) {unknown}; the queues are {available}")
+    args = [
+        sys.executable,
+        "-m",
+        "dramatiq",
+        "supervisor.engine.worker_app",
+        "--processes",
+        str(processes),
+        "--threads",
+        str(threads),
+        "--queues",
+        *wanted,
+    ]
+    typer.echo(f"vista worker: queues {wanted}, {processes} process(es) x {threads} thread(s)")
+    sys.stdout.flush()
+    os.execv(sys.executable, args)
+
+
+@user_app.command("create")
+def user_create(
+    name: str = typer.Argument(..., help="Username."),
+    role: str = typer.Option(..., help="admin, inspector, viewer or device."),
+    password: bool = typer.Option(False, "--password", help="Ask for a password to sign in with."),
+    token_name: str = typer.Option("cli", help="Name of the token printed."),
+) -> None:
+    """Create a user and print an API token for it (shown once)."""
+    from supervisor.db import Database
+    from supervisor.models import ROLES_ALL
+    from supervisor.problems import Problem
+    from supervisor.users.service import create_token, create_user
+
+    if role not in ROLES_ALL:
+        _fail(f"--role must be one of {', '.join(ROLES_ALL)}, not {role!r}")
+    secret = (
+        typer.prompt("password", hide_input=True, confirmation_prompt=True) if password else None
+    )
+    if secret is not None and len(secret) < 8:
+        _fail("the password needs at least 8 characters")
+    db = Database(get_settings().resolved_database_url)
+    try:
+        with db.write() as session:
+            user = create_user(session, username=name, role=role, password=secret)
+            kind = "device" if role == "device" else "cli"
+            token = create_token(session, user=user, name=token_name, kind=kind, ttl_hours=None)
+    except Problem as exc:
+        _fail(exc.detail)
+    finally:
+        db.dispose()
+    typer.echo(token)
+
+
+@bench_app.command("api")
+def bench_api(
+    out: Path = typer.Option(Path("bench-results/api.json"), help="Where to write the JSON."),
+    clients: int = typer.Option(32, min=1, help="Concurrent clients writing judgments."),
+    seconds: float = typer.Option(10.0, min=1, help="Duration of the write test per database."),
+    defects: int = typer.Option(10_000, min=200, help="Defects in the paged inspection."),
+    postgres_url: str = typer.Option(
+        None, help="PostgreSQL URL for the second run; default VISTA_TEST_DATABASE_URL."
+    ),
+) -> None:
+    """Judgment writes/s and latency with concurrent clients, and defect-page latency, on
+    SQLite and PostgreSQL, each against a real `vista serve` process."""
+    from supervisor.bench.api import run_api_bench
+
+    run_api_bench(
+        out=out,
+        clients=clients,
+        seconds=seconds,
+        defects=defects,
+        postgres_url=postgres_url or os.environ.get("VISTA_TEST_DATABASE_URL"),
+    )
+
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,90 @@
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Query, Request
+from fastapi.responses import JSONResponse
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from supervisor.defects import service
+from supervisor.defects.schemas import (
+    DefectCreate,
+    DefectOut,
+    DefectStatus,
+    DefectType,
+    DefectUpdate,
+)
+from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_session, require
+from supervisor.idempotency import create_once, digest_model
+from supervisor.models import Defect
+from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+
+router = APIRouter(tags=["defects"])
+readers = require(*READ_ROLES, action="read defects")
+editors = require(*EDIT_ROLES, action="report or update defects")
+
+
+@router.get("/defects", response_model=Page[DefectOut])
+def list_defects(
+    inspection: int | None = Query(None, description="Only this inspection's defects."),
+    run: int | None = Query(None, description="Only defects found by this run."),
+    type: DefectType | None = Query(None),
+    status: DefectStatus | None = Query(None),
+    cursor: str | None = None,
+    limit: int = Query(DEFAULT_LIMIT, ge=1, le=MAX_LIMIT),
+    session: Session = Depends(get_session),
+    _: CurrentUser = Depends(readers),
+) -> Page[DefectOut]:
+    """Defects in id order, each with its reviewers' consensus; follow ``next_cursor``."""
+    query = select(Defect).where(Defect.id > decode_cursor(cursor))
+    if inspection is not None:
+        query = query.where(Defect.inspection_id == inspection)
+    if run is not None:
+        query = query.where(Defect.run_id == run)
+    if type is not None:
+        query = query.where(Defect.type == type)
+    if status is not None:
+        query = query.where(Defect.status == status)
+    rows = session.scalars(query.order_by(Defect.id).limit(limit + 1)).all()
+    return Page[DefectOut](
+        items=service.defects_out(session, list(rows[:limit])), next_cursor=next_cursor(rows, limit)
+    )
+
+
+@router.post("/defects", status_code=201, response_model=DefectOut)
+def report_defect(
+    body: DefectCreate,
+    request: Request,
+    session: Session = Depends(get_session),
+    user: CurrentUser = Depends(editors),
+) -> JSONResponse:
+    """Report a finding by hand (an inspector saw it; no job measured it)."""
+
+    def create():  # noqa: ANN202
+        defect = service.create(session, data=body, user_id=user.id)
+        out = service.defects_out(session, [defect])[0].model_dump(mode="json")
+        return out, f"/api/v1/defects/{defect.id}"
+
+    return create_once(
+        request, session, user_id=user.id, body_digest=digest_model(body), create=create
+    )
+
+
+@router.get("/defects/{defect_id}", response_model=DefectOut)
+def get_defect(
+    defect_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+) -> DefectOut:
+    return service.defects_out(session, [service.get(session, defect_id=defect_id)])[0]
+
+
+@router.patch("/defects/{defect_id}", response_model=DefectOut)
+def update_defect(
+    defect_id: int,
+    body: DefectUpdate,
+    session: Session = Depends(get_session),
+    user: CurrentUser = Depends(editors),
+) -> DefectOut:
+    """Move a defect through its workflow: open → resolved (repaired) or dismissed."""
+    defect = service.set_status(session, defect_id=defect_id, status=body.status, user_id=user.id)
+    out = service.defects_out(session, [defect])[0]
+    session.commit()
+    return out

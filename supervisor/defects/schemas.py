@@ -1,0 +1,78 @@
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
+DefectStatus = Literal["open", "resolved", "dismissed"]
+Severity = Literal["info", "minor", "major", "critical"]
+Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
+Vector3 = tuple[float, float, float]
+
+
+class Consensus(BaseModel):
+    """What reviewers think of a defect, from each user's current judgment."""
+
+    counts: dict[Verdict, int]
+    total: int
+    majority: Verdict | None = Field(description="The verdict with strictly the most votes.")
+    agreement: float = Field(description="Share of judgments that agree with the majority.")
+    needs_review: bool = Field(
+        description="Judgments are split: no strict majority, the majority is 'uncertain', "
+        "or fewer than two thirds agree."
+    )
+    reclassified_as: dict[str, int] = Field(default_factory=dict)
+
+
+class DefectCreate(BaseModel):
+    """A finding reported by hand (jobs add theirs directly)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    inspection_id: int
+    type: DefectType
+    location_mm: Vector3
+    normal: Vector3 = (0.0, 0.0, 1.0)
+    value_mm: float | None = None
+    tolerance_mm: float | None = None
+    extent_mm: float = Field(0.0, ge=0, le=1e6)
+    severity: Severity = "minor"
+    confidence: float = Field(1.0, ge=0, le=1)
+
+    @field_validator("location_mm", "normal", "value_mm", "tolerance_mm")
+    @classmethod
+    def _finite(cls, value):  # noqa: ANN001, ANN206
+        values = value if isinstance(value, tuple) else (value,)
+        if any(v is not None and (v != v or abs(v) == float("inf")) for v in values):
+            raise ValueError("must be finite")
+        return value
+
+
+class DefectUpdate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    status: DefectStatus
+
+
+class DefectOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    inspection_id: int
+    run_id: int | None
+    job_id: int | None
+    type: DefectType
+    status: DefectStatus
+    value_mm: float | None
+    tolerance_mm: float | None
+    measurements: dict
+    location_mm: list[float]
+    normal: list[float]
+    extent_mm: float
+    severity: Severity
+    confidence: float
+    source: str
+    created_at: datetime
+    consensus: Consensus | None = None

@@ -1,0 +1,186 @@
+"""What a job handler sees: its parameters and inputs, progress, cancellation, outputs.
+
+Outputs (artifacts, defects) are staged while the handler runs and recorded in the same
+transaction that marks the job succeeded, so a failed or lost attempt leaves nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+from sqlalchemy import select, update
+
+from supervisor.engine.errors import JobCancelled, JobLost
+from supervisor.models import Job
+from supervisor.models._types import utcnow
+from supervisor.storage import StoredFile
+
+PROGRESS_WRITE_INTERVAL_S = 0.25
+
+
+@dataclass(frozen=True)
+class InputArtifact:
+    id: int
+    kind: str
+    name: str
+    media_type: str
+    path: Path
+    meta: dict
+    job_id: int | None
+
+
+@dataclass(frozen=True)
+class JobClaim:
+    """A job this worker has claimed for one attempt."""
+
+    id: int
+    kind: str
+    queue: str
+    step: str
+    run_id: int
+    inspection_id: int
+    params: dict
+    attempt: int
+    max_attempts: int
+    inputs: tuple[InputArtifact, ...]
+
+
+@dataclass(frozen=True)
+class StagedArtifact:
+    kind: str
+    name: str
+    media_type: str
+    stored: StoredFile
+    meta: dict
+
+
+@dataclass(frozen=True)
+class NewDefect:
+    """A finding a job reports; lengths in mm, ``normal`` a unit vector."""
+
+    type: str
+    location_mm: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    value_mm: float | None
+    tolerance_mm: float | None
+    extent_mm: float
+    severity: str
+    confidence: float
+    measurements: dict = field(default_factory=dict)
+
+
+class StopSignal:
+    """Set by the heartbeat thread or a progress write; read by the handler."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        self.reason: type[Exception] | None = None
+        self.detail = ""
+
+    def set(self, reason: type[Exception], detail: str) -> None:
+        if not self._event.is_set():
+            self.reason, self.detail = reason, detail
+            self._event.set()
+
+    def raise_if_set(self) -> None:
+        if self._event.is_set() and self.reason is not None:
+            raise self.reason(self.detail)
+
+    def wait(self, seconds: float) -> bool:
+        return self._event.wait(seconds)
+
+
+class JobContext:
+    def __init__(self, runtime: Any, claim: JobClaim, params: BaseModel, stop: StopSignal) -> None:
+        self._runtime = runtime
+        self.claim = claim
+        self.params = params
+        self.stop = stop
+        self.staged: list[StagedArtifact] = []
+        self.defects: list[NewDefect] = []
+        self._last_write = 0.0
+        self._workdir: Path | None = None
+
+    @property
+    def job_id(self) -> int:
+        return self.claim.id
+
+    @property
+    def inputs(self) -> tuple[InputArtifact, ...]:
+        return self.claim.inputs
+
+    def inputs_of_kind(self, *kinds: str) -> list[InputArtifact]:
+        return [a for a in self.claim.inputs if a.kind in kinds]
+
+    @property
+    def workdir(self) -> Path:
+        """A scratch folder for this attempt, removed when it ends."""
+        if self._workdir is None:
+            self._workdir = Path(tempfile.mkdtemp(prefix=f"vista-job{self.claim.id}-"))
+        return self._workdir
+
+    def check_cancelled(self) -> None:
+        self.stop.raise_if_set()
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        """Report progress (0..1); raises ``JobCancelled`` once cancellation was asked."""
+        self.stop.raise_if_set()
+        now = time.monotonic()
+        if now - self._last_write < PROGRESS_WRITE_INTERVAL_S and fraction < 1.0:
+            return
+        self._last_write = now
+        self._write_progress(min(max(float(fraction), 0.0), 1.0), message)
+        self.stop.raise_if_set()
+
+    def _write_progress(self, fraction: float, message: str) -> None:
+        claim = self.claim
+        with self._runtime.db.write() as session:
+            values: dict[str, Any] = {"progress": fraction, "heartbeat_at": utcnow()}
+            if message:
+                values["message"] = message[:2000]
+            updated = session.execute(
+                update(Job)
+                .where(Job.id == claim.id, Job.status == "running", Job.attempts == claim.attempt)
+                .values(**values)
+            ).rowcount
+            cancel = session.scalar(select(Job.cancel_requested).where(Job.id == claim.id))
+        if not updated:
+            self.stop.set(JobLost, "another worker took this job over")
+        elif cancel:
+            self.stop.set(JobCancelled, "cancelled on request")
+
+    def add_artifact_file(
+        self, path: Path, *, kind: str, name: str, media_type: str, meta: dict | None = None
+    ) -> None:
+        stored = self._runtime.storage.put_file(
+            Path(path), inspection_id=self.claim.inspection_id, name=name
+        )
+        self.staged.append(StagedArtifact(kind, name, media_type, stored, meta or {}))
+
+    def add_artifact_json(self, data: dict, *, kind: str, name: str) -> None:
+        payload = json.dumps(data, indent=2, sort_keys=True).encode()
+        stored = self._runtime.storage.put_bytes(
+            payload, inspection_id=self.claim.inspection_id, name=name
+        )
+        self.staged.append(StagedArtifact(kind, name, "application/json", stored, {}))
+
+    def add_defect(self, defect: NewDefect) -> None:
+        self.defects.append(defect)
+
+    def discard_outputs(self) -> None:
+        for artifact in self.staged:
+            self._runtime.storage.delete(artifact.stored.uri)
+        self.staged.clear()
+        self.defects.clear()
+
+    def close(self) -> None:
+        if self._workdir is not None:
+            shutil.rmtree(self._workdir, ignore_errors=True)

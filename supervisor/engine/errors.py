@@ -1,0 +1,33 @@
+"""Exceptions a job handler raises to say how its attempt ended."""
+
+from __future__ import annotations
+
+from sqlalchemy.exc import DBAPIError, OperationalError
+
+
+class JobCancelled(Exception):
+    """Raised inside a handler (by ``JobContext.progress``) once cancellation was asked."""
+
+
+class JobTimeLimit(Exception):
+    """Raised inside a handler once the attempt ran past the configured time limit."""
+
+
+class JobLost(Exception):
+    """Raised inside a handler when another worker has taken the job over."""
+
+
+class TransientJobError(Exception):
+    """A failure worth retrying (a resource briefly unavailable); retried with backoff."""
+
+
+class JobInputError(Exception):
+    """The job's inputs cannot be processed; the job fails at once with this message."""
+
+
+def is_transient(exc: BaseException) -> bool:
+    if isinstance(exc, TransientJobError | ConnectionError | TimeoutError):
+        return True
+    if isinstance(exc, OperationalError):
+        return True
+    return isinstance(exc, DBAPIError) and bool(exc.connection_invalidated)

@@ -1,0 +1,390 @@
+"""``run_job(job_id)``: the one function that executes a job, on any engine.
+
+1. Claim the row atomically (``UPDATE … WHERE status='queued'``); if that changes no
+   row the job is finished, cancelled or running elsewhere and this call does nothing.
+2. Run the registered handler with a ``JobContext`` while a heartbeat thread keeps the
+   row alive, watches for cancellation and enforces the time limit.
+3. Record outputs, defects and the final status in one transaction guarded by the
+   attempt number, so a worker that was presumed dead cannot overwrite its successor.
+4. After commit, send the jobs that this one's success made ready.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import traceback
+from datetime import timedelta
+from functools import lru_cache
+
+from pydantic import ValidationError
+from sqlalchemy import func, insert, or_, select, update
+from sqlalchemy.orm import Session
+
+from supervisor.changes import record_change
+from supervisor.engine.context import (
+    InputArtifact,
+    JobClaim,
+    JobContext,
+    StopSignal,
+)
+from supervisor.engine.dispatch import Dispatch, dispatch
+from supervisor.engine.errors import JobCancelled, JobLost, JobTimeLimit, is_transient
+from supervisor.engine.registry import get_kind
+from supervisor.engine.runtime import Runtime, worker_name
+from supervisor.models import Artifact, Defect, Job, JobDependency
+from supervisor.models._types import utcnow
+from supervisor.settings import get_settings
+
+log = logging.getLogger("vista.engine")
+
+
+@lru_cache
+def _default_runtime() -> Runtime:
+    return Runtime.create(get_settings())
+
+
+def run_job(job_id: int, *, runtime: Runtime | None = None) -> str:
+    """Execute job ``job_id`` once if it is queued; returns the status it ended in."""
+    rt = runtime or _default_runtime()
+    claim = claim_job(rt, job_id)
+    if claim is None:
+        return "skipped"
+    kind = get_kind(claim.kind)
+    stop = StopSignal()
+    try:
+        if kind is None:
+            raise LookupError(f"job kind {claim.kind!r} is not known to this worker")
+        params = kind.params.model_validate(claim.params)
+    except (LookupError, ValidationError) as exc:
+        return _end_failed(rt, claim, f"{type(exc).__name__}: {exc}")
+    ctx = JobContext(rt, claim, params, stop)
+    beat = _Heartbeat(rt, claim, stop)
+    beat.start()
+    try:
+        result = kind.load_handler()(ctx)
+    except BaseException as exc:  # noqa: BLE001 - every way out is recorded
+        beat.stop()
+        ctx.discard_outputs()
+        return _end_after_error(rt, claim, exc)
+    finally:
+        beat.stop()
+        ctx.close()
+    return _end_succeeded(rt, claim, ctx, result or {})
+
+
+def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:
+    now = utcnow()
+    with rt.db.write() as session:
+        claimed = session.execute(
+            update(Job)
+            .where(
+                Job.id == job_id,
+                Job.status == "queued",
+                or_(Job.not_before.is_(None), Job.not_before <= now),
+            )
+            .values(
+                status="running",
+                attempts=Job.attempts + 1,
+                started_at=now,
+                heartbeat_at=now,
+                worker=worker_name(),
+                progress=0.0,
+                message="started",
+                error=None,
+                cancel_requested=False,
+            )
+        ).rowcount
+        if claimed != 1:
+            return None
+        job = session.get(Job, job_id)
+        assert job is not None
+        record_change(
+            session, entity="job", entity_id=job.id, op="update", inspection_id=job.inspection_id
+        )
+        return JobClaim(
+            id=job.id,
+            kind=job.kind,
+            queue=job.queue,
+            step=job.step,
+            run_id=job.run_id,
+            inspection_id=job.inspection_id,
+            params=dict(job.params or {}),
+            attempt=job.attempts,
+            max_attempts=job.max_attempts,
+            inputs=_inputs(rt, session, job),
+        )
+
+
+def _inputs(rt: Runtime, session: Session, job: Job) -> tuple[InputArtifact, ...]:
+    upstream = select(JobDependency.depends_on_id).where(JobDependency.job_id == job.id)
+    rows = session.scalars(
+        select(Artifact)
+        .where(or_(Artifact.id.in_(job.input_artifact_ids or []), Artifact.job_id.in_(upstream)))
+        .order_by(Artifact.id)
+    ).all()
+    return tuple(
+        InputArtifact(
+            id=a.id,
+            kind=a.kind,
+            name=a.name,
+            media_type=a.media_type,
+            path=rt.storage.path(a.storage_uri),
+            meta=dict(a.meta or {}),
+            job_id=a.job_id,
+        )
+        for a in rows
+    )
+
+
+class _Heartbeat:
+    """Beats every ``heartbeat_interval_s``; flags cancellation, loss and the time limit."""
+
+    def __init__(self, rt: Runtime, claim: JobClaim, stop: StopSignal) -> None:
+        self._rt, self._claim, self._stop = rt, claim, stop
+        self._done = threading.Event()
+        self._thread = threading.Thread(
+            target=self._loop, name=f"heartbeat-{claim.id}", daemon=True
+        )
+        self._started = time.monotonic()
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._done.set()
+        if self._thread.is_alive() and threading.current_thread() is not self._thread:
+            self._thread.join(timeout=10)
+
+    def _loop(self) -> None:
+        interval = self._rt.settings.heartbeat_interval_s
+        limit = self._rt.settings.job_time_limit_s
+        claim = self._claim
+        while not self._done.wait(interval):
+            if time.monotonic() - self._started > limit:
+                self._stop.set(JobTimeLimit, f"the attempt ran past the time limit of {limit} s")
+            try:
+                with self._rt.db.write() as session:
+                    alive = session.execute(
+                        update(Job)
+                        .where(
+                            Job.id == claim.id,
+                            Job.status == "running",
+                            Job.attempts == claim.attempt,
+                        )
+                        .values(heartbeat_at=utcnow())
+                    ).rowcount
+                    cancel = session.scalar(select(Job.cancel_requested).where(Job.id == claim.id))
+            except Exception:  # noqa: BLE001 - a missed beat is retried next interval
+                log.warning("heartbeat of job %s failed", claim.id, exc_info=True)
+                continue
+            if not alive:
+                self._stop.set(JobLost, "another worker took this job over")
+            elif cancel:
+                self._stop.set(JobCancelled, "cancelled on request")
+
+
+def _guarded(claim: JobClaim):  # noqa: ANN202 - an UPDATE statement
+    return update(Job).where(
+        Job.id == claim.id, Job.status == "running", Job.attempts == claim.attempt
+    )
+
+
+def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: JobContext, result: dict) -> str:
+    with rt.db.write() as session:
+        done = session.execute(
+            _guarded(claim).values(
+                status="succeeded",
+                progress=1.0,
+                result=result,
+                message="done",
+                finished_at=utcnow(),
+            )
+        ).rowcount
+        if not done:
+            session.rollback()
+            ctx.discard_outputs()
+            return "lost"
+        _store_outputs(session, claim, ctx)
+        ready = _promote_dependents(session, claim.id)
+        record_change(
+            session,
+            entity="job",
+            entity_id=claim.id,
+            op="update",
+            inspection_id=claim.inspection_id,
+        )
+    dispatch(rt.db, rt.dispatcher, ready)
+    return "succeeded"
+
+
+def _store_outputs(session: Session, claim: JobClaim, ctx: JobContext) -> None:
+    for staged in ctx.staged:
+        artifact_id = session.execute(
+            insert(Artifact)
+            .values(
+                inspection_id=claim.inspection_id,
+                kind=staged.kind,
+                name=staged.name,
+                media_type=staged.media_type,
+                size_bytes=staged.stored.size_bytes,
+                sha256=staged.stored.sha256,
+                storage_uri=staged.stored.uri,
+                meta=staged.meta,
+                job_id=claim.id,
+            )
+            .returning(Artifact.id)
+        ).scalar_one()
+        record_change(
+            session,
+            entity="artifact",
+            entity_id=artifact_id,
+            op="create",
+            inspection_id=claim.inspection_id,
+        )
+    for defect in ctx.defects:
+        defect_id = session.execute(
+            insert(Defect)
+            .values(
+                inspection_id=claim.inspection_id,
+                run_id=claim.run_id,
+                job_id=claim.id,
+                type=defect.type,
+                value_mm=defect.value_mm,
+                tolerance_mm=defect.tolerance_mm,
+                measurements=defect.measurements,
+                location_mm=list(defect.location_mm),
+                normal=list(defect.normal),
+                extent_mm=defect.extent_mm,
+                severity=defect.severity,
+                confidence=defect.confidence,
+            )
+            .returning(Defect.id)
+        ).scalar_one()
+        record_change(
+            session,
+            entity="defect",
+            entity_id=defect_id,
+            op="create",
+            inspection_id=claim.inspection_id,
+        )
+
+
+def _promote_dependents(session: Session, job_id: int) -> list[Dispatch]:
+    """Queue the waiting jobs whose dependencies have now all succeeded."""
+    dependents = session.scalars(
+        select(JobDependency.job_id).where(JobDependency.depends_on_id == job_id)
+    ).all()
+    ready = []
+    for dependent_id in dependents:
+        # Lock the dependent first: two dependencies finishing at once must not both
+        # see the other as unfinished and leave the dependent waiting forever.
+        job = session.scalar(select(Job).where(Job.id == dependent_id).with_for_update())
+        if job is None or job.status != "waiting":
+            continue
+        unfinished = session.scalar(
+            select(func.count())
+            .select_from(JobDependency)
+            .join(Job, Job.id == JobDependency.depends_on_id)
+            .where(JobDependency.job_id == dependent_id, Job.status != "succeeded")
+        )
+        if unfinished == 0:
+            job.status = "queued"
+            job.message = "ready"
+            record_change(
+                session,
+                entity="job",
+                entity_id=job.id,
+                op="update",
+                inspection_id=job.inspection_id,
+            )
+            ready.append(Dispatch(job.id, job.queue))
+    return ready
+
+
+def cancel_dependents(session: Session, job_id: int, reason: str) -> None:
+    """Cancel every job downstream of ``job_id`` that has not started."""
+    frontier = [job_id]
+    while frontier:
+        children = session.scalars(
+            select(JobDependency.job_id).where(JobDependency.depends_on_id.in_(frontier))
+        ).all()
+        frontier = []
+        for child in session.scalars(
+            select(Job).where(Job.id.in_(children), Job.status.in_(("waiting", "queued")))
+        ):
+            child.status = "cancelled"
+            child.message = reason
+            child.finished_at = utcnow()
+            record_change(
+                session,
+                entity="job",
+                entity_id=child.id,
+                op="update",
+                inspection_id=child.inspection_id,
+            )
+            frontier.append(child.id)
+
+
+def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str | None) -> str:
+    with rt.db.write() as session:
+        done = session.execute(
+            _guarded(claim).values(
+                status=status, message=message, error=error, finished_at=utcnow()
+            )
+        ).rowcount
+        if not done:
+            return "lost"
+        cancel_dependents(
+            session, claim.id, f"not run: step '{claim.step}' (job {claim.id}) {status}"
+        )
+        record_change(
+            session,
+            entity="job",
+            entity_id=claim.id,
+            op="update",
+            inspection_id=claim.inspection_id,
+        )
+    return status
+
+
+def _end_failed(rt: Runtime, claim: JobClaim, error: str) -> str:
+    return _end(rt, claim, status="failed", message="failed", error=error)
+
+
+def _end_after_error(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
+    if isinstance(exc, JobLost):
+        return "lost"
+    if isinstance(exc, JobCancelled):
+        return _end(rt, claim, status="cancelled", message=str(exc), error=None)
+    if isinstance(exc, JobTimeLimit):
+        return _end_failed(rt, claim, str(exc))
+    if is_transient(exc) and claim.attempt < claim.max_attempts:
+        return _requeue(rt, claim, exc)
+    if not isinstance(exc, Exception):
+        log.error("job %s interrupted by %s", claim.id, type(exc).__name__)
+        _end_failed(rt, claim, f"interrupted by {type(exc).__name__}")
+        raise exc
+    log.warning("job %s failed", claim.id, exc_info=exc)
+    summary = f"{type(exc).__name__}: {exc}"
+    detail = "".join(traceback.format_exception(exc)[-6:])
+    return _end_failed(rt, claim, f"{summary}\n\n{detail}")
+
+
+def _requeue(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
+    delay_s = rt.settings.retry_backoff_s * 2 ** (claim.attempt - 1)
+    with rt.db.write() as session:
+        done = session.execute(
+            _guarded(claim).values(
+                status="queued",
+                not_before=utcnow() + timedelta(seconds=delay_s),
+                dispatched_at=None,
+                worker=None,
+                message=f"retrying in {delay_s:.0f} s after: {type(exc).__name__}: {exc}"[:2000],
+            )
+        ).rowcount
+        if not done:
+            return "lost"
+    dispatch(rt.db, rt.dispatcher, [Dispatch(claim.id, claim.queue, delay_s)])
+    return "queued"

@@ -1,0 +1,89 @@
+from __future__ import annotations
+
+from sqlalchemy import exists, select
+from sqlalchemy.orm import Session
+
+from supervisor.changes import record_change
+from supervisor.inspections.schemas import InspectionCreate, InspectionUpdate
+from supervisor.models import Inspection, Job
+from supervisor.problems import Problem, not_found
+
+
+def get(session: Session, *, inspection_id: int) -> Inspection:
+    inspection = session.get(Inspection, inspection_id)
+    if inspection is None:
+        raise not_found("inspection", inspection_id)
+    return inspection
+
+
+def create(session: Session, *, data: InspectionCreate, user_id: int) -> Inspection:
+    inspection = Inspection(
+        title=data.title,
+        aircraft=data.aircraft,
+        serial=data.serial,
+        area=data.area,
+        tolerances=data.tolerances.model_dump(mode="json", exclude_none=True),
+        status=data.status,
+        created_by=user_id,
+    )
+    session.add(inspection)
+    session.flush()
+    record_change(
+        session,
+        entity="inspection",
+        entity_id=inspection.id,
+        op="create",
+        inspection_id=inspection.id,
+        user_id=user_id,
+    )
+    return inspection
+
+
+def update(
+    session: Session, *, inspection_id: int, data: InspectionUpdate, user_id: int
+) -> Inspection:
+    inspection = get(session, inspection_id=inspection_id)
+    changes = data.model_dump(exclude_unset=True)
+    for field in ("title", "area", "status"):
+        if field in changes and changes[field] is None:
+            raise Problem(422, f"{field} cannot be null.")
+    if "tolerances" in changes:
+        changes["tolerances"] = (
+            data.tolerances.model_dump(mode="json", exclude_none=True) if data.tolerances else {}
+        )
+    for field, value in changes.items():
+        setattr(inspection, field, value if value is not None else "")
+    session.flush()
+    record_change(
+        session,
+        entity="inspection",
+        entity_id=inspection.id,
+        op="update",
+        inspection_id=inspection.id,
+        user_id=user_id,
+    )
+    return inspection
+
+
+def delete(session: Session, *, inspection_id: int, user_id: int) -> None:
+    inspection = get(session, inspection_id=inspection_id)
+    busy = session.scalar(
+        select(
+            exists().where(
+                Job.inspection_id == inspection_id, Job.status.in_(("queued", "running"))
+            )
+        )
+    )
+    if busy:
+        raise Problem(
+            409, f"Inspection {inspection_id} has queued or running jobs; cancel them first."
+        )
+    session.delete(inspection)
+    record_change(
+        session,
+        entity="inspection",
+        entity_id=inspection_id,
+        op="delete",
+        inspection_id=inspection_id,
+        user_id=user_id,
+    )

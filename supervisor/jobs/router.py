@@ -1,0 +1,225 @@
+"""Runs (the processing timeline of an inspection) and their jobs."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse, StreamingResponse
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_runtime, get_session, require
+from supervisor.engine.dispatch import dispatch
+from supervisor.engine.registry import load_kinds
+from supervisor.engine.runtime import Runtime
+from supervisor.idempotency import create_once, digest_model
+from supervisor.inspections.service import get as get_inspection
+from supervisor.jobs import service
+from supervisor.jobs.schemas import JobKindOut, JobOut, JobStatus, RunCreate, RunOut
+from supervisor.models import Job, Run
+from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+
+router = APIRouter(tags=["runs and jobs"])
+readers = require(*READ_ROLES, action="read runs and jobs")
+operators = require(*EDIT_ROLES, action="start, cancel or retry jobs")
+TERMINAL = ("succeeded", "failed", "cancelled")
+EVENT_POLL_S = 0.5
+EVENT_KEEPALIVE_S = 15.0
+
+
+@router.get("/job-kinds", response_model=list[JobKindOut])
+def list_job_kinds(
+    runtime: Runtime = Depends(get_runtime), _: CurrentUser = Depends(readers)
+) -> list[JobKindOut]:
+    """The job kinds a run's steps may use, with the JSON schema of their params."""
+    kinds = load_kinds(runtime.settings.extra_job_kinds)
+    return [
+        JobKindOut(
+            name=k.name,
+            queue=k.queue,
+            description=k.description,
+            input_kinds=list(k.input_kinds),
+            params_schema=k.params.model_json_schema(),
+        )
+        for k in sorted(kinds.values(), key=lambda k: k.name)
+    ]
+
+
+@router.post("/inspections/{inspection_id}/runs", status_code=201, response_model=RunOut)
+def create_run(
+    inspection_id: int,
+    body: RunCreate,
+    request: Request,
+    session: Session = Depends(get_session),
+    runtime: Runtime = Depends(get_runtime),
+    user: CurrentUser = Depends(operators),
+) -> JSONResponse:
+    """Create a run from ordered steps; a step starts when the steps in its ``after`` have
+    succeeded, and receives their output artifacts as inputs."""
+    get_inspection(session, inspection_id=inspection_id)
+    ready = []
+
+    def create():  # noqa: ANN202
+        run, to_send = service.create_run(
+            session,
+            inspection_id=inspection_id,
+            data=body,
+            user_id=user.id,
+            max_attempts=runtime.settings.job_max_attempts,
+        )
+        ready.extend(to_send)
+        return service.run_out(session, run).model_dump(mode="json"), f"/api/v1/runs/{run.id}"
+
+    return create_once(
+        request,
+        session,
+        user_id=user.id,
+        body_digest=f"{inspection_id}:{digest_model(body)}",
+        create=create,
+        after_commit=lambda: dispatch(runtime.db, runtime.dispatcher, ready),
+    )
+
+
+@router.get("/inspections/{inspection_id}/runs", response_model=Page[RunOut])
+def list_runs(
+    inspection_id: int,
+    cursor: str | None = None,
+    limit: int = 20,
+    session: Session = Depends(get_session),
+    _: CurrentUser = Depends(readers),
+) -> Page[RunOut]:
+    get_inspection(session, inspection_id=inspection_id)
+    limit = max(1, min(limit, MAX_LIMIT))
+    rows = session.scalars(
+        select(Run)
+        .where(Run.inspection_id == inspection_id, Run.id > decode_cursor(cursor))
+        .order_by(Run.id)
+        .limit(limit + 1)
+    ).all()
+    return Page[RunOut](
+        items=[service.run_out(session, r) for r in rows[:limit]],
+        next_cursor=next_cursor(rows, limit),
+    )
+
+
+@router.get("/runs/{run_id}", response_model=RunOut)
+def get_run(
+    run_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+) -> RunOut:
+    return service.run_out(session, service.get_run(session, run_id=run_id))
+
+
+@router.get("/jobs", response_model=Page[JobOut])
+def list_jobs(
+    run: int | None = None,
+    inspection: int | None = None,
+    status: JobStatus | None = None,
+    cursor: str | None = None,
+    limit: int = DEFAULT_LIMIT,
+    session: Session = Depends(get_session),
+    _: CurrentUser = Depends(readers),
+) -> Page[JobOut]:
+    limit = max(1, min(limit, MAX_LIMIT))
+    query = select(Job).where(Job.id > decode_cursor(cursor))
+    if run is not None:
+        query = query.where(Job.run_id == run)
+    if inspection is not None:
+        query = query.where(Job.inspection_id == inspection)
+    if status is not None:
+        query = query.where(Job.status == status)
+    rows = session.scalars(query.order_by(Job.id).limit(limit + 1)).all()
+    return Page[JobOut](
+        items=[service.job_out(session, j) for j in rows[:limit]],
+        next_cursor=next_cursor(rows, limit),
+    )
+
+
+@router.get("/jobs/{job_id}", response_model=JobOut)
+def get_job(
+    job_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+) -> JobOut:
+    return service.job_out(session, service.get_job(session, job_id=job_id))
+
+
+@router.post("/jobs/{job_id}/cancel", response_model=JobOut)
+def cancel_job(
+    job_id: int, session: Session = Depends(get_session), user: CurrentUser = Depends(operators)
+) -> JobOut:
+    """Cancel a job: at once if it has not started, else at its next progress report."""
+    job = service.cancel_job(session, job_id=job_id, user_id=user.id)
+    out = service.job_out(session, job)
+    session.commit()
+    return out
+
+
+@router.post("/jobs/{job_id}/retry", response_model=JobOut)
+def retry_job(
+    job_id: int,
+    session: Session = Depends(get_session),
+    runtime: Runtime = Depends(get_runtime),
+    user: CurrentUser = Depends(operators),
+) -> JobOut:
+    """Run a failed or cancelled job again; the jobs after it follow when it succeeds."""
+    job, ready = service.retry_job(session, job_id=job_id, user_id=user.id)
+    out = service.job_out(session, job)
+    session.commit()
+    dispatch(runtime.db, runtime.dispatcher, ready)
+    return out
+
+
+def _snapshot(runtime: Runtime, job_id: int) -> dict | None:
+    with runtime.db.read() as session:
+        job = session.get(Job, job_id)
+        return None if job is None else service.job_out(session, job).model_dump(mode="json")
+
+
+@router.get(
+    "/jobs/{job_id}/events",
+    response_class=StreamingResponse,
+    responses={200: {"content": {"text/event-stream": {}}}},
+)
+async def job_events(
+    job_id: int,
+    request: Request,
+    runtime: Runtime = Depends(get_runtime),
+    _: CurrentUser = Depends(readers),
+) -> StreamingResponse:
+    """Server-sent events: a ``progress`` event at each change, ``end`` when it finishes."""
+    first = await run_in_threadpool(_snapshot, runtime, job_id)
+    if first is None:
+        with runtime.db.read() as session:
+            service.get_job(session, job_id=job_id)  # raises the 404 problem
+
+    async def stream():  # noqa: ANN202
+        last, idle = None, 0.0
+        snapshot = first
+        while True:
+            if snapshot is None:
+                return
+            key = (
+                snapshot["status"],
+                snapshot["progress"],
+                snapshot["message"],
+                snapshot["attempts"],
+            )
+            if key != last:
+                last, idle = key, 0.0
+                yield f"event: progress\ndata: {json.dumps(snapshot)}\n\n"
+            if snapshot["status"] in TERMINAL:
+                yield f"event: end\ndata: {json.dumps({'status': snapshot['status']})}\n\n"
+                return
+            if await request.is_disconnected():
+                return
+            await asyncio.sleep(EVENT_POLL_S)
+            idle += EVENT_POLL_S
+            if idle >= EVENT_KEEPALIVE_S:
+                idle = 0.0
+                yield ": keep-alive\n\n"
+            snapshot = await run_in_threadpool(_snapshot, runtime, job_id)
+
+    return StreamingResponse(
+        stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache"}
+    )

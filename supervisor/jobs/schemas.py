@@ -1,0 +1,79 @@
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+JobStatus = Literal["waiting", "queued", "running", "succeeded", "failed", "cancelled"]
+STEP_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,63}$"
+
+
+class StepIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(pattern=STEP_NAME_PATTERN, description="Unique within the run.")
+    kind: str = Field(min_length=1, max_length=64, description="A job kind from GET /job-kinds.")
+    params: dict[str, Any] = Field(default_factory=dict)
+    inputs: list[int] = Field(
+        default_factory=list, max_length=1000, description="Artifact ids of this inspection."
+    )
+    after: list[str] = Field(
+        default_factory=list,
+        max_length=100,
+        description="Earlier steps that must succeed first; their outputs become inputs.",
+    )
+
+
+class RunCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field("", max_length=200)
+    steps: list[StepIn] = Field(min_length=1, max_length=100)
+
+
+class JobOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    run_id: int
+    inspection_id: int
+    step: str
+    position: int
+    kind: str
+    queue: str
+    params: dict
+    input_artifact_ids: list[int]
+    depends_on: list[int] = Field(default_factory=list)
+    status: JobStatus
+    progress: float
+    message: str
+    attempts: int
+    max_attempts: int
+    error: str | None
+    result: dict | None
+    cancel_requested: bool
+    worker: str | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    heartbeat_at: datetime | None
+
+
+class RunOut(BaseModel):
+    id: int
+    inspection_id: int
+    name: str
+    status: JobStatus
+    progress: float
+    created_by: int | None
+    created_at: datetime
+    jobs: list[JobOut]
+
+
+class JobKindOut(BaseModel):
+    name: str
+    queue: str
+    description: str
+    input_kinds: list[str]
+    params_schema: dict

@@ -1,0 +1,245 @@
+"""Runs and jobs: creating a run's job graph, reading it, cancelling and retrying."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+from pydantic import ValidationError
+from sqlalchemy import select, update
+from sqlalchemy.orm import Session
+
+from supervisor.changes import record_change
+from supervisor.engine.dispatch import Dispatch
+from supervisor.engine.registry import get_kind
+from supervisor.engine.runner import cancel_dependents
+from supervisor.jobs.schemas import JobOut, RunCreate, RunOut
+from supervisor.models import Artifact, Job, JobDependency, Run
+from supervisor.models._types import utcnow
+from supervisor.problems import Problem, not_found
+
+RUN_STATUS_ORDER = ("failed", "running", "queued", "waiting", "cancelled", "succeeded")
+
+
+def create_run(
+    session: Session, *, inspection_id: int, data: RunCreate, user_id: int, max_attempts: int
+) -> tuple[Run, list[Dispatch]]:
+    """Validate the steps and add the run with one job per step; returns what to send."""
+    names = [step.name for step in data.steps]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise Problem(422, f"Step names must be unique within a run; repeated: {duplicates}.")
+    wanted_inputs = {i for step in data.steps for i in step.inputs}
+    known_inputs = set(
+        session.scalars(
+            select(Artifact.id).where(
+                Artifact.id.in_(wanted_inputs), Artifact.inspection_id == inspection_id
+            )
+        )
+    )
+    kinds = {}
+    for index, step in enumerate(data.steps):
+        kind = get_kind(step.kind)
+        if kind is None:
+            raise Problem(422, f"steps[{index}].kind: there is no job kind {step.kind!r}.")
+        try:
+            kinds[step.name] = (kind, kind.params.model_validate(step.params))
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"])
+            raise Problem(422, f"steps[{index}].params.{where}: {first['msg']}.") from exc
+        missing = sorted(set(step.inputs) - known_inputs)
+        if missing:
+            raise Problem(
+                422, f"steps[{index}].inputs: no artifacts {missing} in inspection {inspection_id}."
+            )
+        earlier = names[:index]
+        for dependency in step.after:
+            if dependency not in earlier:
+                raise Problem(
+                    422, f"steps[{index}].after: {dependency!r} is not an earlier step of this run."
+                )
+
+    run = Run(inspection_id=inspection_id, name=data.name, created_by=user_id)
+    session.add(run)
+    session.flush()
+    jobs_by_name: dict[str, Job] = {}
+    for position, step in enumerate(data.steps):
+        kind, params = kinds[step.name]
+        job = Job(
+            run_id=run.id,
+            inspection_id=inspection_id,
+            step=step.name,
+            position=position,
+            kind=kind.name,
+            queue=kind.queue,
+            params=params.model_dump(mode="json"),
+            input_artifact_ids=sorted(set(step.inputs)),
+            status="waiting" if step.after else "queued",
+            progress=0.0,
+            message="waiting for " + ", ".join(step.after) if step.after else "queued",
+            attempts=0,
+            max_attempts=max_attempts,
+            cancel_requested=False,
+        )
+        session.add(job)
+        session.flush()
+        jobs_by_name[step.name] = job
+        for dependency in dict.fromkeys(step.after):
+            session.add(JobDependency(job_id=job.id, depends_on_id=jobs_by_name[dependency].id))
+        record_change(
+            session,
+            entity="job",
+            entity_id=job.id,
+            op="create",
+            inspection_id=inspection_id,
+            user_id=user_id,
+        )
+    record_change(
+        session,
+        entity="run",
+        entity_id=run.id,
+        op="create",
+        inspection_id=inspection_id,
+        user_id=user_id,
+    )
+    ready = [Dispatch(j.id, j.queue) for j in jobs_by_name.values() if j.status == "queued"]
+    return run, ready
+
+
+def _dependencies(session: Session, job_ids: list[int]) -> dict[int, list[int]]:
+    edges: dict[int, list[int]] = defaultdict(list)
+    for job_id, depends_on_id in session.execute(
+        select(JobDependency.job_id, JobDependency.depends_on_id)
+        .where(JobDependency.job_id.in_(job_ids))
+        .order_by(JobDependency.depends_on_id)
+    ):
+        edges[job_id].append(depends_on_id)
+    return edges
+
+
+def job_out(session: Session, job: Job) -> JobOut:
+    out = JobOut.model_validate(job)
+    out.depends_on = _dependencies(session, [job.id]).get(job.id, [])
+    return out
+
+
+def run_status(statuses: list[str]) -> str:
+    present = set(statuses)
+    if present <= {"succeeded"}:
+        return "succeeded"
+    if "failed" in present:
+        return "failed"
+    if "running" in present or ("succeeded" in present and present & {"queued", "waiting"}):
+        return "running"
+    return next(s for s in RUN_STATUS_ORDER if s in present)
+
+
+def run_out(session: Session, run: Run) -> RunOut:
+    jobs = session.scalars(select(Job).where(Job.run_id == run.id).order_by(Job.position)).all()
+    edges = _dependencies(session, [j.id for j in jobs])
+    outs = []
+    for job in jobs:
+        out = JobOut.model_validate(job)
+        out.depends_on = edges.get(job.id, [])
+        outs.append(out)
+    return RunOut(
+        id=run.id,
+        inspection_id=run.inspection_id,
+        name=run.name,
+        status=run_status([j.status for j in jobs]),  # type: ignore[arg-type]
+        progress=sum(j.progress for j in jobs) / len(jobs) if jobs else 0.0,
+        created_by=run.created_by,
+        created_at=run.created_at,
+        jobs=outs,
+    )
+
+
+def get_run(session: Session, *, run_id: int) -> Run:
+    run = session.get(Run, run_id)
+    if run is None:
+        raise not_found("run", run_id)
+    return run
+
+
+def get_job(session: Session, *, job_id: int) -> Job:
+    job = session.get(Job, job_id)
+    if job is None:
+        raise not_found("job", job_id)
+    return job
+
+
+def cancel_job(session: Session, *, job_id: int, user_id: int) -> Job:
+    """Cancel now if not started; ask the worker to stop if running (it ends soon after)."""
+    job = get_job(session, job_id=job_id)
+    if job.status in ("succeeded", "failed", "cancelled"):
+        raise Problem(409, f"Job {job_id} already {job.status}; there is nothing to cancel.")
+    if job.status == "running":
+        session.execute(
+            update(Job)
+            .where(Job.id == job_id, Job.status == "running")
+            .values(cancel_requested=True, message="cancellation requested")
+        )
+    else:
+        job.status = "cancelled"
+        job.message = "cancelled before it started"
+        job.finished_at = utcnow()
+        cancel_dependents(session, job.id, f"not run: step '{job.step}' (job {job.id}) cancelled")
+    record_change(
+        session,
+        entity="job",
+        entity_id=job.id,
+        op="update",
+        inspection_id=job.inspection_id,
+        user_id=user_id,
+    )
+    session.flush()
+    session.refresh(job)
+    return job
+
+
+def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list[Dispatch]]:
+    """Run a failed or cancelled job again, with the jobs downstream of it."""
+    job = get_job(session, job_id=job_id)
+    if job.status not in ("failed", "cancelled"):
+        raise Problem(
+            409, f"Job {job_id} is {job.status}; only failed or cancelled jobs are retried."
+        )
+    ready = []
+    frontier = [job.id]
+    while frontier:
+        current = session.scalars(select(Job).where(Job.id.in_(frontier))).all()
+        frontier = []
+        for item in current:
+            if item.id != job.id and item.status not in ("cancelled", "failed"):
+                continue
+            upstream = _dependencies(session, [item.id]).get(item.id, [])
+            unfinished = session.scalars(
+                select(Job.id).where(Job.id.in_(upstream), Job.status != "succeeded")
+            ).all()
+            item.status = "waiting" if unfinished else "queued"
+            item.attempts = 0
+            item.progress = 0.0
+            item.error = None
+            item.result = None
+            item.cancel_requested = False
+            item.not_before = None
+            item.dispatched_at = None
+            item.finished_at = None
+            item.message = "retry requested"
+            record_change(
+                session,
+                entity="job",
+                entity_id=item.id,
+                op="update",
+                inspection_id=item.inspection_id,
+                user_id=user_id,
+            )
+            if item.status == "queued":
+                ready.append(Dispatch(item.id, item.queue))
+            frontier.extend(
+                session.scalars(
+                    select(JobDependency.job_id).where(JobDependency.depends_on_id == item.id)
+                )
+            )
+    session.flush()
+    return job, ready

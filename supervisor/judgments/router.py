@@ -1,0 +1,39 @@
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+from sqlalchemy.orm import Session
+
+from supervisor.defects.service import consensus_for
+from supervisor.deps import JUDGE_ROLES, READ_ROLES, CurrentUser, get_session, require
+from supervisor.judgments import service
+from supervisor.judgments.schemas import DefectJudgmentsOut, JudgmentIn, MyJudgmentOut
+
+router = APIRouter(tags=["judgments"])
+readers = require(*READ_ROLES, action="read judgments")
+judges = require(*JUDGE_ROLES, action="judge defects")
+
+
+@router.put("/defects/{defect_id}/judgments/me", response_model=MyJudgmentOut)
+def put_my_judgment(
+    defect_id: int,
+    body: JudgmentIn,
+    session: Session = Depends(get_session),
+    user: CurrentUser = Depends(judges),
+) -> MyJudgmentOut:
+    """Set your judgment of a defect. Each change is a new revision; repeating the same
+    judgment changes nothing. Nobody can write another user's judgment."""
+    judgment = service.put_mine(session, defect_id=defect_id, user_id=user.id, data=body)
+    out = MyJudgmentOut(
+        judgment=service.judgment_out(judgment, user.username),
+        consensus=consensus_for(session, [defect_id])[defect_id],
+    )
+    session.commit()
+    return out
+
+
+@router.get("/defects/{defect_id}/judgments", response_model=DefectJudgmentsOut)
+def list_judgments(
+    defect_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+) -> DefectJudgmentsOut:
+    """Every user's current judgment with its full history, and the consensus."""
+    return service.all_for_defect(session, defect_id=defect_id)

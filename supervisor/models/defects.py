@@ -1,0 +1,82 @@
+"""Defects found by jobs (or reported by hand) and the judgments of reviewers."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import CheckConstraint, Float, ForeignKey, Integer, String, Text, UniqueConstraint
+from sqlalchemy.orm import Mapped, mapped_column
+
+from supervisor.db import Base
+from supervisor.models._types import JSONType, UTCDateTime, created_at_column, utcnow
+
+DEFECT_TYPES = ("gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color")
+DEFECT_STATUSES = ("open", "resolved", "dismissed")
+SEVERITIES = ("info", "minor", "major", "critical")
+VERDICTS = ("confirmed", "rejected", "reclassified", "uncertain")
+
+
+class Defect(Base):
+    __tablename__ = "defects"
+    __table_args__ = (
+        CheckConstraint(f"type IN {DEFECT_TYPES}", name="type"),
+        CheckConstraint(f"status IN {DEFECT_STATUSES}", name="status"),
+        CheckConstraint(f"severity IN {SEVERITIES}", name="severity"),
+        CheckConstraint("confidence >= 0 AND confidence <= 1", name="confidence"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    inspection_id: Mapped[int] = mapped_column(
+        ForeignKey("inspections.id", ondelete="CASCADE"), index=True
+    )
+    run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("runs.id", ondelete="SET NULL"), index=True
+    )
+    job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
+    type: Mapped[str] = mapped_column(String(16), index=True)
+    status: Mapped[str] = mapped_column(String(16), default="open", index=True)
+    value_mm: Mapped[float | None] = mapped_column(Float)
+    tolerance_mm: Mapped[float | None] = mapped_column(Float)
+    measurements: Mapped[dict] = mapped_column(JSONType, default=dict)
+    location_mm: Mapped[list] = mapped_column(JSONType)
+    normal: Mapped[list] = mapped_column(JSONType)
+    extent_mm: Mapped[float] = mapped_column(Float, default=0.0)
+    severity: Mapped[str] = mapped_column(String(16), default="minor")
+    confidence: Mapped[float] = mapped_column(Float, default=1.0)
+    source: Mapped[str] = mapped_column(String(16), default="job")
+    created_at: Mapped[datetime] = created_at_column()
+
+
+class Judgment(Base):
+    """The current judgment of one user on one defect; ``revision`` counts its edits."""
+
+    __tablename__ = "judgments"
+    __table_args__ = (
+        UniqueConstraint("defect_id", "user_id"),
+        CheckConstraint(f"verdict IN {VERDICTS}", name="verdict"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    defect_id: Mapped[int] = mapped_column(ForeignKey("defects.id", ondelete="CASCADE"), index=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    verdict: Mapped[str] = mapped_column(String(16))
+    new_type: Mapped[str | None] = mapped_column(String(16))
+    comment: Mapped[str] = mapped_column(Text, default="")
+    revision: Mapped[int] = mapped_column(Integer, default=1)
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+
+
+class JudgmentRevision(Base):
+    """Every version a judgment ever had, in order."""
+
+    __tablename__ = "judgment_revisions"
+    __table_args__ = (UniqueConstraint("defect_id", "user_id", "revision"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    defect_id: Mapped[int] = mapped_column(ForeignKey("defects.id", ondelete="CASCADE"), index=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    revision: Mapped[int] = mapped_column(Integer)
+    verdict: Mapped[str] = mapped_column(String(16))
+    new_type: Mapped[str | None] = mapped_column(String(16))
+    comment: Mapped[str] = mapped_column(Text, default="")
+    created_at: Mapped[datetime] = created_at_column()

@@ -1,0 +1,44 @@
+"""Cursor pagination over a monotonically increasing integer id."""
+
+from __future__ import annotations
+
+import base64
+import binascii
+from collections.abc import Sequence
+from typing import Generic, TypeVar
+
+from pydantic import BaseModel
+
+from supervisor.problems import Problem
+
+T = TypeVar("T")
+DEFAULT_LIMIT = 100
+MAX_LIMIT = 500
+
+
+class Page(BaseModel, Generic[T]):
+    items: list[T]
+    next_cursor: str | None = None
+
+
+def encode_cursor(last_id: int) -> str:
+    return base64.urlsafe_b64encode(f"id:{last_id}".encode()).decode().rstrip("=")
+
+
+def decode_cursor(cursor: str | None) -> int:
+    """The id after which the next page starts (0 = from the start)."""
+    if not cursor:
+        return 0
+    try:
+        text = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4)).decode()
+        prefix, _, value = text.partition(":")
+        if prefix != "id" or not value.isdigit():
+            raise ValueError(text)
+        return int(value)
+    except (ValueError, binascii.Error, UnicodeDecodeError) as exc:
+        raise Problem(400, "The cursor is not one this server gave out; start without it.") from exc
+
+
+def next_cursor(rows: Sequence, limit: int) -> str | None:
+    """Given ``limit + 1`` rows fetched, the cursor for the page after ``rows[:limit]``."""
+    return encode_cursor(rows[limit - 1].id) if len(rows) > limit else None

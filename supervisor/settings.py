@@ -1,0 +1,75 @@
+"""vista settings: one class, read from ``VISTA_*`` environment variables.
+
+The defaults give the embedded mode: a SQLite file and an artifact folder under
+``VISTA_DATA_DIR`` and jobs run by a local pool of worker processes. Setting
+``VISTA_DATABASE_URL`` (PostgreSQL) and ``VISTA_BROKER_URL`` (Redis or RabbitMQ) gives
+the scale-out mode with ``vista worker`` processes on any number of machines, which must
+then share ``VISTA_ARTIFACT_DIR`` (for example over NFS).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="VISTA_", extra="ignore")
+
+    data_dir: Path = Field(
+        Path("vista-data"), description="Folder for the SQLite file and artifacts."
+    )
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL; unset = sqlite file `vista.db` in the data folder."
+    )
+    broker_url: str | None = Field(
+        None, description="redis://… or amqp://…; unset = embedded job engine."
+    )
+    artifact_dir: Path | None = Field(
+        None, description="Artifact storage folder; unset = `artifacts` in the data folder."
+    )
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=1, le=65535)
+    max_upload_mb: int = Field(4096, ge=1, description="Largest artifact upload, MiB.")
+    embedded_workers: int = Field(2, ge=0, description="Worker processes of the embedded engine.")
+    heartbeat_interval_s: float = Field(5.0, gt=0, description="How often a running job beats.")
+    heartbeat_timeout_s: float = Field(
+        60.0, gt=0, description="A running job silent this long is taken as lost."
+    )
+    job_max_attempts: int = Field(3, ge=1, description="Attempts before a job fails for good.")
+    job_time_limit_s: int = Field(6 * 3600, ge=1, description="Hard limit on one job attempt.")
+    retry_backoff_s: float = Field(5.0, ge=0, description="First retry delay; doubles each time.")
+    token_ttl_hours: float = Field(12.0, gt=0, description="Lifetime of a sign-in token.")
+    extra_job_kinds: list[str] = Field(
+        default_factory=list,
+        description="Extra modules that register job kinds (comma separated).",
+    )
+
+    @field_validator("extra_job_kinds", mode="before")
+    @classmethod
+    def _split_modules(cls, value: object) -> object:
+        if isinstance(value, str):
+            return [part.strip() for part in value.split(",") if part.strip()]
+        return value
+
+    @property
+    def resolved_database_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'vista.db').resolve()}"
+
+    @property
+    def resolved_artifact_dir(self) -> Path:
+        return (self.artifact_dir or self.data_dir / "artifacts").resolve()
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return self.max_upload_mb * 1024 * 1024
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,82 @@
+from __future__ import annotations
+
+from datetime import timedelta
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import JSONResponse
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from supervisor.deps import ADMIN_ROLES, CurrentUser, get_session, require
+from supervisor.idempotency import create_once, digest_model
+from supervisor.models import User
+from supervisor.models._types import utcnow
+from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+from supervisor.problems import not_found
+from supervisor.users import service
+from supervisor.users.schemas import TokenCreate, TokenCreated, UserCreate, UserOut
+
+router = APIRouter(tags=["users"])
+manage_users = require(*ADMIN_ROLES, action="manage users")
+
+
+@router.post("/users", status_code=201, response_model=UserOut)
+def create_user(
+    body: UserCreate,
+    request: Request,
+    session: Session = Depends(get_session),
+    admin: CurrentUser = Depends(manage_users),
+) -> JSONResponse:
+    """Create a user (admins only). Device accounts have no password, only tokens."""
+
+    def create():  # noqa: ANN202
+        user = service.create_user(
+            session, username=body.username, role=body.role, password=body.password
+        )
+        return UserOut.model_validate(user).model_dump(mode="json"), f"/api/v1/users/{user.id}"
+
+    return create_once(
+        request, session, user_id=admin.id, body_digest=digest_model(body), create=create
+    )
+
+
+@router.get("/users", response_model=Page[UserOut])
+def list_users(
+    cursor: str | None = None,
+    limit: int = DEFAULT_LIMIT,
+    session: Session = Depends(get_session),
+    _: CurrentUser = Depends(manage_users),
+) -> Page[UserOut]:
+    limit = max(1, min(limit, MAX_LIMIT))
+    rows = session.scalars(
+        select(User).where(User.id > decode_cursor(cursor)).order_by(User.id).limit(limit + 1)
+    ).all()
+    return Page[UserOut](
+        items=[UserOut.model_validate(u) for u in rows[:limit]],
+        next_cursor=next_cursor(rows, limit),
+    )
+
+
+@router.post("/users/{user_id}/tokens", status_code=201, response_model=TokenCreated)
+def create_token(
+    user_id: int,
+    body: TokenCreate,
+    session: Session = Depends(get_session),
+    _: CurrentUser = Depends(manage_users),
+) -> TokenCreated:
+    """Issue an API token for a user, e.g. a headset's device token (admins only).
+
+    The token is shown only in this response (it is stored hashed), so this POST does not
+    replay on ``Idempotency-Key``: a lost response means issuing another token.
+    """
+    user = session.get(User, user_id)
+    if user is None:
+        raise not_found("user", user_id)
+    token = service.create_token(
+        session, user=user, name=body.name, kind=body.kind, ttl_hours=body.ttl_hours
+    )
+    session.commit()
+    expires = utcnow() + timedelta(hours=body.ttl_hours) if body.ttl_hours else None
+    return TokenCreated(
+        token=token, name=body.name, kind=body.kind, user_id=user.id, expires_at=expires
+    )
