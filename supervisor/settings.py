@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 class Settings(BaseSettings):
@@ -43,7 +44,7 @@ class Settings(BaseSettings):
     job_time_limit_s: int = Field(6 * 3600, ge=1, description="Hard limit on one job attempt.")
     retry_backoff_s: float = Field(5.0, ge=0, description="First retry delay; doubles each time.")
     token_ttl_hours: float = Field(12.0, gt=0, description="Lifetime of a sign-in token.")
-    extra_job_kinds: list[str] = Field(
+    extra_job_kinds: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description="Extra modules that register job kinds (comma separated).",
     )

@@ -1,0 +1,50 @@
+"""A job kind for exercising the engine itself: it sleeps, reports progress, can fail.
+
+Loaded only through ``VISTA_EXTRA_JOB_KINDS=tests.jobkinds`` by the tests.
+"""
+
+from __future__ import annotations
+
+import time
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from supervisor.engine.context import JobContext
+from supervisor.engine.errors import TransientJobError
+from supervisor.engine.registry import JobKind, register
+
+
+class SleepParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    seconds: float = Field(0.2, ge=0, le=120)
+    transient_failures: int = Field(0, ge=0, description="Attempts that fail transiently first.")
+    fail_with: str | None = Field(None, description="Fail permanently with this message.")
+
+
+def sleep_job(ctx: JobContext) -> dict:
+    params = ctx.params
+    steps = max(1, int(params.seconds / 0.05))
+    for step in range(steps):
+        ctx.progress(step / steps, f"step {step} of {steps}")
+        time.sleep(params.seconds / steps)
+    if ctx.claim.attempt <= params.transient_failures:
+        raise TransientJobError(f"simulated outage in attempt {ctx.claim.attempt}")
+    if params.fail_with:
+        raise ValueError(params.fail_with)
+    inputs = sorted(a.id for a in ctx.inputs)
+    ctx.add_artifact_json(
+        {"attempt": ctx.claim.attempt, "inputs": inputs}, kind="echo", name="echo.json"
+    )
+    return {"attempt": ctx.claim.attempt, "inputs": inputs}
+
+
+register(
+    JobKind(
+        name="test.sleep",
+        queue="test",
+        handler="tests.jobkinds:sleep_job",
+        params=SleepParams,
+        description="Test only: sleeps with progress, then succeeds or fails as asked.",
+    )
+)

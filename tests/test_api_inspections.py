@@ -1,0 +1,115 @@
+from __future__ import annotations
+
+from tests.conftest import auth
+
+NEW = {"title": "A320 MSN 1234 cabin", "aircraft": "A320", "serial": "1234", "area": "cabin"}
+
+
+def test_crud_round_trip(client, tokens):
+    headers = auth(tokens["inspector"])
+    created = client.post(
+        "/api/v1/inspections",
+        json={**NEW, "tolerances": {"gap_mm": {"min": 0.5, "max": 2.0}, "step_mm": {"max": 0.5}}},
+        headers=headers,
+    )
+    assert created.status_code == 201, created.text
+    body = created.json()
+    assert created.headers["location"] == f"/api/v1/inspections/{body['id']}"
+    assert body["tolerances"]["gap_mm"] == {"min": 0.5, "max": 2.0} and body["status"] == "planned"
+    patched = client.patch(
+        f"/api/v1/inspections/{body['id']}", json={"status": "scanning"}, headers=headers
+    ).json()
+    assert patched["status"] == "scanning" and patched["title"] == NEW["title"]
+    assert (
+        client.get(f"/api/v1/inspections/{body['id']}", headers=auth(tokens["viewer"])).json()
+        == patched
+    )
+    assert client.delete(f"/api/v1/inspections/{body['id']}", headers=headers).status_code == 204
+    assert client.get(f"/api/v1/inspections/{body['id']}", headers=headers).status_code == 404
+
+
+def test_viewers_and_devices_cannot_change_inspections(client, tokens):
+    for role in ("viewer", "device"):
+        response = client.post("/api/v1/inspections", json=NEW, headers=auth(tokens[role]))
+        assert response.status_code == 403
+
+
+def test_bad_input_is_a_sentence_and_stores_nothing(client, tokens):
+    headers = auth(tokens["inspector"])
+    cases = [
+        ({**NEW, "colour": "red"}, "colour: is not a known field"),
+        ({**NEW, "area": "cockpit"}, "area"),
+        ({"title": "no area"}, "area: is required"),
+        ({**NEW, "tolerances": {"gap_mm": {"min": -1}}}, "tolerances.gap_mm.min"),
+        ({**NEW, "tolerances": {"flatness": 1}}, "tolerances.flatness: is not a known field"),
+    ]
+    for body, expected in cases:
+        response = client.post("/api/v1/inspections", json=body, headers=headers)
+        assert response.status_code == 422, body
+        assert response.headers["content-type"] == "application/problem+json"
+        assert expected in response.json()["detail"], response.json()["detail"]
+    not_json = client.post(
+        "/api/v1/inspections",
+        content=b"{nope",
+        headers={**headers, "content-type": "application/json"},
+    )
+    assert not_json.status_code == 422
+    assert client.get("/api/v1/inspections", headers=headers).json()["items"] == []
+
+
+def test_unknown_ids_are_404_problems(client, tokens):
+    headers = auth(tokens["admin"])
+    for method, path in [
+        ("GET", "/api/v1/inspections/999"),
+        ("PATCH", "/api/v1/inspections/999"),
+        ("DELETE", "/api/v1/inspections/999"),
+        ("GET", "/api/v1/defects/999"),
+        ("GET", "/api/v1/jobs/999"),
+        ("GET", "/api/v1/runs/999"),
+        ("GET", "/api/v1/inspections/999/artifacts"),
+        ("GET", "/api/v1/no/such/route"),
+    ]:
+        response = client.request(
+            method, path, headers=headers, json={} if method == "PATCH" else None
+        )
+        assert response.status_code == 404, (method, path)
+        assert response.headers["content-type"] == "application/problem+json"
+        assert response.json()["detail"].endswith(".")
+
+
+def test_cursor_pagination_visits_every_inspection_once(client, tokens):
+    headers = auth(tokens["inspector"])
+    for number in range(7):
+        client.post("/api/v1/inspections", json={**NEW, "title": f"t{number}"}, headers=headers)
+    seen, cursor = [], None
+    while True:
+        page = client.get(
+            "/api/v1/inspections",
+            params={"limit": 3, **({"cursor": cursor} if cursor else {})},
+            headers=headers,
+        ).json()
+        seen += [item["title"] for item in page["items"]]
+        cursor = page["next_cursor"]
+        if cursor is None:
+            break
+    assert seen == [f"t{n}" for n in range(7)]
+    bad = client.get("/api/v1/inspections", params={"cursor": "garbage!"}, headers=headers)
+    assert bad.status_code == 400
+
+
+def test_idempotency_key_replays_and_refuses_reuse(client, tokens):
+    headers = {**auth(tokens["inspector"]), "Idempotency-Key": "create-cabin-1"}
+    first = client.post("/api/v1/inspections", json=NEW, headers=headers)
+    again = client.post("/api/v1/inspections", json=NEW, headers=headers)
+    assert first.status_code == again.status_code == 201
+    assert again.json() == first.json() and again.headers["idempotent-replayed"] == "true"
+    other = client.post("/api/v1/inspections", json={**NEW, "title": "other"}, headers=headers)
+    assert other.status_code == 422 and "Idempotency-Key" in other.json()["detail"]
+    # Keys belong to a user: the same key from someone else is a new request.
+    theirs = client.post(
+        "/api/v1/inspections",
+        json=NEW,
+        headers={**auth(tokens["inspector2"]), "Idempotency-Key": "create-cabin-1"},
+    )
+    assert theirs.status_code == 201 and theirs.json()["id"] != first.json()["id"]
+    assert len(client.get("/api/v1/inspections", headers=headers).json()["items"]) == 2

@@ -1,0 +1,292 @@
+"""The job engine end to end, on both engines: embedded (SQLite, worker processes beside
+the API) and Dramatiq (PostgreSQL + Redis, separate `vista worker` processes)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+import redis
+
+from services.pointcloud.ply import validate_ply
+from supervisor.engine.runner import run_job
+from tests.conftest import (
+    BROKER_URL,
+    NO_BROKER,
+    NO_POSTGRES,
+    add_user,
+    auth,
+    make_settings,
+    wait_for,
+)
+from tests.plyfiles import plane_grid, ply_bytes
+
+REPO = Path(__file__).resolve().parent.parent
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+
+class Engine:
+    """A live supervisor plus whatever runs its jobs, and an HTTP client for it."""
+
+    def __init__(self, kind, tmp_path, request, start_server, **overrides):
+        self.kind = kind
+        self.tmp_path = tmp_path
+        self.workers: list[subprocess.Popen] = []
+        if kind == "embedded":
+            url = request.getfixturevalue("sqlite_url")
+            self.settings = make_settings(tmp_path, url, embedded_workers=1, **overrides)
+        else:
+            url = request.getfixturevalue("postgres_url")
+            redis.Redis.from_url(BROKER_URL).flushdb()
+            self.settings = make_settings(tmp_path, url, broker_url=BROKER_URL, **overrides)
+        self.server = start_server(self.settings)
+        self.runtime = self.server.app.state.runtime
+        self.token = add_user(self.runtime, "op", "inspector", "operator-password")
+        self.http = httpx.Client(base_url=self.server.url, headers=auth(self.token), timeout=30)
+        self.inspection = self.http.post(
+            "/api/v1/inspections", json={"title": "engine", "area": "component"}
+        ).json()["id"]
+        if kind == "dramatiq":
+            self.start_worker()
+
+    def start_worker(self) -> None:
+        s = self.settings
+        env = {
+            **os.environ,
+            "PYTHONPATH": str(REPO),
+            "VISTA_DATABASE_URL": s.database_url,
+            "VISTA_BROKER_URL": s.broker_url,
+            "VISTA_DATA_DIR": str(s.data_dir),
+            "VISTA_ARTIFACT_DIR": str(s.resolved_artifact_dir),
+            "VISTA_EXTRA_JOB_KINDS": "tests.jobkinds",
+            "VISTA_HEARTBEAT_INTERVAL_S": str(s.heartbeat_interval_s),
+            "VISTA_HEARTBEAT_TIMEOUT_S": str(s.heartbeat_timeout_s),
+            "VISTA_RETRY_BACKOFF_S": str(s.retry_backoff_s),
+            "VISTA_JOB_MAX_ATTEMPTS": str(s.job_max_attempts),
+        }
+        log = open(self.tmp_path / f"worker-{len(self.workers)}.log", "wb")  # noqa: SIM115
+        self.workers.append(
+            subprocess.Popen(
+                [sys.executable, "-m", "supervisor.cli", "worker", "--queues", "scan,test"],
+                env=env,
+                cwd=REPO,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        )
+
+    def close(self) -> None:
+        self.http.close()
+        for worker in self.workers:
+            if worker.poll() is None:
+                worker.send_signal(signal.SIGTERM)
+                try:
+                    worker.wait(timeout=20)
+                except subprocess.TimeoutExpired:
+                    worker.kill()
+
+    def run(self, steps: list[dict]) -> dict:
+        response = self.http.post(
+            f"/api/v1/inspections/{self.inspection}/runs", json={"steps": steps}
+        )
+        assert response.status_code == 201, response.text
+        return response.json()
+
+    def job(self, job_id: int) -> dict:
+        return self.http.get(f"/api/v1/jobs/{job_id}").json()
+
+    def wait(self, job_id: int, statuses=TERMINAL, timeout: float = 60) -> dict:
+        return wait_for(
+            lambda: (j := self.job(job_id))["status"] in statuses and j,
+            timeout=timeout,
+            what=f"job {job_id} to reach {statuses}",
+        )
+
+
+@pytest.fixture(params=["embedded", "dramatiq"])
+def engine_factory(request, tmp_path, start_server):
+    if request.param == "dramatiq" and not BROKER_URL:
+        pytest.skip(NO_BROKER)
+    if request.param == "dramatiq" and not os.environ.get("VISTA_TEST_DATABASE_URL"):
+        pytest.skip(NO_POSTGRES)
+    made: list[Engine] = []
+
+    def make(**overrides) -> Engine:
+        engine = Engine(request.param, tmp_path, request, start_server, **overrides)
+        made.append(engine)
+        return engine
+
+    yield make
+    for engine in made:
+        engine.close()
+
+
+def sleep_step(name: str, after=(), **params) -> dict:
+    return {"name": name, "kind": "test.sleep", "params": params, "after": list(after)}
+
+
+def test_scan_inspect_produces_report_and_preview(engine_factory, tmp_path):
+    engine = engine_factory()
+    data = ply_bytes(tmp_path, plane_grid(300, 400, spacing_mm=0.1))
+    scan = engine.http.post(
+        f"/api/v1/inspections/{engine.inspection}/artifacts",
+        params={"kind": "scan", "name": "scan_000.ply"},
+        content=data,
+        headers={"content-type": "application/x-ply"},
+    ).json()
+    run = engine.run(
+        [
+            {
+                "name": "inspect",
+                "kind": "scan.inspect",
+                "inputs": [scan["id"]],
+                "params": {"preview_points": 10_000},
+            }
+        ]
+    )
+    job = engine.wait(run["jobs"][0]["id"])
+    assert job["status"] == "succeeded", job
+    report = job["result"]["reports"][str(scan["id"])]
+    assert report["point_count"] == 120_000 and report["all_finite"]
+    assert report["mean_spacing_mm"] == pytest.approx(0.1, rel=1e-3)
+    artifacts = engine.http.get(f"/api/v1/inspections/{engine.inspection}/artifacts").json()[
+        "items"
+    ]
+    by_kind = {a["kind"]: a for a in artifacts if a["job_id"] == job["id"]}
+    assert set(by_kind) == {"report", "preview"}
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    stored = json.loads(engine.http.get(f"{base}/{by_kind['report']['id']}/content").content)
+    assert stored["point_count"] == 120_000
+    preview = tmp_path / "preview.ply"
+    preview.write_bytes(engine.http.get(f"{base}/{by_kind['preview']['id']}/content").content)
+    assert 5_000 <= validate_ply(preview).vertex_count <= 10_000
+    assert run_job(job["id"], runtime=engine.runtime) == "skipped"  # re-running is a no-op
+
+
+def test_dependencies_run_in_order_and_pass_outputs(engine_factory):
+    engine = engine_factory()
+    run = engine.run([sleep_step("first", seconds=1.0), sleep_step("second", after=["first"])])
+    first, second = (j["id"] for j in run["jobs"])
+    assert engine.job(second)["status"] == "waiting" and engine.job(second)["depends_on"] == [first]
+    done = engine.wait(second)
+    assert done["status"] == "succeeded"
+    first_outputs = [
+        a["id"]
+        for a in engine.http.get(f"/api/v1/inspections/{engine.inspection}/artifacts").json()[
+            "items"
+        ]
+        if a["job_id"] == first
+    ]
+    assert done["result"]["inputs"] == first_outputs and len(first_outputs) == 1
+    assert engine.job(first)["finished_at"] <= done["started_at"]
+    assert engine.http.get(f"/api/v1/runs/{run['id']}").json()["status"] == "succeeded"
+
+
+def test_failure_cancels_what_depends_on_it(engine_factory):
+    engine = engine_factory()
+    run = engine.run(
+        [
+            sleep_step("measure", fail_with="the cloud is empty"),
+            sleep_step("export", after=["measure"]),
+        ]
+    )
+    failed = engine.wait(run["jobs"][0]["id"])
+    assert failed["status"] == "failed" and "ValueError: the cloud is empty" in failed["error"]
+    assert failed["attempts"] == 1  # a permanent error is not retried
+    export = engine.wait(run["jobs"][1]["id"])
+    assert export["status"] == "cancelled" and "measure" in export["message"]
+    assert engine.http.get(f"/api/v1/runs/{run['id']}").json()["status"] == "failed"
+
+
+def test_transient_errors_are_retried_with_backoff(engine_factory):
+    engine = engine_factory()
+    run = engine.run(
+        [
+            sleep_step("flaky", seconds=0.1, transient_failures=2),
+            sleep_step("hopeless", seconds=0.1, transient_failures=9),
+        ]
+    )
+    flaky = engine.wait(run["jobs"][0]["id"])
+    assert (
+        flaky["status"] == "succeeded"
+        and flaky["attempts"] == 3
+        and flaky["result"]["attempt"] == 3
+    )
+    hopeless = engine.wait(run["jobs"][1]["id"])
+    assert hopeless["status"] == "failed" and hopeless["attempts"] == 3
+    assert "simulated outage in attempt 3" in hopeless["error"]
+
+
+def test_cancel_reaches_a_running_job_and_retry_runs_it_again(engine_factory):
+    engine = engine_factory()
+    run = engine.run(
+        [sleep_step("long", seconds=30), sleep_step("after", after=["long"], seconds=0.1)]
+    )
+    long_id, after_id = (j["id"] for j in run["jobs"])
+    engine.wait(long_id, statuses=("running",))
+    assert engine.http.post(f"/api/v1/jobs/{long_id}/cancel").json()["cancel_requested"]
+    cancelled = engine.wait(long_id, timeout=10)
+    assert cancelled["status"] == "cancelled" and cancelled["progress"] < 0.5
+    assert engine.job(after_id)["status"] == "cancelled"
+    assert engine.http.post(f"/api/v1/jobs/{after_id}/cancel").status_code == 409
+    retried = engine.http.post(f"/api/v1/jobs/{long_id}/retry")
+    assert retried.status_code == 200 and retried.json()["status"] == "queued"
+    assert engine.job(after_id)["status"] == "waiting"
+    engine.wait(long_id, statuses=("running",))
+    engine.http.post(f"/api/v1/jobs/{long_id}/cancel")
+    assert engine.wait(long_id, timeout=10)["status"] == "cancelled"
+
+
+def _kill_worker_running(engine: Engine, job_id: int) -> None:
+    job = wait_for(
+        lambda: (j := engine.job(job_id))["status"] == "running" and j["progress"] > 0 and j,
+        what="the job to make progress",
+    )
+    pid = int(job["worker"].rsplit(":", 1)[1])
+    os.kill(pid, signal.SIGKILL)
+    if engine.kind == "dramatiq":  # `vista worker` exits when a child dies; compose restarts it
+        engine.workers[-1].wait(timeout=30)
+        engine.start_worker()
+
+
+def test_killed_worker_job_runs_again(engine_factory):
+    engine = engine_factory()
+    job_id = engine.run([sleep_step("victim", seconds=2.0)])["jobs"][0]["id"]
+    _kill_worker_running(engine, job_id)
+    done = engine.wait(job_id, timeout=90)
+    assert done["status"] == "succeeded" and done["attempts"] == 2
+    assert done["result"]["attempt"] == 2
+
+
+def test_killed_worker_without_attempts_left_fails_with_a_reason(engine_factory):
+    engine = engine_factory(job_max_attempts=1)
+    job_id = engine.run([sleep_step("victim", seconds=5.0)])["jobs"][0]["id"]
+    _kill_worker_running(engine, job_id)
+    failed = engine.wait(job_id, timeout=90)
+    assert failed["status"] == "failed"
+    assert "lost: no heartbeat for 3 s in attempt 1 of 1" in failed["error"]
+
+
+def test_progress_streams_as_server_sent_events(engine_factory):
+    engine = engine_factory()
+    job_id = engine.run([sleep_step("watched", seconds=1.5)])["jobs"][0]["id"]
+    events = []
+    with engine.http.stream("GET", f"/api/v1/jobs/{job_id}/events", timeout=60) as response:
+        assert response.headers["content-type"].startswith("text/event-stream")
+        event = None
+        for line in response.iter_lines():
+            if line.startswith("event: "):
+                event = line[7:]
+            elif line.startswith("data: "):
+                events.append((event, json.loads(line[6:])))
+                if event == "end":
+                    break
+    progress = [data["progress"] for name, data in events if name == "progress"]
+    assert len(progress) >= 3 and progress == sorted(progress)
+    assert events[-1] == ("end", {"status": "succeeded"})
