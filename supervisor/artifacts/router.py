@@ -15,9 +15,10 @@ from supervisor.changes import record_change
 from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_runtime, get_session, require
 from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once
+from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
 from supervisor.models import Artifact
-from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 from supervisor.problems import Problem
 from supervisor.storage import UploadTooLarge, safe_name
 
@@ -54,7 +55,7 @@ def _media_type(request: Request) -> str:
     openapi_extra=_UPLOAD_BODY,
 )
 async def upload_artifact(
-    inspection_id: int,
+    inspection_id: IdPath,
     request: Request,
     kind: str = Query(pattern=ARTIFACT_KIND_PATTERN, description="e.g. scan, poses, handeye"),
     name: str = Query(min_length=1, max_length=255, description="File name, e.g. scan_000.ply"),
@@ -140,15 +141,14 @@ def _store(request, runtime, user, inspection_id, kind, name, media_type, receiv
 
 @router.get("/inspections/{inspection_id}/artifacts", response_model=Page[ArtifactOut])
 def list_artifacts(
-    inspection_id: int,
+    inspection_id: IdPath,
     kind: str | None = Query(None, pattern=ARTIFACT_KIND_PATTERN),
     cursor: str | None = None,
-    limit: int = DEFAULT_LIMIT,
+    limit: Limit = DEFAULT_LIMIT,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(readers),
 ) -> Page[ArtifactOut]:
     get_inspection(session, inspection_id=inspection_id)
-    limit = max(1, min(limit, MAX_LIMIT))
     query = select(Artifact).where(
         Artifact.inspection_id == inspection_id, Artifact.id > decode_cursor(cursor)
     )
@@ -163,8 +163,8 @@ def list_artifacts(
 
 @router.get("/inspections/{inspection_id}/artifacts/{artifact_id}", response_model=ArtifactOut)
 def get_artifact(
-    inspection_id: int,
-    artifact_id: int,
+    inspection_id: IdPath,
+    artifact_id: IdPath,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(readers),
 ) -> Artifact:
@@ -180,8 +180,8 @@ def get_artifact(
     },
 )
 def download_artifact(
-    inspection_id: int,
-    artifact_id: int,
+    inspection_id: IdPath,
+    artifact_id: IdPath,
     session: Session = Depends(get_session),
     runtime: Runtime = Depends(get_runtime),
     _: CurrentUser = Depends(readers),
@@ -201,8 +201,8 @@ def download_artifact(
 
 @router.delete("/inspections/{inspection_id}/artifacts/{artifact_id}", status_code=204)
 def delete_artifact(
-    inspection_id: int,
-    artifact_id: int,
+    inspection_id: IdPath,
+    artifact_id: IdPath,
     session: Session = Depends(get_session),
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),

@@ -15,8 +15,9 @@ from supervisor.defects.schemas import (
 )
 from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_session, require
 from supervisor.idempotency import create_once, digest_model
+from supervisor.ids import IdPath, IdQuery
 from supervisor.models import Defect
-from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 
 router = APIRouter(tags=["defects"])
 readers = require(*READ_ROLES, action="read defects")
@@ -25,12 +26,12 @@ editors = require(*EDIT_ROLES, action="report or update defects")
 
 @router.get("/defects", response_model=Page[DefectOut])
 def list_defects(
-    inspection: int | None = Query(None, description="Only this inspection's defects."),
-    run: int | None = Query(None, description="Only defects found by this run."),
+    inspection: int | None = IdQuery("Only this inspection's defects."),
+    run: int | None = IdQuery("Only defects found by this run."),
     type: DefectType | None = Query(None),
     status: DefectStatus | None = Query(None),
     cursor: str | None = None,
-    limit: int = Query(DEFAULT_LIMIT, ge=1, le=MAX_LIMIT),
+    limit: Limit = DEFAULT_LIMIT,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(readers),
 ) -> Page[DefectOut]:
@@ -71,14 +72,14 @@ def report_defect(
 
 @router.get("/defects/{defect_id}", response_model=DefectOut)
 def get_defect(
-    defect_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    defect_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
 ) -> DefectOut:
     return service.defects_out(session, [service.get(session, defect_id=defect_id)])[0]
 
 
 @router.patch("/defects/{defect_id}", response_model=DefectOut)
 def update_defect(
-    defect_id: int,
+    defect_id: IdPath,
     body: DefectUpdate,
     session: Session = Depends(get_session),
     user: CurrentUser = Depends(editors),

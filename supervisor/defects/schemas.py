@@ -5,6 +5,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from supervisor.ids import IdField
+
 DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
 DefectStatus = Literal["open", "resolved", "dismissed"]
 Severity = Literal["info", "minor", "major", "critical"]
@@ -31,7 +33,7 @@ class DefectCreate(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    inspection_id: int
+    inspection_id: IdField
     type: DefectType
     location_mm: Vector3
     normal: Vector3 = (0.0, 0.0, 1.0)

@@ -8,10 +8,11 @@ from sqlalchemy.orm import Session
 from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_runtime, get_session, require
 from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once, digest_model
+from supervisor.ids import IdPath
 from supervisor.inspections import service
 from supervisor.inspections.schemas import InspectionCreate, InspectionOut, InspectionUpdate
 from supervisor.models import Inspection
-from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 
 router = APIRouter(tags=["inspections"])
 readers = require(*READ_ROLES, action="read inspections")
@@ -38,11 +39,10 @@ def create_inspection(
 @router.get("/inspections", response_model=Page[InspectionOut])
 def list_inspections(
     cursor: str | None = None,
-    limit: int = DEFAULT_LIMIT,
+    limit: Limit = DEFAULT_LIMIT,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(readers),
 ) -> Page[InspectionOut]:
-    limit = max(1, min(limit, MAX_LIMIT))
     rows = session.scalars(
         select(Inspection)
         .where(Inspection.id > decode_cursor(cursor))
@@ -57,14 +57,16 @@ def list_inspections(
 
 @router.get("/inspections/{inspection_id}", response_model=InspectionOut)
 def get_inspection(
-    inspection_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    inspection_id: IdPath,
+    session: Session = Depends(get_session),
+    _: CurrentUser = Depends(readers),
 ) -> Inspection:
     return service.get(session, inspection_id=inspection_id)
 
 
 @router.patch("/inspections/{inspection_id}", response_model=InspectionOut)
 def update_inspection(
-    inspection_id: int,
+    inspection_id: IdPath,
     body: InspectionUpdate,
     session: Session = Depends(get_session),
     user: CurrentUser = Depends(editors),
@@ -76,7 +78,7 @@ def update_inspection(
 
 @router.delete("/inspections/{inspection_id}", status_code=204)
 def delete_inspection(
-    inspection_id: int,
+    inspection_id: IdPath,
     session: Session = Depends(get_session),
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),

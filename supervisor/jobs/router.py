@@ -16,11 +16,12 @@ from supervisor.engine.dispatch import dispatch
 from supervisor.engine.registry import load_kinds
 from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once, digest_model
+from supervisor.ids import IdPath, IdQuery
 from supervisor.inspections.service import get as get_inspection
 from supervisor.jobs import service
 from supervisor.jobs.schemas import JobKindOut, JobOut, JobStatus, RunCreate, RunOut
 from supervisor.models import Job, Run
-from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 
 router = APIRouter(tags=["runs and jobs"])
 readers = require(*READ_ROLES, action="read runs and jobs")
@@ -50,7 +51,7 @@ def list_job_kinds(
 
 @router.post("/inspections/{inspection_id}/runs", status_code=201, response_model=RunOut)
 def create_run(
-    inspection_id: int,
+    inspection_id: IdPath,
     body: RunCreate,
     request: Request,
     session: Session = Depends(get_session),
@@ -85,14 +86,13 @@ def create_run(
 
 @router.get("/inspections/{inspection_id}/runs", response_model=Page[RunOut])
 def list_runs(
-    inspection_id: int,
+    inspection_id: IdPath,
     cursor: str | None = None,
-    limit: int = 20,
+    limit: Limit = 20,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(readers),
 ) -> Page[RunOut]:
     get_inspection(session, inspection_id=inspection_id)
-    limit = max(1, min(limit, MAX_LIMIT))
     rows = session.scalars(
         select(Run)
         .where(Run.inspection_id == inspection_id, Run.id > decode_cursor(cursor))
@@ -107,22 +107,21 @@ def list_runs(
 
 @router.get("/runs/{run_id}", response_model=RunOut)
 def get_run(
-    run_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    run_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
 ) -> RunOut:
     return service.run_out(session, service.get_run(session, run_id=run_id))
 
 
 @router.get("/jobs", response_model=Page[JobOut])
 def list_jobs(
-    run: int | None = None,
-    inspection: int | None = None,
+    run: int | None = IdQuery("Only this run's jobs."),
+    inspection: int | None = IdQuery("Only this inspection's jobs."),
     status: JobStatus | None = None,
     cursor: str | None = None,
-    limit: int = DEFAULT_LIMIT,
+    limit: Limit = DEFAULT_LIMIT,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(readers),
 ) -> Page[JobOut]:
-    limit = max(1, min(limit, MAX_LIMIT))
     query = select(Job).where(Job.id > decode_cursor(cursor))
     if run is not None:
         query = query.where(Job.run_id == run)
@@ -139,14 +138,14 @@ def list_jobs(
 
 @router.get("/jobs/{job_id}", response_model=JobOut)
 def get_job(
-    job_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    job_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
 ) -> JobOut:
     return service.job_out(session, service.get_job(session, job_id=job_id))
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut)
 def cancel_job(
-    job_id: int, session: Session = Depends(get_session), user: CurrentUser = Depends(operators)
+    job_id: IdPath, session: Session = Depends(get_session), user: CurrentUser = Depends(operators)
 ) -> JobOut:
     """Cancel a job: at once if it has not started, else at its next progress report."""
     job = service.cancel_job(session, job_id=job_id, user_id=user.id)
@@ -157,7 +156,7 @@ def cancel_job(
 
 @router.post("/jobs/{job_id}/retry", response_model=JobOut)
 def retry_job(
-    job_id: int,
+    job_id: IdPath,
     session: Session = Depends(get_session),
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(operators),
@@ -182,7 +181,7 @@ def _snapshot(runtime: Runtime, job_id: int) -> dict | None:
     responses={200: {"content": {"text/event-stream": {}}}},
 )
 async def job_events(
-    job_id: int,
+    job_id: IdPath,
     request: Request,
     runtime: Runtime = Depends(get_runtime),
     _: CurrentUser = Depends(readers),

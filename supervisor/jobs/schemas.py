@@ -5,6 +5,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from supervisor.ids import IdField
+
 JobStatus = Literal["waiting", "queued", "running", "succeeded", "failed", "cancelled"]
 STEP_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,63}$"
 
@@ -15,7 +17,7 @@ class StepIn(BaseModel):
     name: str = Field(pattern=STEP_NAME_PATTERN, description="Unique within the run.")
     kind: str = Field(min_length=1, max_length=64, description="A job kind from GET /job-kinds.")
     params: dict[str, Any] = Field(default_factory=dict)
-    inputs: list[int] = Field(
+    inputs: list[IdField] = Field(
         default_factory=list, max_length=1000, description="Artifact ids of this inspection."
     )
     after: list[str] = Field(

@@ -5,6 +5,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.defects.service import consensus_for
 from supervisor.deps import JUDGE_ROLES, READ_ROLES, CurrentUser, get_session, require
+from supervisor.ids import IdPath
 from supervisor.judgments import service
 from supervisor.judgments.schemas import DefectJudgmentsOut, JudgmentIn, MyJudgmentOut
 
@@ -15,7 +16,7 @@ judges = require(*JUDGE_ROLES, action="judge defects")
 
 @router.put("/defects/{defect_id}/judgments/me", response_model=MyJudgmentOut)
 def put_my_judgment(
-    defect_id: int,
+    defect_id: IdPath,
     body: JudgmentIn,
     session: Session = Depends(get_session),
     user: CurrentUser = Depends(judges),
@@ -33,7 +34,7 @@ def put_my_judgment(
 
 @router.get("/defects/{defect_id}/judgments", response_model=DefectJudgmentsOut)
 def list_judgments(
-    defect_id: int, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    defect_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
 ) -> DefectJudgmentsOut:
     """Every user's current judgment with its full history, and the consensus."""
     return service.all_for_defect(session, defect_id=defect_id)

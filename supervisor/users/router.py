@@ -9,9 +9,10 @@ from sqlalchemy.orm import Session
 
 from supervisor.deps import ADMIN_ROLES, CurrentUser, get_session, require
 from supervisor.idempotency import create_once, digest_model
+from supervisor.ids import IdPath
 from supervisor.models import User
 from supervisor.models._types import utcnow
-from supervisor.pagination import DEFAULT_LIMIT, MAX_LIMIT, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 from supervisor.problems import not_found
 from supervisor.users import service
 from supervisor.users.schemas import TokenCreate, TokenCreated, UserCreate, UserOut
@@ -43,11 +44,10 @@ def create_user(
 @router.get("/users", response_model=Page[UserOut])
 def list_users(
     cursor: str | None = None,
-    limit: int = DEFAULT_LIMIT,
+    limit: Limit = DEFAULT_LIMIT,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(manage_users),
 ) -> Page[UserOut]:
-    limit = max(1, min(limit, MAX_LIMIT))
     rows = session.scalars(
         select(User).where(User.id > decode_cursor(cursor)).order_by(User.id).limit(limit + 1)
     ).all()
@@ -59,7 +59,7 @@ def list_users(
 
 @router.post("/users/{user_id}/tokens", status_code=201, response_model=TokenCreated)
 def create_token(
-    user_id: int,
+    user_id: IdPath,
     body: TokenCreate,
     session: Session = Depends(get_session),
     _: CurrentUser = Depends(manage_users),

@@ -1,0 +1,108 @@
+"""`vista bench api`: the integrity check catches what it should, and a short run works."""
+
+from __future__ import annotations
+
+import json
+import random
+from pathlib import Path
+
+import pytest
+from sqlalchemy import insert
+
+from supervisor.bench.api import (
+    PAGE_REQUESTS,
+    WriterLog,
+    format_table,
+    percentile,
+    run_api_bench,
+    seed_database,
+    verify_judgments,
+)
+from supervisor.db import make_engine
+from supervisor.models import Judgment, JudgmentRevision
+from supervisor.models._types import utcnow
+from tests.conftest import NO_POSTGRES, PG_URL
+
+
+def test_percentile_is_nearest_rank() -> None:
+    values = [float(v) for v in range(1, 101)]
+    assert percentile(values, 50) == 50.0
+    assert percentile(values, 99) == 99.0
+    assert percentile(values, 100) == 100.0
+    assert percentile([7.0], 99) == 7.0
+    assert percentile([], 50) is None
+
+
+def _judgment(defect_id: int, user_id: int, revision: int, revisions: list[int]) -> list:
+    now = utcnow()
+    common = {"defect_id": defect_id, "user_id": user_id, "verdict": "confirmed", "comment": ""}
+    return [
+        insert(Judgment).values(**common, revision=revision, updated_at=now),
+        *(insert(JudgmentRevision).values(**common, revision=r, created_at=now) for r in revisions),
+    ]
+
+
+def test_verify_counts_lost_and_duplicated_writes(sqlite_url: str) -> None:
+    seeded = seed_database(sqlite_url, clients=2, defects=200, rng=random.Random(1))
+    d1, d2, d3, d4 = seeded.defect_ids[:4]
+    u1, u2 = seeded.user_ids
+    engine = make_engine(sqlite_url)
+    with engine.begin() as connection:
+        for statement in [
+            *_judgment(d1, u1, 2, [1, 2]),  # exact: 2 writes seen, 2 stored
+            *_judgment(d2, u1, 1, [1]),  # lost: 2 writes seen, 1 stored
+            *_judgment(d3, u2, 3, [1, 2, 3]),  # duplicated: 2 writes seen, 3 stored
+            *_judgment(d4, u2, 2, [2]),  # lost: history has a gap
+        ]:
+            connection.execute(statement)
+    engine.dispose()
+    first, second = WriterLog(user_id=u1), WriterLog(user_id=u2)
+    first.succeeded.update({d1: 2, d2: 2})
+    second.succeeded.update({d3: 2, d4: 2})
+
+    result = verify_judgments(sqlite_url, [first, second])
+
+    assert result["pairs"] == 4
+    assert result["lost"] == 1 + 1
+    assert result["duplicated"] == 1
+
+
+def test_verify_accepts_a_failed_write_either_way(sqlite_url: str) -> None:
+    seeded = seed_database(sqlite_url, clients=1, defects=200, rng=random.Random(1))
+    defect, user = seeded.defect_ids[0], seeded.user_ids[0]
+    engine = make_engine(sqlite_url)
+    with engine.begin() as connection:
+        for statement in _judgment(defect, user, 2, [1, 2]):
+            connection.execute(statement)
+    engine.dispose()
+    log = WriterLog(user_id=user)
+    log.succeeded[defect] = 1
+    log.failed[defect] = 1  # the client got an error but the write landed
+
+    result = verify_judgments(sqlite_url, [log])
+
+    assert (result["lost"], result["duplicated"]) == (0, 0)
+
+
+@pytest.mark.parametrize("with_postgres", [False, True], ids=["sqlite", "postgres"])
+def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: bool) -> None:
+    if with_postgres and not PG_URL:
+        pytest.skip(NO_POSTGRES)
+    out = tmp_path / "deep" / "api.json"
+
+    report = run_api_bench(
+        out=out, clients=4, seconds=1, defects=300, postgres_url=PG_URL if with_postgres else None
+    )
+
+    assert json.loads(out.read_text()) == json.loads(json.dumps(report))
+    assert set(report["backends"]) == ({"sqlite", "postgresql"} if with_postgres else {"sqlite"})
+    for result in report["backends"].values():
+        writes, integrity, page = result["writes"], result["integrity"], result["page"]
+        assert writes["writes"] > 0 and writes["errors"] == 0
+        assert writes["revision_mismatches"] == 0
+        assert integrity["lost"] == 0 and integrity["duplicated"] == 0
+        assert integrity["change_log_matches"]
+        assert integrity["revision_rows"] == writes["total_writes_including_warmup"]
+        assert page["requests"] == PAGE_REQUESTS
+        assert page["errors"] == 0 and page["wrong_pages"] == 0
+    assert "writes/s" in format_table(report)
