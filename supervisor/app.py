@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import fcntl
 import logging
 from contextlib import asynccontextmanager
+from typing import IO
 
 from fastapi import APIRouter, FastAPI
 
@@ -11,6 +13,7 @@ from supervisor import health
 from supervisor.artifacts.router import router as artifacts_router
 from supervisor.auth.router import router as auth_router
 from supervisor.defects.router import router as defects_router
+from supervisor.deps import TokenCache
 from supervisor.engine.embedded import EmbeddedPool
 from supervisor.engine.maintenance import MaintenanceLoop, resend_queued
 from supervisor.engine.runtime import Runtime
@@ -39,6 +42,18 @@ def check_schema(url: str) -> None:
         )
 
 
+def _engine_lock(settings: Settings) -> IO | None:
+    """The embedded pool's lock: held for life by the one API process that runs it."""
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    handle = open(settings.data_dir / "engine.lock", "w")  # noqa: SIM115 - held for life
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.close()
+        return None
+    return handle
+
+
 def create_app(
     settings: Settings | None = None, *, runtime: Runtime | None = None, run_engine: bool = True
 ) -> FastAPI:
@@ -51,11 +66,13 @@ def create_app(
         rt = runtime or Runtime.create(settings)
         check_schema(rt.db.url)
         app.state.runtime = rt
-        pool, loop = None, None
+        pool, loop, lock = None, None, None
         if run_engine:
             if rt.dispatcher.polls_database and settings.embedded_workers > 0:
-                pool = EmbeddedPool(settings, settings.embedded_workers)
-                pool.start()
+                lock = _engine_lock(settings)
+                if lock is not None:  # with several API processes, one runs the pool
+                    pool = EmbeddedPool(settings, settings.embedded_workers)
+                    pool.start()
             resend_queued(rt, only_undispatched=False)
             loop = MaintenanceLoop(rt)
             loop.start()
@@ -67,6 +84,8 @@ def create_app(
                 loop.stop()
             if pool is not None:
                 pool.stop()
+            if lock is not None:
+                lock.close()
             if runtime is None:
                 rt.db.dispose()
 
@@ -78,6 +97,7 @@ def create_app(
         openapi_url=f"{API_PREFIX}/openapi.json",
         docs_url="/docs",
     )
+    app.state.token_cache = TokenCache()
     install_problem_handlers(app)
     api = APIRouter(prefix=API_PREFIX)
     for router in (

@@ -50,13 +50,16 @@ def _redact(url: str) -> str:
 
 @app.command()
 def serve(
-    host: str = typer.Option(None, help="Default VISTA_HOST (127.0.0.1)."),
-    port: int = typer.Option(None, help="Default VISTA_PORT (8000)."),
+    host: str | None = typer.Option(None, help="Default VISTA_HOST (127.0.0.1)."),
+    port: int | None = typer.Option(None, help="Default VISTA_PORT (8000)."),
+    workers: int | None = typer.Option(
+        None, min=1, help="API processes; default VISTA_API_WORKERS (1)."
+    ),
 ) -> None:
     """Serve the supervisor API (and, without a broker, the embedded job engine)."""
     import uvicorn
 
-    from supervisor.app import SchemaOutOfDate, check_schema, create_app
+    from supervisor.app import SchemaOutOfDate, check_schema
 
     settings = get_settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
@@ -67,20 +70,26 @@ def serve(
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    host, port = host or settings.host, port or settings.port
+    processes = workers or settings.api_workers
     engine = (
         f"dramatiq via {_redact(settings.broker_url)}"
         if settings.broker_url
         else (f"embedded, {settings.embedded_workers} worker processes")
     )
     typer.echo(
-        f"vista supervisor on http://{host or settings.host}:{port or settings.port} "
-        f"(database {_redact(settings.resolved_database_url)}; jobs {engine})"
+        f"vista supervisor on http://{host}:{port} with {processes} API process(es) "
+        f"(database {_redact(settings.resolved_database_url)}; jobs {engine}); "
+        f"API docs at http://{host}:{port}/docs"
     )
     uvicorn.run(
-        create_app(settings),
-        host=host or settings.host,
-        port=port or settings.port,
+        "supervisor.app:create_app",
+        factory=True,
+        host=host,
+        port=port,
+        workers=processes,
         log_level="info",
+        access_log=settings.access_log,
     )
 
 
@@ -165,6 +174,7 @@ def bench_api(
     postgres_url: str = typer.Option(
         None, help="PostgreSQL URL for the second run; default VISTA_TEST_DATABASE_URL."
     ),
+    api_workers: int = typer.Option(2, min=1, help="API processes of the server under test."),
 ) -> None:
     """Judgment writes/s and latency with concurrent clients, and defect-page latency, on
     SQLite and PostgreSQL, each against a real `vista serve` process."""

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import time
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
 from fastapi import Depends, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from supervisor.auth.service import user_for_token
+from supervisor.auth.service import token_digest, user_for_token
 from supervisor.engine.runtime import Runtime
+from supervisor.models._types import utcnow
 from supervisor.problems import Problem
 
 READ_ROLES = ("admin", "inspector", "viewer", "device")
@@ -29,18 +32,63 @@ class CurrentUser:
     token_kind: str
 
 
+class TokenCache:
+    """Recently seen tokens, so most requests need no database round trip to sign in.
+
+    An entry lives ``ttl_s`` seconds (never past the token's own expiry), so a revoked
+    token or a deactivated user stops working within that time.
+    """
+
+    def __init__(self, ttl_s: float = 10.0, max_entries: int = 10_000) -> None:
+        self.ttl_s = ttl_s
+        self.max_entries = max_entries
+        self._entries: dict[str, tuple[CurrentUser, float]] = {}
+
+    def get(self, digest: str) -> CurrentUser | None:
+        entry = self._entries.get(digest)
+        if entry is None or entry[1] < time.monotonic():
+            return None
+        return entry[0]
+
+    def put(self, digest: str, user: CurrentUser, expires_in_s: float | None) -> None:
+        if len(self._entries) >= self.max_entries:
+            self._entries.clear()
+        lifetime = self.ttl_s if expires_in_s is None else min(self.ttl_s, expires_in_s)
+        self._entries[digest] = (user, time.monotonic() + lifetime)
+
+
 def get_runtime(request: Request) -> Runtime:
     return request.app.state.runtime
 
 
-def get_session(request: Request) -> Iterator[Session]:
-    """A session that takes the write lock (SQLite) only for methods that change data."""
+async def get_session(request: Request) -> AsyncIterator[Session]:
+    """A session that takes the write lock (SQLite) only for methods that change data.
+
+    Creating it does no I/O, so only closing it (which returns the connection) goes to
+    the thread pool.
+    """
     write = request.method not in ("GET", "HEAD", "OPTIONS")
-    with request.app.state.runtime.db.session(write=write) as session:
+    session = request.app.state.runtime.db.session(write=write)
+    try:
         yield session
+    finally:
+        await run_in_threadpool(session.close)
 
 
-def current_user(
+def _look_up(request: Request, token: str) -> tuple[CurrentUser, float | None] | None:
+    with request.app.state.runtime.db.read() as session:
+        found = user_for_token(session, token)
+    if found is None:
+        return None
+    user, api_token = found
+    expires_in = (api_token.expires_at - utcnow()).total_seconds() if api_token.expires_at else None
+    signed_in = CurrentUser(
+        id=user.id, username=user.username, role=user.role, token_kind=api_token.kind
+    )
+    return signed_in, expires_in
+
+
+async def current_user(
     request: Request,
     credentials: HTTPAuthorizationCredentials | None = Depends(_bearer),
 ) -> CurrentUser:
@@ -49,18 +97,21 @@ def current_user(
         raise Problem(
             401, "Send a bearer token: 'Authorization: Bearer <token>'.", headers=challenge
         )
-    with request.app.state.runtime.db.read() as session:
-        found = user_for_token(session, credentials.credentials)
-        if found is None:
-            raise Problem(401, "The token is unknown, expired or revoked.", headers=challenge)
-        user, token = found
-        return CurrentUser(
-            id=user.id, username=user.username, role=user.role, token_kind=token.kind
-        )
+    cache: TokenCache = request.app.state.token_cache
+    digest = token_digest(credentials.credentials)
+    user = cache.get(digest)
+    if user is not None:
+        return user
+    found = await run_in_threadpool(_look_up, request, credentials.credentials)
+    if found is None:
+        raise Problem(401, "The token is unknown, expired or revoked.", headers=challenge)
+    user, expires_in = found
+    cache.put(digest, user, expires_in)
+    return user
 
 
 def require(*roles: str, action: str):  # noqa: ANN201 - a FastAPI dependency
-    def dependency(user: CurrentUser = Depends(current_user)) -> CurrentUser:
+    async def dependency(user: CurrentUser = Depends(current_user)) -> CurrentUser:
         if user.role not in roles:
             raise Problem(403, f"A {user.role} may not {action}.")
         return user

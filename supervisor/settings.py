@@ -34,6 +34,8 @@ class Settings(BaseSettings):
     )
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=1, le=65535)
+    api_workers: int = Field(1, ge=1, description="API processes of `vista serve`.")
+    access_log: bool = Field(False, description="Log every request (costs ~4 % under load).")
     max_upload_mb: int = Field(4096, ge=1, description="Largest artifact upload, MiB.")
     embedded_workers: int = Field(2, ge=0, description="Worker processes of the embedded engine.")
     heartbeat_interval_s: float = Field(5.0, gt=0, description="How often a running job beats.")

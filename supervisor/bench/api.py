@@ -172,13 +172,28 @@ def latency_summary(latencies_ms: list[float]) -> dict[str, float | None]:
     }
 
 
+def _process_tree(pid: int) -> list[int]:
+    """``pid`` and its descendants (Linux /proc)."""
+    tree, frontier = [], [pid]
+    while frontier:
+        current = frontier.pop()
+        tree.append(current)
+        for task in Path(f"/proc/{current}/task").glob("*/children"):
+            with suppress(OSError):
+                frontier.extend(int(child) for child in task.read_text().split())
+    return tree
+
+
 def process_cpu_s(pid: int) -> float | None:
-    """User + system CPU seconds of a process (Linux /proc), None elsewhere."""
+    """User + system CPU seconds of a process and its children (Linux /proc), None elsewhere."""
+    total = 0.0
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        for member in _process_tree(pid):
+            fields = Path(f"/proc/{member}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     except OSError:
         return None
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
 
 
 def system_cpu_ticks() -> tuple[int, int] | None:
@@ -315,12 +330,13 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
-def server_environment(data_dir: Path, url: str) -> dict[str, str]:
+def server_environment(data_dir: Path, url: str, api_workers: int) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("VISTA_")}
     env.update(
         VISTA_DATA_DIR=str(data_dir),
         VISTA_DATABASE_URL=url,
         VISTA_EMBEDDED_WORKERS="0",
+        VISTA_API_WORKERS=str(api_workers),
     )
     return env
 
@@ -368,14 +384,17 @@ class Server:
 
 
 @contextmanager
-def running_server(data_dir: Path, url: str) -> Iterator[Server]:
+def running_server(data_dir: Path, url: str, api_workers: int) -> Iterator[Server]:
     """``vista serve`` in its own process (no embedded workers), stopped on the way out."""
     port = free_port()
     log_path = data_dir / "serve.log"
     command = [sys.executable, "-m", "supervisor.cli", "serve", "--port", str(port)]
     with log_path.open("wb") as log:
         process = subprocess.Popen(
-            command, env=server_environment(data_dir, url), stdout=log, stderr=subprocess.STDOUT
+            command,
+            env=server_environment(data_dir, url, api_workers),
+            stdout=log,
+            stderr=subprocess.STDOUT,
         )
     try:
         wait_until_ready(process, f"http://127.0.0.1:{port}", log_path)
@@ -632,7 +651,14 @@ async def page_test(port: int, seeded: Seeded) -> dict[str, Any]:
 
 
 def bench_backend(
-    name: str, url: str, data_dir: Path, *, clients: int, seconds: float, defects: int
+    name: str,
+    url: str,
+    data_dir: Path,
+    *,
+    clients: int,
+    seconds: float,
+    defects: int,
+    api_workers: int,
 ) -> dict[str, Any]:
     timings: dict[str, float] = {}
     started = time.perf_counter()
@@ -647,7 +673,7 @@ def bench_backend(
 
     started = time.perf_counter()
     _say(f"{name}: starting `vista serve`")
-    with running_server(data_dir, url) as server:
+    with running_server(data_dir, url, api_workers) as server:
         timings["server_start_s"] = time.perf_counter() - started
         _say(
             f"{name}: {clients} clients writing judgments for {WARMUP_S:.0f} s warm-up "
@@ -777,7 +803,13 @@ def machine_info() -> dict[str, Any]:
 
 
 def run_api_bench(
-    *, out: Path, clients: int, seconds: float, defects: int, postgres_url: str | None
+    *,
+    out: Path,
+    clients: int,
+    seconds: float,
+    defects: int,
+    postgres_url: str | None,
+    api_workers: int = 2,
 ) -> dict:
     """Run the bench on SQLite and, when ``postgres_url`` is given, PostgreSQL; print a table,
     write JSON to ``out`` and return the same dict."""
@@ -793,6 +825,7 @@ def run_api_bench(
             "seconds": seconds,
             "warmup_s": WARMUP_S,
             "defects": defects,
+            "api_workers": api_workers,
             "hot_defects": min(HOT_DEFECTS, defects),
             "page_size": PAGE_SIZE,
             "page_requests": PAGE_REQUESTS,
@@ -806,7 +839,13 @@ def run_api_bench(
         data_dir = Path(tmp)
         url = f"sqlite:///{(data_dir / 'vista.db').resolve()}"
         report["backends"]["sqlite"] = bench_backend(
-            "sqlite", url, data_dir, clients=clients, seconds=seconds, defects=defects
+            "sqlite",
+            url,
+            data_dir,
+            clients=clients,
+            seconds=seconds,
+            defects=defects,
+            api_workers=api_workers,
         )
     if postgres_url:
         with (
@@ -814,7 +853,13 @@ def run_api_bench(
             tempfile.TemporaryDirectory(prefix="vista-bench-pg-") as tmp,
         ):
             report["backends"]["postgresql"] = bench_backend(
-                "postgresql", url, Path(tmp), clients=clients, seconds=seconds, defects=defects
+                "postgresql",
+                url,
+                Path(tmp),
+                clients=clients,
+                seconds=seconds,
+                defects=defects,
+                api_workers=api_workers,
             )
     else:
         _say("PostgreSQL skipped: pass --postgres-url or set VISTA_TEST_DATABASE_URL")

@@ -2,17 +2,19 @@
 
 The write is a single atomic upsert that bumps ``revision`` only when something
 changed, so concurrent writers never lose an update and a retried PUT adds nothing.
+It is the API's hottest path, so it is plain SQL Core with statements built once.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from functools import cache
 
-from sqlalchemy import insert, or_, select
+from sqlalchemy import Insert, bindparam, insert, or_, select
 from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from supervisor.changes import record_change
 from supervisor.defects.service import consensus_for
 from supervisor.defects.service import get as get_defect
 from supervisor.judgments.schemas import (
@@ -21,80 +23,94 @@ from supervisor.judgments.schemas import (
     JudgmentOut,
     JudgmentRevisionOut,
 )
-from supervisor.models import Judgment, JudgmentRevision, User
+from supervisor.models import Change, Defect, Judgment, JudgmentRevision, User
 from supervisor.models._types import utcnow
-from supervisor.problems import Problem
+from supervisor.problems import Problem, not_found
+
+_judgments = Judgment.__table__
+_revisions = JudgmentRevision.__table__
+_changes = Change.__table__
+_defects = Defect.__table__
 
 
-def _upsert(session: Session):  # noqa: ANN202 - the dialect's INSERT construct
-    return (postgresql if session.get_bind().dialect.name == "postgresql" else sqlite).insert(
-        Judgment
-    )
-
-
-def put_mine(session: Session, *, defect_id: int, user_id: int, data: JudgmentIn) -> Judgment:
-    defect = get_defect(session, defect_id=defect_id)
-    if data.verdict == "reclassified" and data.new_type == defect.type:
-        raise Problem(422, f"new_type: the defect already is a {defect.type}; pick another type.")
-    now = utcnow()
-    statement = _upsert(session).values(
-        defect_id=defect_id,
-        user_id=user_id,
-        verdict=data.verdict,
-        new_type=data.new_type,
-        comment=data.comment,
+@cache
+def _upsert(dialect: str) -> Insert:
+    module = postgresql if dialect == "postgresql" else sqlite
+    statement = module.insert(_judgments).values(
+        defect_id=bindparam("defect_id"),
+        user_id=bindparam("user_id"),
+        verdict=bindparam("verdict"),
+        new_type=bindparam("new_type"),
+        comment=bindparam("comment"),
         revision=1,
-        updated_at=now,
+        updated_at=bindparam("now"),
     )
     incoming = statement.excluded
-    statement = statement.on_conflict_do_update(
-        index_elements=[Judgment.defect_id, Judgment.user_id],
+    return statement.on_conflict_do_update(
+        index_elements=[_judgments.c.defect_id, _judgments.c.user_id],
         set_={
             "verdict": incoming.verdict,
             "new_type": incoming.new_type,
             "comment": incoming.comment,
-            "revision": Judgment.revision + 1,
+            "revision": _judgments.c.revision + 1,
             "updated_at": incoming.updated_at,
         },
         where=or_(
-            Judgment.verdict != incoming.verdict,
-            Judgment.new_type.is_distinct_from(incoming.new_type),
-            Judgment.comment != incoming.comment,
+            _judgments.c.verdict != incoming.verdict,
+            _judgments.c.new_type.is_distinct_from(incoming.new_type),
+            _judgments.c.comment != incoming.comment,
         ),
-    ).returning(Judgment.revision)
-    revision = session.execute(statement).scalar_one_or_none()
-    if revision is not None:
-        session.execute(
-            insert(JudgmentRevision).values(
-                defect_id=defect_id,
-                user_id=user_id,
-                revision=revision,
-                verdict=data.verdict,
-                new_type=data.new_type,
-                comment=data.comment,
-                created_at=now,
-            )
-        )
-        record_change(
-            session,
-            entity="judgment",
-            entity_id=defect_id,
-            op="update",
-            inspection_id=defect.inspection_id,
-            user_id=user_id,
-        )
-    return session.scalars(
-        select(Judgment).where(Judgment.defect_id == defect_id, Judgment.user_id == user_id)
-    ).one()
+    ).returning(*_judgments.c)
 
 
-def judgment_out(judgment: Judgment, username: str) -> JudgmentOut:
+_DEFECT_FOR_JUDGMENT = select(_defects.c.inspection_id, _defects.c.type).where(
+    _defects.c.id == bindparam("defect_id")
+)
+_CURRENT = select(_judgments).where(
+    _judgments.c.defect_id == bindparam("defect_id"), _judgments.c.user_id == bindparam("user_id")
+)
+
+
+def put_mine(session: Session, *, defect_id: int, user_id: int, data: JudgmentIn) -> Row:
+    """Upsert the caller's judgment; returns the current ``judgments`` row."""
+    defect = session.execute(_DEFECT_FOR_JUDGMENT, {"defect_id": defect_id}).first()
+    if defect is None:
+        raise not_found("defect", defect_id)
+    if data.verdict == "reclassified" and data.new_type == defect.type:
+        raise Problem(422, f"new_type: the defect already is a {defect.type}; pick another type.")
+    now = utcnow()
+    values = {
+        "defect_id": defect_id,
+        "user_id": user_id,
+        "verdict": data.verdict,
+        "new_type": data.new_type,
+        "comment": data.comment,
+    }
+    row = session.execute(_upsert(session.get_bind().dialect.name), {**values, "now": now}).first()
+    if row is None:  # nothing changed: the same judgment again
+        return session.execute(_CURRENT, values).one()
+    session.execute(insert(_revisions), {**values, "revision": row.revision, "created_at": now})
+    session.execute(
+        insert(_changes),
+        {
+            "entity": "judgment",
+            "entity_id": defect_id,
+            "op": "update",
+            "inspection_id": defect.inspection_id,
+            "user_id": user_id,
+            "created_at": now,
+        },
+    )
+    return row
+
+
+def judgment_out(judgment: Row | Judgment, username: str) -> JudgmentOut:
     return JudgmentOut(
         defect_id=judgment.defect_id,
         user_id=judgment.user_id,
         username=username,
-        verdict=judgment.verdict,  # type: ignore[arg-type]
-        new_type=judgment.new_type,  # type: ignore[arg-type]
+        verdict=judgment.verdict,
+        new_type=judgment.new_type,
         comment=judgment.comment,
         revision=judgment.revision,
         updated_at=judgment.updated_at,

@@ -1,0 +1,54 @@
+from __future__ import annotations
+
+import pytest
+from fastapi.testclient import TestClient
+from typer.testing import CliRunner
+
+from supervisor.app import create_app
+from supervisor.cli import app
+from supervisor.settings import get_settings
+
+
+@pytest.fixture
+def cli(tmp_path, monkeypatch):
+    monkeypatch.setenv("VISTA_DATA_DIR", str(tmp_path / "data"))
+    for name in ("VISTA_DATABASE_URL", "VISTA_BROKER_URL", "VISTA_ARTIFACT_DIR"):
+        monkeypatch.delenv(name, raising=False)
+    get_settings.cache_clear()
+    runner = CliRunner()
+    yield lambda *args: runner.invoke(app, list(args))
+    get_settings.cache_clear()
+
+
+def test_migrate_then_create_user_prints_a_working_token(cli, tmp_path):
+    migrated = cli("migrate")
+    assert migrated.exit_code == 0 and "is at migration" in migrated.output
+    created = cli("user", "create", "ada", "--role", "admin")
+    assert created.exit_code == 0, created.output
+    token = created.output.strip()
+    assert token.startswith("vst_")
+    with TestClient(create_app(get_settings(), run_engine=False)) as client:
+        me = client.get("/api/v1/me", headers={"Authorization": f"Bearer {token}"}).json()
+    assert me["username"] == "ada" and me["role"] == "admin" and me["token_kind"] == "cli"
+    again = cli("user", "create", "ada", "--role", "admin")
+    assert again.exit_code == 2 and "already exists" in again.output
+
+
+def test_cli_errors_are_sentences(cli):
+    cli("migrate")
+    bad_role = cli("user", "create", "bob", "--role", "boss")
+    assert bad_role.exit_code == 2 and "--role must be one of" in bad_role.output
+    no_broker = cli("worker", "--queues", "scan")
+    assert no_broker.exit_code == 2 and "VISTA_BROKER_URL" in no_broker.output
+
+
+def test_serve_refuses_a_database_that_is_not_migrated(cli):
+    refused = cli("serve")
+    assert refused.exit_code == 2 and "run `vista migrate` first" in refused.output
+
+
+def test_unknown_worker_queue_is_refused(cli, monkeypatch):
+    monkeypatch.setenv("VISTA_BROKER_URL", "redis://127.0.0.1:6379/15")
+    get_settings.cache_clear()
+    refused = cli("worker", "--queues", "scan,paint")
+    assert refused.exit_code == 2 and "unknown queue(s) ['paint']" in refused.output
