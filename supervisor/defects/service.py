@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import math
 
-from sqlalchemy import func, select
+from sqlalchemy import bindparam, func, select
 from sqlalchemy.orm import Session
 
 from supervisor.changes import record_change
@@ -34,15 +34,18 @@ def consensus_from(counts: dict[str, int], reclassified_as: dict[str, int]) -> C
     )
 
 
+_VOTES = (
+    select(Judgment.defect_id, Judgment.verdict, Judgment.new_type, func.count())
+    .where(Judgment.defect_id.in_(bindparam("defect_ids", expanding=True)))
+    .group_by(Judgment.defect_id, Judgment.verdict, Judgment.new_type)
+)
+
+
 def consensus_for(session: Session, defect_ids: list[int]) -> dict[int, Consensus]:
     counts: dict[int, dict[str, int]] = {d: {} for d in defect_ids}
     retyped: dict[int, dict[str, int]] = {d: {} for d in defect_ids}
     if defect_ids:
-        rows = session.execute(
-            select(Judgment.defect_id, Judgment.verdict, Judgment.new_type, func.count())
-            .where(Judgment.defect_id.in_(defect_ids))
-            .group_by(Judgment.defect_id, Judgment.verdict, Judgment.new_type)
-        )
+        rows = session.execute(_VOTES, {"defect_ids": list(defect_ids)})
         for defect_id, verdict, new_type, count in rows:
             counts[defect_id][verdict] = counts[defect_id].get(verdict, 0) + count
             if verdict == "reclassified" and new_type:

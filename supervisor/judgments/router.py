@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Response
 from sqlalchemy.orm import Session
 
 from supervisor.defects.service import consensus_for
@@ -20,7 +20,7 @@ def put_my_judgment(
     body: JudgmentIn,
     session: Session = Depends(get_session),
     user: CurrentUser = Depends(judges),
-) -> MyJudgmentOut:
+) -> Response:
     """Set your judgment of a defect. Each change is a new revision; repeating the same
     judgment changes nothing. Nobody can write another user's judgment."""
     judgment = service.put_mine(session, defect_id=defect_id, user_id=user.id, data=body)
@@ -29,7 +29,8 @@ def put_my_judgment(
         consensus=consensus_for(session, [defect_id])[defect_id],
     )
     session.commit()
-    return out
+    # Built by the model above already: skip FastAPI's second validation (hot path).
+    return Response(out.model_dump_json(), media_type="application/json")
 
 
 @router.get("/defects/{defect_id}/judgments", response_model=DefectJudgmentsOut)

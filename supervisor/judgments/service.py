@@ -66,6 +66,8 @@ def _upsert(dialect: str) -> Insert:
 _DEFECT_FOR_JUDGMENT = select(_defects.c.inspection_id, _defects.c.type).where(
     _defects.c.id == bindparam("defect_id")
 )
+_ADD_REVISION = insert(_revisions)
+_ADD_CHANGE = insert(_changes)
 _CURRENT = select(_judgments).where(
     _judgments.c.defect_id == bindparam("defect_id"), _judgments.c.user_id == bindparam("user_id")
 )
@@ -89,9 +91,9 @@ def put_mine(session: Session, *, defect_id: int, user_id: int, data: JudgmentIn
     row = session.execute(_upsert(session.get_bind().dialect.name), {**values, "now": now}).first()
     if row is None:  # nothing changed: the same judgment again
         return session.execute(_CURRENT, values).one()
-    session.execute(insert(_revisions), {**values, "revision": row.revision, "created_at": now})
+    session.execute(_ADD_REVISION, {**values, "revision": row.revision, "created_at": now})
     session.execute(
-        insert(_changes),
+        _ADD_CHANGE,
         {
             "entity": "judgment",
             "entity_id": defect_id,
