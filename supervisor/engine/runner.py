@@ -41,13 +41,13 @@ log = logging.getLogger("vista.engine")
 
 
 @lru_cache
-def _default_runtime() -> Runtime:
+def default_runtime() -> Runtime:
     return Runtime.create(get_settings())
 
 
 def run_job(job_id: int, *, runtime: Runtime | None = None) -> str:
     """Execute job ``job_id`` once if it is queued; returns the status it ended in."""
-    rt = runtime or _default_runtime()
+    rt = runtime or default_runtime()
     claim = claim_job(rt, job_id)
     if claim is None:
         return "skipped"

@@ -18,9 +18,9 @@ class _Maintenance(Middleware):
         self._loop: MaintenanceLoop | None = None
 
     def after_worker_boot(self, broker, worker) -> None:  # type: ignore[no-untyped-def]
-        from supervisor.engine.runner import _default_runtime
+        from supervisor.engine.runner import default_runtime
 
-        self._loop = MaintenanceLoop(_default_runtime())
+        self._loop = MaintenanceLoop(default_runtime())
         self._loop.start()
 
     def before_worker_shutdown(self, broker, worker) -> None:  # type: ignore[no-untyped-def]
