@@ -141,12 +141,12 @@ def user_create(
 ) -> None:
     """Create a user and print an API token for it (shown once)."""
     from supervisor.db import Database
-    from supervisor.models import ROLES_ALL
+    from supervisor.models.users import ROLES
     from supervisor.problems import Problem
     from supervisor.users.service import create_token, create_user
 
-    if role not in ROLES_ALL:
-        _fail(f"--role must be one of {', '.join(ROLES_ALL)}, not {role!r}")
+    if role not in ROLES:
+        _fail(f"--role must be one of {', '.join(ROLES)}, not {role!r}")
     secret = (
         typer.prompt("password", hide_input=True, confirmation_prompt=True) if password else None
     )

@@ -100,27 +100,28 @@ def test_wrong_content_type_is_415(client, tokens, inspection, tmp_path, runtime
     assert _stored_files(runtime) == []
 
 
-def test_json_and_png_are_checked_too(client, tokens, inspection):
-    bad_json = _upload(
+@pytest.mark.parametrize(
+    ("media_type", "data", "phrase"),
+    [
+        ("application/json", b'{"pairs": [', "not valid JSON"),
+        ("image/png", b"GIF89a", "PNG signature"),
+        ("model/gltf-binary", b"PK\x03\x04", "GLB magic"),
+    ],
+)
+def test_other_media_types_are_checked_too(
+    client, tokens, inspection, runtime, media_type, data, phrase
+):
+    response = _upload(
         client,
         tokens["inspector"],
         inspection,
-        b'{"pairs": [',
-        name="p.json",
-        kind="pairs",
-        headers={"content-type": "application/json"},
+        data,
+        name="f",
+        kind="other",
+        headers={"content-type": media_type},
     )
-    assert bad_json.status_code == 422 and "not valid JSON" in bad_json.json()["detail"]
-    bad_png = _upload(
-        client,
-        tokens["inspector"],
-        inspection,
-        b"GIF89a",
-        name="a.png",
-        kind="plot",
-        headers={"content-type": "image/png"},
-    )
-    assert bad_png.status_code == 422
+    assert response.status_code == 422 and phrase in response.json()["detail"]
+    assert _stored_files(runtime) == []
 
 
 def test_unknown_inspection_and_bad_kind(client, tokens, inspection, tmp_path):

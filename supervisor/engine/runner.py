@@ -62,16 +62,20 @@ def run_job(job_id: int, *, runtime: Runtime | None = None) -> str:
     ctx = JobContext(rt, claim, params, stop)
     beat = _Heartbeat(rt, claim, stop)
     beat.start()
+    error: BaseException | None = None
     try:
         result = kind.load_handler()(ctx)
     except BaseException as exc:  # noqa: BLE001 - every way out is recorded
-        beat.stop()
-        ctx.discard_outputs()
-        return _end_after_error(rt, claim, exc)
+        result, error = None, exc
     finally:
         beat.stop()
+    try:
+        if error is not None:
+            ctx.discard_outputs()
+            return _end_after_error(rt, claim, error)
+        return _end_succeeded(rt, claim, ctx, result or {})
+    finally:
         ctx.close()
-    return _end_succeeded(rt, claim, ctx, result or {})
 
 
 def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:

@@ -131,7 +131,7 @@ def list_jobs(
         query = query.where(Job.status == status)
     rows = session.scalars(query.order_by(Job.id).limit(limit + 1)).all()
     return Page[JobOut](
-        items=[service.job_out(session, j) for j in rows[:limit]],
+        items=service.jobs_out(session, list(rows[:limit])),
         next_cursor=next_cursor(rows, limit),
     )
 

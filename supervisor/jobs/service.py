@@ -117,10 +117,16 @@ def _dependencies(session: Session, job_ids: list[int]) -> dict[int, list[int]]:
     return edges
 
 
+def jobs_out(session: Session, jobs: list[Job]) -> list[JobOut]:
+    edges = _dependencies(session, [j.id for j in jobs])
+    return [
+        JobOut.model_validate(job).model_copy(update={"depends_on": edges.get(job.id, [])})
+        for job in jobs
+    ]
+
+
 def job_out(session: Session, job: Job) -> JobOut:
-    out = JobOut.model_validate(job)
-    out.depends_on = _dependencies(session, [job.id]).get(job.id, [])
-    return out
+    return jobs_out(session, [job])[0]
 
 
 def run_status(statuses: list[str]) -> str:
@@ -136,12 +142,7 @@ def run_status(statuses: list[str]) -> str:
 
 def run_out(session: Session, run: Run) -> RunOut:
     jobs = session.scalars(select(Job).where(Job.run_id == run.id).order_by(Job.position)).all()
-    edges = _dependencies(session, [j.id for j in jobs])
-    outs = []
-    for job in jobs:
-        out = JobOut.model_validate(job)
-        out.depends_on = edges.get(job.id, [])
-        outs.append(out)
+    outs = jobs_out(session, list(jobs))
     return RunOut(
         id=run.id,
         inspection_id=run.inspection_id,

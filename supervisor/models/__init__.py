@@ -4,7 +4,6 @@ from supervisor.models.changes import Change, IdempotencyRecord
 from supervisor.models.defects import Defect, Judgment, JudgmentRevision
 from supervisor.models.inspections import Artifact, Inspection
 from supervisor.models.jobs import Job, JobDependency, Run
-from supervisor.models.users import ROLES as ROLES_ALL
 from supervisor.models.users import ApiToken, User
 
 __all__ = [
@@ -18,7 +17,6 @@ __all__ = [
     "JobDependency",
     "Judgment",
     "JudgmentRevision",
-    "ROLES_ALL",
     "Run",
     "User",
 ]
