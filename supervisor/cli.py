@@ -57,8 +57,7 @@ def serve(
     ),
 ) -> None:
     """Serve the supervisor API (and, without a broker, the embedded job engine)."""
-    import uvicorn
-
+    from supervisor import serving
     from supervisor.app import SchemaOutOfDate, check_schema
 
     settings = get_settings()
@@ -72,6 +71,12 @@ def serve(
     )
     host, port = host or settings.host, port or settings.port
     processes = workers or settings.api_workers
+    if processes > 1 and settings.resolved_database_url.startswith("sqlite"):
+        typer.echo(
+            "note: SQLite lets one process write at a time; with several API processes "
+            "writes queue on its file lock. Use PostgreSQL to serve from several.",
+            err=True,
+        )
     engine = (
         f"dramatiq via {_redact(settings.broker_url)}"
         if settings.broker_url
@@ -82,15 +87,10 @@ def serve(
         f"(database {_redact(settings.resolved_database_url)}; jobs {engine}); "
         f"API docs at http://{host}:{port}/docs"
     )
-    uvicorn.run(
-        "supervisor.app:create_app",
-        factory=True,
-        host=host,
-        port=port,
-        workers=processes,
-        log_level="info",
-        access_log=settings.access_log,
-    )
+    try:
+        serving.serve(host, port, processes=processes, access_log=settings.access_log)
+    except OSError as exc:
+        _fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
 
 
 @app.command()
@@ -174,7 +174,9 @@ def bench_api(
     postgres_url: str = typer.Option(
         None, help="PostgreSQL URL for the second run; default VISTA_TEST_DATABASE_URL."
     ),
-    api_workers: int = typer.Option(2, min=1, help="API processes of the server under test."),
+    api_workers: int = typer.Option(
+        2, min=1, help="API processes serving PostgreSQL (SQLite is served by one)."
+    ),
 ) -> None:
     """Judgment writes/s and latency with concurrent clients, and defect-page latency, on
     SQLite and PostgreSQL, each against a real `vista serve` process."""
@@ -186,6 +188,7 @@ def bench_api(
         seconds=seconds,
         defects=defects,
         postgres_url=postgres_url or os.environ.get("VISTA_TEST_DATABASE_URL"),
+        api_workers=api_workers,
     )
 
 

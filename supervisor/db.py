@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from functools import lru_cache
 
 from sqlalchemy import MetaData, create_engine, event
-from sqlalchemy.engine import Engine
+from sqlalchemy.engine import Connection, Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
 
 from supervisor.settings import get_settings
@@ -99,6 +99,12 @@ class Database:
         """A session whose transaction commits on success and rolls back on error."""
         with self._write() as session, session.begin():
             yield session
+
+    @contextmanager
+    def autocommit(self) -> Iterator[Connection]:
+        """A connection where each statement commits by itself (no BEGIN/COMMIT trips)."""
+        with self.engine.connect() as connection:
+            yield connection.execution_options(isolation_level="AUTOCOMMIT")
 
     def session(self, *, write: bool) -> Session:
         """A session the caller manages (commits itself); used per API request."""

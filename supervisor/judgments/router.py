@@ -1,10 +1,18 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Response
+from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from supervisor.defects.service import consensus_for
-from supervisor.deps import JUDGE_ROLES, READ_ROLES, CurrentUser, get_session, require
+from supervisor.deps import (
+    JUDGE_ROLES,
+    READ_ROLES,
+    CurrentUser,
+    get_runtime,
+    get_session,
+    require,
+)
+from supervisor.engine.runtime import Runtime
 from supervisor.ids import IdPath
 from supervisor.judgments import service
 from supervisor.judgments.schemas import DefectJudgmentsOut, JudgmentIn, MyJudgmentOut
@@ -15,20 +23,18 @@ judges = require(*JUDGE_ROLES, action="judge defects")
 
 
 @router.put("/defects/{defect_id}/judgments/me", response_model=MyJudgmentOut)
-def put_my_judgment(
+async def put_my_judgment(
     defect_id: IdPath,
     body: JudgmentIn,
-    session: Session = Depends(get_session),
+    runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(judges),
 ) -> Response:
     """Set your judgment of a defect. Each change is a new revision; repeating the same
     judgment changes nothing. Nobody can write another user's judgment."""
-    judgment = service.put_mine(session, defect_id=defect_id, user_id=user.id, data=body)
-    out = MyJudgmentOut(
-        judgment=service.judgment_out(judgment, user.username),
-        consensus=consensus_for(session, [defect_id])[defect_id],
+    judgment, consensus = await run_in_threadpool(
+        service.put_mine, runtime.db, defect_id=defect_id, user_id=user.id, data=body
     )
-    session.commit()
+    out = MyJudgmentOut(judgment=service.judgment_out(judgment, user.username), consensus=consensus)
     # Built by the model above already: skip FastAPI's second validation (hot path).
     return Response(out.model_dump_json(), media_type="application/json")
 
