@@ -9,6 +9,7 @@ from pathlib import Path
 
 import typer
 
+from services.stitching import cli as stitching_cli
 from supervisor.settings import get_settings
 
 app = typer.Typer(
@@ -18,8 +19,12 @@ app = typer.Typer(
 )
 user_app = typer.Typer(help="Manage users.", no_args_is_help=True)
 bench_app = typer.Typer(help="Benchmarks: print a table and write JSON.", no_args_is_help=True)
+simulate_app = typer.Typer(
+    help="Simulators: write examples with their ground truth.", no_args_is_help=True
+)
 app.add_typer(user_app, name="user")
 app.add_typer(bench_app, name="bench")
+app.add_typer(simulate_app, name="simulate")
 
 
 def _fail(message: str) -> None:
@@ -191,6 +196,8 @@ def bench_api(
         api_workers=api_workers,
     )
 
+
+stitching_cli.register(app, simulate_app)
 
 if __name__ == "__main__":
     app()

@@ -1,0 +1,92 @@
+"""The stitching file contract: PAIRS.json in, HANDEYE.json out (4×4 row-major, mm).
+
+PAIRS.json  ``{"pairs": [{"base_T_flange": M, "sensor_T_target": M}, …]}``
+HANDEYE.json ``{"flange_T_sensor": M, "base_T_target": M, "method": …, "residual_mm": …, …}``
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.pointcloud.transforms import TransformError, check_rigid, to_json
+from services.stitching.calibration import HandEye
+
+
+class StitchingFileError(ValueError):
+    """A PAIRS/SCANS/HANDEYE file vista cannot use; the message names the file and place."""
+
+
+def load_json(path: Path) -> Any:
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise StitchingFileError(f"{path}: no such file") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise StitchingFileError(f"{path}: not valid JSON ({exc})") from None
+
+
+def _matrix(value: Any, where: str) -> np.ndarray:
+    try:
+        return check_rigid(value, where)
+    except TransformError as exc:
+        raise StitchingFileError(str(exc)) from None
+
+
+def read_pairs(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(base_T_flange, sensor_T_target) as (k, 4, 4) arrays."""
+    data = load_json(path)
+    pairs = data.get("pairs") if isinstance(data, dict) else None
+    if not isinstance(pairs, list) or not pairs:
+        raise StitchingFileError(f'{path}: expected {{"pairs": [...]}} with at least one pair')
+    flange, target = [], []
+    for i, pair in enumerate(pairs):
+        if not isinstance(pair, dict):
+            raise StitchingFileError(f"{path}: pairs[{i}] must be an object")
+        for key in ("base_T_flange", "sensor_T_target"):
+            if key not in pair:
+                raise StitchingFileError(f"{path}: pairs[{i}] has no {key}")
+        flange.append(_matrix(pair["base_T_flange"], f"{path}: pairs[{i}].base_T_flange"))
+        target.append(_matrix(pair["sensor_T_target"], f"{path}: pairs[{i}].sensor_T_target"))
+    return np.stack(flange), np.stack(target)
+
+
+def write_pairs(path: Path, base_T_flange: np.ndarray, sensor_T_target: np.ndarray) -> None:
+    pairs = [
+        {"base_T_flange": to_json(f), "sensor_T_target": to_json(s)}
+        for f, s in zip(base_T_flange, sensor_T_target, strict=True)
+    ]
+    Path(path).write_text(json.dumps({"pairs": pairs}, indent=1) + "\n")
+
+
+def handeye_json(result: HandEye) -> dict:
+    return {
+        "flange_T_sensor": to_json(result.flange_T_sensor),
+        "base_T_target": to_json(result.base_T_target),
+        "method": result.method,
+        "residual_mm": result.residual_mm,
+        "pair_residuals_mm": list(result.pair_residuals_mm),
+        "used_pairs": list(result.used_pairs),
+        "dropped_pairs": [
+            {"index": d.index, "chi2": d.chi2, "residual_mm": d.residual_mm} for d in result.dropped
+        ],
+        "sigma_translation_mm": result.sigma_translation_mm,
+        "sigma_rotation_deg": result.sigma_rotation_deg,
+        "seconds": result.seconds,
+        "details": result.details,
+    }
+
+
+def write_handeye(path: Path, result: HandEye) -> None:
+    Path(path).write_text(json.dumps(handeye_json(result), indent=1) + "\n")
+
+
+def read_handeye(path: Path) -> tuple[np.ndarray, dict]:
+    """flange_T_sensor and the whole document (for its uncertainty and method)."""
+    data = load_json(path)
+    if not isinstance(data, dict) or "flange_T_sensor" not in data:
+        raise StitchingFileError(f"{path}: expected an object with flange_T_sensor")
+    return _matrix(data["flange_T_sensor"], f"{path}: flange_T_sensor"), data
