@@ -12,7 +12,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1
 
 # Runtime libraries only: every dependency ships a manylinux wheel, so no compiler.
-# libusb-1.0-0 is for open3d (a later service dependency).
+# libusb-1.0-0 is for open3d (ray casting in the simulators).
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
       libusb-1.0-0 \

@@ -68,30 +68,137 @@ def calibrate(
     typer.echo(f"wrote {out}")
 
 
+COMPONENTS = ("angle", "flat", "curved")
+
+
 def simulate_stitching(
     out_dir: Path = typer.Argument(..., help="Folder to write the example into."),
+    component: str = typer.Option("angle", help="angle (carbon angle profile) | flat | curved"),
     poses: int = typer.Option(15, min=3, help="Calibration poses."),
     corrupt: int = typer.Option(0, min=0, help="Calibration pairs with a mis-detected plate."),
+    full_scale: bool = typer.Option(
+        False, help="Gocator 3210 grids (1288 × 1936, ~2.5 M points a scan) instead of 250 × 385."
+    ),
     seed: int = typer.Option(0, help="Random seed."),
 ) -> None:
-    """Write a simulated calibration session (pairs.json) with its ground truth (truth.json)."""
+    """Write a complete stitching example with its ground truth: a calibration session
+    (pairs.json), scans of a component along a workplan (scan_NNN.ply, scans.json), and
+    truth.json (true mount, true robot poses, the part's pose and bounding box)."""
+    from services.pointcloud.ply import PointCloud, write_ply
+    from services.stitching import scan_sim
     from services.stitching.calibration_sim import simulate_calibration
-    from services.stitching.files import write_pairs
+    from services.stitching.files import write_pairs, write_scans
 
     if corrupt >= poses:
         _fail(f"--corrupt ({corrupt}) must be less than --poses ({poses})")
-    session = simulate_calibration(poses=poses, corrupt=corrupt, rng=np.random.default_rng(seed))
+    if component not in COMPONENTS:
+        _fail(f"--component must be one of {', '.join(COMPONENTS)}; got {component!r}")
+    rng = np.random.default_rng(seed)
+    session = simulate_calibration(poses=poses, corrupt=corrupt, rng=rng)
+    mesh = {
+        "angle": scan_sim.angle_profile,
+        "flat": scan_sim.flat_panel,
+        "curved": scan_sim.curved_panel,
+    }[component]()
+    sensor = scan_sim.SensorModel(grid=scan_sim.GOCATOR_GRID if full_scale else (250, 385))
+    scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_pairs(out_dir / "pairs.json", session.base_T_flange, session.sensor_T_target)
+    names = [f"scan_{i:03d}.ply" for i in range(len(scans.scans))]
+    for name, grid in zip(names, scans.scans, strict=True):
+        write_ply(out_dir / name, PointCloud(points=grid.reshape(-1, 3), grid_shape=grid.shape[:2]))
+    write_scans(out_dir / "scans.json", names, scans.base_T_flange)
+    corners = mesh.vertices @ scans.base_T_part[:3, :3].T + scans.base_T_part[:3, 3]
     truth = {
         "flange_T_sensor": to_json(session.true_flange_T_sensor),
         "base_T_target": to_json(session.true_base_T_target),
-        "true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
+        "calibration_true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
         "corrupted_pairs": list(session.corrupted),
+        "component": mesh.name,
+        "base_T_part": to_json(scans.base_T_part),
+        "model_bounds_min_mm": corners.min(0).tolist(),
+        "model_bounds_max_mm": corners.max(0).tolist(),
+        "scan_true_base_T_flange": [to_json(t) for t in scans.true_base_T_flange],
+        "sensor": {
+            "grid": list(sensor.grid),
+            "field_mm": list(sensor.field_mm),
+            "standoff_mm": sensor.standoff_mm,
+            "noise_mm": sensor.noise_mm,
+        },
         "seed": seed,
     }
     (out_dir / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
-    typer.echo(f"wrote {out_dir / 'pairs.json'} ({poses} pairs) and {out_dir / 'truth.json'}")
+    typer.echo(
+        f"wrote {out_dir}: pairs.json ({poses} pairs), {len(names)} scans of the {mesh.name} "
+        f"({sensor.grid[0]} × {sensor.grid[1]}), scans.json, truth.json"
+    )
+
+
+def stitch(
+    scans: Path = typer.Argument(..., help='SCANS.json: {"scans": [{file, base_T_flange}, …]}'),
+    handeye: Path = typer.Option(..., help="HANDEYE.json from `vista calibrate`."),
+    out: Path = typer.Option(..., "-o", "--out", help="Where to write the stitched PLY."),
+    report: Path = typer.Option(
+        ..., help="Where to write REPORT.json (a .png plot goes beside it)."
+    ),
+    voxel_mm: float = typer.Option(0.2, help="Merge the points within one voxel of this edge."),
+    loop_threshold: float = typer.Option(0.8, help="Drop points with a higher LoOP."),
+) -> None:
+    """Stitch scans into the robot base frame with the calibration, clean them (LoOP,
+    closest-vertex merge, final filter) and report the overlap quality (Fig. 6.2)."""
+    from tqdm import tqdm
+
+    from services.pointcloud.ply import PlyError, read_ply, write_ply
+    from services.stitching.files import StitchingFileError, read_handeye, read_scans
+    from services.stitching.quality import histogram_png, quality_report
+    from services.stitching.stitch import StitchConfig
+    from services.stitching.stitch import stitch as run_stitch
+
+    try:
+        config = StitchConfig(voxel_mm=voxel_mm, loop_threshold=loop_threshold)
+        files, base_T_flange = read_scans(scans)
+        flange_T_sensor, calibration = read_handeye(handeye)
+        clouds = []
+        for file in tqdm(files, desc="reading scans", unit="scan"):
+            clouds.append(read_ply(file))
+    except (StitchingFileError, PlyError, ValueError) as exc:
+        _fail(str(exc))
+    with tqdm(total=100, desc="stitching", unit="%") as bar:
+
+        def progress(fraction: float, message: str) -> None:
+            bar.set_postfix_str(message)
+            bar.update(round(100 * fraction) - bar.n)
+
+        result = run_stitch(
+            clouds, base_T_flange, flange_T_sensor, config=config, progress=progress
+        )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_ply(out, result.cloud, comments=("vista stitched, base frame, mm",))
+    quality = quality_report([s.points for s in result.scans], result.cloud.points)
+    document = {
+        "scans": len(files),
+        "points": len(result.cloud.points),
+        "outliers_removed": [s.outliers for s in result.scans],
+        "isolated_removed": result.isolated_removed,
+        "calibration": {
+            "method": calibration.get("method"),
+            "sigma_translation_mm": calibration.get("sigma_translation_mm"),
+            "sigma_rotation_deg": calibration.get("sigma_rotation_deg"),
+        },
+        "config": vars(config),
+        "seconds": result.seconds,
+        **quality.to_json(),
+    }
+    report.parent.mkdir(parents=True, exist_ok=True)
+    report.write_text(json.dumps(document, indent=1) + "\n")
+    histogram_png(quality, report.with_suffix(".png"))
+    o = quality.overall
+    typer.echo(
+        f"{len(result.cloud.points)} points from {len(files)} scans; overlap of "
+        f"{len(quality.pairs)} pairs: mean {o.mean_mm:.4f} mm, std {o.std_mm:.4f}, "
+        f"p90 {o.p90_mm:.4f}, max {o.max_mm:.3f}"
+    )
+    typer.echo(f"wrote {out}, {report} and {report.with_suffix('.png')}")
 
 
 def compare_handeye(
@@ -113,4 +220,5 @@ def compare_handeye(
 def register(app: typer.Typer, simulate_app: typer.Typer) -> None:
     app.command("calibrate")(calibrate)
     app.command("calibration-error")(compare_handeye)
+    app.command("stitch")(stitch)
     simulate_app.command("stitching")(simulate_stitching)

@@ -62,6 +62,33 @@ def write_pairs(path: Path, base_T_flange: np.ndarray, sensor_T_target: np.ndarr
     Path(path).write_text(json.dumps({"pairs": pairs}, indent=1) + "\n")
 
 
+def read_scans(path: Path) -> tuple[list[Path], np.ndarray]:
+    """SCANS.json: the scan files (relative to SCANS.json) and their (n, 4, 4) base_T_flange."""
+    data = load_json(path)
+    scans = data.get("scans") if isinstance(data, dict) else None
+    if not isinstance(scans, list) or not scans:
+        raise StitchingFileError(f'{path}: expected {{"scans": [...]}} with at least one scan')
+    files, poses = [], []
+    for i, scan in enumerate(scans):
+        if not isinstance(scan, dict) or not isinstance(scan.get("file"), str):
+            raise StitchingFileError(f"{path}: scans[{i}] needs a file name")
+        if "base_T_flange" not in scan:
+            raise StitchingFileError(f"{path}: scans[{i}] has no base_T_flange")
+        file = Path(path).parent / scan["file"]
+        if not file.is_file():
+            raise StitchingFileError(f"{path}: scans[{i}].file {scan['file']!r} does not exist")
+        files.append(file)
+        poses.append(_matrix(scan["base_T_flange"], f"{path}: scans[{i}].base_T_flange"))
+    return files, np.stack(poses)
+
+
+def write_scans(path: Path, files: list[str], base_T_flange: np.ndarray) -> None:
+    scans = [
+        {"file": f, "base_T_flange": to_json(m)} for f, m in zip(files, base_T_flange, strict=True)
+    ]
+    Path(path).write_text(json.dumps({"scans": scans}, indent=1) + "\n")
+
+
 def handeye_json(result: HandEye) -> dict:
     return {
         "flange_T_sensor": to_json(result.flange_T_sensor),

@@ -1,0 +1,40 @@
+"""Organized scans: neighbours and normals straight from the sensor's grid, no KD-tree.
+
+grid : (rows, columns, 3) float32, mm; a pixel the sensor did not measure is all NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def shifted(grid: np.ndarray, d_row: int, d_col: int) -> np.ndarray:
+    """``out[r, c] = grid[r + d_row, c + d_col]``, NaN where that falls outside the grid."""
+    out = np.full_like(grid, np.nan)
+    rows, cols = grid.shape[:2]
+    src_r = slice(max(d_row, 0), rows + min(d_row, 0))
+    dst_r = slice(max(-d_row, 0), rows + min(-d_row, 0))
+    src_c = slice(max(d_col, 0), cols + min(d_col, 0))
+    dst_c = slice(max(-d_col, 0), cols + min(-d_col, 0))
+    out[dst_r, dst_c] = grid[src_r, src_c]
+    return out
+
+
+def window_offsets(radius_px: int) -> list[tuple[int, int]]:
+    """The (2r+1)² − 1 neighbours of a pixel in a square window."""
+    span = range(-radius_px, radius_px + 1)
+    return [(r, c) for r in span for c in span if (r, c) != (0, 0)]
+
+
+def grid_normals(grid: np.ndarray, *, step_px: int = 1) -> np.ndarray:
+    """(rows, columns, 3) unit normals from central differences ``step_px`` pixels apart,
+    turned towards the sensor (the frame's origin); NaN where a neighbour is missing."""
+    along_cols = shifted(grid, 0, step_px) - shifted(grid, 0, -step_px)
+    along_rows = shifted(grid, step_px, 0) - shifted(grid, -step_px, 0)
+    normals = np.cross(along_cols, along_rows)
+    length = np.linalg.norm(normals, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = normals / length
+    facing_away = np.sum(normals * grid, axis=-1) > 0
+    normals[facing_away] *= -1
+    return normals.astype(np.float32)

@@ -1,0 +1,217 @@
+"""Simulated scanning: component meshes, a workplan, a snapshot sensor, robot pose noise.
+
+The sensor is a pinhole snapshot device like the LMI Gocator 3210: rays from its origin
+through a grid covering ``field_mm`` at ``standoff_mm``; a ray returns where it first hits
+the mesh (occlusion included), inside the measuring range and not too grazing, with
+Gaussian noise along the ray. The result is an organized grid in the sensor frame, NaN
+where nothing was measured. Frames: {B} base, {F} flange, {G} sensor, {P} part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.pointcloud.transforms import invert, look_at, make_transform, perturb
+
+GOCATOR_GRID = (1288, 1936)
+"""(rows, columns): about 2.5 M points over 100 × 154 mm, the Gocator 3210's snapshot."""
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """vertices : (V, 3) float64, mm, part frame; faces : (F, 3) int (counter-clockwise
+    seen from the side a sensor scans)."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    grid: tuple[int, int] = (100, 154)
+    """(rows, columns) of the organized scan."""
+    field_mm: tuple[float, float] = (154.0, 100.0)
+    """(width, height) of the field at the standoff."""
+    standoff_mm: float = 220.0
+    range_mm: float = 110.0
+    """Measuring range centred on the standoff; hits outside it are not returned."""
+    noise_mm: float = 0.02
+    """1σ along the ray."""
+    max_incidence_deg: float = 75.0
+    """Steeper surfaces return nothing (a snapshot sensor's dropout)."""
+    outlier_fraction: float = 0.002
+    outlier_mm: tuple[float, float] = (0.5, 5.0)
+    """Stray returns (multipath, specular glints): that share of pixels off along the ray by
+    a random distance in this range, either way."""
+
+
+@dataclass(frozen=True)
+class ScanSession:
+    """What a robot recorded while scanning, and the truth."""
+
+    scans: list[np.ndarray]
+    """(rows, columns, 3) float32 grids in the sensor frame, mm; NaN = not measured."""
+    base_T_flange: np.ndarray
+    """(n, 4, 4) as reported by the robot (with its repeatability error)."""
+    true_base_T_flange: np.ndarray
+    base_T_part: np.ndarray
+    mesh: Mesh
+
+
+def _grid_surface(name: str, u: np.ndarray, v: np.ndarray, surface) -> Mesh:  # noqa: ANN001
+    """Triangulate ``surface(U, V) → (…, 3)`` over the grid u × v."""
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    vertices = surface(uu, vv).reshape(-1, 3)
+    rows, cols = len(u), len(v)
+    index = np.arange(rows * cols).reshape(rows, cols)
+    a, b = index[:-1, :-1].ravel(), index[1:, :-1].ravel()
+    c, d = index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return Mesh(name, vertices, faces)
+
+
+def flat_panel(length_mm: float = 300.0, width_mm: float = 200.0) -> Mesh:
+    return _grid_surface(
+        "flat panel",
+        np.linspace(0, length_mm, 2),
+        np.linspace(0, width_mm, 2),
+        lambda x, y: np.stack([x, y, np.zeros_like(x)], -1),
+    )
+
+
+def curved_panel(
+    length_mm: float = 300.0, width_mm: float = 200.0, radius_mm: float = 1500.0
+) -> Mesh:
+    """A sidewall-like panel bent about the x axis with ``radius_mm``."""
+
+    def surface(x: np.ndarray, s: np.ndarray) -> np.ndarray:
+        angle = (s - width_mm / 2) / radius_mm
+        return np.stack([x, radius_mm * np.sin(angle), radius_mm * (np.cos(angle) - 1)], -1)
+
+    return _grid_surface(
+        "curved panel", np.linspace(0, length_mm, 2), np.linspace(0, width_mm, 121), surface
+    )
+
+
+def angle_profile(length_mm: float = 300.0, leg_mm: float = 60.0, fillet_mm: float = 5.0) -> Mesh:
+    """A carbon angle profile, length along x: two legs at 90° joined by an inner fillet,
+    lying as a V (each leg 45° from the horizontal) so a sensor above sees both faces."""
+    theta = np.linspace(0, np.pi / 2, 16)
+    arc = fillet_mm + fillet_mm * np.stack([-np.sin(theta), -np.cos(theta)], 1)
+    section = np.concatenate([[[leg_mm, 0.0]], arc, [[0.0, leg_mm]]])  # (y, z) of the L
+    c = np.cos(np.pi / 4)
+    v_shape = section @ np.array([[c, c], [-c, c]])  # legs rise at ±45°
+
+    def surface(x: np.ndarray, i: np.ndarray) -> np.ndarray:
+        j = i.astype(int)
+        return np.stack([x, v_shape[j, 0], v_shape[j, 1]], -1)
+
+    return _grid_surface(
+        "angle profile", np.linspace(0, length_mm, 2), np.arange(len(section)), surface
+    )
+
+
+def workplan(
+    mesh: Mesh, base_T_part: np.ndarray, sensor: SensorModel, *, overlap: float = 0.3
+) -> np.ndarray:
+    """(n, 4, 4) base_T_sensor looking straight down (−z of the base) over the part's
+    footprint in a boustrophedon, neighbouring fields overlapping by ``overlap``."""
+    corners = mesh.vertices @ base_T_part[:3, :3].T + base_T_part[:3, 3]
+    low, high = corners.min(0), corners.max(0)
+    step = np.array(sensor.field_mm) * (1 - overlap)
+    counts = np.maximum(1, np.ceil((high[:2] - low[:2] - sensor.field_mm) / step).astype(int) + 1)
+    spans = (counts - 1) * step
+    centre = (low[:2] + high[:2]) / 2
+    xs = centre[0] - spans[0] / 2 + step[0] * np.arange(counts[0])
+    ys = centre[1] - spans[1] / 2 + step[1] * np.arange(counts[1])
+    poses = []
+    for row, y in enumerate(ys):
+        for x in xs if row % 2 == 0 else xs[::-1]:
+            eye = np.array([x, y, high[2] + sensor.standoff_mm])
+            poses.append(look_at(eye, eye - [0, 0, 1], np.array([0.0, -1.0, 0.0])))
+    return np.stack(poses)
+
+
+def _rays(sensor: SensorModel) -> np.ndarray:
+    """(rows, columns, 3) unit ray directions in the sensor frame (+z forward)."""
+    rows, cols = sensor.grid
+    width, height = sensor.field_mm
+    x = np.linspace(-width / 2, width / 2, cols) / sensor.standoff_mm
+    y = np.linspace(-height / 2, height / 2, rows) / sensor.standoff_mm
+    xx, yy = np.meshgrid(x, y)
+    directions = np.stack([xx, yy, np.ones_like(xx)], -1)
+    return directions / np.linalg.norm(directions, axis=-1, keepdims=True)
+
+
+class Scanner:
+    """Casts the sensor's rays at a mesh placed in the base frame."""
+
+    def __init__(self, mesh: Mesh, base_T_part: np.ndarray, sensor: SensorModel) -> None:
+        import open3d as o3d
+
+        self.sensor = sensor
+        self.mesh = mesh
+        vertices = (mesh.vertices @ base_T_part[:3, :3].T + base_T_part[:3, 3]).astype(np.float32)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(
+            o3d.core.Tensor(vertices), o3d.core.Tensor(mesh.faces.astype(np.uint32))
+        )
+        self.directions = _rays(sensor)
+
+    def scan(self, base_T_sensor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(rows, columns, 3) float32 organized grid in the sensor frame; NaN = no return."""
+        import open3d as o3d
+
+        sensor = self.sensor
+        directions_base = self.directions.reshape(-1, 3) @ base_T_sensor[:3, :3].T
+        origins = np.broadcast_to(base_T_sensor[:3, 3], directions_base.shape)
+        rays = np.hstack([origins, directions_base]).astype(np.float32)
+        hits = self.scene.cast_rays(o3d.core.Tensor(rays))
+        distance = hits["t_hit"].numpy().astype(np.float64)
+        normals = hits["primitive_normals"].numpy()
+        incidence = np.abs(np.sum(normals * directions_base, axis=1))
+        depth = distance * self.directions.reshape(-1, 3)[:, 2]
+        measured = (
+            np.isfinite(distance)
+            & (np.abs(depth - sensor.standoff_mm) <= sensor.range_mm / 2)
+            & (incidence >= np.cos(np.radians(sensor.max_incidence_deg)))
+        )
+        distance = np.where(measured, distance, np.nan)
+        distance += rng.normal(0.0, sensor.noise_mm, distance.shape)
+        stray = rng.random(distance.shape) < sensor.outlier_fraction
+        distance[stray] += rng.uniform(*sensor.outlier_mm, stray.sum()) * rng.choice(
+            [-1.0, 1.0], stray.sum()
+        )
+        points = self.directions.reshape(-1, 3) * distance[:, None]
+        return points.reshape(*sensor.grid, 3).astype(np.float32)
+
+    def distance_to_surface_mm(self, points_base: np.ndarray) -> np.ndarray:
+        """Unsigned distance of (N, 3) base-frame points to the mesh, mm."""
+        import open3d as o3d
+
+        query = o3d.core.Tensor(np.ascontiguousarray(points_base, dtype=np.float32))
+        return self.scene.compute_distance(query).numpy()
+
+
+def simulate_scans(
+    mesh: Mesh,
+    flange_T_sensor: np.ndarray,
+    *,
+    sensor: SensorModel | None = None,
+    robot_sigma_mm: float = 0.05,
+    robot_sigma_deg: float = 0.005,
+    overlap: float = 0.3,
+    rng: np.random.Generator,
+) -> ScanSession:
+    """Scan ``mesh`` (placed in front of the robot) along a workplan; report poses with noise."""
+    sensor = sensor or SensorModel()
+    base_T_part = make_transform(np.eye(3), np.array([550.0, -100.0, -250.0]))
+    base_T_sensor = workplan(mesh, base_T_part, sensor, overlap=overlap)
+    true_base_T_flange = base_T_sensor @ invert(flange_T_sensor)
+    reported = perturb(true_base_T_flange, robot_sigma_mm, robot_sigma_deg, rng)
+    scanner = Scanner(mesh, base_T_part, sensor)
+    scans = [scanner.scan(pose, rng) for pose in base_T_sensor]
+    return ScanSession(scans, reported, true_base_T_flange, base_T_part, mesh)

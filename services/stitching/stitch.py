@@ -1,0 +1,156 @@
+"""Kinematic stitching (thesis 6.1.1): every scan into the base frame through
+``base_T_scan_i = base_T_flange_i @ flange_T_sensor``, then clean and merge.
+
+Per scan (on its grid when organized): normals, LoOP outlier probabilities, removal of
+probable outliers. Then all scans in the base frame, closest vertices merged per voxel
+(normals and intensity averaged), and voxels left isolated removed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.special import erf
+
+from services.pointcloud.grid import grid_normals
+from services.pointcloud.ply import PointCloud
+from services.pointcloud.transforms import apply
+from services.stitching.clean import isolated_points, loop_grid, voxel_merge
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass(frozen=True)
+class StitchConfig:
+    voxel_mm: float = 0.2
+    """Edge of the voxels whose points are merged into one vertex."""
+    loop_radius_px: int = 1
+    """LoOP context: the measured neighbours in a (2r+1)² grid window."""
+    loop_neighbours: int = 8
+    """LoOP context of unorganized scans: k nearest neighbours."""
+    loop_threshold: float = 0.8
+    """Points with a higher outlier probability are removed."""
+    filter_cell_mm: float = 2.0
+    min_points: int = 10
+    """Final filter: merged points whose 2 mm cell and its 26 neighbours hold fewer than
+    this many points are removed (stray returns and spray)."""
+
+    def __post_init__(self) -> None:
+        if not self.voxel_mm > 0:
+            raise ValueError(f"voxel_mm must be positive, got {self.voxel_mm}")
+        if not 0 < self.loop_threshold <= 1:
+            raise ValueError(f"loop_threshold must be in (0, 1], got {self.loop_threshold}")
+
+
+@dataclass(frozen=True)
+class CleanScan:
+    """One scan after its own clean-up, in the base frame."""
+
+    points: np.ndarray
+    """(N, 3) float32, mm, base frame."""
+    normals: np.ndarray | None
+    intensity: np.ndarray | None
+    measured: int
+    outliers: int
+
+
+@dataclass(frozen=True)
+class StitchResult:
+    cloud: PointCloud
+    scans: list[CleanScan]
+    base_T_scan: np.ndarray
+    isolated_removed: int
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def loop_unorganized(points: np.ndarray, *, neighbours: int = 8, lam: float = 3.0) -> np.ndarray:
+    """LoOP of an unorganized (N, 3) cloud over its k nearest neighbours."""
+    distances, index = cKDTree(points).query(points, k=neighbours + 1, workers=-1)
+    pdist = lam * np.sqrt(np.mean(distances[:, 1:] ** 2, axis=1))
+    plof = pdist / np.mean(pdist[index[:, 1:]], axis=1) - 1.0
+    nplof = lam * np.sqrt(np.mean(plof**2))
+    return np.maximum(0.0, erf(plof / (nplof * np.sqrt(2)))) if nplof > 0 else np.zeros(len(points))
+
+
+def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig) -> CleanScan:
+    """Normals and LoOP on the scan's own grid (or k-NN), outliers out, into the base frame."""
+    if cloud.grid_shape is not None:
+        grid = cloud.points.reshape(*cloud.grid_shape, 3)
+        probability = loop_grid(grid, radius_px=config.loop_radius_px).ravel()
+        normals = grid_normals(grid).reshape(-1, 3)
+    else:
+        finite = np.isfinite(cloud.points).all(axis=1)
+        probability = np.full(len(cloud.points), np.nan)
+        probability[finite] = loop_unorganized(
+            cloud.points[finite], neighbours=config.loop_neighbours
+        )
+        normals = cloud.normals
+    measured = np.isfinite(probability)
+    keep = measured & (probability <= config.loop_threshold)
+    if normals is not None:
+        keep &= np.isfinite(normals).all(axis=1)
+    rotated_normals = None
+    if normals is not None:
+        rotated_normals = normals[keep] @ base_T_scan[:3, :3].T.astype(np.float32)
+    return CleanScan(
+        points=apply(base_T_scan, cloud.points[keep]),
+        normals=rotated_normals,
+        intensity=None if cloud.intensity is None else cloud.intensity[keep],
+        measured=int(measured.sum()),
+        outliers=int((measured & (probability > config.loop_threshold)).sum()),
+    )
+
+
+def stitch(
+    clouds: list[PointCloud],
+    base_T_flange: np.ndarray,
+    flange_T_sensor: np.ndarray,
+    *,
+    config: StitchConfig | None = None,
+    progress: Progress | None = None,
+) -> StitchResult:
+    """Stitch scans taken at ``base_T_flange`` (n, 4, 4) with the calibrated mount."""
+    config = config or StitchConfig()
+    if len(clouds) != len(base_T_flange):
+        raise ValueError(f"{len(clouds)} scans but {len(base_T_flange)} robot poses")
+    if not clouds:
+        raise ValueError("no scans to stitch")
+    report = progress or (lambda fraction, message: None)
+    seconds: dict[str, float] = {}
+    started = time.perf_counter()
+    base_T_scan = base_T_flange @ flange_T_sensor
+    cleaned = []
+    for i, cloud in enumerate(clouds):
+        report(0.8 * i / len(clouds), f"cleaning scan {i + 1} of {len(clouds)}")
+        cleaned.append(clean_scan(cloud, base_T_scan[i], config))
+    seconds["clean_scans_s"] = time.perf_counter() - started
+
+    report(0.8, "merging closest vertices")
+    started = time.perf_counter()
+    has_normals = all(s.normals is not None for s in cleaned)
+    has_intensity = all(s.intensity is not None for s in cleaned)
+    merged = voxel_merge(
+        np.concatenate([s.points for s in cleaned]),
+        config.voxel_mm,
+        normals=np.concatenate([s.normals for s in cleaned]) if has_normals else None,
+        intensity=np.concatenate([s.intensity for s in cleaned]) if has_intensity else None,
+    )
+    seconds["merge_s"] = time.perf_counter() - started
+
+    report(0.9, "removing isolated vertices")
+    started = time.perf_counter()
+    keep = ~isolated_points(
+        merged.points, cell_mm=config.filter_cell_mm, min_points=config.min_points
+    )
+    cloud = PointCloud(
+        points=merged.points[keep],
+        normals=None if merged.normals is None else merged.normals[keep],
+        intensity=None if merged.intensity is None else merged.intensity[keep],
+    )
+    seconds["filter_s"] = time.perf_counter() - started
+    report(1.0, f"stitched {len(clouds)} scans into {len(cloud.points)} points")
+    return StitchResult(cloud, cleaned, base_T_scan, int((~keep).sum()), seconds)

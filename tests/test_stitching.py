@@ -1,0 +1,131 @@
+"""Stitching and clean-up against simulated ground truth (small grids; full scale is the bench)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from services.pointcloud.grid import grid_normals
+from services.pointcloud.ply import PointCloud, read_ply
+from services.stitching import scan_sim
+from services.stitching.calibration import calibrate
+from services.stitching.calibration_sim import simulate_calibration
+from services.stitching.clean import isolated_points, loop_grid, voxel_merge
+from services.stitching.quality import quality_report
+from services.stitching.stitch import stitch
+from supervisor.cli import app
+
+
+def _plane_grid(rows: int = 60, cols: int = 80, noise_mm: float = 0.02, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.arange(cols) * 0.1, np.arange(rows) * 0.1)
+    z = 200.0 + 0.2 * x + rng.normal(0, noise_mm, x.shape)
+    return np.stack([x, y, z], -1).astype(np.float32)
+
+
+def test_grid_normals_face_the_sensor() -> None:
+    grid = _plane_grid(noise_mm=0.0)
+    normals = grid_normals(grid)
+    expected = np.array([0.2, 0.0, -1.0]) / np.linalg.norm([0.2, 0.0, -1.0])
+    inner = normals[1:-1, 1:-1].reshape(-1, 3)
+    assert np.allclose(inner, expected, atol=1e-4)
+    assert np.isnan(normals[0]).all()  # no neighbour above the first row
+
+
+def test_loop_flags_spikes_and_spares_the_surface() -> None:
+    grid = _plane_grid()
+    rng = np.random.default_rng(1)
+    spikes = rng.choice(grid.shape[0] * grid.shape[1], 40, replace=False)
+    flat = grid.reshape(-1, 3)
+    flat[spikes, 2] += rng.choice([-1, 1], 40) * rng.uniform(1.0, 3.0, 40)
+    flat[5, :] = np.nan  # a missing pixel is not judged
+    probability = loop_grid(grid).ravel()
+    assert np.isnan(probability[5])
+    spiked = np.zeros(len(flat), bool)
+    spiked[spikes] = True
+    assert np.mean(probability[spikes] > 0.8) >= 0.95
+    assert np.mean(probability[~spiked & np.isfinite(probability)] > 0.8) < 0.01
+
+
+def test_voxel_merge_averages_and_the_final_filter_drops_strays() -> None:
+    points = np.array([[0.01, 0.01, 0.01], [0.03, 0.05, 0.07], [1.01, 0.0, 0.0]], np.float32)
+    normals = np.array([[0, 0, 1], [0, 1, 0], [1, 0, 0]], np.float32)
+    merged = voxel_merge(points, 0.1, normals=normals)
+    assert merged.support.tolist() == [1, 2] or merged.support.tolist() == [2, 1]
+    pair = int(np.argmax(merged.support))
+    assert np.allclose(merged.points[pair], [0.02, 0.03, 0.04], atol=1e-6)
+    assert np.allclose(merged.normals[pair], [0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-6)
+
+    dense = _plane_grid().reshape(-1, 3)
+    cloud = np.vstack([dense, [[50.0, 50.0, 50.0]]])
+    isolated = isolated_points(cloud, cell_mm=2.0, min_points=10)
+    assert isolated[-1] and not isolated[:-1].any()
+
+
+@pytest.fixture(scope="module")
+def stitched_angle():
+    rng = np.random.default_rng(5)
+    session = simulate_calibration(rng=rng)
+    handeye = calibrate(session.base_T_flange, session.sensor_T_target)
+    mesh = scan_sim.angle_profile()
+    sensor = scan_sim.SensorModel(grid=(150, 231))
+    scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
+    clouds = [PointCloud(points=g.reshape(-1, 3), grid_shape=g.shape[:2]) for g in scans.scans]
+    result = stitch(clouds, scans.base_T_flange, handeye.flange_T_sensor)
+    scanner = scan_sim.Scanner(mesh, scans.base_T_part, sensor)
+    return result, scans, scanner
+
+
+def test_stitched_points_lie_on_the_true_surface(stitched_angle) -> None:
+    result, scans, scanner = stitched_angle
+    error = scanner.distance_to_surface_mm(result.cloud.points)
+    assert np.mean(error) < 0.12 and np.percentile(error, 99) < 0.35
+    stray = sum(s.outliers for s in result.scans)
+    assert stray > 0  # the simulator's stray returns were found
+    assert result.cloud.normals is not None and len(result.cloud.normals) == len(error)
+
+
+def test_quality_report_matches_the_model_box(stitched_angle) -> None:
+    result, scans, _ = stitched_angle
+    corners = scans.mesh.vertices + scans.base_T_part[:3, 3]
+    report = quality_report(
+        [s.points for s in result.scans],
+        result.cloud.points,
+        model_bounds_mm=(corners.min(0), corners.max(0)),
+    )
+    assert len(report.pairs) >= 2  # three scans in a row overlap pairwise
+    assert report.overall.mean_mm < 0.25 and report.overall.count > 10_000
+    # Along the profile the scans reach the part's ends; across, the legs are fully seen.
+    assert max(report.model_bounds_difference_mm) < 1.0
+
+
+def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
+    runner = CliRunner()
+    assert runner.invoke(app, ["simulate", "stitching", str(tmp_path)]).exit_code == 0
+    handeye = tmp_path / "handeye.json"
+    calibrated = runner.invoke(app, ["calibrate", str(tmp_path / "pairs.json"), "-o", str(handeye)])
+    assert calibrated.exit_code == 0, calibrated.output
+    out, report = tmp_path / "out" / "stitched.ply", tmp_path / "out" / "report.json"
+    done = runner.invoke(
+        app,
+        ["stitch", str(tmp_path / "scans.json"), "--handeye", str(handeye), "-o", str(out),
+         "--report", str(report)],
+    )  # fmt: skip
+    assert done.exit_code == 0, done.output
+    document = json.loads(report.read_text())
+    assert document["points"] == len(read_ply(out).points) > 0
+    assert document["pairs"] and document["overall"]["mean_mm"] < 0.3
+    assert report.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    scans = json.loads((tmp_path / "scans.json").read_text())
+    scans["scans"][1]["file"] = "missing.ply"
+    (tmp_path / "bad.json").write_text(json.dumps(scans))
+    refused = runner.invoke(
+        app,
+        ["stitch", str(tmp_path / "bad.json"), "--handeye", str(handeye), "-o", str(out),
+         "--report", str(report)],
+    )  # fmt: skip
+    assert refused.exit_code == 2 and "scans[1].file 'missing.ply' does not exist" in refused.output
