@@ -109,11 +109,8 @@ def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
     calibrated = runner.invoke(app, ["calibrate", str(tmp_path / "pairs.json"), "-o", str(handeye)])
     assert calibrated.exit_code == 0, calibrated.output
     out, report = tmp_path / "out" / "stitched.ply", tmp_path / "out" / "report.json"
-    done = runner.invoke(
-        app,
-        ["stitch", str(tmp_path / "scans.json"), "--handeye", str(handeye), "-o", str(out),
-         "--report", str(report)],
-    )  # fmt: skip
+    stitch_args = ["--handeye", str(handeye), "-o", str(out), "--report", str(report)]
+    done = runner.invoke(app, ["stitch", str(tmp_path / "scans.json"), *stitch_args])
     assert done.exit_code == 0, done.output
     document = json.loads(report.read_text())
     assert document["points"] == len(read_ply(out).points) > 0
@@ -123,9 +120,5 @@ def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
     scans = json.loads((tmp_path / "scans.json").read_text())
     scans["scans"][1]["file"] = "missing.ply"
     (tmp_path / "bad.json").write_text(json.dumps(scans))
-    refused = runner.invoke(
-        app,
-        ["stitch", str(tmp_path / "bad.json"), "--handeye", str(handeye), "-o", str(out),
-         "--report", str(report)],
-    )  # fmt: skip
+    refused = runner.invoke(app, ["stitch", str(tmp_path / "bad.json"), *stitch_args])
     assert refused.exit_code == 2 and "scans[1].file 'missing.ply' does not exist" in refused.output

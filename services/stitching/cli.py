@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import typer
 
-from services.pointcloud.transforms import pose_error, to_json
+# Heavy imports (numpy, scipy, open3d) stay inside the commands: every `vista` invocation
+# and every API process imports this module.
 
 
 def _fail(message: str) -> None:
@@ -84,7 +84,10 @@ def simulate_stitching(
     """Write a complete stitching example with its ground truth: a calibration session
     (pairs.json), scans of a component along a workplan (scan_NNN.ply, scans.json), and
     truth.json (true mount, true robot poses, the part's pose and bounding box)."""
+    import numpy as np
+
     from services.pointcloud.ply import PointCloud, write_ply
+    from services.pointcloud.transforms import to_json
     from services.stitching import scan_sim
     from services.stitching.calibration_sim import simulate_calibration
     from services.stitching.files import write_pairs, write_scans
@@ -206,6 +209,9 @@ def compare_handeye(
     truth: Path = typer.Argument(..., help="truth.json written by `vista simulate stitching`."),
 ) -> None:
     """How far a calibration is from the simulated truth (translation mm, rotation deg)."""
+    import numpy as np
+
+    from services.pointcloud.transforms import pose_error
     from services.stitching.files import StitchingFileError, load_json, read_handeye
 
     try:
