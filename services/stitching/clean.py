@@ -7,12 +7,28 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.special import erf
 
 from services.pointcloud.grid import shifted, window_offsets
 
 KEY_BITS = 21
 """Voxel index bits per axis: 2²¹ voxels of 0.1 mm span 210 m, far beyond any cell."""
+
+
+def loop_probability(pdist: np.ndarray, expected: np.ndarray, lam: float) -> np.ndarray:
+    """LoOP from each point's probabilistic distance and its context's mean one:
+    ``PLOF = pdist / expected − 1``; ``LoOP = max(0, erf(PLOF / (λ·sqrt(mean PLOF²)·√2)))``.
+    NaN in, NaN out (the normalisation uses the finite values only)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        plof = pdist / expected - 1.0
+    finite = np.isfinite(plof)
+    nplof = lam * np.sqrt(np.mean(plof[finite] ** 2)) if finite.any() else 0.0
+    probability = np.full(plof.shape, np.nan, dtype=np.float32)
+    probability[finite] = (
+        np.maximum(0.0, erf(plof[finite] / (nplof * np.sqrt(2)))) if nplof > 0 else 0.0
+    )
+    return probability
 
 
 def loop_grid(grid: np.ndarray, *, radius_px: int = 1, lam: float = 3.0) -> np.ndarray:
@@ -35,17 +51,17 @@ def loop_grid(grid: np.ndarray, *, radius_px: int = 1, lam: float = 3.0) -> np.n
         neighbour_pdist = np.stack([shifted(pdist[..., None], r, c)[..., 0] for r, c in offsets])
         usable = present & np.isfinite(neighbour_pdist)
         expected = np.where(usable, neighbour_pdist, 0.0).sum(axis=0) / usable.sum(axis=0)
-        plof = pdist / expected - 1.0
-    finite = np.isfinite(plof)
-    nplof = lam * np.sqrt(np.mean(plof[finite] ** 2)) if finite.any() else 0.0
-    probability = np.full(plof.shape, np.nan, dtype=np.float32)
-    if nplof > 0:
-        probability[finite] = np.maximum(0.0, erf(plof[finite] / (nplof * np.sqrt(2))))
-    else:
-        probability[finite] = 0.0
+    probability = loop_probability(pdist, expected, lam)
     measured = np.isfinite(grid).all(axis=-1)
     probability[measured & (support < 2)] = 1.0
     return probability
+
+
+def loop_unorganized(points: np.ndarray, *, neighbours: int = 8, lam: float = 3.0) -> np.ndarray:
+    """LoOP of an unorganized (N, 3) cloud over its k nearest neighbours."""
+    distances, index = cKDTree(points).query(points, k=neighbours + 1, workers=-1)
+    pdist = lam * np.sqrt(np.mean(distances[:, 1:] ** 2, axis=1))
+    return loop_probability(pdist, np.mean(pdist[index[:, 1:]], axis=1), lam)
 
 
 def voxel_keys(points: np.ndarray, voxel_mm: float) -> np.ndarray:

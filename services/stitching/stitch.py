@@ -13,13 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.special import erf
 
 from services.pointcloud.grid import grid_normals
 from services.pointcloud.ply import PointCloud
 from services.pointcloud.transforms import apply
-from services.stitching.clean import isolated_points, loop_grid, voxel_merge
+from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
 
 Progress = Callable[[float, str], None]
 
@@ -65,15 +63,6 @@ class StitchResult:
     base_T_scan: np.ndarray
     isolated_removed: int
     seconds: dict[str, float] = field(default_factory=dict)
-
-
-def loop_unorganized(points: np.ndarray, *, neighbours: int = 8, lam: float = 3.0) -> np.ndarray:
-    """LoOP of an unorganized (N, 3) cloud over its k nearest neighbours."""
-    distances, index = cKDTree(points).query(points, k=neighbours + 1, workers=-1)
-    pdist = lam * np.sqrt(np.mean(distances[:, 1:] ** 2, axis=1))
-    plof = pdist / np.mean(pdist[index[:, 1:]], axis=1) - 1.0
-    nplof = lam * np.sqrt(np.mean(plof**2))
-    return np.maximum(0.0, erf(plof / (nplof * np.sqrt(2)))) if nplof > 0 else np.zeros(len(points))
 
 
 def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig) -> CleanScan:

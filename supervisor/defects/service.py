@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 from sqlalchemy import bindparam, func, select
 from sqlalchemy.orm import Session
@@ -41,16 +42,25 @@ _VOTES = (
 )
 
 
+def tally(votes: Iterable[tuple[str, str | None, int]]) -> Consensus:
+    """The consensus of (verdict, new type, how many) votes on one defect."""
+    counts: dict[str, int] = {}
+    retyped: dict[str, int] = {}
+    for verdict, new_type, count in votes:
+        counts[verdict] = counts.get(verdict, 0) + count
+        if verdict == "reclassified" and new_type:
+            retyped[new_type] = retyped.get(new_type, 0) + count
+    return consensus_from(counts, retyped)
+
+
 def consensus_for(session: Session, defect_ids: list[int]) -> dict[int, Consensus]:
-    counts: dict[int, dict[str, int]] = {d: {} for d in defect_ids}
-    retyped: dict[int, dict[str, int]] = {d: {} for d in defect_ids}
+    votes: dict[int, list[tuple[str, str | None, int]]] = {d: [] for d in defect_ids}
     if defect_ids:
-        rows = session.execute(_VOTES, {"defect_ids": list(defect_ids)})
-        for defect_id, verdict, new_type, count in rows:
-            counts[defect_id][verdict] = counts[defect_id].get(verdict, 0) + count
-            if verdict == "reclassified" and new_type:
-                retyped[defect_id][new_type] = count
-    return {d: consensus_from(counts[d], retyped[d]) for d in defect_ids}
+        for defect_id, verdict, new_type, count in session.execute(
+            _VOTES, {"defect_ids": list(defect_ids)}
+        ):
+            votes[defect_id].append((verdict, new_type, count))
+    return {d: tally(v) for d, v in votes.items()}
 
 
 def defects_out(session: Session, defects: list[Defect]) -> list[DefectOut]:

@@ -8,7 +8,7 @@ trip, on SQLite (in-process, where round trips cost nothing) a short transaction
 
 from __future__ import annotations
 
-from collections import Counter, defaultdict
+from collections import defaultdict
 
 from sqlalchemy import Insert, bindparam, insert, or_, select, text
 from sqlalchemy.dialects import sqlite
@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.db import Database
 from supervisor.defects.schemas import Consensus
-from supervisor.defects.service import consensus_for, consensus_from
+from supervisor.defects.service import consensus_for, tally
 from supervisor.defects.service import get as get_defect
 from supervisor.judgments.schemas import (
     DefectJudgmentsOut,
@@ -143,13 +143,7 @@ def put_mine(
     if row is None:
         raise not_found("defect", defect_id)
     _refuse_same_type(data, row.defect_type)
-    counts: Counter[str] = Counter()
-    retyped: Counter[str] = Counter()
-    for verdict, new_type in row.votes:
-        counts[verdict] += 1
-        if verdict == "reclassified" and new_type:
-            retyped[new_type] += 1
-    return row, consensus_from(counts, dict(retyped))
+    return row, tally((verdict, new_type, 1) for verdict, new_type in row.votes)
 
 
 def _put_in_transaction(session: Session, data: JudgmentIn, values: dict) -> Row:
