@@ -131,6 +131,25 @@ def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
     assert document["pairs"] and document["overall"]["mean_mm"] < 0.3
     assert report.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
+    refined = runner.invoke(
+        app,
+        [
+            "stitch",
+            str(tmp_path / "scans.json"),
+            *stitch_args,
+            "--icp",
+            "bounded",
+            "--truth",
+            str(tmp_path / "truth.json"),
+        ],
+    )
+    assert refined.exit_code == 0, refined.output
+    document = json.loads(report.read_text())
+    assert document["icp"]["method"] == "bounded" and len(document["icp"]["scans"]) == 3
+    assert document["true_error"]["mean_mm"] < 0.15
+    assert document["scan_pose_error"]["max_translation_mm"] < 0.5
+    assert max(document["model_bounds_difference_mm"]) < 1.0
+
     scans = json.loads((tmp_path / "scans.json").read_text())
     scans["scans"][1]["file"] = "missing.ply"
     (tmp_path / "bad.json").write_text(json.dumps(scans))

@@ -38,3 +38,24 @@ def grid_normals(grid: np.ndarray, *, step_px: int = 1) -> np.ndarray:
     facing_away = np.sum(normals * grid, axis=-1) > 0
     normals[facing_away] *= -1
     return normals.astype(np.float32)
+
+
+def grid_spacing_mm(grid: np.ndarray) -> float:
+    """Median distance between measured neighbours along a row (NaN if there are none)."""
+    rows = grid[:: max(1, grid.shape[0] // 64)]
+    steps = np.linalg.norm(rows[:, 1:] - rows[:, :-1], axis=-1)
+    steps = steps[np.isfinite(steps)]
+    return float(np.median(steps)) if len(steps) else float("nan")
+
+
+def smooth_grid_normals(grid: np.ndarray, span_mm: float) -> np.ndarray:
+    """``grid_normals`` over differences about ``span_mm`` long (less noise than adjacent
+    pixels give), falling back to adjacent pixels near edges and holes."""
+    spacing = grid_spacing_mm(grid)
+    step = int(round(span_mm / (2 * spacing))) if np.isfinite(spacing) and spacing > 0 else 1
+    normals = grid_normals(grid)
+    if step > 1:
+        wide = grid_normals(grid, step_px=step)
+        known = np.isfinite(wide).all(axis=-1)
+        normals[known] = wide[known]
+    return normals

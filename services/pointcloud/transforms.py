@@ -79,6 +79,24 @@ def perturb(
     return a_T_b @ noise
 
 
+def adjoint(a_T_b: np.ndarray) -> np.ndarray:
+    """(k, 6, 6) adjoints of (k, 4, 4) transforms: they map twists [ω; v] (rad, mm) expressed in
+    frame b to frame a, so covariances move as ``Ad Σ Adᵀ``."""
+    rotation, translation = a_T_b[:, :3, :3], a_T_b[:, :3, 3]
+    skew = np.zeros_like(rotation)
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = (
+        -translation[:, 2],
+        translation[:, 1],
+        -translation[:, 0],
+    )
+    skew -= np.swapaxes(skew, 1, 2)
+    out = np.zeros((len(a_T_b), 6, 6))
+    out[:, :3, :3] = rotation
+    out[:, 3:, :3] = skew @ rotation
+    out[:, 3:, 3:] = rotation
+    return out
+
+
 def look_at(eye_mm: np.ndarray, target_mm: np.ndarray, up: np.ndarray) -> np.ndarray:
     """world_T_view of a frame at ``eye`` whose +z looks at ``target`` (x right, y down)."""
     z = np.asarray(target_mm, float) - np.asarray(eye_mm, float)

@@ -27,7 +27,13 @@ from scipy import optimize
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from services.pointcloud.transforms import from_rotvec, invert, make_transform, to_rotvec
+from services.pointcloud.transforms import (
+    adjoint,
+    from_rotvec,
+    invert,
+    make_transform,
+    to_rotvec,
+)
 
 OPENCV_METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
 METHODS = ("vista", "thesis", *OPENCV_METHODS)
@@ -255,23 +261,6 @@ def park_martin(base_T_flange: np.ndarray, sensor_T_target: np.ndarray) -> np.nd
     return make_transform(rotation, translation)
 
 
-def _adjoint(a_T_b: np.ndarray) -> np.ndarray:
-    """(k, 6, 6) adjoints mapping twists [ω; v] in frame b to frame a."""
-    rotation, translation = a_T_b[:, :3, :3], a_T_b[:, :3, 3]
-    skew = np.zeros_like(rotation)
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = (
-        -translation[:, 2],
-        translation[:, 1],
-        -translation[:, 0],
-    )
-    skew -= np.swapaxes(skew, 1, 2)
-    out = np.zeros((len(a_T_b), 6, 6))
-    out[:, :3, :3] = rotation
-    out[:, 3:, :3] = skew @ rotation
-    out[:, 3:, 3:] = rotation
-    return out
-
-
 class _Fit:
     """Weighted least squares over p = [x (6), z (6)] with X = X0 exp(x), Z = Z0 exp(z).
 
@@ -297,7 +286,7 @@ class _Fit:
         sensor = np.diag(
             np.repeat([np.radians(noise.sensor_sigma_deg), noise.sensor_sigma_mm], 3) ** 2
         )
-        robot_in_target = _adjoint(invert(self.F_inv @ start_Z))  # target_T_flange
+        robot_in_target = adjoint(invert(self.F_inv @ start_Z))  # target_T_flange
         covariance = robot_in_target @ robot @ np.swapaxes(robot_in_target, 1, 2) + sensor
         self.whiten = np.linalg.inv(np.linalg.cholesky(covariance))
 

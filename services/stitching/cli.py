@@ -68,9 +68,6 @@ def calibrate(
     typer.echo(f"wrote {out}")
 
 
-COMPONENTS = ("angle", "flat", "curved")
-
-
 def simulate_stitching(
     out_dir: Path = typer.Argument(..., help="Folder to write the example into."),
     component: str = typer.Option("angle", help="angle (carbon angle profile) | flat | curved"),
@@ -94,15 +91,11 @@ def simulate_stitching(
 
     if corrupt >= poses:
         _fail(f"--corrupt ({corrupt}) must be less than --poses ({poses})")
-    if component not in COMPONENTS:
-        _fail(f"--component must be one of {', '.join(COMPONENTS)}; got {component!r}")
+    if component not in scan_sim.COMPONENTS:
+        _fail(f"--component must be one of {', '.join(scan_sim.COMPONENTS)}; got {component!r}")
     rng = np.random.default_rng(seed)
     session = simulate_calibration(poses=poses, corrupt=corrupt, rng=rng)
-    mesh = {
-        "angle": scan_sim.angle_profile,
-        "flat": scan_sim.flat_panel,
-        "curved": scan_sim.curved_panel,
-    }[component]()
+    mesh = scan_sim.COMPONENTS[component]()
     sensor = scan_sim.SensorModel(grid=scan_sim.GOCATOR_GRID if full_scale else (250, 385))
     scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -117,7 +110,8 @@ def simulate_stitching(
         "base_T_target": to_json(session.true_base_T_target),
         "calibration_true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
         "corrupted_pairs": list(session.corrupted),
-        "component": mesh.name,
+        "component": component,
+        "component_name": mesh.name,
         "base_T_part": to_json(scans.base_T_part),
         "model_bounds_min_mm": corners.min(0).tolist(),
         "model_bounds_max_mm": corners.max(0).tolist(),
@@ -146,21 +140,45 @@ def stitch(
     ),
     voxel_mm: float = typer.Option(0.2, help="Merge the points within one voxel of this edge."),
     loop_threshold: float = typer.Option(0.8, help="Drop points with a higher LoOP."),
+    icp: str = typer.Option(
+        "none",
+        help="none (kinematic poses) | bounded (refine within the kinematic uncertainty) | "
+        "point-to-point | point-to-plane (plain ICP, as the thesis tried).",
+    ),
+    icp_start: str = typer.Option(
+        "kinematic", help="kinematic | none (no initial transform: the thesis's Fig. 6.4 b)."
+    ),
+    truth: Path = typer.Option(
+        None, help="truth.json of `vista simulate stitching`: adds the true errors."
+    ),
 ) -> None:
     """Stitch scans into the robot base frame with the calibration, clean them (LoOP,
     closest-vertex merge, final filter) and report the overlap quality (Fig. 6.2)."""
     from tqdm import tqdm
 
     from services.pointcloud.ply import PlyError, read_ply, write_ply
-    from services.stitching.files import StitchingFileError, read_handeye, read_scans
-    from services.stitching.quality import histogram_png, quality_report
+    from services.stitching.files import (
+        StitchingFileError,
+        read_handeye,
+        read_scans,
+        read_truth,
+    )
+    from services.stitching.quality import histogram_png
+    from services.stitching.report import icp_config, stitch_report
     from services.stitching.stitch import StitchConfig
     from services.stitching.stitch import stitch as run_stitch
 
     try:
-        config = StitchConfig(voxel_mm=voxel_mm, loop_threshold=loop_threshold)
         files, base_T_flange = read_scans(scans)
         flange_T_sensor, calibration = read_handeye(handeye)
+        config = StitchConfig(
+            voxel_mm=voxel_mm,
+            loop_threshold=loop_threshold,
+            icp=icp_config(icp, icp_start, calibration),
+        )
+        simulated = None if truth is None else read_truth(truth)
+        if simulated is not None and len(simulated.scan_base_T_flange) != len(files):
+            _fail(f"{truth} holds {len(simulated.scan_base_T_flange)} scans, {scans} {len(files)}")
         clouds = []
         for file in tqdm(files, desc="reading scans", unit="scan"):
             clouds.append(read_ply(file))
@@ -177,21 +195,9 @@ def stitch(
         )
     out.parent.mkdir(parents=True, exist_ok=True)
     write_ply(out, result.cloud, comments=("vista stitched, base frame, mm",))
-    quality = quality_report([s.points for s in result.scans], result.cloud.points)
-    document = {
-        "scans": len(files),
-        "points": len(result.cloud.points),
-        "outliers_removed": [s.outliers for s in result.scans],
-        "isolated_removed": result.isolated_removed,
-        "calibration": {
-            "method": calibration.get("method"),
-            "sigma_translation_mm": calibration.get("sigma_translation_mm"),
-            "sigma_rotation_deg": calibration.get("sigma_rotation_deg"),
-        },
-        "config": vars(config),
-        "seconds": result.seconds,
-        **quality.to_json(),
-    }
+    quality, document = stitch_report(
+        result, config=config, calibration=calibration, truth=simulated
+    )
     report.parent.mkdir(parents=True, exist_ok=True)
     report.write_text(json.dumps(document, indent=1) + "\n")
     histogram_png(quality, report.with_suffix(".png"))
@@ -201,6 +207,20 @@ def stitch(
         f"{len(quality.pairs)} pairs: mean {o.mean_mm:.4f} mm, std {o.std_mm:.4f}, "
         f"p90 {o.p90_mm:.4f}, max {o.max_mm:.3f}"
     )
+    if result.alignments is not None:
+        worst = max(result.alignments, key=lambda a: a.moved_mm)
+        typer.echo(
+            f"ICP {icp}: moved scans by up to {worst.moved_mm:.3f} mm, "
+            f"{max(a.moved_deg for a in result.alignments):.4f}°; "
+            f"{sum(a.clipped for a in result.alignments)} cut back to the kinematic bound"
+        )
+    if simulated is not None:
+        t, pose = quality.true_error, document["scan_pose_error"]
+        typer.echo(
+            f"true error to the surface: mean {t.mean_mm:.4f} mm, p90 {t.p90_mm:.4f}; scan "
+            f"poses: mean {pose['mean_translation_mm']:.4f} mm, max "
+            f"{pose['max_translation_mm']:.4f} mm / {pose['max_rotation_deg']:.4f}°"
+        )
     typer.echo(f"wrote {out}, {report} and {report.with_suffix('.png')}")
 
 

@@ -7,6 +7,7 @@ HANDEYE.json ``{"flange_T_sensor": M, "base_T_target": M, "method": …, "residu
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -117,3 +118,39 @@ def read_handeye(path: Path) -> tuple[np.ndarray, dict]:
     if not isinstance(data, dict) or "flange_T_sensor" not in data:
         raise StitchingFileError(f"{path}: expected an object with flange_T_sensor")
     return _matrix(data["flange_T_sensor"], f"{path}: flange_T_sensor"), data
+
+
+@dataclass(frozen=True)
+class SimulatedTruth:
+    """truth.json of ``vista simulate stitching``: what the simulated measurements hide."""
+
+    component: str
+    base_T_part: np.ndarray
+    flange_T_sensor: np.ndarray
+    scan_base_T_flange: np.ndarray
+    """(n, 4, 4) true robot poses of the scans."""
+    model_bounds_mm: tuple[np.ndarray, np.ndarray]
+
+
+def read_truth(path: Path) -> SimulatedTruth:
+    data = load_json(path)
+    keys = ("component", "base_T_part", "flange_T_sensor", "scan_true_base_T_flange")
+    keys += ("model_bounds_min_mm", "model_bounds_max_mm")
+    missing = [k for k in keys if not isinstance(data, dict) or k not in data]
+    if missing:
+        raise StitchingFileError(f"{path}: not a truth.json of vista simulate; no {missing}")
+    return SimulatedTruth(
+        component=str(data["component"]),
+        base_T_part=_matrix(data["base_T_part"], f"{path}: base_T_part"),
+        flange_T_sensor=_matrix(data["flange_T_sensor"], f"{path}: flange_T_sensor"),
+        scan_base_T_flange=np.stack(
+            [
+                _matrix(m, f"{path}: scan_true_base_T_flange[{i}]")
+                for i, m in enumerate(data["scan_true_base_T_flange"])
+            ]
+        ),
+        model_bounds_mm=(
+            np.asarray(data["model_bounds_min_mm"], float),
+            np.asarray(data["model_bounds_max_mm"], float),
+        ),
+    )

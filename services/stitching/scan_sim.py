@@ -114,6 +114,10 @@ def angle_profile(length_mm: float = 300.0, leg_mm: float = 60.0, fillet_mm: flo
     )
 
 
+COMPONENTS = {"angle": angle_profile, "flat": flat_panel, "curved": curved_panel}
+"""The simulated parts by their short name (``vista simulate stitching --component``)."""
+
+
 def workplan(
     mesh: Mesh, base_T_part: np.ndarray, sensor: SensorModel, *, overlap: float = 0.3
 ) -> np.ndarray:

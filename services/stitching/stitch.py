@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from services.pointcloud.grid import grid_normals
+from services.pointcloud.grid import smooth_grid_normals
 from services.pointcloud.ply import PointCloud
 from services.pointcloud.transforms import apply
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
+from services.stitching.icp import Alignment, IcpConfig, refine_poses
 
 Progress = Callable[[float, str], None]
 
@@ -28,6 +29,8 @@ class StitchConfig:
     """Edge of the voxels whose points are merged into one vertex."""
     loop_radius_px: int = 1
     """LoOP context: the measured neighbours in a (2r+1)² grid window."""
+    normal_span_mm: float = 2.0
+    """Normals of organized scans from central differences about this long."""
     loop_neighbours: int = 8
     """LoOP context of unorganized scans: k nearest neighbours."""
     loop_threshold: float = 0.8
@@ -36,6 +39,8 @@ class StitchConfig:
     min_points: int = 10
     """Final filter: merged points whose 2 mm cell and its 26 neighbours hold fewer than
     this many points are removed (stray returns and spray)."""
+    icp: IcpConfig | None = None
+    """Move the cleaned scans by ICP before merging (None: kinematic poses only)."""
 
     def __post_init__(self) -> None:
         if not self.voxel_mm > 0:
@@ -63,6 +68,8 @@ class StitchResult:
     base_T_scan: np.ndarray
     isolated_removed: int
     seconds: dict[str, float] = field(default_factory=dict)
+    alignments: list[Alignment] | None = None
+    """Per scan, what ICP did (``config.icp`` only)."""
 
 
 def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig) -> CleanScan:
@@ -70,7 +77,7 @@ def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig)
     if cloud.grid_shape is not None:
         grid = cloud.points.reshape(*cloud.grid_shape, 3)
         probability = loop_grid(grid, radius_px=config.loop_radius_px).ravel()
-        normals = grid_normals(grid).reshape(-1, 3)
+        normals = smooth_grid_normals(grid, config.normal_span_mm).reshape(-1, 3)
     else:
         finite = np.isfinite(cloud.points).all(axis=1)
         probability = np.full(len(cloud.points), np.nan)
@@ -112,11 +119,29 @@ def stitch(
     seconds: dict[str, float] = {}
     started = time.perf_counter()
     base_T_scan = base_T_flange @ flange_T_sensor
+    clean_share = 0.8 if config.icp is None else 0.6
     cleaned = []
     for i, cloud in enumerate(clouds):
-        report(0.8 * i / len(clouds), f"cleaning scan {i + 1} of {len(clouds)}")
+        report(clean_share * i / len(clouds), f"cleaning scan {i + 1} of {len(clouds)}")
         cleaned.append(clean_scan(cloud, base_T_scan[i], config))
     seconds["clean_scans_s"] = time.perf_counter() - started
+
+    alignments = None
+    if config.icp is not None:
+        started = time.perf_counter()
+        alignments = refine_poses(
+            [s.points for s in cleaned],
+            [s.normals for s in cleaned],
+            base_T_scan,
+            flange_T_sensor,
+            config.icp,
+            progress=lambda i: report(
+                0.6 + 0.2 * i / len(clouds), f"ICP: aligning scan {i + 1} of {len(clouds)}"
+            ),
+        )
+        cleaned = [_moved(s, a.correction) for s, a in zip(cleaned, alignments, strict=True)]
+        base_T_scan = np.stack([a.correction for a in alignments]) @ base_T_scan
+        seconds["icp_s"] = time.perf_counter() - started
 
     report(0.8, "merging closest vertices")
     started = time.perf_counter()
@@ -142,4 +167,13 @@ def stitch(
     )
     seconds["filter_s"] = time.perf_counter() - started
     report(1.0, f"stitched {len(clouds)} scans into {len(cloud.points)} points")
-    return StitchResult(cloud, cleaned, base_T_scan, int((~keep).sum()), seconds)
+    return StitchResult(cloud, cleaned, base_T_scan, int((~keep).sum()), seconds, alignments)
+
+
+def _moved(scan: CleanScan, correction: np.ndarray) -> CleanScan:
+    rotation = correction[:3, :3].T.astype(np.float32)
+    return replace(
+        scan,
+        points=apply(correction, scan.points),
+        normals=None if scan.normals is None else scan.normals @ rotation,
+    )

@@ -1,0 +1,100 @@
+"""REPORT.json of a stitch: overlap quality, what clean-up and ICP did, and (in simulation)
+the error against the truth. One builder for ``vista stitch`` and the ``stitch`` job."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+import numpy as np
+
+from services.pointcloud.transforms import pose_error
+from services.stitching.files import SimulatedTruth
+from services.stitching.icp import IcpConfig
+from services.stitching.quality import QualityReport, quality_report
+from services.stitching.stitch import StitchConfig, StitchResult
+
+
+def icp_config(method: str, start: str, calibration: dict) -> IcpConfig | None:
+    """The ICP option of a stitch (``none``: kinematic poses only), bounded by the
+    calibration's own uncertainty when HANDEYE.json reports one."""
+    if method == "none":
+        return None
+    return IcpConfig(
+        method=method,
+        start=start,
+        calibration_sigma_mm=float(calibration.get("sigma_translation_mm") or 0.0),
+        calibration_sigma_deg=float(calibration.get("sigma_rotation_deg") or 0.0),
+    )
+
+
+def stitch_report(
+    result: StitchResult,
+    *,
+    config: StitchConfig,
+    calibration: dict,
+    truth: SimulatedTruth | None = None,
+) -> tuple[QualityReport, dict]:
+    """The quality report and the whole REPORT.json document."""
+    true_distance = model_bounds = None
+    if truth is not None:
+        from services.stitching.scan_sim import COMPONENTS, Scanner, SensorModel
+
+        scanner = Scanner(COMPONENTS[truth.component](), truth.base_T_part, SensorModel())
+        true_distance = scanner.distance_to_surface_mm(result.cloud.points)
+        model_bounds = truth.model_bounds_mm
+    quality = quality_report(
+        [s.points for s in result.scans],
+        result.cloud.points,
+        model_bounds_mm=model_bounds,
+        true_distance_mm=true_distance,
+    )
+    document = {
+        "scans": len(result.scans),
+        "points": len(result.cloud.points),
+        "outliers_removed": [s.outliers for s in result.scans],
+        "isolated_removed": result.isolated_removed,
+        "calibration": {
+            "method": calibration.get("method"),
+            "sigma_translation_mm": calibration.get("sigma_translation_mm"),
+            "sigma_rotation_deg": calibration.get("sigma_rotation_deg"),
+        },
+        "config": {k: v for k, v in asdict(config).items() if k != "icp"},
+        "icp": None if config.icp is None else _icp_json(config.icp, result),
+        "seconds": result.seconds,
+        **quality.to_json(),
+    }
+    if truth is not None:
+        true_base_T_scan = truth.scan_base_T_flange @ truth.flange_T_sensor
+        errors = np.array(
+            [pose_error(a, b) for a, b in zip(result.base_T_scan, true_base_T_scan, strict=True)]
+        )
+        document["scan_pose_error"] = {
+            "translation_mm": errors[:, 0].tolist(),
+            "rotation_deg": errors[:, 1].tolist(),
+            "mean_translation_mm": float(errors[:, 0].mean()),
+            "max_translation_mm": float(errors[:, 0].max()),
+            "max_rotation_deg": float(errors[:, 1].max()),
+        }
+    return quality, document
+
+
+def _icp_json(config: IcpConfig, result: StitchResult) -> dict:
+    return {
+        "method": config.method,
+        "start": config.start,
+        "max_distance_mm": config.max_distance_mm,
+        "bound_probability": config.bound_probability,
+        "scans": [
+            {
+                "moved_mm": a.moved_mm,
+                "moved_deg": a.moved_deg,
+                "mahalanobis": a.mahalanobis,
+                "fitted_mahalanobis": a.fitted_mahalanobis,
+                "clipped": a.clipped,
+                "iterations": a.iterations,
+                "correspondences": a.correspondences,
+                "rmse_mm": a.rmse_mm,
+            }
+            for a in result.alignments or []
+        ],
+    }
