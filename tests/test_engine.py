@@ -73,7 +73,14 @@ class Engine:
         log = open(self.tmp_path / f"worker-{len(self.workers)}.log", "wb")  # noqa: SIM115
         self.workers.append(
             subprocess.Popen(
-                [sys.executable, "-m", "supervisor.cli", "worker", "--queues", "scan,test"],
+                [
+                    sys.executable,
+                    "-m",
+                    "supervisor.cli",
+                    "worker",
+                    "--queues",
+                    "scan,stitching,test",
+                ],
                 env=env,
                 cwd=REPO,
                 stdout=log,
@@ -290,3 +297,68 @@ def test_progress_streams_as_server_sent_events(engine_factory):
     progress = [data["progress"] for name, data in events if name == "progress"]
     assert len(progress) >= 3 and progress == sorted(progress)
     assert events[-1] == ("end", {"status": "succeeded"})
+
+
+def _upload(engine: Engine, path: Path, kind: str, media_type: str) -> int:
+    response = engine.http.post(
+        f"/api/v1/inspections/{engine.inspection}/artifacts",
+        params={"kind": kind, "name": path.name},
+        content=path.read_bytes(),
+        headers={"content-type": media_type},
+    )
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
+    from typer.testing import CliRunner
+
+    from supervisor.cli import app
+
+    example = tmp_path / "example"
+    simulated = CliRunner().invoke(app, ["simulate", "stitching", str(example), "--corrupt", "1"])
+    assert simulated.exit_code == 0, simulated.output
+    engine = engine_factory()
+    pairs = _upload(engine, example / "pairs.json", "pairs", "application/json")
+    manifest = _upload(engine, example / "scans.json", "scans", "application/json")
+    scans = [
+        _upload(engine, path, "scan", "application/x-ply")
+        for path in sorted(example.glob("scan_*.ply"))
+    ]
+    run = engine.run(
+        [
+            {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
+            {
+                "name": "stitch",
+                "kind": "stitch",
+                "inputs": [manifest, *scans],
+                "after": ["calibrate"],
+                "params": {"icp": "bounded"},
+            },
+        ]
+    )
+    calibrate_job, stitch_job = (engine.wait(j["id"], timeout=120) for j in run["jobs"])
+    assert calibrate_job["status"] == "succeeded", calibrate_job
+    truth = json.loads((example / "truth.json").read_text())
+    assert calibrate_job["result"]["dropped_pairs"] == truth["corrupted_pairs"]
+    assert stitch_job["status"] == "succeeded", stitch_job
+    assert stitch_job["result"]["calibration_method"] == "vista"
+    assert stitch_job["result"]["overlap_mean_mm"] < 0.3
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    produced = {
+        a["kind"]: a
+        for a in engine.http.get(base, params={"limit": 100}).json()["items"]
+        if a["job_id"] in (calibrate_job["id"], stitch_job["id"])
+    }
+    assert set(produced) == {"handeye", "cloud", "report", "plot"}
+    report = json.loads(engine.http.get(f"{base}/{produced['report']['id']}/content").content)
+    assert report["icp"]["method"] == "bounded" and report["points"] > 100_000
+    cloud = tmp_path / "stitched.ply"
+    cloud.write_bytes(engine.http.get(f"{base}/{produced['cloud']['id']}/content").content)
+    assert validate_ply(cloud).vertex_count == report["points"]
+
+    # A stitch without a calibration fails at once, naming what is missing.
+    lonely = engine.run([{"name": "stitch", "kind": "stitch", "inputs": [manifest, *scans]}])
+    failed = engine.wait(lonely["jobs"][0]["id"])
+    assert failed["status"] == "failed" and failed["attempts"] == 1
+    assert "needs exactly one `handeye` artifact" in failed["error"]

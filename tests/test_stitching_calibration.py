@@ -152,3 +152,14 @@ def test_cli_simulate_then_calibrate(tmp_path) -> None:
     assert bad_method.exit_code == 2 and "--method must be one of" in bad_method.output
     missing = runner.invoke(app, ["calibrate", str(tmp_path / "nope.json"), "-o", str(out)])
     assert missing.exit_code == 2 and "no such file" in missing.output
+
+
+def test_job_kind_parameters_offer_every_method() -> None:
+    from typing import get_args
+
+    from services.stitching import icp
+    from services.stitching.calibration import METHODS
+    from services.stitching.kinds import CalibrationMethod, IcpMethod
+
+    assert set(get_args(CalibrationMethod)) == set(METHODS)
+    assert set(get_args(IcpMethod)) == {"none", *icp.METHODS}

@@ -63,24 +63,30 @@ def write_pairs(path: Path, base_T_flange: np.ndarray, sensor_T_target: np.ndarr
     Path(path).write_text(json.dumps({"pairs": pairs}, indent=1) + "\n")
 
 
-def read_scans(path: Path) -> tuple[list[Path], np.ndarray]:
-    """SCANS.json: the scan files (relative to SCANS.json) and their (n, 4, 4) base_T_flange."""
-    data = load_json(path)
+def parse_scans(data: Any, where: str) -> tuple[list[str], np.ndarray]:
+    """The SCANS.json document: scan file names as written and their (n, 4, 4) base_T_flange."""
     scans = data.get("scans") if isinstance(data, dict) else None
     if not isinstance(scans, list) or not scans:
-        raise StitchingFileError(f'{path}: expected {{"scans": [...]}} with at least one scan')
-    files, poses = [], []
+        raise StitchingFileError(f'{where}: expected {{"scans": [...]}} with at least one scan')
+    names, poses = [], []
     for i, scan in enumerate(scans):
         if not isinstance(scan, dict) or not isinstance(scan.get("file"), str):
-            raise StitchingFileError(f"{path}: scans[{i}] needs a file name")
+            raise StitchingFileError(f"{where}: scans[{i}] needs a file name")
         if "base_T_flange" not in scan:
-            raise StitchingFileError(f"{path}: scans[{i}] has no base_T_flange")
-        file = Path(path).parent / scan["file"]
+            raise StitchingFileError(f"{where}: scans[{i}] has no base_T_flange")
+        names.append(scan["file"])
+        poses.append(_matrix(scan["base_T_flange"], f"{where}: scans[{i}].base_T_flange"))
+    return names, np.stack(poses)
+
+
+def read_scans(path: Path) -> tuple[list[Path], np.ndarray]:
+    """SCANS.json: the scan files (relative to SCANS.json) and their (n, 4, 4) base_T_flange."""
+    names, poses = parse_scans(load_json(path), str(path))
+    files = [Path(path).parent / name for name in names]
+    for i, file in enumerate(files):
         if not file.is_file():
-            raise StitchingFileError(f"{path}: scans[{i}].file {scan['file']!r} does not exist")
-        files.append(file)
-        poses.append(_matrix(scan["base_T_flange"], f"{path}: scans[{i}].base_T_flange"))
-    return files, np.stack(poses)
+            raise StitchingFileError(f"{path}: scans[{i}].file {names[i]!r} does not exist")
+    return files, poses
 
 
 def write_scans(path: Path, files: list[str], base_T_flange: np.ndarray) -> None:

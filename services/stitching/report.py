@@ -75,7 +75,18 @@ def stitch_report(
             "max_translation_mm": float(errors[:, 0].max()),
             "max_rotation_deg": float(errors[:, 1].max()),
         }
-    return quality, document
+    return quality, _finite(document)
+
+
+def _finite(value: object) -> object:
+    """NaN and infinity (no overlap, no points) as null: JSON has no NaN."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
 
 
 def _icp_json(config: IcpConfig, result: StitchResult) -> dict:

@@ -13,7 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-BUILTIN_KIND_MODULES = ("services.scan.kinds",)
+BUILTIN_KIND_MODULES = ("services.scan.kinds", "services.stitching.kinds")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,143 @@
+"""Job handlers ``calibrate`` and ``stitch``: artifacts in, artifacts out, progress between."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from services.pointcloud.ply import PlyError, read_ply, write_ply
+from services.stitching.calibration import CalibrationError, NoiseModel, calibrate
+from services.stitching.files import (
+    StitchingFileError,
+    handeye_json,
+    load_json,
+    parse_scans,
+    read_handeye,
+    read_pairs,
+)
+from services.stitching.quality import histogram_png
+from services.stitching.report import icp_config, stitch_report
+from services.stitching.stitch import StitchConfig, stitch
+from supervisor.engine.context import InputArtifact, JobContext
+from supervisor.engine.errors import JobInputError
+
+PLY_MEDIA_TYPE = "application/x-ply"
+
+
+def _one(ctx: JobContext, kind: str, what: str) -> InputArtifact:
+    found = ctx.inputs_of_kind(kind)
+    if len(found) != 1:
+        names = ", ".join(a.name for a in found) or "none"
+        raise JobInputError(
+            f"{ctx.claim.kind} needs exactly one `{kind}` artifact ({what}); got {names}"
+        )
+    return found[0]
+
+
+def _input_error(artifact: InputArtifact, exc: Exception) -> JobInputError:
+    """The file's error, naming the artifact instead of its storage path."""
+    return JobInputError(
+        str(exc).replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
+    )
+
+
+def calibrate_job(ctx: JobContext) -> dict:
+    params = ctx.params
+    pairs = _one(ctx, "pairs", "PAIRS.json")
+    ctx.progress(0.05, f"reading {pairs.name}")
+    try:
+        base_T_flange, sensor_T_target = read_pairs(pairs.path)
+    except StitchingFileError as exc:
+        raise _input_error(pairs, exc) from exc
+    ctx.progress(0.1, f"calibrating ({params.method}) from {len(base_T_flange)} pairs")
+    noise = NoiseModel(
+        params.robot_sigma_mm,
+        params.robot_sigma_deg,
+        params.sensor_sigma_mm,
+        params.sensor_sigma_deg,
+    )
+    try:
+        result = calibrate(base_T_flange, sensor_T_target, method=params.method, noise=noise)
+    except CalibrationError as exc:
+        raise _input_error(pairs, exc) from exc
+    document = handeye_json(result)
+    ctx.add_artifact_json(document, kind="handeye", name="handeye.json")
+    ctx.progress(1.0, f"residual {result.residual_mm:.4f} mm, {len(result.dropped)} pairs dropped")
+    return {
+        "method": result.method,
+        "residual_mm": result.residual_mm,
+        "pairs": len(base_T_flange),
+        "dropped_pairs": [d.index for d in result.dropped],
+        "sigma_translation_mm": result.sigma_translation_mm,
+        "sigma_rotation_deg": result.sigma_rotation_deg,
+    }
+
+
+def stitch_job(ctx: JobContext) -> dict:
+    params = ctx.params
+    manifest = _one(ctx, "scans", "SCANS.json")
+    handeye = _one(ctx, "handeye", "HANDEYE.json")
+    try:
+        names, base_T_flange = parse_scans(load_json(manifest.path), manifest.name)
+    except StitchingFileError as exc:
+        raise _input_error(manifest, exc) from exc
+    try:
+        flange_T_sensor, calibration = read_handeye(handeye.path)
+    except StitchingFileError as exc:
+        raise _input_error(handeye, exc) from exc
+    scans = {a.name: a for a in ctx.inputs if a.media_type == PLY_MEDIA_TYPE}
+    missing = [name for name in names if Path(name).name not in scans]
+    if missing:
+        raise JobInputError(
+            f"{manifest.name} names scans that are not inputs of this job: {missing}; "
+            f"PLY inputs: {sorted(scans) or 'none'}"
+        )
+    try:
+        config = StitchConfig(
+            voxel_mm=params.voxel_mm,
+            loop_threshold=params.loop_threshold,
+            icp=icp_config(params.icp, params.icp_start, calibration),
+        )
+    except ValueError as exc:
+        raise JobInputError(str(exc)) from exc
+    clouds = []
+    for i, name in enumerate(names):
+        artifact = scans[Path(name).name]
+        ctx.progress(0.3 * i / len(names), f"reading {artifact.name}")
+        try:
+            clouds.append(read_ply(artifact.path))
+        except PlyError as exc:
+            raise _input_error(artifact, exc) from exc
+
+    result = stitch(
+        clouds,
+        base_T_flange,
+        flange_T_sensor,
+        config=config,
+        progress=lambda fraction, message: ctx.progress(0.3 + 0.5 * fraction, message),
+    )
+    ctx.progress(0.8, "measuring the overlap quality")
+    quality, document = stitch_report(result, config=config, calibration=calibration)
+    cloud_path = ctx.workdir / "stitched.ply"
+    write_ply(cloud_path, result.cloud, comments=("vista stitched, base frame, mm",))
+    plot_path = ctx.workdir / "overlap.png"
+    histogram_png(quality, plot_path)
+    ctx.progress(0.95, "storing results")
+    ctx.add_artifact_file(
+        cloud_path,
+        kind="cloud",
+        name="stitched.ply",
+        media_type=PLY_MEDIA_TYPE,
+        meta={"point_count": len(result.cloud.points), "scans": len(clouds)},
+    )
+    ctx.add_artifact_json(document, kind="report", name="stitch-report.json")
+    ctx.add_artifact_file(plot_path, kind="plot", name="overlap.png", media_type="image/png")
+    o = quality.overall
+    ctx.progress(1.0, f"{len(result.cloud.points)} points; overlap mean {o.mean_mm:.4f} mm")
+    return {
+        "points": len(result.cloud.points),
+        "scans": len(clouds),
+        "overlap_mean_mm": document["overall"]["mean_mm"],
+        "overlap_p90_mm": document["overall"]["p90_mm"],
+        "calibration_method": calibration.get("method"),
+        "icp": params.icp,
+    }
