@@ -197,7 +197,7 @@ def bench_api(
     )
 
 
-stitching_cli.register(app, simulate_app)
+stitching_cli.register(app, simulate_app, bench_app)
 
 if __name__ == "__main__":
     app()

@@ -70,7 +70,9 @@ def calibrate(
 
 def simulate_stitching(
     out_dir: Path = typer.Argument(..., help="Folder to write the example into."),
-    component: str = typer.Option("angle", help="angle (carbon angle profile) | flat | curved"),
+    component: str = typer.Option(
+        "angle", help="angle (carbon angle profile) | flat | curved | strip (585 × 170 mm)"
+    ),
     poses: int = typer.Option(15, min=3, help="Calibration poses."),
     corrupt: int = typer.Option(0, min=0, help="Calibration pairs with a mis-detected plate."),
     full_scale: bool = typer.Option(
@@ -81,53 +83,20 @@ def simulate_stitching(
     """Write a complete stitching example with its ground truth: a calibration session
     (pairs.json), scans of a component along a workplan (scan_NNN.ply, scans.json), and
     truth.json (true mount, true robot poses, the part's pose and bounding box)."""
-    import numpy as np
-
-    from services.pointcloud.ply import PointCloud, write_ply
-    from services.pointcloud.transforms import to_json
     from services.stitching import scan_sim
-    from services.stitching.calibration_sim import simulate_calibration
-    from services.stitching.files import write_pairs, write_scans
+    from services.stitching.example import write_example
 
     if corrupt >= poses:
         _fail(f"--corrupt ({corrupt}) must be less than --poses ({poses})")
     if component not in scan_sim.COMPONENTS:
         _fail(f"--component must be one of {', '.join(scan_sim.COMPONENTS)}; got {component!r}")
-    rng = np.random.default_rng(seed)
-    session = simulate_calibration(poses=poses, corrupt=corrupt, rng=rng)
-    mesh = scan_sim.COMPONENTS[component]()
-    sensor = scan_sim.SensorModel(grid=scan_sim.GOCATOR_GRID if full_scale else (250, 385))
-    scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_pairs(out_dir / "pairs.json", session.base_T_flange, session.sensor_T_target)
-    names = [f"scan_{i:03d}.ply" for i in range(len(scans.scans))]
-    for name, grid in zip(names, scans.scans, strict=True):
-        write_ply(out_dir / name, PointCloud(points=grid.reshape(-1, 3), grid_shape=grid.shape[:2]))
-    write_scans(out_dir / "scans.json", names, scans.base_T_flange)
-    corners = mesh.vertices @ scans.base_T_part[:3, :3].T + scans.base_T_part[:3, 3]
-    truth = {
-        "flange_T_sensor": to_json(session.true_flange_T_sensor),
-        "base_T_target": to_json(session.true_base_T_target),
-        "calibration_true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
-        "corrupted_pairs": list(session.corrupted),
-        "component": component,
-        "component_name": mesh.name,
-        "base_T_part": to_json(scans.base_T_part),
-        "model_bounds_min_mm": corners.min(0).tolist(),
-        "model_bounds_max_mm": corners.max(0).tolist(),
-        "scan_true_base_T_flange": [to_json(t) for t in scans.true_base_T_flange],
-        "sensor": {
-            "grid": list(sensor.grid),
-            "field_mm": list(sensor.field_mm),
-            "standoff_mm": sensor.standoff_mm,
-            "noise_mm": sensor.noise_mm,
-        },
-        "seed": seed,
-    }
-    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    grid = scan_sim.GOCATOR_GRID if full_scale else (250, 385)
+    example = write_example(
+        out_dir, component=component, poses=poses, corrupt=corrupt, grid=grid, seed=seed
+    )
     typer.echo(
-        f"wrote {out_dir}: pairs.json ({poses} pairs), {len(names)} scans of the {mesh.name} "
-        f"({sensor.grid[0]} × {sensor.grid[1]}), scans.json, truth.json"
+        f"wrote {out_dir}: pairs.json ({poses} pairs), {example.scans} scans of the "
+        f"{example.component_name} ({grid[0]} × {grid[1]}), scans.json, truth.json"
     )
 
 
@@ -243,8 +212,24 @@ def compare_handeye(
     typer.echo(f"flange_T_sensor error: {translation_mm:.4f} mm, {rotation_deg:.4f}°")
 
 
-def register(app: typer.Typer, simulate_app: typer.Typer) -> None:
+def bench_stitching(
+    out: Path = typer.Option(Path("bench-results/stitching.json"), help="Where to write the JSON."),
+    sessions: int = typer.Option(30, min=3, help="Simulated calibration sessions per case."),
+    full_scale: bool = typer.Option(
+        True, help="Run the full-scale part (10 × 2.5 M points, vista vs Open3D)."
+    ),
+    seed: int = typer.Option(0, help="Random seed."),
+) -> None:
+    """Stitching at full scale against Open3D (time, peak memory, accuracy) and calibration
+    accuracy against the thesis's method and OpenCV; prints tables, writes JSON."""
+    from services.stitching.bench import run_stitching_bench
+
+    run_stitching_bench(out, sessions=sessions, full_scale=full_scale, seed=seed)
+
+
+def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
     app.command("calibrate")(calibrate)
     app.command("calibration-error")(compare_handeye)
     app.command("stitch")(stitch)
     simulate_app.command("stitching")(simulate_stitching)
+    bench_app.command("stitching")(bench_stitching)

@@ -114,7 +114,18 @@ def angle_profile(length_mm: float = 300.0, leg_mm: float = 60.0, fillet_mm: flo
     )
 
 
-COMPONENTS = {"angle": angle_profile, "flat": flat_panel, "curved": curved_panel}
+def flat_strip() -> Mesh:
+    """A flat strip that ten Gocator fields (5 × 2, 30 % overlap) tile edge to edge, so
+    every snapshot sees the part with all its ~2.5 M pixels: 585 × 169.8 mm."""
+    return flat_panel(585.0, 169.8)
+
+
+COMPONENTS = {
+    "angle": angle_profile,
+    "flat": flat_panel,
+    "curved": curved_panel,
+    "strip": flat_strip,
+}
 """The simulated parts by their short name (``vista simulate stitching --component``)."""
 
 

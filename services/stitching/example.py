@@ -1,0 +1,69 @@
+"""A complete simulated stitching example on disk: what ``vista simulate stitching`` writes
+and the stitching benchmark stitches. pairs.json, scan_NNN.ply, scans.json, truth.json."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.pointcloud.ply import PointCloud, write_ply
+from services.pointcloud.transforms import to_json
+from services.stitching import scan_sim
+from services.stitching.calibration_sim import simulate_calibration
+from services.stitching.files import write_pairs, write_scans
+
+
+@dataclass(frozen=True)
+class Example:
+    scans: int
+    component_name: str
+    corrupted_pairs: tuple[int, ...]
+
+
+def write_example(
+    out_dir: Path,
+    *,
+    component: str = "angle",
+    poses: int = 15,
+    corrupt: int = 0,
+    grid: tuple[int, int] = (250, 385),
+    seed: int = 0,
+) -> Example:
+    """Simulate a calibration session and the scans of ``component`` and write them, with
+    the ground truth (true mount, true robot poses, the part's pose and bounding box)."""
+    rng = np.random.default_rng(seed)
+    session = simulate_calibration(poses=poses, corrupt=corrupt, rng=rng)
+    mesh = scan_sim.COMPONENTS[component]()
+    sensor = scan_sim.SensorModel(grid=grid)
+    scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_pairs(out_dir / "pairs.json", session.base_T_flange, session.sensor_T_target)
+    names = [f"scan_{i:03d}.ply" for i in range(len(scans.scans))]
+    for name, scan in zip(names, scans.scans, strict=True):
+        write_ply(out_dir / name, PointCloud(points=scan.reshape(-1, 3), grid_shape=scan.shape[:2]))
+    write_scans(out_dir / "scans.json", names, scans.base_T_flange)
+    corners = mesh.vertices @ scans.base_T_part[:3, :3].T + scans.base_T_part[:3, 3]
+    truth = {
+        "flange_T_sensor": to_json(session.true_flange_T_sensor),
+        "base_T_target": to_json(session.true_base_T_target),
+        "calibration_true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
+        "corrupted_pairs": list(session.corrupted),
+        "component": component,
+        "component_name": mesh.name,
+        "base_T_part": to_json(scans.base_T_part),
+        "model_bounds_min_mm": corners.min(0).tolist(),
+        "model_bounds_max_mm": corners.max(0).tolist(),
+        "scan_true_base_T_flange": [to_json(t) for t in scans.true_base_T_flange],
+        "sensor": {
+            "grid": list(sensor.grid),
+            "field_mm": list(sensor.field_mm),
+            "standoff_mm": sensor.standoff_mm,
+            "noise_mm": sensor.noise_mm,
+        },
+        "seed": seed,
+    }
+    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    return Example(len(names), mesh.name, session.corrupted)
