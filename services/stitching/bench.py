@@ -31,7 +31,7 @@ import numpy as np
 
 from services.pointcloud.ply import read_ply
 from services.pointcloud.transforms import pose_error
-from services.stitching.calibration import METHODS, NoiseModel, calibrate
+from services.stitching.calibration import METHODS, OPENCV_METHODS, NoiseModel, calibrate
 from services.stitching.calibration_sim import simulate_calibration
 
 TARGETS = {
@@ -74,14 +74,17 @@ def _say(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def calibration_bench(sessions: int, *, seed: int = 0, say: Callable = _say) -> list[dict]:
+def calibration_bench(
+    sessions: int, *, thesis_sessions: int, seed: int = 0, say: Callable = _say
+) -> list[dict]:
     """Per case and method: median/p90 translation and rotation error, median time; for
-    corrupted cases, in how many sessions vista named exactly the bad pairs."""
+    corrupted cases, in how many sessions vista named exactly the bad pairs; for vista, a
+    paired comparison with the best OpenCV method of the case (same sessions)."""
     rows = []
     for case in CASES:
         methods = [m for m in METHODS if m != "thesis" or case.thesis]
-        errors = {m: [] for m in methods}
-        seconds = {m: [] for m in methods}
+        errors: dict[str, list] = {m: [] for m in methods}
+        seconds: dict[str, list] = {m: [] for m in methods}
         named = 0
         scale = case.noise_scale
         noise = NoiseModel(0.05 * scale, 0.005 * scale, 0.02 * scale, 0.02 * scale)
@@ -97,6 +100,8 @@ def calibration_bench(sessions: int, *, seed: int = 0, say: Callable = _say) -> 
                 rng=rng,
             )
             for method in methods:
+                if method == "thesis" and session_index >= thesis_sessions:
+                    continue
                 started = time.perf_counter()
                 result = calibrate(
                     session.base_T_flange, session.sensor_T_target, method=method, noise=noise
@@ -108,25 +113,46 @@ def calibration_bench(sessions: int, *, seed: int = 0, say: Callable = _say) -> 
                 if method == "vista" and case.corrupt:
                     named += sorted(d.index for d in result.dropped) == list(session.corrupted)
         say(f"calibration, {case.name}: {sessions} sessions × {len(methods)} methods")
+        errors_np = {m: np.array(e) for m, e in errors.items()}
         for method in methods:
-            e = np.array(errors[method])
+            e = errors_np[method]
             row = {
                 "case": case.name,
                 "poses": case.poses,
                 "noise_scale": case.noise_scale,
                 "corrupted_pairs": case.corrupt,
                 "method": method,
-                "sessions": sessions,
+                "sessions": len(e),
                 "translation_median_mm": float(np.median(e[:, 0])),
                 "translation_p90_mm": float(np.percentile(e[:, 0], 90)),
                 "rotation_median_deg": float(np.median(e[:, 1])),
                 "rotation_p90_deg": float(np.percentile(e[:, 1], 90)),
                 "time_median_ms": float(np.median(seconds[method]) * 1000),
             }
-            if method == "vista" and case.corrupt:
-                row["bad_pair_named"] = named
+            if method == "vista":
+                row["paired"] = _paired(errors_np)
+                if case.corrupt:
+                    row["bad_pair_named"] = named
             rows.append(row)
     return rows
+
+
+def _paired(errors: dict[str, np.ndarray]) -> dict:
+    """vista against the OpenCV method with the lowest median, per error, on the same
+    sessions: mean of (vista − peer), the share of sessions vista is better, Wilcoxon p."""
+    from scipy.stats import wilcoxon
+
+    out = {}
+    for column, name in ((0, "translation"), (1, "rotation")):
+        peer = min(OPENCV_METHODS, key=lambda m: np.median(errors[m][:, column]))
+        difference = errors["vista"][:, column] - errors[peer][:, column]
+        out[name] = {
+            "peer": peer,
+            "mean_difference": float(difference.mean()),
+            "vista_better_share": float(np.mean(difference < 0)),
+            "wilcoxon_p": float(wilcoxon(difference).pvalue),
+        }
+    return out
 
 
 def _run_pipeline(which: str, example: Path, out: Path) -> dict:
@@ -257,12 +283,14 @@ def _verdict(full: dict | None, rows: list[dict]) -> dict[str, bool]:
     return verdict
 
 
-def run_stitching_bench(out: Path, *, sessions: int, full_scale: bool, seed: int = 0) -> dict:
+def run_stitching_bench(
+    out: Path, *, sessions: int, thesis_sessions: int, full_scale: bool, seed: int = 0
+) -> dict:
     full = None
     if full_scale:
         with tempfile.TemporaryDirectory(prefix="vista-bench-stitching-") as folder:
             full = full_scale_bench(Path(folder), seed=seed)
-    rows = calibration_bench(sessions, seed=seed)
+    rows = calibration_bench(sessions, thesis_sessions=thesis_sessions, seed=seed)
     verdict = _verdict(full, rows)
     document = {
         "bench": "stitching",
@@ -278,8 +306,20 @@ def run_stitching_bench(out: Path, *, sessions: int, full_scale: bool, seed: int
     if full is not None:
         print("\n## Full scale: stitch + clean, vista vs Open3D\n")
         print(_full_scale_table(full))
-    print(f"\n## Calibration: flange_T_sensor error over {sessions} sessions per case\n")
+    print(
+        f"\n## Calibration: flange_T_sensor error over {sessions} sessions per case "
+        f"(basin hopping: the first {min(thesis_sessions, sessions)})\n"
+    )
     print(_calibration_table(rows))
+    print("\nvista against the best OpenCV method on the same sessions:\n")
+    for r in (r for r in rows if r["method"] == "vista"):
+        t, q = r["paired"]["translation"], r["paired"]["rotation"]
+        print(
+            f"- {r['case']}: translation vs {t['peer']} {t['mean_difference']:+.4f} mm, "
+            f"better in {t['vista_better_share']:.0%} (Wilcoxon p {t['wilcoxon_p']:.3g}); "
+            f"rotation vs {q['peer']} {q['mean_difference']:+.5f}°, better in "
+            f"{q['vista_better_share']:.0%} (p {q['wilcoxon_p']:.3g})"
+        )
     print("\n## Targets\n")
     for name, met in verdict.items():
         print(f"- {name}: {'met' if met else 'NOT met'}")

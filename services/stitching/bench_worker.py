@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from services.pointcloud.grid import grid_spacing_mm
 from services.pointcloud.ply import PointCloud, read_ply, write_ply
 from services.stitching.files import read_handeye, read_scans
 from services.stitching.stitch import StitchConfig, stitch
@@ -24,7 +25,8 @@ OPEN3D_NEIGHBOURS = 8
 """Open3D normals and statistical outliers from the 8 nearest points: vista's 3 × 3 window."""
 OPEN3D_STD_RATIO = 2.0
 OPEN3D_FINAL_RADIUS_MM = 0.5
-"""Open3D's final filter: fewer than CONFIG.min_points neighbours within this radius."""
+"""Open3D's final filter: fewer than CONFIG.min_points neighbours within this radius (or
+2.5 scan spacings on coarser scans, so a plain surface keeps its points)."""
 
 
 def _rss_mb() -> float:
@@ -54,7 +56,9 @@ def run_open3d(clouds: list[PointCloud], base_T_flange, flange_T_sensor) -> tupl
         scan.transform(pose)
         merged += scan
     merged = merged.voxel_down_sample(CONFIG.voxel_mm)
-    merged, _ = merged.remove_radius_outlier(CONFIG.min_points, OPEN3D_FINAL_RADIUS_MM)
+    spacing = grid_spacing_mm(clouds[0].points.reshape(*clouds[0].grid_shape, 3))
+    radius = max(OPEN3D_FINAL_RADIUS_MM, 2.5 * spacing)
+    merged, _ = merged.remove_radius_outlier(CONFIG.min_points, radius)
     cloud = PointCloud(
         points=np.asarray(merged.points, dtype=np.float32),
         normals=np.asarray(merged.normals, dtype=np.float32),

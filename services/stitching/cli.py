@@ -214,7 +214,10 @@ def compare_handeye(
 
 def bench_stitching(
     out: Path = typer.Option(Path("bench-results/stitching.json"), help="Where to write the JSON."),
-    sessions: int = typer.Option(30, min=3, help="Simulated calibration sessions per case."),
+    sessions: int = typer.Option(100, min=3, help="Simulated calibration sessions per case."),
+    thesis_sessions: int = typer.Option(
+        30, min=1, help="Of those, how many also run basin hopping (seconds each)."
+    ),
     full_scale: bool = typer.Option(
         True, help="Run the full-scale part (10 × 2.5 M points, vista vs Open3D)."
     ),
@@ -224,7 +227,13 @@ def bench_stitching(
     accuracy against the thesis's method and OpenCV; prints tables, writes JSON."""
     from services.stitching.bench import run_stitching_bench
 
-    run_stitching_bench(out, sessions=sessions, full_scale=full_scale, seed=seed)
+    run_stitching_bench(
+        out,
+        sessions=sessions,
+        thesis_sessions=thesis_sessions,
+        full_scale=full_scale,
+        seed=seed,
+    )
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
