@@ -4,20 +4,31 @@ from __future__ import annotations
 
 import numpy as np
 
+from services.pointcloud.ply import read_ply
 from services.stitching.bench import CASES, _run_pipeline, calibration_bench
 from services.stitching.calibration import calibrate
 from services.stitching.example import write_example
-from services.stitching.files import read_pairs, write_handeye
+from services.stitching.files import read_pairs, read_truth, write_handeye
+from services.stitching.report import distance_to_truth_mm
 
 
 def test_both_pipelines_stitch_the_same_example(tmp_path) -> None:
     write_example(tmp_path, component="angle", grid=(120, 185), seed=2)
     write_handeye(tmp_path / "handeye.json", calibrate(*read_pairs(tmp_path / "pairs.json")))
     runs = {w: _run_pipeline(w, tmp_path, tmp_path / f"{w}.ply") for w in ("vista", "open3d")}
-    for run in runs.values():
+    truth = read_truth(tmp_path / "truth.json")
+    for which, run in runs.items():
         assert run["input_points"] == runs["vista"]["input_points"] > 30_000
         assert 0 < run["output_points"] < run["input_points"]
         assert run["peak_rss_mb"] >= run["loaded_rss_mb"] > 0 and run["seconds"] > 0
+        # Both outputs lie on the simulated part's true surface.
+        error = distance_to_truth_mm(truth, read_ply(tmp_path / f"{which}.ply").points)
+        assert np.mean(error) < 0.12 and np.percentile(error, 99) < 0.5, which
+    # On this coarse grid (0.83 mm spacing) nearest-point distances are set by the spacing:
+    # two aligned samplings average about 0.4 spacings apart.
+    spacing_mm = 154.0 / 185
+    assert runs["vista"]["overlap_pairs"] >= 2
+    assert runs["vista"]["overlap"]["mean_mm"] < 0.5 * spacing_mm
 
 
 def test_calibration_bench_rows() -> None:

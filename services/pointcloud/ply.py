@@ -18,6 +18,7 @@ from typing import BinaryIO
 
 import numpy as np
 
+PLY_MEDIA_TYPE = "application/x-ply"
 MAX_HEADER_BYTES = 64 * 1024
 CHECK_CHUNK_ROWS = 1 << 20
 

@@ -5,12 +5,10 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
-from services.pointcloud.ply import PlyError, read_ply, write_ply
+from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
 from services.scan.inspect import decimate, inspect_cloud
 from supervisor.engine.context import JobContext
 from supervisor.engine.errors import JobInputError
-
-PLY_MEDIA_TYPE = "application/x-ply"
 
 
 def inspect_scan(ctx: JobContext) -> dict:

@@ -2,7 +2,8 @@
 its own: ``python -m services.stitching.bench_worker vista|open3d EXAMPLE_DIR OUT.ply``.
 
 Reads the scans (not timed), runs stitch + clean, writes the cloud and prints one JSON line:
-seconds, peak RSS, the RSS with the scans loaded, the output point count.
+seconds, peak RSS, the RSS with the scans loaded, the output point count, and for vista
+the overlap quality (measured after the clock and the memory peak were read).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import json
 import resource
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +20,8 @@ import numpy as np
 from services.pointcloud.grid import grid_spacing_mm
 from services.pointcloud.ply import PointCloud, read_ply, write_ply
 from services.stitching.files import read_handeye, read_scans
-from services.stitching.stitch import StitchConfig, stitch
+from services.stitching.quality import quality_report
+from services.stitching.stitch import StitchConfig, StitchResult, stitch
 
 CONFIG = StitchConfig()
 OPEN3D_NEIGHBOURS = 8
@@ -37,12 +40,14 @@ def _rss_mb() -> float:
     return float("nan")
 
 
-def run_vista(clouds: list[PointCloud], base_T_flange, flange_T_sensor) -> tuple[PointCloud, dict]:
+def run_vista(
+    clouds: list[PointCloud], base_T_flange, flange_T_sensor
+) -> tuple[PointCloud, StitchResult]:
     result = stitch(clouds, base_T_flange, flange_T_sensor, config=CONFIG)
-    return result.cloud, {"steps_s": result.seconds}
+    return result.cloud, result
 
 
-def run_open3d(clouds: list[PointCloud], base_T_flange, flange_T_sensor) -> tuple[PointCloud, dict]:
+def run_open3d(clouds: list[PointCloud], base_T_flange, flange_T_sensor) -> tuple[PointCloud, None]:
     """The same steps with Open3D's API, as a user of it would write them."""
     import open3d as o3d
 
@@ -63,7 +68,7 @@ def run_open3d(clouds: list[PointCloud], base_T_flange, flange_T_sensor) -> tupl
         points=np.asarray(merged.points, dtype=np.float32),
         normals=np.asarray(merged.normals, dtype=np.float32),
     )
-    return cloud, {}
+    return cloud, None
 
 
 def main() -> None:
@@ -74,9 +79,17 @@ def main() -> None:
     loaded_mb = _rss_mb()
     started = time.perf_counter()
     runner = {"vista": run_vista, "open3d": run_open3d}[which]
-    cloud, extra = runner(clouds, base_T_flange, flange_T_sensor)
+    cloud, result = runner(clouds, base_T_flange, flange_T_sensor)
     seconds = time.perf_counter() - started
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    extra = {}
+    if result is not None:  # vista's overlap quality (Fig. 6.2), after the clock stopped
+        quality = quality_report([s.points for s in result.scans], result.cloud.points)
+        extra = {
+            "steps_s": result.seconds,
+            "overlap": asdict(quality.overall),
+            "overlap_pairs": len(quality.pairs),
+        }
     write_ply(out, cloud, comments=(f"{which} stitched, base frame, mm",))
     print(
         json.dumps(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from services.pointcloud.ply import PlyError, read_ply, write_ply
+from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
 from services.stitching.calibration import CalibrationError, NoiseModel, calibrate
 from services.stitching.files import (
     StitchingFileError,
@@ -19,8 +19,6 @@ from services.stitching.report import icp_config, stitch_report
 from services.stitching.stitch import StitchConfig, stitch
 from supervisor.engine.context import InputArtifact, JobContext
 from supervisor.engine.errors import JobInputError
-
-PLY_MEDIA_TYPE = "application/x-ply"
 
 
 def _one(ctx: JobContext, kind: str, what: str) -> InputArtifact:

@@ -27,6 +27,14 @@ def icp_config(method: str, start: str, calibration: dict) -> IcpConfig | None:
     )
 
 
+def distance_to_truth_mm(truth: SimulatedTruth, points_base: np.ndarray) -> np.ndarray:
+    """Distance (mm) of base-frame points to the simulated part's true surface."""
+    from services.stitching.scan_sim import COMPONENTS, Scanner, SensorModel
+
+    scanner = Scanner(COMPONENTS[truth.component](), truth.base_T_part, SensorModel())
+    return scanner.distance_to_surface_mm(points_base)
+
+
 def stitch_report(
     result: StitchResult,
     *,
@@ -37,10 +45,7 @@ def stitch_report(
     """The quality report and the whole REPORT.json document."""
     true_distance = model_bounds = None
     if truth is not None:
-        from services.stitching.scan_sim import COMPONENTS, Scanner, SensorModel
-
-        scanner = Scanner(COMPONENTS[truth.component](), truth.base_T_part, SensorModel())
-        true_distance = scanner.distance_to_surface_mm(result.cloud.points)
+        true_distance = distance_to_truth_mm(truth, result.cloud.points)
         model_bounds = truth.model_bounds_mm
     quality = quality_report(
         [s.points for s in result.scans],

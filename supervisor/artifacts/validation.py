@@ -6,7 +6,7 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from services.pointcloud.ply import PlyError, validate_ply
+from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, validate_ply
 from supervisor.problems import Problem
 
 MAX_JSON_BYTES = 256 * 1024 * 1024
@@ -14,7 +14,7 @@ MAX_JSON_BYTES = 256 * 1024 * 1024
 
 def validate_upload(path: Path, *, media_type: str, name: str) -> dict:
     """Returns metadata learned from the file; raises a 422 Problem if it is not valid."""
-    if media_type == "application/x-ply":
+    if media_type == PLY_MEDIA_TYPE:
         try:
             info = validate_ply(path)
         except PlyError as exc:
