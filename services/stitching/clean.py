@@ -79,6 +79,8 @@ class Merged:
     normals: np.ndarray | None
     """(M, 3) float32 unit mean normals."""
     intensity: np.ndarray | None
+    colors: np.ndarray | None
+    """(M, 3) uint8 mean colour."""
     support: np.ndarray
     """(M,) int32 points merged into each."""
 
@@ -89,8 +91,10 @@ def voxel_merge(
     *,
     normals: np.ndarray | None = None,
     intensity: np.ndarray | None = None,
+    colors: np.ndarray | None = None,
 ) -> Merged:
-    """Merge the points falling into one voxel into their mean (normals renormalised)."""
+    """Merge the points falling into one voxel into their mean (normals renormalised,
+    colours rounded)."""
     keys = voxel_keys(points, voxel_mm)
     unique, inverse, support = np.unique(keys, return_inverse=True, return_counts=True)
 
@@ -106,10 +110,14 @@ def voxel_merge(
     merged_intensity = None
     if intensity is not None:
         merged_intensity = mean(intensity[:, None])[:, 0].astype(np.float32)
+    merged_colors = None
+    if colors is not None:
+        merged_colors = np.rint(mean(colors.astype(np.float64))).astype(np.uint8)
     return Merged(
         mean(points).astype(np.float32),
         merged_normals,
         merged_intensity,
+        merged_colors,
         support.astype(np.int32),
     )
 

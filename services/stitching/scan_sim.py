@@ -161,6 +161,21 @@ def _rays(sensor: SensorModel) -> np.ndarray:
     return directions / np.linalg.norm(directions, axis=-1, keepdims=True)
 
 
+@dataclass(frozen=True)
+class Hits:
+    """One snapshot's rays against the mesh, flattened over the sensor grid (P pixels)."""
+
+    distance_mm: np.ndarray
+    """(P,) along the ray to the first hit; NaN where the sensor returns nothing (no hit,
+    out of range, too grazing)."""
+    incidence_cos: np.ndarray
+    """(P,) |cos| of the angle between the ray and the hit face's normal."""
+    face: np.ndarray
+    """(P,) int64 index of the hit face, −1 where nothing is returned."""
+    directions_base: np.ndarray
+    """(P, 3) unit ray directions in the base frame."""
+
+
 class Scanner:
     """Casts the sensor's rays at a mesh placed in the base frame."""
 
@@ -176,8 +191,8 @@ class Scanner:
         )
         self.directions = _rays(sensor)
 
-    def scan(self, base_T_sensor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """(rows, columns, 3) float32 organized grid in the sensor frame; NaN = no return."""
+    def cast(self, base_T_sensor: np.ndarray) -> Hits:
+        """Where each pixel's ray first meets the mesh, before noise."""
         import open3d as o3d
 
         sensor = self.sensor
@@ -194,14 +209,24 @@ class Scanner:
             & (np.abs(depth - sensor.standoff_mm) <= sensor.range_mm / 2)
             & (incidence >= np.cos(np.radians(sensor.max_incidence_deg)))
         )
-        distance = np.where(measured, distance, np.nan)
-        distance += rng.normal(0.0, sensor.noise_mm, distance.shape)
+        face = np.where(measured, hits["primitive_ids"].numpy().astype(np.int64), -1)
+        return Hits(np.where(measured, distance, np.nan), incidence, face, directions_base)
+
+    def measure(self, distance_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The organized grid the sensor reports for true ray distances (noise, strays):
+        (rows, columns, 3) float32 in the sensor frame; NaN = no return."""
+        sensor = self.sensor
+        distance = distance_mm + rng.normal(0.0, sensor.noise_mm, distance_mm.shape)
         stray = rng.random(distance.shape) < sensor.outlier_fraction
         distance[stray] += rng.uniform(*sensor.outlier_mm, stray.sum()) * rng.choice(
             [-1.0, 1.0], stray.sum()
         )
         points = self.directions.reshape(-1, 3) * distance[:, None]
         return points.reshape(*sensor.grid, 3).astype(np.float32)
+
+    def scan(self, base_T_sensor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(rows, columns, 3) float32 organized grid in the sensor frame; NaN = no return."""
+        return self.measure(self.cast(base_T_sensor).distance_mm, rng)
 
     def distance_to_surface_mm(self, points_base: np.ndarray) -> np.ndarray:
         """Unsigned distance of (N, 3) base-frame points to the mesh, mm."""

@@ -57,6 +57,7 @@ class CleanScan:
     """(N, 3) float32, mm, base frame."""
     normals: np.ndarray | None
     intensity: np.ndarray | None
+    colors: np.ndarray | None
     measured: int
     outliers: int
 
@@ -96,6 +97,7 @@ def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig)
         points=apply(base_T_scan, cloud.points[keep]),
         normals=rotated_normals,
         intensity=None if cloud.intensity is None else cloud.intensity[keep],
+        colors=None if cloud.colors is None else cloud.colors[keep],
         measured=int(measured.sum()),
         outliers=int((measured & (probability > config.loop_threshold)).sum()),
     )
@@ -147,11 +149,13 @@ def stitch(
     started = time.perf_counter()
     has_normals = all(s.normals is not None for s in cleaned)
     has_intensity = all(s.intensity is not None for s in cleaned)
+    has_colors = all(s.colors is not None for s in cleaned)
     merged = voxel_merge(
         np.concatenate([s.points for s in cleaned]),
         config.voxel_mm,
         normals=np.concatenate([s.normals for s in cleaned]) if has_normals else None,
         intensity=np.concatenate([s.intensity for s in cleaned]) if has_intensity else None,
+        colors=np.concatenate([s.colors for s in cleaned]) if has_colors else None,
     )
     seconds["merge_s"] = time.perf_counter() - started
 
@@ -164,6 +168,7 @@ def stitch(
         points=merged.points[keep],
         normals=None if merged.normals is None else merged.normals[keep],
         intensity=None if merged.intensity is None else merged.intensity[keep],
+        colors=None if merged.colors is None else merged.colors[keep],
     )
     seconds["filter_s"] = time.perf_counter() - started
     report(1.0, f"stitched {len(clouds)} scans into {len(cloud.points)} points")

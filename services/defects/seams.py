@@ -1,0 +1,193 @@
+"""Seams between adjacent panels and the junctions where several meet, on the height map.
+
+The band between panel tops is split by a Voronoi partition (each empty cell goes to the
+nearest top); where the regions of two panels touch inside the band runs their seam's
+centre line. Junctions are where the ends of three or more seams come together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import ndimage
+
+from services.defects.panels import Panels
+from services.defects.raster import Raster
+
+
+@dataclass(frozen=True)
+class SeamLine:
+    """A straight seam in the (u, v) plane between panel labels ``panels`` = (a, b), b on
+    the +across side (across = direction turned +90°)."""
+
+    panels: tuple[int, int]
+    centre_uv: np.ndarray
+    direction_uv: np.ndarray
+    start_mm: float
+    end_mm: float
+    """Extent along ``direction_uv`` from ``centre_uv``."""
+    half_band_mm: float
+    """Half the width of the band without panel top around the centre line."""
+    junction_ends: tuple[bool, bool] = (False, False)
+    """Whether the start / end is a junction (else the assembly's rim)."""
+
+    @property
+    def across_uv(self) -> np.ndarray:
+        return np.array([-self.direction_uv[1], self.direction_uv[0]])
+
+    def point_uv(self, along_mm: np.ndarray) -> np.ndarray:
+        return self.centre_uv + np.multiply.outer(along_mm, self.direction_uv)
+
+    @property
+    def length_mm(self) -> float:
+        return self.end_mm - self.start_mm
+
+
+@dataclass(frozen=True)
+class Junction:
+    at_uv: np.ndarray
+    seams: tuple[int, ...]
+    """Indices into the seam list."""
+    ends: tuple[int, ...]
+    """For each seam, 0 if the junction is at its start, 1 at its end."""
+
+
+def find_seams(
+    raster: Raster,
+    panels: Panels,
+    *,
+    max_half_band_mm: float,
+    min_length_mm: float,
+    coarse_mm: float = 1.0,
+) -> list[SeamLine]:
+    """Every pair of panels whose Voronoi regions share a boundary at least
+    ``min_length_mm`` long within ``max_half_band_mm`` of both tops."""
+    stride = max(1, int(round(coarse_mm / raster.cell_mm)))
+    rows = np.arange(stride // 2, raster.shape[0], stride)
+    cols = np.arange(stride // 2, raster.shape[1], stride)
+    coarse = panels.labels[np.ix_(rows, cols)]
+    distance, (near_r, near_c) = ndimage.distance_transform_edt(coarse == 0, return_indices=True)
+    nearest = coarse[near_r, near_c]
+    distance_mm = distance * stride * raster.cell_mm
+    centres = raster.centres_uv(*np.meshgrid(rows, cols, indexing="ij"))
+    seams = []
+    first, second, mid, half = [], [], [], []  # per boundary step between two cells
+    for axis in (0, 1):
+        a = nearest[:-1, :] if axis == 0 else nearest[:, :-1]
+        b = nearest[1:, :] if axis == 0 else nearest[:, 1:]
+        da = distance_mm[:-1, :] if axis == 0 else distance_mm[:, :-1]
+        db = distance_mm[1:, :] if axis == 0 else distance_mm[:, 1:]
+        ca = centres[:-1, :] if axis == 0 else centres[:, :-1]
+        cb = centres[1:, :] if axis == 0 else centres[:, 1:]
+        boundary = (a != b) & (a > 0) & (b > 0) & (np.maximum(da, db) <= max_half_band_mm)
+        first.append(a[boundary])
+        second.append(b[boundary])
+        mid.append(((ca + cb) / 2)[boundary])
+        half.append(np.minimum(da, db)[boundary])
+    first, second = np.concatenate(first), np.concatenate(second)
+    mid, half = np.concatenate(mid), np.concatenate(half)
+    low, high = np.minimum(first, second), np.maximum(first, second)
+    for pair in np.unique(low * (panels.count + 1) + high):
+        a, b = divmod(int(pair), panels.count + 1)
+        on = (low == a) & (high == b)
+        points = mid[on]
+        if len(points) * coarse_mm < min_length_mm:
+            continue
+        centre = points.mean(0)
+        _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+        direction = vt[0]
+        across = np.array([-direction[1], direction[0]])
+        if _side_of(raster, panels.labels, a, centre, across) > 0:
+            direction = -direction
+        along = (points - centre) @ direction
+        seam = SeamLine(
+            (a, b),
+            centre,
+            direction,
+            float(along.min()),
+            float(along.max()),
+            float(np.median(half[on])),
+        )
+        seams.append(_trim_to_tops(raster, panels.labels, seam))
+    return [s for s in seams if s.length_mm >= min_length_mm]
+
+
+def _side_of(
+    raster: Raster, labels: np.ndarray, label: int, centre: np.ndarray, across: np.ndarray
+) -> float:
+    """+1 if panel ``label`` lies on the +across side of the line through ``centre``."""
+    rows, cols = np.nonzero(labels == label)
+    step = max(1, len(rows) // 20_000)
+    uv = raster.centres_uv(rows[::step], cols[::step])
+    return float(np.sign(np.mean((uv - centre) @ across)))
+
+
+def _trim_to_tops(raster: Raster, labels: np.ndarray, seam: SeamLine) -> SeamLine:
+    """Cut the seam to where both panel tops run beside it, 2.5 mm beyond its band."""
+    along = np.arange(seam.start_mm - 5.0, seam.end_mm + 5.0, raster.cell_mm)
+    offset = seam.half_band_mm + 2.5
+    beside = []
+    for side, label in ((-1, seam.panels[0]), (1, seam.panels[1])):
+        uv = seam.point_uv(along) + side * offset * seam.across_uv
+        rows, cols, inside = raster.cell_at(uv)
+        beside.append(inside & (labels[rows, cols] == label))
+    both = beside[0] & beside[1]
+    if not both.any():
+        return replace(seam, start_mm=0.0, end_mm=0.0)
+    runs = ndimage.label(both)[0]
+    longest = np.argmax(np.bincount(runs)[1:]) + 1
+    kept = along[runs == longest]
+    return replace(seam, start_mm=float(kept.min()), end_mm=float(kept.max()))
+
+
+def find_junctions(
+    seams: list[SeamLine], *, reach_mm: float
+) -> tuple[list[SeamLine], list[Junction]]:
+    """Ends of three or more seams within ``reach_mm`` of each other meet at a junction:
+    the point nearest to all their centre lines. Those seams are extended (or cut) to it."""
+    ends = [(i, e) for i in range(len(seams)) for e in (0, 1)]
+    points = np.array(
+        [
+            seams[i].point_uv(np.float64(seams[i].start_mm if e == 0 else seams[i].end_mm))
+            for i, e in ends
+        ]
+    )
+    parent = list(range(len(ends)))
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    close = np.linalg.norm(points[:, None] - points[None], axis=-1) <= reach_mm
+    for k, m in zip(*np.nonzero(np.triu(close, 1)), strict=True):
+        parent[root(k)] = root(m)
+    groups: dict[int, list[int]] = {}
+    for k in range(len(ends)):
+        groups.setdefault(root(k), []).append(k)
+    junctions = []
+    seams = list(seams)
+    for members in groups.values():
+        seam_ids = {ends[k][0] for k in members}
+        if len(seam_ids) < 3 or len(seam_ids) != len(members):
+            continue
+        normal_sum, rhs = np.zeros((2, 2)), np.zeros(2)
+        for k in members:
+            seam = seams[ends[k][0]]
+            n = seam.across_uv
+            normal_sum += np.outer(n, n)
+            rhs += np.outer(n, n) @ seam.centre_uv
+        at = np.linalg.solve(normal_sum, rhs)
+        for k in members:
+            i, end = ends[k]
+            seam = seams[i]
+            along = float((at - seam.centre_uv) @ seam.direction_uv)
+            start, stop = (along, seam.end_mm) if end == 0 else (seam.start_mm, along)
+            flags = (True, seam.junction_ends[1]) if end == 0 else (seam.junction_ends[0], True)
+            seams[i] = replace(seam, start_mm=start, end_mm=stop, junction_ends=flags)
+        junctions.append(
+            Junction(at, tuple(ends[k][0] for k in members), tuple(ends[k][1] for k in members))
+        )
+    return seams, junctions

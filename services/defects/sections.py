@@ -1,0 +1,271 @@
+"""Cross-sections along a seam: gap and step from the points, section by section.
+
+A section is the slab of points within ``slab_mm / 2`` of a plane across the seam. In it,
+with x the across coordinate and w the height (the surface frame's normal):
+
+1. The gap shows as the widest empty stretch of x near the seam's centre line (points of
+   the backing structure, far below, are left out first); its two ends are where each
+   panel's last measured point lies.
+2. Each panel's top is a plane w = α + β·x + γ·y (y along the seam) fitted to its points
+   between ``edge_band_mm`` and ``edge_band_mm + top_band_mm`` from that end.
+3. In the frame of that top (x' along it, δ the depth below it) the rounded edge is a
+   quarter circle of radius ρ tangent to the top at x' = x_c, ending in the vertical side
+   face x' = x_c + ρ. The sensor sees the arc up to its incidence limit (and, from
+   oblique views, part of the side face); x_c and ρ are fitted to those points (least
+   squares on the distance to the arc or the face). ρ is a property of the edge, so a
+   second pass fixes it at its median over the seam and fits x_c alone.
+4. Gap = distance between the two side faces along the mean top direction; step = the
+   offset of panel b's top over panel a's, along the mean top normal, at the seam centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.defects.seams import SeamLine
+
+MIN_POINTS = 8
+
+
+@dataclass(frozen=True)
+class SectionConfig:
+    pitch_mm: float = 2.0
+    slab_mm: float = 1.0
+    edge_band_mm: float = 2.5
+    """Points closer than this to a panel's end belong to its rounded edge; more than the
+    largest edge radius expected."""
+    top_band_mm: float = 6.0
+    end_margin_mm: float = 3.0
+    """Sections stop this far (plus the half band of the seams around) from a seam's ends,
+    clear of crossing seams and the rounded corners."""
+
+
+@dataclass(frozen=True)
+class SeamProfile:
+    seam: SeamLine
+    along_mm: np.ndarray
+    """(K,) section positions along the seam line."""
+    gap_mm: np.ndarray
+    step_mm: np.ndarray
+    at_local: np.ndarray
+    """(K, 3) (u, v, w) of each section's centre on the mean top."""
+    normal_local: np.ndarray
+    """(K, 3) mean top normal of each section in the surface frame."""
+    edge_radius_mm: tuple[float, float]
+    """Fitted radius of the rounded edge of panel a and b."""
+    fit_rms_mm: np.ndarray
+    """(K,) RMS distance of the edge points to the fitted edges."""
+
+
+def profile_seam(
+    local: np.ndarray, seam: SeamLine, config: SectionConfig, *, end_margin_mm: float
+) -> SeamProfile | None:
+    """Measure every section of ``seam`` from ``local`` (N, 3) (u, v, w) points near it."""
+    first = seam.start_mm + end_margin_mm
+    count = int(np.floor((seam.end_mm - end_margin_mm - first) / config.pitch_mm)) + 1
+    if count < 1:
+        return None
+    rel = local[:, :2].astype(np.float64) - seam.centre_uv
+    along = rel @ seam.direction_uv
+    across = rel @ seam.across_uv
+    w = local[:, 2].astype(np.float64)
+    k = np.rint((along - first) / config.pitch_mm).astype(np.int64)
+    y = along - (first + k * config.pitch_mm)
+    reach = seam.half_band_mm + config.edge_band_mm + config.top_band_mm + 1.0
+    keep = (k >= 0) & (k < count) & (np.abs(y) <= config.slab_mm / 2) & (np.abs(across) < reach)
+    k, y, x, w = k[keep], y[keep], across[keep], w[keep]
+
+    ends = _gap_ends(k, x, w, y, seam, config, count)
+    if ends is None:
+        return None
+    end_a, end_b, valid, floor = ends
+    keep = w >= floor[k]
+    k, y, x, w = k[keep], y[keep], x[keep], w[keep]
+    # Both sides as "side a": side b mirrored so its edge also faces +x.
+    side = (x > (end_a[k] + end_b[k]) / 2).astype(np.int64)
+    xm = np.where(side == 0, x - end_a[k], end_b[k] - x)
+    group = 2 * k + side
+    tops = _fit_tops(group, xm, w, y, config, 2 * count)
+    edge_x, radius, rms = _fit_edges(group, xm, w, y, tops, config, 2 * count)
+    alpha, beta = tops[:, 0], tops[:, 1]
+    # Back to the section's (x, w): the side faces at top level, and the top directions.
+    norm = np.sqrt(1 + beta**2)
+    face_x = edge_x / norm
+    face_w = alpha + beta * face_x
+    ea = np.stack([end_a + face_x[0::2], face_w[0::2]], 1)
+    eb = np.stack([end_b - face_x[1::2], face_w[1::2]], 1)
+    tau = np.stack(
+        [1 / norm[0::2] + 1 / norm[1::2], beta[0::2] / norm[0::2] - beta[1::2] / norm[1::2]], 1
+    )
+    tau /= np.linalg.norm(tau, axis=1, keepdims=True)
+    gap = np.sum((eb - ea) * tau, axis=1)
+    mid = (ea[:, 0] + eb[:, 0]) / 2
+    wa = alpha[0::2] + beta[0::2] * (mid - end_a)
+    wb = alpha[1::2] + beta[1::2] * (end_b - mid)
+    step = (wb - wa) * tau[:, 0]
+    valid &= np.isfinite(gap) & np.isfinite(step) & np.isfinite(edge_x[0::2] + edge_x[1::2])
+    positions = first + np.arange(count) * config.pitch_mm
+    at_uv = seam.point_uv(positions) + np.multiply.outer(mid, seam.across_uv)
+    at = np.column_stack([at_uv, (wa + wb) / 2])
+    normal_2d = np.stack([-tau[:, 1], tau[:, 0]], 1)
+    normal = np.column_stack([np.multiply.outer(normal_2d[:, 0], seam.across_uv), normal_2d[:, 1]])
+    return SeamProfile(
+        seam,
+        positions[valid],
+        gap[valid],
+        step[valid],
+        at[valid],
+        normal[valid],
+        (float(radius[0]), float(radius[1])),
+        np.maximum(rms[0::2], rms[1::2])[valid],
+    )
+
+
+def _gap_ends(
+    k: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    seam: SeamLine,
+    config: SectionConfig,
+    count: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Per section: the last point of panel a and the first of panel b around the widest
+    empty stretch near the centre line, whether one was found, and the height below which
+    points belong to the backing, not the panels."""
+    outer = np.abs(x) > seam.half_band_mm + config.edge_band_mm
+    tops = np.full((count, 2), np.nan)
+    for side in (0, 1):
+        on = outer & ((x > 0) == bool(side))
+        total = np.bincount(k[on], weights=w[on], minlength=count)
+        tops[:, side] = total / np.maximum(np.bincount(k[on], minlength=count), 1)
+    floor = np.nanmin(tops, axis=1) - (config.edge_band_mm + 1.5)
+    floor = np.where(np.isfinite(floor), floor, np.inf)
+    near = (np.abs(x) < seam.half_band_mm + 1.5) & (w >= floor[k])
+    kn, xn = k[near], x[near]
+    order = np.lexsort((xn, kn))
+    kn, xn = kn[order], xn[order]
+    if len(kn) < 2:
+        return None
+    width = np.diff(xn)
+    width[kn[1:] != kn[:-1]] = -1.0
+    best = np.lexsort((-width, kn[:-1]))
+    first_of_group = np.r_[True, kn[:-1][best][1:] != kn[:-1][best][:-1]]
+    pick = best[first_of_group]
+    sections = kn[pick]
+    end_a = np.full(count, np.nan)
+    end_b = np.full(count, np.nan)
+    end_a[sections] = xn[pick]
+    end_b[sections] = xn[pick + 1]
+    valid = np.zeros(count, dtype=bool)
+    valid[sections] = width[pick] > 0
+    valid &= np.isfinite(tops).all(axis=1)
+    end_a = np.where(valid, end_a, 0.0)
+    end_b = np.where(valid, end_b, 0.0)
+    return end_a, end_b, valid, floor
+
+
+def _fit_tops(
+    group: np.ndarray,
+    xm: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    config: SectionConfig,
+    groups: int,
+) -> np.ndarray:
+    """(groups, 3) α, β, γ of each side's top plane w = α + β·xm + γ·y."""
+    band = (xm <= -config.edge_band_mm) & (xm >= -config.edge_band_mm - config.top_band_mm)
+    g, basis, target = group[band], [np.ones(band.sum()), xm[band], y[band]], w[band]
+    normal = np.zeros((groups, 3, 3))
+    rhs = np.zeros((groups, 3))
+    for i in range(3):
+        rhs[:, i] = np.bincount(g, weights=basis[i] * target, minlength=groups)
+        for j in range(i, 3):
+            normal[:, i, j] = normal[:, j, i] = np.bincount(
+                g, weights=basis[i] * basis[j], minlength=groups
+            )
+    enough = np.bincount(g, minlength=groups) >= MIN_POINTS
+    normal[~enough] = np.eye(3)
+    solution = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    solution[~enough] = np.nan
+    return solution
+
+
+def _fit_edges(
+    group: np.ndarray,
+    xm: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    tops: np.ndarray,
+    config: SectionConfig,
+    groups: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per group: the side face's position along the top (x' of the face), the edge radius
+    used, and the RMS residual; see the module docstring, step 3."""
+    near = xm > -config.edge_band_mm
+    g, xm, w, y = group[near], xm[near], w[near], y[near]
+    alpha, beta, gamma = (tops[g, i] for i in range(3))
+    norm = np.sqrt(1 + beta**2)
+    flat_w = w - gamma * y
+    xp = (xm + beta * (flat_w - alpha)) / norm
+    depth = (alpha + beta * xm - flat_w) / norm
+    last = np.full(groups, -np.inf)
+    np.maximum.at(last, g, np.where(np.isfinite(xp), xp, -np.inf))
+    radius = np.full(groups, 1.0)
+    centre = last - 0.97 * radius
+    for _ in range(12):
+        centre, radius, _ = _edge_step(g, xp, depth, centre, radius, groups, fit_radius=True)
+    # The radius belongs to the whole edge: its median over the seam, side by side.
+    side_radius = np.array(
+        [np.nanmedian(np.where(np.isfinite(centre[s::2]), radius[s::2], np.nan)) for s in (0, 1)]
+    )
+    radius = np.tile(side_radius, groups // 2)
+    centre = last - 0.97 * radius
+    for _ in range(6):
+        centre, radius, rms = _edge_step(g, xp, depth, centre, radius, groups, fit_radius=False)
+    return centre + radius, side_radius, rms
+
+
+def _edge_step(
+    g: np.ndarray,
+    xp: np.ndarray,
+    depth: np.ndarray,
+    centre: np.ndarray,
+    radius: np.ndarray,
+    groups: int,
+    *,
+    fit_radius: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One damped Gauss–Newton step of the edge model (arc, then vertical face)."""
+    c, r = centre[g], radius[g]
+    on_arc = (xp >= c) & (depth < r)
+    on_face = depth >= r
+    dx, dz = xp - c, depth - r
+    distance = np.maximum(np.hypot(dx, dz), 1e-9)
+    residual = np.where(on_arc, distance - r, np.where(on_face, xp - c - r, 0.0))
+    j_c = np.where(on_arc, -dx / distance, np.where(on_face, -1.0, 0.0))
+    j_r = np.where(on_arc, -dz / distance - 1.0, np.where(on_face, -1.0, 0.0))
+    used = (on_arc | on_face) & np.isfinite(residual)
+    residual, j_c, j_r, g = residual[used], j_c[used], j_r[used], g[used]
+    n = np.bincount(g, minlength=groups)
+    rms = np.sqrt(np.bincount(g, weights=residual**2, minlength=groups) / np.maximum(n, 1))
+    a = np.bincount(g, weights=j_c * j_c, minlength=groups) + 1e-6
+    b_c = np.bincount(g, weights=j_c * residual, minlength=groups)
+    if fit_radius:
+        b = np.bincount(g, weights=j_c * j_r, minlength=groups)
+        d = np.bincount(g, weights=j_r * j_r, minlength=groups) + 1e-6
+        b_r = np.bincount(g, weights=j_r * residual, minlength=groups)
+        damp = 1e-3 * (a + d)
+        det = (a + damp) * (d + damp) - b * b
+        step_c = -((d + damp) * b_c - b * b_r) / det
+        step_r = -((a + damp) * b_r - b * b_c) / det
+    else:
+        step_c, step_r = -b_c / a, np.zeros(groups)
+    step_c = np.clip(step_c, -0.5, 0.5)
+    step_r = np.clip(step_r, -0.5, 0.5)
+    enough = n >= MIN_POINTS
+    new_centre = np.where(enough, centre + step_c, np.nan)
+    new_radius = np.where(enough, np.clip(radius + step_r, 0.05, 10.0), np.nan)
+    return new_centre, new_radius, np.where(enough, rms, np.nan)

@@ -1,0 +1,615 @@
+"""Simulated panel assemblies with known seams and surface defects, scanned through the
+stitching simulator's sensor model.
+
+Panels are laid out in a grid on a *layout plane* (x, s) in mm: flat, or wrapped onto a
+concave cylinder of radius ``radius_mm`` whose axis runs along x (a sidewall seen from the
+cabin; s is the arc length across it). A point (x, s) at height h (along the surface
+normal, towards the viewer) maps to the part frame {P} as
+
+    flat:    (x, s, h)
+    curved:  (x, (R − h) sin(s/R), R − (R − h) cos(s/R))
+
+Each panel is a quadrilateral whose four edges come from its seams, so a seam's two
+edges need not be parallel (taper); its top is offset by the panel's height (steps) and
+its edges are rounded with ``edge_radius_mm`` down to a vertical side face. A backing
+structure lies ``backing_depth_mm`` below, visible through wide gaps.
+
+Surface defects are analytic displacements along the normal (dents, bumps, scratches)
+and colour changes (patches) of the panel top; they are applied to the ray hits, so they
+keep their full resolution whatever the mesh's. Ground truth is exact: every seam's gap at
+both ends, its step, every junction's gaps and every defect's size and place.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.pointcloud.color import lab_to_srgb
+from services.pointcloud.transforms import apply, invert
+from services.stitching.scan_sim import Mesh, Scanner, SensorModel
+
+FILLET_SAMPLES = 14
+INTERIOR_STEP_MM = 2.0
+PANEL_LAB = (86.0, 0.5, 6.0)
+"""Cabin lining off-white."""
+BACKING_LAB = (35.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Dent:
+    """A rounded dent (``depth_mm`` > 0 into the panel) or bump (``depth_mm`` < 0):
+    a raised-cosine profile reaching zero at ``radius_mm``."""
+
+    centre_mm: tuple[float, float]
+    radius_mm: float
+    depth_mm: float
+
+    @property
+    def kind(self) -> str:
+        return "dent" if self.depth_mm > 0 else "bump"
+
+
+@dataclass(frozen=True)
+class Scratch:
+    """A straight groove with a parabolic section ``width_mm`` wide, ``depth_mm`` deep,
+    ramping in over one width at each end."""
+
+    start_mm: tuple[float, float]
+    end_mm: tuple[float, float]
+    width_mm: float
+    depth_mm: float
+
+
+@dataclass(frozen=True)
+class ColorPatch:
+    """An elliptical patch that shifts the colour by ``delta_lab`` (ΔE = its norm), with a
+    soft rim over the outer 15 % of its semi-axes."""
+
+    centre_mm: tuple[float, float]
+    semi_axes_mm: tuple[float, float]
+    angle_deg: float
+    delta_lab: tuple[float, float, float]
+
+    @property
+    def delta_e(self) -> float:
+        return float(np.linalg.norm(self.delta_lab))
+
+
+@dataclass(frozen=True)
+class Panel:
+    id: int
+    corners_mm: np.ndarray
+    """(4, 2) layout (x, s) corners, counter-clockwise from the lowest x, s."""
+    height_mm: float
+    edge_radius_mm: float
+    dents: tuple[Dent, ...] = ()
+    scratches: tuple[Scratch, ...] = ()
+    patches: tuple[ColorPatch, ...] = ()
+    lab: tuple[float, float, float] = PANEL_LAB
+
+
+@dataclass(frozen=True)
+class SeamTruth:
+    id: int
+    panels: tuple[int, int]
+    """(a, b): b lies on the +across side; step = height of b − height of a."""
+    start_mm: tuple[float, float]
+    end_mm: tuple[float, float]
+    """Layout ends of the seam's centre line (junction points or the assembly's rim)."""
+    gap_start_mm: float
+    gap_end_mm: float
+    step_mm: float
+
+
+@dataclass(frozen=True)
+class Assembly:
+    panels: tuple[Panel, ...]
+    seams: tuple[SeamTruth, ...]
+    junctions: tuple[tuple[tuple[float, float], tuple[int, ...]], ...]
+    """(layout point, ids of the seams meeting there)."""
+    radius_mm: float | None = None
+    thickness_mm: float = 3.0
+    backing_depth_mm: float = 20.0
+    texture_delta_e: float = 0.6
+    """1σ per-point colour noise of the lining's texture."""
+
+
+# --- layout ------------------------------------------------------------------------------
+
+
+def _intersect(p: np.ndarray, d: np.ndarray, q: np.ndarray, e: np.ndarray) -> np.ndarray:
+    t = np.linalg.solve(np.stack([d, -e], 1), q - p)
+    return p + t[0] * d
+
+
+@dataclass(frozen=True)
+class AssemblySpec:
+    """What to draw for a random assembly; ranges are sampled uniformly."""
+
+    rows: int = 2
+    cols: int = 2
+    panel_mm: tuple[float, float] = (150.0, 100.0)
+    radius_mm: float | None = None
+    gap_mm: tuple[float, float] = (0.3, 6.0)
+    step_mm: tuple[float, float] = (-3.0, 3.0)
+    taper_mm: tuple[float, float] = (0.0, 1.0)
+    edge_radius_mm: tuple[float, float] = (0.5, 2.0)
+    dents: int = 1
+    bumps: int = 1
+    scratches: int = 1
+    patches: int = 1
+    dent_radius_mm: tuple[float, float] = (2.0, 20.0)
+    dent_depth_mm: tuple[float, float] = (0.2, 2.0)
+    scratch_length_mm: tuple[float, float] = (5.0, 50.0)
+    scratch_width_mm: tuple[float, float] = (0.1, 1.0)
+    scratch_depth_mm: tuple[float, float] = (0.1, 0.5)
+    patch_delta_e: tuple[float, float] = (5.0, 20.0)
+    patch_size_mm: tuple[float, float] = (4.0, 20.0)
+    extra: dict = field(default_factory=dict)
+
+
+def random_assembly(spec: AssemblySpec, rng: np.random.Generator) -> Assembly:
+    """A rows × cols grid of panels with random seams (gap at each end, hence taper; step;
+    edge radius) and ``spec.dents`` dents, … on every panel."""
+    if not 2 <= spec.rows * spec.cols <= 12:
+        raise ValueError("an assembly has 2 to 12 panels")
+    width, height = spec.panel_mm
+    xs, ss = width * np.arange(spec.cols + 1), height * np.arange(spec.rows + 1)
+    cells = [(i, j) for i in range(spec.rows) for j in range(spec.cols)]
+    index = {cell: k for k, cell in enumerate(cells)}
+    heights = rng.uniform(spec.step_mm[0] / 2, spec.step_mm[1] / 2, (spec.rows, spec.cols))
+    # Every panel edge as a line (point, direction); the rim's edges stay on the grid.
+    edges = {}
+    for i, j in cells:
+        edges[i, j, "left"] = (np.array([xs[j], ss[i]]), np.array([0.0, 1.0]))
+        edges[i, j, "right"] = (np.array([xs[j + 1], ss[i]]), np.array([0.0, 1.0]))
+        edges[i, j, "bottom"] = (np.array([xs[j], ss[i]]), np.array([1.0, 0.0]))
+        edges[i, j, "top"] = (np.array([xs[j], ss[i + 1]]), np.array([1.0, 0.0]))
+    seams: list[SeamTruth] = []
+
+    def add_seam(a: tuple, b: tuple, start: np.ndarray, end: np.ndarray, sides: tuple) -> None:
+        g0 = rng.uniform(*spec.gap_mm)
+        taper = rng.choice([-1.0, 1.0]) * rng.uniform(*spec.taper_mm)
+        g1 = float(np.clip(g0 + taper, *spec.gap_mm))
+        across = np.array([[0.0, -1.0], [1.0, 0.0]]) @ (end - start) / np.linalg.norm(end - start)
+        a0, a1 = start - across * g0 / 2, end - across * g1 / 2
+        b0, b1 = start + across * g0 / 2, end + across * g1 / 2
+        edges[(*a, sides[0])] = (a0, a1 - a0)
+        edges[(*b, sides[1])] = (b0, b1 - b0)
+        step = float(heights[b] - heights[a])
+        seams.append(
+            SeamTruth(
+                len(seams),
+                (index[a], index[b]),
+                (float(start[0]), float(start[1])),
+                (float(end[0]), float(end[1])),
+                g0,
+                g1,
+                step,
+            )
+        )
+
+    for i, j in cells:
+        # across = the seam direction turned +90°, so the second panel lies on its + side
+        if j + 1 < spec.cols:  # running along −s: across = +x
+            start, end = np.array([xs[j + 1], ss[i + 1]]), np.array([xs[j + 1], ss[i]])
+            add_seam((i, j), (i, j + 1), start, end, ("right", "left"))
+        if i + 1 < spec.rows:  # running along +x: across = +s
+            start, end = np.array([xs[j], ss[i + 1]]), np.array([xs[j + 1], ss[i + 1]])
+            add_seam((i, j), (i + 1, j), start, end, ("top", "bottom"))
+    panels = []
+    for i, j in cells:
+        left, bottom = edges[i, j, "left"], edges[i, j, "bottom"]
+        right, top = edges[i, j, "right"], edges[i, j, "top"]
+        corners = np.array(
+            [
+                _intersect(*left, *bottom),
+                _intersect(*bottom, *right),
+                _intersect(*right, *top),
+                _intersect(*top, *left),
+            ]
+        )
+        radius = float(rng.uniform(*spec.edge_radius_mm))
+        defects = _random_defects(spec, corners, margin_mm=radius + 8.0, rng=rng)
+        panels.append(Panel(index[i, j], corners, float(heights[i, j]), radius, *defects))
+    junctions = []
+    for i in range(1, spec.rows):
+        for j in range(1, spec.cols):
+            point = (float(xs[j]), float(ss[i]))
+            meeting = tuple(s.id for s in seams if point in (s.start_mm, s.end_mm))
+            junctions.append((point, meeting))
+    return Assembly(tuple(panels), tuple(seams), tuple(junctions), radius_mm=spec.radius_mm)
+
+
+def _random_defects(
+    spec: AssemblySpec, corners: np.ndarray, *, margin_mm: float, rng: np.random.Generator
+) -> tuple[tuple[Dent, ...], tuple[Scratch, ...], tuple[ColorPatch, ...]]:
+    """Defects placed inside the panel, ``margin_mm`` from its edges, apart from each other."""
+    low, high = corners.min(0) + margin_mm, corners.max(0) - margin_mm
+    taken: list[tuple[np.ndarray, float]] = []
+
+    def place(size_mm: float) -> np.ndarray | None:
+        for _ in range(200):
+            lo, hi = low + size_mm, high - size_mm
+            if np.any(hi <= lo):
+                return None
+            centre = rng.uniform(lo, hi)
+            if all(np.linalg.norm(centre - c) > size_mm + r + 4.0 for c, r in taken):
+                taken.append((centre, size_mm))
+                return centre
+        return None
+
+    dents = []
+    for count, sign in ((spec.dents, 1.0), (spec.bumps, -1.0)):
+        for _ in range(count):
+            radius = rng.uniform(*spec.dent_radius_mm)
+            centre = place(radius)
+            if centre is not None:
+                depth = sign * rng.uniform(*spec.dent_depth_mm)
+                dents.append(Dent(tuple(centre), float(radius), float(depth)))
+    scratches = []
+    for _ in range(spec.scratches):
+        length = rng.uniform(*spec.scratch_length_mm)
+        centre = place(length / 2)
+        if centre is not None:
+            angle = rng.uniform(0, np.pi)
+            half = length / 2 * np.array([np.cos(angle), np.sin(angle)])
+            scratches.append(
+                Scratch(
+                    tuple(centre - half),
+                    tuple(centre + half),
+                    float(rng.uniform(*spec.scratch_width_mm)),
+                    float(rng.uniform(*spec.scratch_depth_mm)),
+                )
+            )
+    patches = []
+    for _ in range(spec.patches):
+        axes = rng.uniform(*spec.patch_size_mm, 2) / 2
+        centre = place(float(axes.max()))
+        if centre is not None:
+            direction = rng.normal(size=3)
+            delta = direction / np.linalg.norm(direction) * rng.uniform(*spec.patch_delta_e)
+            patches.append(
+                ColorPatch(tuple(centre), tuple(axes), float(rng.uniform(0, 180)), tuple(delta))
+            )
+    return tuple(dents), tuple(scratches), tuple(patches)
+
+
+# --- geometry ----------------------------------------------------------------------------
+
+
+def layout_to_part(assembly: Assembly, xs: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(…, 2) layout points (x, s) at heights h (…,) → (…, 3) part-frame points, mm."""
+    x, s = xs[..., 0], xs[..., 1]
+    radius = assembly.radius_mm
+    if radius is None:
+        return np.stack([x, s, h], -1)
+    angle = s / radius
+    return np.stack([x, (radius - h) * np.sin(angle), radius - (radius - h) * np.cos(angle)], -1)
+
+
+def part_to_layout(assembly: Assembly, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) part-frame points → ((N, 2) layout (x, s), (N,) height h)."""
+    radius = assembly.radius_mm
+    if radius is None:
+        return points[:, :2].copy(), points[:, 2].copy()
+    y, z = points[:, 1], radius - points[:, 2]
+    layout = np.stack([points[:, 0], radius * np.arctan2(y, z)], -1)
+    return layout, radius - np.hypot(y, z)
+
+
+def layout_normal(assembly: Assembly, xs: np.ndarray) -> np.ndarray:
+    """(…, 3) unit surface normal (towards the viewer) at layout points (…, 2)."""
+    s = xs[..., 1]
+    if assembly.radius_mm is None:
+        return np.stack([np.zeros_like(s), np.zeros_like(s), np.ones_like(s)], -1)
+    angle = s / assembly.radius_mm
+    return np.stack([np.zeros_like(s), -np.sin(angle), np.cos(angle)], -1)
+
+
+def edge_distance_mm(panel: Panel, xs: np.ndarray) -> np.ndarray:
+    """(…,) distance from layout points to the panel's nearest edge, > 0 inside."""
+    corners = panel.corners_mm
+    distances = []
+    for k in range(4):
+        a, b = corners[k], corners[(k + 1) % 4]
+        direction = (b - a) / np.linalg.norm(b - a)
+        inward = np.array([-direction[1], direction[0]])  # corners run counter-clockwise
+        distances.append((xs - a) @ inward)
+    return np.min(distances, axis=0)
+
+
+def edge_drop_mm(panel: Panel, distance_mm: np.ndarray) -> np.ndarray:
+    """How far the rounded edge falls below the panel top at ``distance_mm`` from the edge."""
+    r = panel.edge_radius_mm
+    inside = np.clip(r - distance_mm, 0.0, r)
+    return r - np.sqrt(r * r - inside * inside)
+
+
+def _fillet_fractions(span_mm: float, radius_mm: float) -> np.ndarray:
+    """Sample positions (fractions of ``span_mm``) dense on the rounded edges at both ends."""
+    phi = np.linspace(np.pi / 2, 0.0, FILLET_SAMPLES)
+    fillet = radius_mm * (1 - np.sin(phi))
+    inner = np.arange(radius_mm + INTERIOR_STEP_MM, span_mm / 2, INTERIOR_STEP_MM)
+    half = np.concatenate([fillet, inner]) / span_mm
+    return np.unique(np.concatenate([half, 1 - half, [0.5]]))
+
+
+def _grid_faces(rows: int, cols: int, offset: int) -> np.ndarray:
+    index = offset + np.arange(rows * cols).reshape(rows, cols)
+    a, b = index[:-1, :-1].ravel(), index[1:, :-1].ravel()
+    c, d = index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    return np.concatenate([np.stack([a, c, b], 1), np.stack([a, d, c], 1)])
+
+
+def panel_mesh(assembly: Assembly, panel: Panel) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) part frame, faces (F, 3)) of the panel top, rounded edges and a
+    vertical side face down to the panel's thickness (the defects are not in the mesh)."""
+    corners = panel.corners_mm
+    span = np.linalg.norm(corners[1] - corners[0]), np.linalg.norm(corners[3] - corners[0])
+    p = _fillet_fractions(span[0], panel.edge_radius_mm)
+    q = _fillet_fractions(span[1], panel.edge_radius_mm)
+    p, q = np.concatenate([[0.0], p, [1.0]]), np.concatenate([[0.0], q, [1.0]])
+    pp, qq = np.meshgrid(p, q, indexing="ij")
+    layout = (
+        (1 - pp)[..., None] * (1 - qq)[..., None] * corners[0]
+        + pp[..., None] * (1 - qq)[..., None] * corners[1]
+        + pp[..., None] * qq[..., None] * corners[2]
+        + (1 - pp)[..., None] * qq[..., None] * corners[3]
+    )
+    h = panel.height_mm - edge_drop_mm(panel, np.maximum(edge_distance_mm(panel, layout), 0.0))
+    skirt = np.zeros(pp.shape, dtype=bool)
+    skirt[[0, -1], :] = True
+    skirt[:, [0, -1]] = True
+    h = np.where(skirt, panel.height_mm - assembly.thickness_mm, h)
+    vertices = layout_to_part(assembly, layout, h).reshape(-1, 3)
+    return vertices, _grid_faces(len(p), len(q), 0)
+
+
+def assembly_mesh(assembly: Assembly) -> tuple[Mesh, np.ndarray]:
+    """The whole assembly and its backing as one mesh, and (F,) the panel id of each face
+    (−1 for the backing)."""
+    vertices, faces, owner = [], [], []
+    count = 0
+    for panel in assembly.panels:
+        v, f = panel_mesh(assembly, panel)
+        vertices.append(v)
+        faces.append(f + count)
+        owner.append(np.full(len(f), panel.id))
+        count += len(v)
+    low = np.min([p.corners_mm.min(0) for p in assembly.panels], axis=0) - 10.0
+    high = np.max([p.corners_mm.max(0) for p in assembly.panels], axis=0) + 10.0
+    u, v = np.arange(low[0], high[0] + 5, 5.0), np.arange(low[1], high[1] + 5, 5.0)
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    backing = layout_to_part(
+        assembly, np.stack([uu, vv], -1), np.full(uu.shape, -assembly.backing_depth_mm)
+    )
+    vertices.append(backing.reshape(-1, 3))
+    backing_faces = _grid_faces(len(u), len(v), count)
+    faces.append(backing_faces)
+    owner.append(np.full(len(backing_faces), -1))
+    mesh = Mesh("panel assembly", np.concatenate(vertices), np.concatenate(faces))
+    return mesh, np.concatenate(owner)
+
+
+def displacement_mm(panel: Panel, xs: np.ndarray) -> np.ndarray:
+    """(N,) height change of the panel top at layout points (N, 2): dents < 0, bumps > 0."""
+    height = np.zeros(len(xs))
+    for dent in panel.dents:
+        rho = np.linalg.norm(xs - dent.centre_mm, axis=1)
+        bell = 0.5 * (1 + np.cos(np.pi * np.minimum(rho / dent.radius_mm, 1.0)))
+        height -= dent.depth_mm * bell
+    for scratch in panel.scratches:
+        a, b = np.array(scratch.start_mm), np.array(scratch.end_mm)
+        length = np.linalg.norm(b - a)
+        direction = (b - a) / length
+        t = (xs - a) @ direction
+        u = (xs - a) @ np.array([-direction[1], direction[0]])
+        section = np.clip(1 - (2 * u / scratch.width_mm) ** 2, 0.0, None)
+        ends = np.clip(np.minimum(t, length - t) / scratch.width_mm, 0.0, 1.0)
+        height -= scratch.depth_mm * section * ends
+    return height
+
+
+def lab_at(panel: Panel, xs: np.ndarray) -> np.ndarray:
+    """(N, 3) L*a*b* of the panel top at layout points (N, 2), texture noise excluded."""
+    lab = np.tile(np.array(panel.lab, dtype=np.float64), (len(xs), 1))
+    for patch in panel.patches:
+        angle = np.radians(patch.angle_deg)
+        rotation = np.array([[np.cos(angle), np.sin(angle)], [-np.sin(angle), np.cos(angle)]])
+        local = (xs - patch.centre_mm) @ rotation.T / patch.semi_axes_mm
+        rim = np.clip((1 - np.linalg.norm(local, axis=1)) / 0.15, 0.0, 1.0)
+        lab += rim[:, None] * np.array(patch.delta_lab)
+    return lab
+
+
+# --- scanning ----------------------------------------------------------------------------
+
+
+class AssemblyScanner:
+    """The stitching simulator's sensor over an assembly, with its defects and colours."""
+
+    def __init__(self, assembly: Assembly, base_T_part: np.ndarray, sensor: SensorModel) -> None:
+        mesh, self.face_panel = assembly_mesh(assembly)
+        self.assembly = assembly
+        self.base_T_part = base_T_part
+        self.part_T_base = invert(base_T_part)
+        self.scanner = Scanner(mesh, base_T_part, sensor)
+        self.panels = {p.id: p for p in assembly.panels}
+
+    def scan(
+        self, base_T_sensor: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """((rows, cols, 3) float32 sensor-frame grid with NaN holes, (rows, cols, 3) uint8
+        sRGB)."""
+        hits = self.scanner.cast(base_T_sensor)
+        distance = hits.distance_mm.copy()
+        points_base = base_T_sensor[:3, 3] + hits.directions_base * distance[:, None]
+        hit = np.isfinite(distance)
+        owner = np.full(len(distance), -1)
+        owner[hit] = self.face_panel[hits.face[hit]]
+        lab = np.tile(np.array(BACKING_LAB), (len(distance), 1))
+        for panel_id in np.unique(owner[owner >= 0]):
+            panel = self.panels[int(panel_id)]
+            on = np.flatnonzero(owner == panel_id)
+            layout, _ = part_to_layout(self.assembly, apply(self.part_T_base, points_base[on]))
+            # A surface raised by δ along its normal meets the ray δ / cos(incidence) earlier.
+            distance[on] -= displacement_mm(panel, layout) / hits.incidence_cos[on]
+            lab[on] = lab_at(panel, layout)
+        lab += rng.normal(0.0, self.assembly.texture_delta_e / np.sqrt(3), lab.shape)
+        grid = self.scanner.measure(distance, rng)
+        return grid, lab_to_srgb(lab).reshape(grid.shape)
+
+
+@dataclass(frozen=True)
+class AssemblyScans:
+    scans: list[np.ndarray]
+    """(rows, cols, 3) float32 sensor-frame grids, NaN = no return."""
+    colors: list[np.ndarray]
+    """(rows, cols, 3) uint8 sRGB."""
+    base_T_sensor: np.ndarray
+    """(n, 4, 4) true sensor poses."""
+
+
+def scan_assembly(
+    assembly: Assembly,
+    base_T_part: np.ndarray,
+    sensor: SensorModel,
+    *,
+    overlap: float = 0.3,
+    rng: np.random.Generator,
+) -> AssemblyScans:
+    """Snapshots over the assembly along the stitching workplan (true poses)."""
+    from services.stitching.scan_sim import workplan
+
+    scanner = AssemblyScanner(assembly, base_T_part, sensor)
+    base_T_sensor = workplan(scanner.scanner.mesh, base_T_part, sensor, overlap=overlap)
+    grids, colors = zip(*(scanner.scan(pose, rng) for pose in base_T_sensor), strict=True)
+    return AssemblyScans(list(grids), list(colors), base_T_sensor)
+
+
+# --- ground truth ------------------------------------------------------------------------
+
+
+def seam_gap_mm(assembly: Assembly, seam: SeamTruth, fraction: np.ndarray) -> np.ndarray:
+    """True gap at ``fraction`` (0 = start, 1 = end) along the seam, measured in the
+    surface at the panels' mean height (a gap across a curved sidewall is an arc)."""
+    gap = seam.gap_start_mm + (seam.gap_end_mm - seam.gap_start_mm) * np.asarray(fraction)
+    along_s = abs(seam.end_mm[1] - seam.start_mm[1]) > abs(seam.end_mm[0] - seam.start_mm[0])
+    if assembly.radius_mm is None or along_s:
+        return gap
+    heights = {p.id: p.height_mm for p in assembly.panels}
+    mean_height = (heights[seam.panels[0]] + heights[seam.panels[1]]) / 2
+    return gap * (assembly.radius_mm - mean_height) / assembly.radius_mm
+
+
+def truth_document(assembly: Assembly, base_T_part: np.ndarray) -> dict:
+    """Every seam, junction, panel and defect of the assembly in the base frame (mm)."""
+    heights = {p.id: p.height_mm for p in assembly.panels}
+
+    def to_base(layout: np.ndarray, h: np.ndarray) -> list:
+        return apply(base_T_part, layout_to_part(assembly, layout, h)).tolist()
+
+    def normal_base(layout: np.ndarray) -> list:
+        return (layout_normal(assembly, layout) @ base_T_part[:3, :3].T).tolist()
+
+    seams = []
+    for seam in assembly.seams:
+        ends = np.array([seam.start_mm, seam.end_mm])
+        mean_height = (heights[seam.panels[0]] + heights[seam.panels[1]]) / 2
+        gaps = seam_gap_mm(assembly, seam, np.array([0.0, 1.0]))
+        seams.append(
+            {
+                "id": seam.id,
+                "panels": list(seam.panels),
+                "start": to_base(ends[0], np.float64(mean_height)),
+                "end": to_base(ends[1], np.float64(mean_height)),
+                "gap_start_mm": float(gaps[0]),
+                "gap_end_mm": float(gaps[1]),
+                "parallelism_mm": float(abs(gaps[1] - gaps[0])),
+                "step_mm": seam.step_mm,
+            }
+        )
+    junctions = []
+    for point, seam_ids in assembly.junctions:
+        gaps = [
+            seams[i]["gap_start_mm"]
+            if assembly.seams[i].start_mm == point
+            else seams[i]["gap_end_mm"]
+            for i in seam_ids
+        ]
+        junctions.append(
+            {
+                "at": to_base(np.array(point), np.float64(0.0)),
+                "seams": list(seam_ids),
+                "gaps_mm": gaps,
+                "mismatch_mm": float(max(gaps) - min(gaps)),
+            }
+        )
+    defects = []
+    for panel in assembly.panels:
+        for dent in panel.dents:
+            centre = np.array(dent.centre_mm)
+            defects.append(
+                {
+                    "type": dent.kind,
+                    "panel": panel.id,
+                    "location": to_base(centre, np.float64(panel.height_mm - dent.depth_mm)),
+                    "normal": normal_base(centre),
+                    "depth_mm": abs(dent.depth_mm),
+                    "diameter_mm": 2 * dent.radius_mm,
+                }
+            )
+        for scratch in panel.scratches:
+            a, b = np.array(scratch.start_mm), np.array(scratch.end_mm)
+            centre = (a + b) / 2
+            defects.append(
+                {
+                    "type": "scratch",
+                    "panel": panel.id,
+                    "location": to_base(centre, np.float64(panel.height_mm)),
+                    "normal": normal_base(centre),
+                    "start": to_base(a, np.float64(panel.height_mm)),
+                    "end": to_base(b, np.float64(panel.height_mm)),
+                    "depth_mm": scratch.depth_mm,
+                    "width_mm": scratch.width_mm,
+                    "length_mm": float(np.linalg.norm(b - a)),
+                }
+            )
+        for patch in panel.patches:
+            centre = np.array(patch.centre_mm)
+            defects.append(
+                {
+                    "type": "color",
+                    "panel": panel.id,
+                    "location": to_base(centre, np.float64(panel.height_mm)),
+                    "normal": normal_base(centre),
+                    "delta_e": patch.delta_e,
+                    "area_mm2": float(np.pi * np.prod(patch.semi_axes_mm)),
+                    "diameter_mm": 2 * float(max(patch.semi_axes_mm)),
+                }
+            )
+    panels = [
+        {
+            "id": p.id,
+            "corners": to_base(p.corners_mm, np.full(4, p.height_mm)),
+            "height_mm": p.height_mm,
+            "edge_radius_mm": p.edge_radius_mm,
+            "area_mm2": float(_polygon_area(p.corners_mm)),
+        }
+        for p in assembly.panels
+    ]
+    return {
+        "radius_mm": assembly.radius_mm,
+        "panels": panels,
+        "seams": seams,
+        "junctions": junctions,
+        "defects": defects,
+    }
+
+
+def _polygon_area(corners: np.ndarray) -> float:
+    x, y = corners[:, 0], corners[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
