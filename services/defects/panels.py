@@ -15,8 +15,8 @@ FOUR_CONNECTED = ndimage.generate_binary_structure(2, 1)
 @dataclass(frozen=True)
 class Panels:
     labels: np.ndarray
-    """(rows, cols) int32: 1…n the panel whose top a cell belongs to, 0 = none (seams,
-    rounded edges, backing, empty)."""
+    """(rows, cols) int32: 1…n the panel whose top a cell belongs to (its defects
+    included), 0 = none (seams, rounded edges, backing, empty)."""
     count: int
     area_mm2: np.ndarray
     """(count,) top area of each panel."""
@@ -34,7 +34,8 @@ def segment_panels(
     before labelling (4-connected) so a seam is never bridged diagonally, then grown back.
     Parts smaller than ``min_area_mm2`` are dropped, and so are parts lying more than
     ``background_drop_mm`` below the surface the panels make (the backing structure seen
-    through gaps and around the assembly)."""
+    through gaps and around the assembly). Holes in a top (steep scratches and dents) are
+    filled: they belong to the panel."""
     d_row, d_col = np.gradient(raster.height, raster.cell_mm)
     with np.errstate(invalid="ignore"):
         flat = np.hypot(d_row, d_col) < np.tan(np.radians(max_slope_deg))
@@ -48,6 +49,9 @@ def segment_panels(
     relabel[keep] = np.arange(1, len(keep) + 1)
     labels = relabel[labels]
     labels = np.where(flat, ndimage.maximum_filter(labels, size=3), 0).astype(np.int32)
+    for label, found in enumerate(ndimage.find_objects(labels), start=1):
+        holes = ndimage.binary_fill_holes(labels[found] == label) & (labels[found] == 0)
+        labels[found][holes] = label
     area = np.bincount(labels.ravel(), minlength=len(keep) + 1)[1:] * cell_area
     return Panels(labels, len(keep), area)
 

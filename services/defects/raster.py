@@ -82,10 +82,13 @@ class Raster:
 
 def rasterize(local: np.ndarray, cell_mm: float) -> Raster:
     """Bin (N, 3) (u, v, w) points into cells of ``cell_mm``: mean height and count."""
-    origin = local[:, :2].min(0).astype(np.float64) - cell_mm
-    index = ((local[:, :2] - origin) / cell_mm).astype(np.int64)
-    shape = tuple(int(n) for n in index.max(0) + 2)
-    flat = index[:, 0] * shape[1] + index[:, 1]
+    u, v = local[:, 0], local[:, 1]
+    origin = np.array([float(u.min()) - cell_mm, float(v.min()) - cell_mm])
+    scale = np.float32(1 / cell_mm)
+    rows = ((u - np.float32(origin[0])) * scale).astype(np.int32)
+    cols = ((v - np.float32(origin[1])) * scale).astype(np.int32)
+    shape = (int(rows.max()) + 2, int(cols.max()) + 2)
+    flat = rows.astype(np.int64) * shape[1] + cols
     count = np.bincount(flat, minlength=shape[0] * shape[1])
     total = np.bincount(flat, weights=local[:, 2], minlength=shape[0] * shape[1])
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -95,9 +98,13 @@ def rasterize(local: np.ndarray, cell_mm: float) -> Raster:
     )
 
 
-def point_spacing_mm(local: np.ndarray) -> float:
+def point_spacing_mm(raster: Raster) -> float:
     """Typical distance between neighbouring points: √(covered area / points), the area
-    counted in 1 mm cells."""
-    index = np.floor(local[:, :2] - local[:, :2].min(0)).astype(np.int64)
-    occupied = np.count_nonzero(np.bincount(index[:, 0] * (index[:, 1].max() + 1) + index[:, 1]))
-    return float(np.sqrt(occupied / len(local)))
+    counted in 1 mm blocks of the raster."""
+    block = max(1, int(round(1.0 / raster.cell_mm)))
+    rows, cols = raster.shape
+    padded = np.zeros((-(-rows // block) * block, -(-cols // block) * block), np.int64)
+    padded[:rows, :cols] = raster.count
+    blocks = padded.reshape(padded.shape[0] // block, block, -1, block).sum(axis=(1, 3))
+    area_mm2 = np.count_nonzero(blocks) * (block * raster.cell_mm) ** 2
+    return float(np.sqrt(area_mm2 / max(int(raster.count.sum()), 1)))

@@ -1,0 +1,271 @@
+"""How a measurement compares with the simulator's ground truth (truth.json of
+``vista simulate defects``): per-section gap and step errors, parallelism and mismatch
+errors, out-of-tolerance precision/recall, surface detection recall and false positives."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.defects.config import Tolerances
+from services.defects.measure import MeasureResult, SeamResult
+
+SEAM_MATCH_MM = 10.0
+JUNCTION_MATCH_MM = 15.0
+SURFACE_TYPES = ("dent", "bump", "scratch", "color")
+GEOMETRIC_TYPES = ("gap", "step", "parallelism", "mismatch")
+
+
+def recall_floor(defect: dict) -> bool:
+    """Whether a true surface defect is inside the issue's recall target: dents and bumps
+    ≥ 0.2 mm deep, scratches ≥ 0.1 mm deep, colour patches ΔE ≥ 5."""
+    if defect["type"] in ("dent", "bump"):
+        return defect["depth_mm"] >= 0.2
+    if defect["type"] == "scratch":
+        return defect["depth_mm"] >= 0.1
+    return defect["delta_e"] >= 5.0
+
+
+@dataclass
+class Counts:
+    true_positive: int = 0
+    false_positive: int = 0
+    false_negative: int = 0
+
+    @property
+    def precision(self) -> float:
+        found = self.true_positive + self.false_positive
+        return self.true_positive / found if found else 1.0
+
+    @property
+    def recall(self) -> float:
+        real = self.true_positive + self.false_negative
+        return self.true_positive / real if real else 1.0
+
+    def add(self, other: Counts) -> None:
+        self.true_positive += other.true_positive
+        self.false_positive += other.false_positive
+        self.false_negative += other.false_negative
+
+
+@dataclass
+class Evaluation:
+    gap_errors_mm: list[float] = field(default_factory=list)
+    """Per section: measured − true."""
+    step_errors_mm: list[float] = field(default_factory=list)
+    parallelism_errors_mm: list[float] = field(default_factory=list)
+    mismatch_errors_mm: list[float] = field(default_factory=list)
+    seams_true: int = 0
+    seams_found: int = 0
+    seams_spurious: int = 0
+    junctions_true: int = 0
+    junctions_found: int = 0
+    geometric: dict[str, Counts] = field(
+        default_factory=lambda: {t: Counts() for t in GEOMETRIC_TYPES}
+    )
+    surface: dict[str, Counts] = field(default_factory=lambda: {t: Counts() for t in SURFACE_TYPES})
+    """Detection (any finding, in tolerance or not) of true defects within the recall floor;
+    false positives = findings matching no true defect."""
+    surface_missed_below_floor: int = 0
+    panel_area_m2: float = 0.0
+    seconds: float = 0.0
+
+    def add(self, other: Evaluation) -> None:
+        for name in (
+            "gap_errors_mm",
+            "step_errors_mm",
+            "parallelism_errors_mm",
+            "mismatch_errors_mm",
+        ):
+            getattr(self, name).extend(getattr(other, name))
+        for name in (
+            "seams_true",
+            "seams_found",
+            "seams_spurious",
+            "junctions_true",
+            "junctions_found",
+            "surface_missed_below_floor",
+            "panel_area_m2",
+            "seconds",
+        ):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        for table in ("geometric", "surface"):
+            for key, counts in getattr(other, table).items():
+                getattr(self, table)[key].add(counts)
+
+    def summary(self) -> dict:
+        def p95(values: list[float]) -> float | None:
+            return float(np.percentile(np.abs(values), 95)) if values else None
+
+        def mean(values: list[float]) -> float | None:
+            return float(np.mean(values)) if values else None
+
+        false_positives = sum(c.false_positive for c in self.surface.values())
+        return {
+            "sections": len(self.gap_errors_mm),
+            "gap_error_mean_mm": mean(self.gap_errors_mm),
+            "gap_error_p95_mm": p95(self.gap_errors_mm),
+            "step_error_mean_mm": mean(self.step_errors_mm),
+            "step_error_p95_mm": p95(self.step_errors_mm),
+            "parallelism_error_max_mm": max(np.abs(self.parallelism_errors_mm), default=None),
+            "parallelism_error_p95_mm": p95(self.parallelism_errors_mm),
+            "mismatch_error_max_mm": max(np.abs(self.mismatch_errors_mm), default=None),
+            "mismatch_error_p95_mm": p95(self.mismatch_errors_mm),
+            "seams": f"{self.seams_found}/{self.seams_true} (+{self.seams_spurious} spurious)",
+            "junctions": f"{self.junctions_found}/{self.junctions_true}",
+            "geometric": {
+                k: {
+                    "tp": c.true_positive,
+                    "fp": c.false_positive,
+                    "fn": c.false_negative,
+                    "precision": c.precision,
+                    "recall": c.recall,
+                }
+                for k, c in self.geometric.items()
+            },
+            "surface": {
+                k: {
+                    "tp": c.true_positive,
+                    "fp": c.false_positive,
+                    "fn": c.false_negative,
+                    "recall": c.recall,
+                }
+                for k, c in self.surface.items()
+            },
+            "surface_false_positives_per_m2": (
+                false_positives / self.panel_area_m2 if self.panel_area_m2 else None
+            ),
+            "panel_area_m2": self.panel_area_m2,
+            "seconds_per_m2": self.seconds / self.panel_area_m2 if self.panel_area_m2 else None,
+        }
+
+
+def _match_seam(truth: dict, seams: list[SeamResult]) -> tuple[SeamResult, float] | None:
+    """The measured seam along the true one, and +1/−1 if it runs the same/other way."""
+    start, end = np.array(truth["start"]), np.array(truth["end"])
+    direction = (end - start) / np.linalg.norm(end - start)
+    best = None
+    for seam in seams:
+        middle = (seam.start + seam.end) / 2
+        offset = middle - start
+        distance = np.linalg.norm(offset - (offset @ direction) * direction)
+        along = offset @ direction
+        measured = (seam.end - seam.start) / np.linalg.norm(seam.end - seam.start)
+        parallel = abs(measured @ direction) > 0.9
+        on_segment = -5 <= along <= np.linalg.norm(end - start) + 5
+        if (
+            parallel
+            and on_segment
+            and distance < SEAM_MATCH_MM
+            and (best is None or distance < best[2])
+        ):
+            best = (seam, float(np.sign(measured @ direction)), distance)
+    return None if best is None else best[:2]
+
+
+def _out(kind: str, value: float, t: Tolerances) -> bool:
+    if kind == "gap":
+        raise ValueError("gap uses its range")
+    limit = {
+        "step": t.step_max_mm,
+        "parallelism": t.parallelism_max_mm,
+        "mismatch": t.mismatch_max_mm,
+    }
+    return abs(value) > limit[kind]
+
+
+def evaluate(result: MeasureResult, truth: dict, tolerances: Tolerances) -> Evaluation:
+    """Compare ``result`` with a truth document (``simulate.truth_document``)."""
+    e = Evaluation(panel_area_m2=result.panel_area_m2, seconds=sum(result.seconds.values()))
+    flagged = {(f.type, f.source.get("seam", f.source.get("junction"))) for f in result.defects}
+    matched_seams: dict[int, SeamResult] = {}
+    for true_seam in truth["seams"]:
+        e.seams_true += 1
+        match = _match_seam(true_seam, result.seams)
+        start, end = np.array(true_seam["start"]), np.array(true_seam["end"])
+        g0, g1 = true_seam["gap_start_mm"], true_seam["gap_end_mm"]
+        true_out = {
+            "gap": min(g0, g1) < tolerances.gap_min_mm or max(g0, g1) > tolerances.gap_max_mm,
+            "step": _out("step", true_seam["step_mm"], tolerances),
+            "parallelism": _out("parallelism", true_seam["parallelism_mm"], tolerances),
+        }
+        if match is None:
+            for kind, out in true_out.items():
+                e.geometric[kind].false_negative += int(out)
+            continue
+        seam, sign = match
+        matched_seams[true_seam["id"]] = seam
+        e.seams_found += 1
+        segment = end - start
+        fraction = (seam.sections_at - start) @ segment / (segment @ segment)
+        true_gap = g0 + (g1 - g0) * np.clip(fraction, 0, 1)
+        e.gap_errors_mm += (seam.sections_gap_mm - true_gap).tolist()
+        e.step_errors_mm += (seam.sections_step_mm - sign * true_seam["step_mm"]).tolist()
+        e.parallelism_errors_mm.append(seam.parallelism_mm - true_seam["parallelism_mm"])
+        for kind, out in true_out.items():
+            found = (kind, seam.id) in flagged
+            counts = e.geometric[kind]
+            counts.true_positive += int(out and found)
+            counts.false_negative += int(out and not found)
+            counts.false_positive += int(found and not out)
+    matched_ids = {s.id for s in matched_seams.values()}
+    for seam in result.seams:
+        if seam.id not in matched_ids:
+            e.seams_spurious += 1
+            for kind in ("gap", "step", "parallelism"):
+                e.geometric[kind].false_positive += int((kind, seam.id) in flagged)
+    used_junctions = set()
+    for true_junction in truth["junctions"]:
+        e.junctions_true += 1
+        out = _out("mismatch", true_junction["mismatch_mm"], tolerances)
+        at = np.array(true_junction["at"])
+        near = [
+            j for j in result.junctions if np.linalg.norm(j.at[:2] - at[:2]) < JUNCTION_MATCH_MM
+        ]
+        counts = e.geometric["mismatch"]
+        if not near:
+            counts.false_negative += int(out)
+            continue
+        junction = near[0]
+        used_junctions.add(junction.id)
+        e.junctions_found += 1
+        e.mismatch_errors_mm.append(junction.mismatch_mm - true_junction["mismatch_mm"])
+        found = ("mismatch", junction.id) in flagged
+        counts.true_positive += int(out and found)
+        counts.false_negative += int(out and not found)
+        counts.false_positive += int(found and not out)
+    for junction in result.junctions:
+        if junction.id not in used_junctions:
+            e.geometric["mismatch"].false_positive += int(("mismatch", junction.id) in flagged)
+    _evaluate_surface(e, result, truth)
+    return e
+
+
+def _evaluate_surface(e: Evaluation, result: MeasureResult, truth: dict) -> None:
+    findings = [f for f in result.findings if f.type in SURFACE_TYPES]
+    used = np.zeros(len(findings), dtype=bool)
+    for defect in truth["defects"]:
+        at = np.array(defect["location"])
+        size = defect.get("diameter_mm", defect.get("length_mm", 0.0))
+        reach = max(5.0, 0.5 * size)
+        hit = None
+        for k, f in enumerate(findings):
+            if (
+                f.type == defect["type"]
+                and not used[k]
+                and np.linalg.norm(f.location - at) <= reach
+            ):
+                hit = k
+                break
+        if hit is not None:
+            used[hit] = True
+        if not recall_floor(defect):
+            e.surface_missed_below_floor += int(hit is None)
+            continue
+        counts = e.surface[defect["type"]]
+        counts.true_positive += int(hit is not None)
+        counts.false_negative += int(hit is None)
+    for k, f in enumerate(findings):
+        if not used[k]:
+            e.surface[f.type].false_positive += 1

@@ -1,0 +1,458 @@
+"""Measure a stitched cloud of a panel assembly: seams (gap, step, parallelism),
+junctions (mismatch) and surface defects, judged against the tolerances.
+
+Pipeline: surface frame → height map → panels → seam lines and junctions → sections
+(points) → per-seam profiles → surface defects → findings out of tolerance become
+defects. All lengths in mm; points in the cloud's frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from math import erf, sqrt
+
+import numpy as np
+
+from services.defects.config import MeasureConfig
+from services.defects.panels import segment_panels
+from services.defects.raster import Raster, SurfaceFrame, fit_frame, point_spacing_mm, rasterize
+from services.defects.seams import Junction, SeamLine, find_junctions, find_seams
+from services.defects.sections import SeamProfile, profile_seam
+from services.defects.surface import SurfaceFinding, find_surface_defects
+from services.pointcloud.ply import PointCloud
+
+Progress = Callable[[float, str], None]
+MIN_SIGMA_MM = 0.005
+
+
+class MeasureError(ValueError):
+    """The cloud cannot be measured (too few points, no panels)."""
+
+
+@dataclass(frozen=True)
+class Stats:
+    min: float
+    mean: float
+    max: float
+
+
+@dataclass(frozen=True)
+class SeamResult:
+    id: int
+    panels: tuple[int, int]
+    """0-based panel ids; the step is panels[1]'s top over panels[0]'s."""
+    start: np.ndarray
+    end: np.ndarray
+    length_mm: float
+    gap_mm: Stats
+    step_mm: Stats
+    gap_at_ends_mm: tuple[float, float]
+    """The gap line fitted along the seam, at its start and end."""
+    parallelism_mm: float
+    gap_sigma_mm: float
+    """Scatter of the section gaps about that line."""
+    step_sigma_mm: float
+    edge_radius_mm: tuple[float, float]
+    normal: np.ndarray
+    sections_at: np.ndarray
+    """(K, 3) section centres."""
+    sections_gap_mm: np.ndarray
+    sections_step_mm: np.ndarray
+
+
+@dataclass(frozen=True)
+class JunctionResult:
+    id: int
+    at: np.ndarray
+    seams: tuple[int, ...]
+    gaps_mm: tuple[float, ...]
+    """Each seam's gap where it meets the junction."""
+    mismatch_mm: float
+    mismatch_sigma_mm: float
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A measurement out of tolerance (a defect) or a surface detection."""
+
+    type: str
+    value: float
+    unit: str
+    """``mm``, or ``delta_e`` for colour."""
+    tolerance: float
+    location: np.ndarray
+    normal: np.ndarray
+    extent_mm: float
+    severity: str
+    """info (within tolerance), minor, major, critical."""
+    confidence: float
+    source: dict
+    measurements: dict
+
+    @property
+    def out_of_tolerance(self) -> bool:
+        return self.severity != "info"
+
+
+@dataclass(frozen=True)
+class MeasureResult:
+    seams: list[SeamResult]
+    junctions: list[JunctionResult]
+    findings: list[Finding]
+    panel_areas_mm2: np.ndarray
+    point_count: int
+    spacing_mm: float
+    cell_mm: float
+    seconds: dict[str, float]
+
+    @property
+    def defects(self) -> list[Finding]:
+        return [f for f in self.findings if f.out_of_tolerance]
+
+    @property
+    def panel_area_m2(self) -> float:
+        return float(self.panel_areas_mm2.sum()) / 1e6
+
+
+def severity(value: float, limit: float, *, above: bool) -> str:
+    """info inside the limit; beyond it minor (< 25 % of the limit), major (< 100 %),
+    critical."""
+    excess = value - limit if above else limit - value
+    if excess <= 0:
+        return "info"
+    ratio = excess / max(limit, 0.1)
+    return "minor" if ratio < 0.25 else "major" if ratio < 1.0 else "critical"
+
+
+def confidence(value: float, limit: float, sigma: float) -> float:
+    """Probability that the true value is on the measured side of the limit."""
+    z = abs(value - limit) / max(sigma, MIN_SIGMA_MM)
+    return 0.5 * (1 + erf(z / sqrt(2)))
+
+
+def measure(
+    cloud: PointCloud, config: MeasureConfig | None = None, *, progress: Progress | None = None
+) -> MeasureResult:
+    """Seams, junctions and surface findings of a stitched panel-assembly cloud."""
+    config = config or MeasureConfig()
+    report = progress or (lambda fraction, message: None)
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        seconds[name] = now - clock
+        clock = now
+
+    points, colors, normals = cloud.points, cloud.colors, cloud.normals
+    if np.isnan(points).any() or np.isinf(points).any():
+        finite = np.isfinite(points).all(axis=1)
+        points = points[finite]
+        colors = None if colors is None else colors[finite]
+        normals = None if normals is None else normals[finite]
+    if len(points) < 1000:
+        raise MeasureError(f"the cloud has {len(points)} finite points; at least 1000 needed")
+    report(0.02, f"fitting the surface frame to {len(points)} points")
+    frame = fit_frame(points, normals, np.random.default_rng(0))
+    local = frame.to_local(points)
+    raster = rasterize(local, config.cell_mm)
+    spacing = point_spacing_mm(raster)
+    cell = max(config.cell_mm, 1.5 * spacing)
+    if cell > config.cell_mm:
+        raster = rasterize(local, cell)
+    lap("raster_s")
+    report(0.15, f"segmenting panels on a {raster.shape[0]} × {raster.shape[1]} height map")
+    panels = segment_panels(
+        raster,
+        max_slope_deg=config.max_slope_deg,
+        min_area_mm2=config.min_panel_area_mm2,
+        background_drop_mm=config.background_drop_mm,
+    )
+    if panels.count == 0:
+        raise MeasureError(
+            f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
+        )
+    max_half_band = config.max_gap_mm / 2 + config.sections.edge_band_mm
+    lines = find_seams(
+        raster, panels, max_half_band_mm=max_half_band, min_length_mm=config.min_seam_length_mm
+    )
+    lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
+    lap("segment_s")
+    report(0.3, f"{panels.count} panels, {len(lines)} seams: measuring sections")
+    profiles = _profile_seams(local, raster, lines, config)
+    seam_of_line: dict[int, SeamResult] = {}
+    for i, profile in enumerate(profiles):
+        if profile is not None and len(profile.gap_mm):
+            seam_of_line[i] = _seam_result(len(seam_of_line), profile, frame)
+    seams = list(seam_of_line.values())
+    junctions = _junction_results(junction_lines, profiles, seam_of_line, frame)
+    lap("seams_s")
+    report(0.6, "looking for dents, bumps, scratches and colour patches")
+    surface = find_surface_defects(
+        raster, panels.labels, panels.count, config.surface, colors=colors
+    )
+    lap("surface_s")
+    findings = _seam_findings(seams, junctions, config)
+    findings += [_surface_finding(f, raster, frame, config) for f in surface]
+    report(1.0, f"{len(seams)} seams, {len(junctions)} junctions, {len(findings)} findings")
+    return MeasureResult(
+        seams, junctions, findings, panels.area_mm2, int(len(points)), spacing, cell, seconds
+    )
+
+
+def _profile_seams(
+    local: np.ndarray, raster: Raster, lines: list[SeamLine], config: MeasureConfig
+) -> list[SeamProfile | None]:
+    """Each seam's sections, from the points of the cells around it only."""
+    if not lines:
+        return []
+    sections = config.sections
+    margin = max(s.half_band_mm for s in lines) + sections.end_margin_mm
+    reach = [
+        s.half_band_mm + sections.edge_band_mm + sections.top_band_mm + 1.0 + raster.cell_mm
+        for s in lines
+    ]
+    cells = [_band_cells(raster, s, r) for s, r in zip(lines, reach, strict=True)]
+    mask = np.zeros(raster.shape[0] * raster.shape[1], dtype=bool)
+    for c in cells:
+        mask[c] = True
+    near = np.flatnonzero(mask[raster.cell_of_point])
+    order = np.argsort(raster.cell_of_point[near], kind="stable")
+    near = near[order]
+    sorted_cells = raster.cell_of_point[near]
+    profiles = []
+    for seam, band in zip(lines, cells, strict=True):
+        low = np.searchsorted(sorted_cells, band, "left")
+        high = np.searchsorted(sorted_cells, band, "right")
+        lengths = high - low
+        starts = np.repeat(low - np.cumsum(lengths) + lengths, lengths)
+        chosen = near[starts + np.arange(lengths.sum())]
+        profiles.append(profile_seam(local[chosen], seam, sections, end_margin_mm=margin))
+    return profiles
+
+
+def _band_cells(raster: Raster, seam: SeamLine, reach_mm: float) -> np.ndarray:
+    """Sorted flat indices of the cells within ``reach_mm`` of the seam's centre line."""
+    ends = seam.point_uv(np.array([seam.start_mm, seam.end_mm]))
+    corners = np.concatenate([ends + reach_mm * seam.across_uv, ends - reach_mm * seam.across_uv])
+    rows0, cols0, _ = raster.cell_at(corners.min(0))
+    rows1, cols1, _ = raster.cell_at(corners.max(0))
+    rows, cols = np.meshgrid(
+        np.arange(rows0, rows1 + 1), np.arange(cols0, cols1 + 1), indexing="ij"
+    )
+    rel = raster.centres_uv(rows, cols) - seam.centre_uv
+    along = rel @ seam.direction_uv
+    across = rel @ seam.across_uv
+    inside = (
+        (np.abs(across) <= reach_mm) & (along >= seam.start_mm - 1) & (along <= seam.end_mm + 1)
+    )
+    return np.sort(rows[inside] * raster.shape[1] + cols[inside])
+
+
+def _seam_result(index: int, profile: SeamProfile, frame: SurfaceFrame) -> SeamResult:
+    seam = profile.seam
+    along, gap, step = profile.along_mm, profile.gap_mm, profile.step_mm
+    if len(gap) >= 2:
+        slope, offset = np.polyfit(along, gap, 1)
+        gap_sigma = float(np.std(gap - (slope * along + offset), ddof=min(2, len(gap) - 1)))
+    else:
+        slope, offset, gap_sigma = 0.0, float(gap.mean()), MIN_SIGMA_MM
+    ends = (float(slope * seam.start_mm + offset), float(slope * seam.end_mm + offset))
+    height = float(np.mean(profile.at_local[:, 2]))
+    start_end = seam.point_uv(np.array([seam.start_mm, seam.end_mm]))
+    start_end = frame.to_cloud(np.column_stack([start_end, [height, height]]))
+    normal = frame.direction_to_cloud(profile.normal_local.mean(0))
+    return SeamResult(
+        id=index,
+        panels=(seam.panels[0] - 1, seam.panels[1] - 1),
+        start=start_end[0],
+        end=start_end[1],
+        length_mm=seam.length_mm,
+        gap_mm=Stats(float(gap.min()), float(gap.mean()), float(gap.max())),
+        step_mm=Stats(float(step.min()), float(step.mean()), float(step.max())),
+        gap_at_ends_mm=ends,
+        parallelism_mm=abs(ends[1] - ends[0]),
+        gap_sigma_mm=max(gap_sigma, MIN_SIGMA_MM),
+        step_sigma_mm=max(float(np.std(step)), MIN_SIGMA_MM),
+        edge_radius_mm=profile.edge_radius_mm,
+        normal=normal / np.linalg.norm(normal),
+        sections_at=frame.to_cloud(profile.at_local),
+        sections_gap_mm=gap,
+        sections_step_mm=step,
+    )
+
+
+def _junction_results(
+    junctions: list[Junction],
+    profiles: list[SeamProfile | None],
+    seam_of_line: dict[int, SeamResult],
+    frame: SurfaceFrame,
+) -> list[JunctionResult]:
+    """Mismatch where at least three measured seams meet."""
+    results = []
+    for junction in junctions:
+        ids, gaps, heights, sigmas = [], [], [], []
+        for line_index, end in zip(junction.seams, junction.ends, strict=True):
+            seam, profile = seam_of_line.get(line_index), profiles[line_index]
+            if seam is None or profile is None:
+                continue
+            ids.append(seam.id)
+            gaps.append(seam.gap_at_ends_mm[end])
+            sigmas.append(seam.gap_sigma_mm)
+            heights.append(profile.at_local[0 if end == 0 else -1, 2])
+        if len(ids) < 3:
+            continue
+        at = frame.to_cloud(np.append(junction.at_uv, np.mean(heights)))
+        results.append(
+            JunctionResult(
+                len(results),
+                at,
+                tuple(ids),
+                tuple(gaps),
+                float(max(gaps) - min(gaps)),
+                float(np.sqrt(2) * max(sigmas)),
+            )
+        )
+    return results
+
+
+def _seam_findings(
+    seams: list[SeamResult], junctions: list[JunctionResult], config: MeasureConfig
+) -> list[Finding]:
+    t = config.tolerances
+    findings = []
+    for seam in seams:
+        gaps, steps = seam.sections_gap_mm, seam.sections_step_mm
+        pitch = config.sections.pitch_mm
+        low, high = gaps < t.gap_min_mm, gaps > t.gap_max_mm
+        if high.any() or not low.any():
+            worst = int(np.argmax(gaps))
+            value, limit, above, outside = float(gaps[worst]), t.gap_max_mm, True, high
+        else:
+            worst = int(np.argmin(gaps))
+            value, limit, above, outside = float(gaps[worst]), t.gap_min_mm, False, low
+        source = {"seam": seam.id, "panels": list(seam.panels)}
+        profile = {
+            "gap_mm": vars(seam.gap_mm),
+            "step_mm": vars(seam.step_mm),
+            "parallelism_mm": seam.parallelism_mm,
+            "length_mm": seam.length_mm,
+        }
+        findings.append(
+            Finding(
+                "gap",
+                value,
+                "mm",
+                limit,
+                seam.sections_at[worst],
+                seam.normal,
+                float(max(outside.sum(), 1) * pitch),
+                severity(value, limit, above=above),
+                confidence(value, limit, seam.gap_sigma_mm),
+                source,
+                profile,
+            )
+        )
+        worst = int(np.argmax(np.abs(steps)))
+        value = float(steps[worst])
+        findings.append(
+            Finding(
+                "step",
+                value,
+                "mm",
+                t.step_max_mm,
+                seam.sections_at[worst],
+                seam.normal,
+                float(max((np.abs(steps) > t.step_max_mm).sum(), 1) * pitch),
+                severity(abs(value), t.step_max_mm, above=True),
+                confidence(abs(value), t.step_max_mm, seam.step_sigma_mm),
+                source,
+                profile,
+            )
+        )
+        middle = (seam.start + seam.end) / 2
+        sigma = np.sqrt(2) * seam.gap_sigma_mm
+        findings.append(
+            Finding(
+                "parallelism",
+                seam.parallelism_mm,
+                "mm",
+                t.parallelism_max_mm,
+                middle,
+                seam.normal,
+                seam.length_mm,
+                severity(seam.parallelism_mm, t.parallelism_max_mm, above=True),
+                confidence(seam.parallelism_mm, t.parallelism_max_mm, sigma),
+                source,
+                profile,
+            )
+        )
+    normal_of = {s.id: s.normal for s in seams}
+    for junction in junctions:
+        normal = np.mean([normal_of[i] for i in junction.seams], axis=0)
+        findings.append(
+            Finding(
+                "mismatch",
+                junction.mismatch_mm,
+                "mm",
+                t.mismatch_max_mm,
+                junction.at,
+                normal / np.linalg.norm(normal),
+                2 * config.max_gap_mm,
+                severity(junction.mismatch_mm, t.mismatch_max_mm, above=True),
+                confidence(junction.mismatch_mm, t.mismatch_max_mm, junction.mismatch_sigma_mm),
+                {"junction": junction.id, "seams": list(junction.seams)},
+                {"gaps_mm": list(junction.gaps_mm)},
+            )
+        )
+    return findings
+
+
+def _surface_finding(
+    finding: SurfaceFinding, raster: Raster, frame: SurfaceFrame, config: MeasureConfig
+) -> Finding:
+    t = config.tolerances
+    limit, unit = {
+        "dent": (t.dent_depth_mm, "mm"),
+        "bump": (t.dent_depth_mm, "mm"),
+        "scratch": (t.scratch_depth_mm, "mm"),
+        "color": (t.color_delta_e, "delta_e"),
+    }[finding.type]
+    point, normal = _surface_point(raster, finding.at_uv)
+    return Finding(
+        finding.type,
+        finding.value,
+        unit,
+        limit,
+        frame.to_cloud(point),
+        frame.direction_to_cloud(normal),
+        finding.extent_mm,
+        severity(finding.value, limit, above=True),
+        finding.confidence,
+        {"panel": finding.panel - 1},
+        finding.measurements,
+    )
+
+
+def _surface_point(
+    raster: Raster, uv: np.ndarray, radius_mm: float = 5.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v, w) on the plane fitted to the height map within ``radius_mm`` of ``uv``, and
+    that plane's unit normal (towards +w)."""
+    span = int(np.ceil(radius_mm / raster.cell_mm))
+    row, col, _ = raster.cell_at(uv)
+    rows, cols = np.meshgrid(
+        np.arange(max(row - span, 0), min(row + span + 1, raster.shape[0])),
+        np.arange(max(col - span, 0), min(col + span + 1, raster.shape[1])),
+        indexing="ij",
+    )
+    heights = raster.height[rows, cols]
+    ok = np.isfinite(heights)
+    centres = raster.centres_uv(rows[ok], cols[ok]) - uv
+    design = np.column_stack([np.ones(ok.sum()), centres])
+    (w0, du, dv), *_ = np.linalg.lstsq(design, heights[ok].astype(np.float64), rcond=None)
+    normal = np.array([-du, -dv, 1.0])
+    return np.array([uv[0], uv[1], w0]), normal / np.linalg.norm(normal)

@@ -1,0 +1,369 @@
+"""Surface defects on each panel top: dents and bumps, scratches, colour patches.
+
+- **Reference surface.** Per panel, on 1 mm blocks of the height map: a cubic polynomial
+  in (u, v) fitted with Tukey weights, plus a normalised Gaussian smoothing (σ =
+  ``smooth_mm``) of the inlier residual, so gentle waviness is followed but a dent is not.
+- **Dents and bumps.** Blocks deviating from the reference by more than
+  ``dent_detect_mm`` form regions; depth = the largest deviation of the 3 × 3-averaged
+  height map inside (signed: below = dent), diameter = that of the circle with the
+  region's area where the deviation exceeds a quarter of the depth.
+- **Scratches.** A band-pass of the fine height map (Gaussian σ = one cell minus σ =
+  ``scratch_background_mm``) in units of its robust noise level; depressions beyond
+  ``scratch_sigma`` (hysteresis from ``scratch_sigma`` + 2) that are long and thin
+  (length ≥ ``scratch_min_length_mm``, length / width ≥ 4) and at least
+  ``scratch_min_depth_mm`` deep are scratches. Length from the region's principal
+  axes; depth = the 98th percentile of the cells' depth below the smoothed surface (a
+  lower bound for scratches narrower than a cell); width = 1.5 × the mean section area
+  / depth (exact for a parabolic groove).
+- **Colour.** Mean colour on 1 mm blocks in CIE L*a*b*; the panel's own colour is the
+  normalised Gaussian average (σ = ``smooth_mm``) of the blocks within ``color_detect``
+  ΔE of its median; blocks further than ``color_detect`` from it form patches (area,
+  mean ΔE of the blocks above half the peak).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from services.defects.raster import Raster
+from services.pointcloud.color import delta_e, srgb_to_lab
+
+BLOCK_MM = 1.0
+EIGHT_CONNECTED = np.ones((3, 3), bool)
+
+
+@dataclass(frozen=True)
+class SurfaceConfig:
+    edge_margin_mm: float = 3.0
+    """Panel border left out (rounded edges)."""
+    smooth_mm: float = 25.0
+    dent_detect_mm: float = 0.06
+    dent_min_diameter_mm: float = 1.5
+    scratch_sigma: float = 3.5
+    scratch_background_mm: float = 1.5
+    scratch_min_length_mm: float = 3.0
+    scratch_min_depth_mm: float = 0.03
+    color_detect: float = 2.0
+    color_min_area_mm2: float = 3.0
+
+
+@dataclass(frozen=True)
+class SurfaceFinding:
+    type: str
+    """dent, bump, scratch or color."""
+    panel: int
+    at_uv: np.ndarray
+    value: float
+    """Depth (mm) of dents, bumps and scratches; ΔE of colour patches."""
+    extent_mm: float
+    """Diameter (dents, bumps, colour: of the circle of the same area) or length."""
+    measurements: dict
+    confidence: float
+
+
+def _blocks(values: np.ndarray, weights: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted block means over block × block cells and the weight in each block."""
+    rows, cols = values.shape
+    shape = (-(-rows // block), -(-cols // block))
+    pad = ((0, shape[0] * block - rows), (0, shape[1] * block - cols))
+    v = np.pad(np.where(weights > 0, values, 0.0) * weights, pad)
+    w = np.pad(weights.astype(np.float64), pad)
+    v = v.reshape(shape[0], block, shape[1], block).sum(axis=(1, 3))
+    w = w.reshape(shape[0], block, shape[1], block).sum(axis=(1, 3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / w, w
+
+
+def _normalised_smooth(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+    numerator = ndimage.gaussian_filter(np.where(weights > 0, values * weights, 0.0), sigma)
+    denominator = ndimage.gaussian_filter(weights.astype(np.float64), sigma)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return numerator / denominator
+
+
+def _reference(
+    uv: np.ndarray, height: np.ndarray, inside: np.ndarray, smooth_blocks: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Robust reference surface on the blocks of one panel and its inlier mask."""
+    points = uv[inside]
+    scale = np.maximum(np.ptp(points, axis=0), 1.0) / 2
+    centre = points.mean(0)
+    a, b = ((uv - centre) / scale).transpose(2, 0, 1)
+    design = np.stack([a**i * b**j for i in range(4) for j in range(4 - i)], -1)
+    target = height[inside]
+    weight = np.ones(len(target))
+    for _ in range(6):
+        sw = np.sqrt(weight)
+        coef, *_ = np.linalg.lstsq(design[inside] * sw[:, None], target * sw, rcond=None)
+        residual = target - design[inside] @ coef
+        sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
+        weight = np.clip(1 - (residual / (4.685 * sigma)) ** 2, 0.0, None) ** 2
+    surface = design @ coef
+    inlier = np.zeros(inside.shape, bool)
+    inlier[inside] = weight > 0
+    detail = _normalised_smooth(height - surface, inlier.astype(np.float64), smooth_blocks)
+    return surface + np.where(np.isfinite(detail), detail, 0.0), inlier
+
+
+def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, float, np.ndarray]:
+    """(length, width, direction) of a region from the spread along its principal axes
+    (a uniform bar of length L has standard deviation L / √12)."""
+    points = np.stack([rows, cols], 1).astype(np.float64) * cell_mm
+    if len(points) < 3:
+        return cell_mm, cell_mm, np.array([1.0, 0.0])
+    values, vectors = np.linalg.eigh(np.cov(points.T))
+    spread = np.sqrt(np.maximum(values, 0.0) * 12) + cell_mm
+    return float(spread[1]), float(spread[0]), vectors[:, 1]
+
+
+def find_surface_defects(
+    raster: Raster,
+    labels: np.ndarray,
+    panel_count: int,
+    config: SurfaceConfig,
+    *,
+    colors: np.ndarray | None = None,
+) -> list[SurfaceFinding]:
+    """Dents, bumps, scratches and (given (N, 3) uint8 ``colors`` of the raster's points)
+    colour patches on every panel."""
+    cell = raster.cell_mm
+    block = max(1, int(round(BLOCK_MM / cell)))
+    margin = max(1, int(round(config.edge_margin_mm / cell)))
+    blocks_lab = None if colors is None else _block_lab(raster, colors, block)
+    findings: list[SurfaceFinding] = []
+    for label in range(1, panel_count + 1):
+        region = ndimage.binary_erosion(labels == label, EIGHT_CONNECTED, iterations=margin)
+        region &= np.isfinite(raster.height)
+        if region.sum() < 100:
+            continue
+        rows, cols = np.nonzero(region)
+        r0, r1 = rows.min(), rows.max() + 1
+        c0, c1 = cols.min(), cols.max() + 1
+        # Work in the panel's bounding box, aligned to whole blocks.
+        r0, c0 = r0 - r0 % block, c0 - c0 % block
+        box = (slice(r0, r1), slice(c0, c1))
+        height = raster.height[box].astype(np.float64)
+        inside = region[box]
+        findings += _relief(raster, label, height, inside, (r0, c0), block, config)
+        if blocks_lab is not None:
+            lab_box = (slice(r0 // block, -(-r1 // block)), slice(c0 // block, -(-c1 // block)))
+            inside_blocks = _blocks(inside.astype(np.float64), inside.astype(np.float64), block)[1]
+            findings += _color(
+                raster,
+                label,
+                blocks_lab[lab_box],
+                inside_blocks >= 0.5 * block * block,
+                (r0, c0),
+                block,
+                config,
+            )
+    return findings
+
+
+def _relief(
+    raster: Raster,
+    label: int,
+    height: np.ndarray,
+    inside: np.ndarray,
+    origin: tuple[int, int],
+    block: int,
+    config: SurfaceConfig,
+) -> list[SurfaceFinding]:
+    cell = raster.cell_mm
+    coarse, weight = _blocks(height, inside.astype(np.float64), block)
+    coarse_inside = weight >= 0.5 * block * block
+    b_rows, b_cols = np.meshgrid(
+        np.arange(coarse.shape[0]), np.arange(coarse.shape[1]), indexing="ij"
+    )
+    uv = raster.centres_uv(
+        origin[0] + (b_rows + 0.5) * block - 0.5, origin[1] + (b_cols + 0.5) * block - 0.5
+    )
+    reference, _ = _reference(uv, coarse, coarse_inside, config.smooth_mm / BLOCK_MM)
+    fine_reference = ndimage.zoom(reference, block, order=1, mode="nearest", grid_mode=True)
+    fine_reference = fine_reference[: height.shape[0], : height.shape[1]]
+    deviation = np.where(inside, height - fine_reference, np.nan)
+    smoothed = ndimage.uniform_filter(np.nan_to_num(deviation), 3) / np.maximum(
+        ndimage.uniform_filter(inside.astype(np.float64), 3), 1e-9
+    )
+    smoothed = np.where(inside, smoothed, 0.0)
+    findings = []
+    coarse_deviation = np.where(coarse_inside, coarse - reference, 0.0)
+    relief_mask = np.zeros(height.shape, bool)
+    regions, count = ndimage.label(
+        np.abs(coarse_deviation) > config.dent_detect_mm, EIGHT_CONNECTED
+    )
+    for index, found in enumerate(ndimage.find_objects(regions), start=1):
+        own = regions[found] == index
+        fine = (
+            slice(found[0].start * block, found[0].stop * block),
+            slice(found[1].start * block, found[1].stop * block),
+        )
+        own_fine = np.repeat(np.repeat(own, block, 0), block, 1)[
+            : smoothed[fine].shape[0], : smoothed[fine].shape[1]
+        ]
+        values = np.where(own_fine, smoothed[fine], 0.0)
+        peak = np.unravel_index(np.argmax(np.abs(values)), values.shape)
+        depth = float(values[peak])
+        core = own_fine & (np.abs(values) >= abs(depth) / 4) & (np.sign(values) == np.sign(depth))
+        diameter = 2 * np.sqrt(core.sum() * cell * cell / np.pi)
+        length, width, _ = _shape(*np.nonzero(core), cell)
+        if diameter < config.dent_min_diameter_mm or length > 4 * width:
+            continue  # thin: a scratch's business
+        relief_mask[fine] |= own_fine
+        at = raster.centres_uv(
+            origin[0] + fine[0].start + peak[0], origin[1] + fine[1].start + peak[1]
+        )
+        findings.append(
+            SurfaceFinding(
+                "dent" if depth < 0 else "bump",
+                label,
+                at,
+                abs(depth),
+                float(diameter),
+                {"depth_mm": abs(depth), "diameter_mm": float(diameter)},
+                _confidence(abs(depth), config.dent_detect_mm, 0.01),
+            )
+        )
+    findings += _scratches(raster, label, deviation, inside, relief_mask, origin, config)
+    return findings
+
+
+def _scratches(
+    raster: Raster,
+    label: int,
+    deviation: np.ndarray,
+    inside: np.ndarray,
+    relief: np.ndarray,
+    origin: tuple[int, int],
+    config: SurfaceConfig,
+) -> list[SurfaceFinding]:
+    """Scratches in ``deviation``, the height above the panel's reference surface (tilt
+    and curvature removed, so smoothing near the panel's border stays unbiased)."""
+    cell = raster.cell_mm
+    height = np.where(inside, deviation, 0.0)
+    weight = inside.astype(np.float64)
+    background = _normalised_smooth(height, weight, config.scratch_background_mm / cell)
+    band = _normalised_smooth(height, weight, 1.0) - background
+    depth = np.where(inside & ~relief, -band, 0.0)
+    raw_depth = np.where(inside & ~relief, background - height, 0.0)
+    noise = max(1.4826 * float(np.median(np.abs(depth[inside & ~relief]))), 1e-5)
+    score = depth / noise
+    seeds = score > config.scratch_sigma + 2
+    grown, _ = ndimage.label(score > config.scratch_sigma, EIGHT_CONNECTED)
+    keep = np.unique(grown[seeds])
+    findings = []
+    for index, found in enumerate(ndimage.find_objects(grown), start=1):
+        if found is None or index not in keep:
+            continue
+        own = grown[found] == index
+        rows, cols = np.nonzero(own)
+        length, width, direction = _shape(rows, cols, cell)
+        deepest = float(np.percentile(raw_depth[found][own], 98))
+        thin = length >= config.scratch_min_length_mm and length >= 4 * width
+        # A parabolic groove's section is ⅔ width × depth.
+        section_mm2 = float(np.clip(raw_depth[found][own], 0, None).sum()) * cell * cell / length
+        width = float(np.clip(1.5 * section_mm2 / max(deepest, 1e-6), cell / 2, width))
+        if not thin or deepest < config.scratch_min_depth_mm:
+            continue
+        centre = np.array([rows.mean(), cols.mean()])
+        at = raster.centres_uv(
+            origin[0] + found[0].start + centre[0], origin[1] + found[1].start + centre[1]
+        )
+        findings.append(
+            SurfaceFinding(
+                "scratch",
+                label,
+                at,
+                deepest,
+                length,
+                {
+                    "depth_mm": deepest,
+                    "length_mm": length,
+                    "width_mm": width,
+                    "direction_uv": direction.tolist(),
+                },
+                _confidence(float(score[found][own].max()), config.scratch_sigma, 1.0),
+            )
+        )
+    return findings
+
+
+def _block_lab(raster: Raster, colors: np.ndarray, block: int) -> np.ndarray:
+    """(rows, cols, 3) mean L*a*b* of the points in each block (NaN where none)."""
+    cells = raster.shape[0] * raster.shape[1]
+    count = raster.count.astype(np.float64)
+    channels = []
+    for c in range(3):
+        total = np.bincount(raster.cell_of_point, weights=colors[:, c], minlength=cells)
+        channels.append(
+            _blocks(total.reshape(raster.shape) / np.maximum(count, 1), count, block)[0]
+        )
+    mean = np.stack(channels, -1)
+    lab = srgb_to_lab(np.clip(np.nan_to_num(mean), 0, 255))
+    lab[~np.isfinite(mean).all(-1)] = np.nan
+    return lab
+
+
+def _color(
+    raster: Raster,
+    label: int,
+    lab: np.ndarray,
+    inside: np.ndarray,
+    origin: tuple[int, int],
+    block: int,
+    config: SurfaceConfig,
+) -> list[SurfaceFinding]:
+    inside = inside & np.isfinite(lab).all(-1)
+    if inside.sum() < 10:
+        return []
+    base = np.median(lab[inside], axis=0)
+    inlier = inside & (delta_e(lab, base) < config.color_detect)
+    reference = np.stack(
+        [
+            _normalised_smooth(lab[..., c], inlier.astype(np.float64), config.smooth_mm / BLOCK_MM)
+            for c in range(3)
+        ],
+        -1,
+    )
+    reference = np.where(np.isfinite(reference), reference, base)
+    difference = np.where(inside, delta_e(lab, reference), 0.0)
+    regions, _ = ndimage.label(difference > config.color_detect, EIGHT_CONNECTED)
+    findings = []
+    block_mm = block * raster.cell_mm
+    for index, found in enumerate(ndimage.find_objects(regions), start=1):
+        own = regions[found] == index
+        area = float(own.sum()) * block_mm**2
+        if area < config.color_min_area_mm2:
+            continue
+        values = np.where(own, difference[found], 0.0)
+        core = values >= values.max() / 2
+        mean_delta = float(values[core].mean())
+        rows, cols = np.nonzero(own)
+        at = raster.centres_uv(
+            origin[0] + (found[0].start + rows.mean() + 0.5) * block - 0.5,
+            origin[1] + (found[1].start + cols.mean() + 0.5) * block - 0.5,
+        )
+        diameter = 2 * np.sqrt(area / np.pi)
+        findings.append(
+            SurfaceFinding(
+                "color",
+                label,
+                at,
+                mean_delta,
+                float(diameter),
+                {"delta_e": mean_delta, "peak_delta_e": float(values.max()), "area_mm2": area},
+                _confidence(mean_delta, config.color_detect, 0.5),
+            )
+        )
+    return findings
+
+
+def _confidence(value: float, threshold: float, sigma: float) -> float:
+    """How sure a finding is real: the normal probability that a value measured this far
+    above the detection threshold, with this uncertainty, is not noise."""
+    from math import erf, sqrt
+
+    return float(0.5 * (1 + erf((value - threshold) / (sigma * sqrt(2)))))
