@@ -9,6 +9,7 @@ from pathlib import Path
 
 import typer
 
+from services.defects import cli as defects_cli
 from services.stitching import cli as stitching_cli
 from supervisor.settings import get_settings
 
@@ -198,6 +199,7 @@ def bench_api(
 
 
 stitching_cli.register(app, simulate_app, bench_app)
+defects_cli.register(app, simulate_app, bench_app)
 
 if __name__ == "__main__":
     app()

@@ -325,8 +325,10 @@ def _seam_findings(
     t = config.tolerances
     findings = []
     for seam in seams:
-        gaps, steps = seam.sections_gap_mm, seam.sections_step_mm
-        pitch = config.sections.pitch_mm
+        steps, pitch = seam.sections_step_mm, config.sections.pitch_mm
+        # The gap line at the seam's ends counts too: sections stop short of them.
+        gaps = np.concatenate([seam.sections_gap_mm, seam.gap_at_ends_mm])
+        places = np.concatenate([seam.sections_at, [seam.start, seam.end]])
         low, high = gaps < t.gap_min_mm, gaps > t.gap_max_mm
         if high.any() or not low.any():
             worst = int(np.argmax(gaps))
@@ -347,9 +349,9 @@ def _seam_findings(
                 value,
                 "mm",
                 limit,
-                seam.sections_at[worst],
+                places[worst],
                 seam.normal,
-                float(max(outside.sum(), 1) * pitch),
+                float(max(outside[:-2].sum(), 1) * pitch),
                 severity(value, limit, above=above),
                 confidence(value, limit, seam.gap_sigma_mm),
                 source,

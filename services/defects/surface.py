@@ -41,7 +41,7 @@ class SurfaceConfig:
     """Panel border left out (rounded edges)."""
     smooth_mm: float = 25.0
     dent_detect_mm: float = 0.06
-    dent_min_diameter_mm: float = 1.5
+    dent_min_diameter_mm: float = 2.0
     scratch_sigma: float = 3.5
     scratch_background_mm: float = 1.5
     scratch_min_length_mm: float = 3.0
@@ -227,8 +227,18 @@ def _relief(
                 _confidence(abs(depth), config.dent_detect_mm, 0.01),
             )
         )
-    findings += _scratches(raster, label, deviation, inside, relief_mask, origin, config)
-    return findings
+    scratches = _scratches(raster, label, deviation, inside, relief_mask, origin, config)
+    return [f for f in findings if not any(_on_scratch(f, s) for s in scratches)] + scratches
+
+
+def _on_scratch(finding: SurfaceFinding, scratch: SurfaceFinding, margin_mm: float = 2.0) -> bool:
+    """Whether a small dent lies on a scratch (its deepest part, seen as a round pit)."""
+    direction = np.array(scratch.measurements["direction_uv"])
+    offset = finding.at_uv - scratch.at_uv
+    along = abs(offset @ direction)
+    across = abs(offset @ np.array([-direction[1], direction[0]]))
+    small = finding.extent_mm < 2 * margin_mm + scratch.measurements["width_mm"]
+    return small and along <= scratch.extent_mm / 2 + margin_mm and across <= margin_mm
 
 
 def _scratches(

@@ -12,7 +12,7 @@ import numpy as np
 from services.pointcloud.ply import PointCloud, write_ply
 from services.pointcloud.transforms import to_json
 from services.stitching import scan_sim
-from services.stitching.calibration_sim import simulate_calibration
+from services.stitching.calibration_sim import CalibrationSession, simulate_calibration
 from services.stitching.files import write_pairs, write_scans
 
 
@@ -21,6 +21,35 @@ class Example:
     scans: int
     component_name: str
     corrupted_pairs: tuple[int, ...]
+
+
+def write_session(
+    out_dir: Path,
+    session: CalibrationSession,
+    grids: list[np.ndarray],
+    colors: list[np.ndarray] | None,
+    base_T_flange: np.ndarray,
+) -> list[str]:
+    """pairs.json of the calibration session, scan_NNN.ply of each organized grid (with
+    its colours) and scans.json with the robot's reported poses; the scans' names."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_pairs(out_dir / "pairs.json", session.base_T_flange, session.sensor_T_target)
+    names = [f"scan_{i:03d}.ply" for i in range(len(grids))]
+    for i, (name, grid) in enumerate(zip(names, grids, strict=True)):
+        rgb = None if colors is None else colors[i].reshape(-1, 3)
+        cloud = PointCloud(points=grid.reshape(-1, 3), colors=rgb, grid_shape=grid.shape[:2])
+        write_ply(out_dir / name, cloud)
+    write_scans(out_dir / "scans.json", names, base_T_flange)
+    return names
+
+
+def calibration_truth(session: CalibrationSession) -> dict:
+    return {
+        "flange_T_sensor": to_json(session.true_flange_T_sensor),
+        "base_T_target": to_json(session.true_base_T_target),
+        "calibration_true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
+        "corrupted_pairs": list(session.corrupted),
+    }
 
 
 def write_example(
@@ -39,18 +68,10 @@ def write_example(
     mesh = scan_sim.COMPONENTS[component]()
     sensor = scan_sim.SensorModel(grid=grid)
     scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_pairs(out_dir / "pairs.json", session.base_T_flange, session.sensor_T_target)
-    names = [f"scan_{i:03d}.ply" for i in range(len(scans.scans))]
-    for name, scan in zip(names, scans.scans, strict=True):
-        write_ply(out_dir / name, PointCloud(points=scan.reshape(-1, 3), grid_shape=scan.shape[:2]))
-    write_scans(out_dir / "scans.json", names, scans.base_T_flange)
+    names = write_session(out_dir, session, scans.scans, None, scans.base_T_flange)
     corners = mesh.vertices @ scans.base_T_part[:3, :3].T + scans.base_T_part[:3, 3]
     truth = {
-        "flange_T_sensor": to_json(session.true_flange_T_sensor),
-        "base_T_target": to_json(session.true_base_T_target),
-        "calibration_true_base_T_flange": [to_json(t) for t in session.true_base_T_flange],
-        "corrupted_pairs": list(session.corrupted),
+        **calibration_truth(session),
         "component": component,
         "component_name": mesh.name,
         "base_T_part": to_json(scans.base_T_part),

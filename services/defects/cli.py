@@ -1,0 +1,141 @@
+"""``vista measure``, ``vista simulate defects`` and ``vista bench defects``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+# Heavy imports (numpy, scipy, open3d) stay inside the commands.
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def measure(
+    cloud: Path = typer.Argument(
+        ..., help="Stitched cloud (binary PLY, mm), e.g. from `vista stitch`."
+    ),
+    config: Path = typer.Option(
+        None,
+        "--config",
+        help="CONFIG.json: tolerances and measurement settings (defaults if omitted).",
+    ),
+    out: Path = typer.Option(..., "-o", "--out", help="Where to write RESULT.json."),
+    plot: Path = typer.Option(None, help="Also write the gap/step profiles as a PNG."),
+    truth: Path = typer.Option(
+        None, help="truth.json of `vista simulate defects`: prints the errors against it."
+    ),
+) -> None:
+    """Measure every seam (gap, step, parallelism), junction (mismatch) and surface defect
+    (dents, bumps, scratches, colour) of a panel-assembly cloud against the tolerances."""
+    from services.defects.config import ConfigError, MeasureConfig, parse_config
+    from services.defects.measure import MeasureError
+    from services.defects.measure import measure as run_measure
+    from services.defects.report import profile_png, result_document
+    from services.pointcloud.ply import PlyError, read_ply
+    from services.stitching.files import StitchingFileError, load_json
+
+    try:
+        settings = (
+            MeasureConfig() if config is None else parse_config(load_json(config), str(config))
+        )
+        truth_document = None if truth is None else load_json(truth)
+        points = read_ply(cloud)
+    except (ConfigError, StitchingFileError, PlyError, OSError) as exc:
+        _fail(str(exc))
+    if truth_document is not None and not {"seams", "junctions", "defects"} <= set(truth_document):
+        _fail(f"{truth}: not a truth.json of `vista simulate defects` (no seams/junctions/defects)")
+    with typer.progressbar(length=100, label="measuring") as bar:
+        done = 0
+
+        def progress(fraction: float, message: str) -> None:
+            nonlocal done
+            bar.label = message[:60]
+            bar.update(int(fraction * 100) - done)
+            done = int(fraction * 100)
+
+        try:
+            result = run_measure(points, settings, progress=progress)
+        except MeasureError as exc:
+            _fail(f"{cloud}: {exc}")
+    document = result_document(result, settings)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(document, indent=1) + "\n")
+    typer.echo(
+        f"{result.point_count} points (spacing {result.spacing_mm:.3f} mm), "
+        f"{len(result.panel_areas_mm2)} panels ({result.panel_area_m2:.4f} m²), "
+        f"{len(result.seams)} seams, {len(result.junctions)} junctions, "
+        f"{sum(result.seconds.values()):.2f} s"
+    )
+    for seam in document["seams"]:
+        g, s = seam["gap_mm"], seam["step_mm"]
+        typer.echo(
+            f"  seam {seam['id']} panels {seam['panels']}: {seam['length_mm']:.1f} mm, "
+            f"gap {g['min']:.3f}/{g['mean']:.3f}/{g['max']:.3f}, step {s['min']:+.3f}…"
+            f"{s['max']:+.3f}, parallelism {seam['parallelism_mm']:.3f} (min/mean/max, mm)"
+        )
+    for junction in document["junctions"]:
+        typer.echo(
+            f"  junction {junction['id']} seams {junction['seams']}: mismatch {junction['mismatch_mm']:.3f} mm"
+        )
+    typer.echo(f"{len(document['defects'])} defects out of tolerance:")
+    for d in document["defects"]:
+        unit = "mm" if d["unit"] == "mm" else "ΔE"
+        typer.echo(
+            f"  {d['type']:<11} {d['value']:>8.3f} {unit} (tolerance {d['tolerance']:g}) "
+            f"{d['severity']:<8} confidence {d['confidence']:.2f} at {[round(v, 1) for v in d['location']]}"
+        )
+    if plot is not None:
+        profile_png(result, settings, plot)
+        typer.echo(f"wrote {plot}")
+    typer.echo(f"wrote {out}")
+    if truth_document is not None:
+        from services.defects.evaluate import evaluate
+
+        summary = evaluate(result, truth_document, settings.tolerances).summary()
+        typer.echo("against the truth:")
+        typer.echo(json.dumps(summary, indent=1))
+
+
+def simulate_defects(
+    out_dir: Path = typer.Argument(..., help="Folder to write the example into."),
+    rows: int = typer.Option(2, min=1, max=4, help="Panel rows."),
+    cols: int = typer.Option(2, min=1, max=4, help="Panel columns (rows × cols: 2 to 12)."),
+    panel_mm: tuple[float, float] = typer.Option((150.0, 100.0), help="Panel size (mm)."),
+    radius_mm: float = typer.Option(
+        0.0, help="Sidewall curvature radius (mm) of the assembly; 0 = flat."
+    ),
+    spacing_mm: float = typer.Option(
+        0.1, min=0.05, max=1.0, help="Sensor sampling on the part (0.1 mm ≈ a Gocator 3210)."
+    ),
+    seed: int = typer.Option(0, help="Random seed."),
+) -> None:
+    """Write a simulated panel assembly with seams (gap, taper, step, rounded edges),
+    dents, bumps, scratches and colour patches: calibration pairs, coloured scans, the
+    merged cloud, default tolerances and the ground truth."""
+    from services.defects.example import write_defects_example
+    from services.defects.simulate import AssemblySpec
+
+    if not 2 <= rows * cols <= 12:
+        _fail(f"an assembly has 2 to 12 panels; --rows {rows} × --cols {cols} = {rows * cols}")
+    grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
+    spec = AssemblySpec(rows=rows, cols=cols, panel_mm=panel_mm, radius_mm=radius_mm or None)
+    example = write_defects_example(out_dir, spec, grid=grid, seed=seed, progress=typer.echo)
+    typer.echo(
+        f"wrote {out_dir}: {example.scans} scans, cloud.ply ({example.cloud_points} points), "
+        f"{example.panels} panels, {example.seams} seams, {example.junctions} junctions, "
+        f"{example.defects} surface defects in truth.json, config.json"
+    )
+    typer.echo(
+        f"measure it: vista measure {out_dir}/cloud.ply --config {out_dir}/config.json "
+        f"-o {out_dir}/result.json --truth {out_dir}/truth.json"
+    )
+
+
+def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
+    app.command("measure")(measure)
+    simulate_app.command("defects")(simulate_defects)

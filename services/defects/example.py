@@ -1,0 +1,95 @@
+"""A simulated panel-assembly inspection on disk: what ``vista simulate defects`` writes.
+
+pairs.json (calibration session), scan_NNN.ply (organized, coloured), scans.json (the
+robot's reported poses), config.json (default tolerances), cloud.ply (the scans merged
+at their true poses: what a perfect stitch gives) and truth.json (the true mount and
+poses, and every seam, junction and defect of the assembly in the base frame).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.defects.config import MeasureConfig, config_document
+from services.defects.simulate import AssemblySpec, random_assembly, scan_assembly, truth_document
+from services.pointcloud.ply import PointCloud, write_ply
+from services.pointcloud.transforms import invert, make_transform, perturb, to_json
+from services.stitching.calibration_sim import simulate_calibration
+from services.stitching.example import calibration_truth, write_session
+from services.stitching.scan_sim import SensorModel
+from services.stitching.stitch import StitchConfig, stitch
+
+BASE_T_PART = make_transform(np.eye(3), np.array([550.0, -100.0, -250.0]))
+"""Where the assembly lies in front of the robot."""
+
+
+@dataclass(frozen=True)
+class DefectsExample:
+    scans: int
+    panels: int
+    seams: int
+    junctions: int
+    defects: int
+    cloud_points: int
+
+
+def write_defects_example(
+    out_dir: Path,
+    spec: AssemblySpec,
+    *,
+    grid: tuple[int, int] = (1000, 1540),
+    poses: int = 15,
+    voxel_mm: float = 0.1,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> DefectsExample:
+    """Simulate an assembly, its calibration session and its scans, and write them with
+    the ground truth. ``grid`` (1000, 1540) samples the 154 × 100 mm field every 0.1 mm."""
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(seed)
+    assembly = random_assembly(spec, rng)
+    session = simulate_calibration(poses=poses, rng=rng)
+    sensor = SensorModel(grid=grid)
+    say(f"scanning {len(assembly.panels)} panels at {grid[0]} × {grid[1]} per snapshot")
+    scans = scan_assembly(assembly, BASE_T_PART, sensor, rng=rng)
+    true_base_T_flange = scans.base_T_sensor @ invert(session.true_flange_T_sensor)
+    reported = perturb(true_base_T_flange, 0.05, 0.005, rng)
+    say(f"writing {len(scans.scans)} scans")
+    write_session(out_dir, session, scans.scans, scans.colors, reported)
+    say("merging the scans at their true poses into cloud.ply")
+    clouds = [
+        PointCloud(points=g.reshape(-1, 3), colors=c.reshape(-1, 3), grid_shape=g.shape[:2])
+        for g, c in zip(scans.scans, scans.colors, strict=True)
+    ]
+    merged = stitch(
+        clouds,
+        true_base_T_flange,
+        session.true_flange_T_sensor,
+        config=StitchConfig(voxel_mm=voxel_mm),
+    ).cloud
+    write_ply(out_dir / "cloud.ply", merged, comments=("vista simulated assembly, base frame, mm",))
+    truth = {
+        **calibration_truth(session),
+        "scan_true_base_T_flange": [to_json(t) for t in true_base_T_flange],
+        "base_T_part": to_json(BASE_T_PART),
+        "sensor": {"grid": list(grid), "noise_mm": sensor.noise_mm},
+        "seed": seed,
+        **truth_document(assembly, BASE_T_PART),
+    }
+    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    (out_dir / "config.json").write_text(
+        json.dumps(config_document(MeasureConfig()), indent=1) + "\n"
+    )
+    return DefectsExample(
+        len(scans.scans),
+        len(assembly.panels),
+        len(assembly.seams),
+        len(assembly.junctions),
+        len(truth["defects"]),
+        len(merged.points),
+    )
