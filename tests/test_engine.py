@@ -79,7 +79,7 @@ class Engine:
                     "supervisor.cli",
                     "worker",
                     "--queues",
-                    "scan,stitching,test",
+                    "scan,stitching,defects,test",
                 ],
                 env=env,
                 cwd=REPO,
@@ -362,3 +362,69 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     failed = engine.wait(lonely["jobs"][0]["id"])
     assert failed["status"] == "failed" and failed["attempts"] == 1
     assert "needs exactly one `handeye` artifact" in failed["error"]
+
+
+def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path):
+    from typer.testing import CliRunner
+
+    from supervisor.cli import app
+
+    example = tmp_path / "assembly"
+    simulated = CliRunner().invoke(
+        app, ["simulate", "defects", str(example), "--spacing-mm", "0.25", "--seed", "3"]
+    )
+    assert simulated.exit_code == 0, simulated.output
+    engine = engine_factory()
+    tolerances = {"gap_mm": {"min": 0.5, "max": 3.0}, "step_mm": {"max": 1.2}}
+    patched = engine.http.patch(
+        f"/api/v1/inspections/{engine.inspection}", json={"tolerances": tolerances}
+    )
+    assert patched.status_code == 200, patched.text
+    pairs = _upload(engine, example / "pairs.json", "pairs", "application/json")
+    manifest = _upload(engine, example / "scans.json", "scans", "application/json")
+    scans = [
+        _upload(engine, path, "scan", "application/x-ply")
+        for path in sorted(example.glob("scan_*.ply"))
+    ]
+    run = engine.run(
+        [
+            {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
+            {
+                "name": "stitch",
+                "kind": "stitch",
+                "inputs": [manifest, *scans],
+                "after": ["calibrate"],
+            },
+            {"name": "measure", "kind": "measure", "after": ["stitch"]},
+        ]
+    )
+    jobs = [engine.wait(j["id"], timeout=180) for j in run["jobs"]]
+    assert [j["status"] for j in jobs] == ["succeeded"] * 3, jobs
+    measured = jobs[2]["result"]
+    assert measured["seams"] == 4 and measured["junctions"] == 1 and measured["panels"] == 4
+    defects = engine.http.get(
+        "/api/v1/defects", params={"inspection": engine.inspection, "run": run["id"], "limit": 200}
+    ).json()["items"]
+    truth = json.loads((example / "truth.json").read_text())
+    found = [d for d in defects if d["severity"] != "info"]
+    assert len(found) == measured["defects"]
+    # every true step over 1.2 mm and every surface defect is on the list
+    big_steps = [s for s in truth["seams"] if abs(s["step_mm"]) > 1.2]
+    assert len([d for d in found if d["type"] == "step"]) == len(big_steps)
+    for kind in ("dent", "bump", "scratch", "color"):
+        expected = [d for d in truth["defects"] if d["type"] == kind]
+        assert len([d for d in found if d["type"] == kind]) == len(expected), kind
+    # seams within tolerance stay as measurements, with their profile
+    flagged = {d["measurements"]["seam"] for d in found if "seam" in d["measurements"]}
+    info = [d for d in defects if d["severity"] == "info"]
+    assert len(info) == 4 - len(flagged)
+    assert all(d["type"] == "gap" and "gap_mm" in d["measurements"] for d in info)
+    colour = next(d for d in found if d["type"] == "color")
+    assert colour["value_mm"] is None and colour["measurements"]["unit"] == "delta_e"
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    produced = {
+        a["name"]
+        for a in engine.http.get(base, params={"limit": 100}).json()["items"]
+        if a["job_id"] == jobs[2]["id"]
+    }
+    assert produced == {"defects.json", "seam-profiles.png"}

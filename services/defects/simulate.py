@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.pointcloud.color import lab_to_srgb
+from services.pointcloud.color import lab_to_srgb, srgb_to_lab
 from services.pointcloud.transforms import apply, invert
 from services.stitching.scan_sim import Mesh, Scanner, SensorModel
 
@@ -269,12 +269,24 @@ def _random_defects(
         axes = rng.uniform(*spec.patch_size_mm, 2) / 2
         centre = place(float(axes.max()))
         if centre is not None:
-            direction = rng.normal(size=3)
-            delta = direction / np.linalg.norm(direction) * rng.uniform(*spec.patch_delta_e)
+            delta = _in_gamut_shift(rng.uniform(*spec.patch_delta_e), rng)
             patches.append(
                 ColorPatch(tuple(centre), tuple(axes), float(rng.uniform(0, 180)), tuple(delta))
             )
     return tuple(dents), tuple(scratches), tuple(patches)
+
+
+def _in_gamut_shift(delta_e: float, rng: np.random.Generator) -> np.ndarray:
+    """A random L*a*b* shift of size ``delta_e`` that the lining colour survives in 8-bit
+    sRGB (no clipping), so the patch's ΔE is what a camera can record."""
+    base = np.array(PANEL_LAB)
+    for _ in range(1000):
+        direction = rng.normal(size=3)
+        delta = direction / np.linalg.norm(direction) * delta_e
+        shown = srgb_to_lab(lab_to_srgb(base + delta)) - srgb_to_lab(lab_to_srgb(base))
+        if abs(np.linalg.norm(shown) - delta_e) < 0.3:
+            return delta
+    raise ValueError(f"no in-gamut colour shift of ΔE {delta_e} from {PANEL_LAB}")
 
 
 # --- geometry ----------------------------------------------------------------------------

@@ -227,8 +227,62 @@ def _relief(
                 _confidence(abs(depth), config.dent_detect_mm, 0.01),
             )
         )
-    scratches = _scratches(raster, label, deviation, inside, relief_mask, origin, config)
+    scratches = _join_collinear(
+        _scratches(raster, label, deviation, inside, relief_mask, origin, config)
+    )
     return [f for f in findings if not any(_on_scratch(f, s) for s in scratches)] + scratches
+
+
+def _join_collinear(
+    scratches: list[SurfaceFinding], gap_mm: float = 6.0, offset_mm: float = 1.0
+) -> list[SurfaceFinding]:
+    """Pieces of one scratch (a narrow groove breaks up where the sampling misses it) into
+    one: pieces in line (≤ 10°, ≤ ``offset_mm`` apart across) with ≤ ``gap_mm`` between."""
+    pieces = list(scratches)
+    joined = True
+    while joined:
+        joined = False
+        for i in range(len(pieces)):
+            for j in range(i + 1, len(pieces)):
+                a, b = pieces[i], pieces[j]
+                da = np.array(a.measurements["direction_uv"])
+                db = np.array(b.measurements["direction_uv"])
+                offset = b.at_uv - a.at_uv
+                across = abs(offset @ np.array([-da[1], da[0]]))
+                between = abs(offset @ da) - (a.extent_mm + b.extent_mm) / 2
+                if (
+                    abs(da @ db) > np.cos(np.radians(10))
+                    and across <= offset_mm
+                    and between <= gap_mm
+                ):
+                    pieces[i] = _merged(a, b, da)
+                    del pieces[j]
+                    joined = True
+                    break
+            if joined:
+                break
+    return pieces
+
+
+def _merged(a: SurfaceFinding, b: SurfaceFinding, direction: np.ndarray) -> SurfaceFinding:
+    ends = [f.at_uv + sign * f.extent_mm / 2 * direction for f in (a, b) for sign in (-1, 1)]
+    along = [e @ direction for e in ends]
+    first, last = ends[int(np.argmin(along))], ends[int(np.argmax(along))]
+    length = float(np.linalg.norm(last - first))
+    depth = max(a.value, b.value)
+    width = (
+        a.measurements["width_mm"] * a.extent_mm + b.measurements["width_mm"] * b.extent_mm
+    ) / (a.extent_mm + b.extent_mm)
+    measurements = {**a.measurements, "depth_mm": depth, "length_mm": length, "width_mm": width}
+    return SurfaceFinding(
+        "scratch",
+        a.panel,
+        (first + last) / 2,
+        depth,
+        length,
+        measurements,
+        max(a.confidence, b.confidence),
+    )
 
 
 def _on_scratch(finding: SurfaceFinding, scratch: SurfaceFinding, margin_mm: float = 2.0) -> bool:

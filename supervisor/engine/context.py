@@ -51,6 +51,8 @@ class JobClaim:
     attempt: int
     max_attempts: int
     inputs: tuple[InputArtifact, ...]
+    tolerances: dict = field(default_factory=dict)
+    """The inspection's acceptance limits (its ``tolerances``) when the job was claimed."""
 
 
 @dataclass(frozen=True)

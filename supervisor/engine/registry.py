@@ -13,7 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-BUILTIN_KIND_MODULES = ("services.scan.kinds", "services.stitching.kinds")
+BUILTIN_KIND_MODULES = ("services.scan.kinds", "services.stitching.kinds", "services.defects.kinds")
 
 
 @dataclass(frozen=True)

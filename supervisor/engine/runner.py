@@ -33,7 +33,7 @@ from supervisor.engine.dispatch import Dispatch, dispatch
 from supervisor.engine.errors import JobCancelled, JobLost, JobTimeLimit, is_transient
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
-from supervisor.models import Artifact, Defect, Job, JobDependency
+from supervisor.models import Artifact, Defect, Inspection, Job, JobDependency
 from supervisor.models._types import utcnow
 from supervisor.settings import get_settings
 
@@ -118,6 +118,12 @@ def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:
             attempt=job.attempts,
             max_attempts=job.max_attempts,
             inputs=_inputs(rt, session, job),
+            tolerances=dict(
+                session.scalar(
+                    select(Inspection.tolerances).where(Inspection.id == job.inspection_id)
+                )
+                or {}
+            ),
         )
 
 

@@ -1,0 +1,105 @@
+"""Job handler ``measure``: a stitched cloud and the inspection's tolerances in; RESULT.json,
+the profile plot and the defects out."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from services.defects.config import ConfigError, parse_config
+from services.defects.measure import Finding, MeasureError, MeasureResult, measure
+from services.defects.report import finding_document, profile_png, result_document
+from services.pointcloud.ply import PlyError, read_ply
+from supervisor.engine.context import JobContext, NewDefect
+from supervisor.engine.errors import JobInputError
+
+
+def _new_defect(finding: Finding, severity: str | None = None) -> NewDefect:
+    document = finding_document(finding)
+    in_mm = finding.unit == "mm"
+    return NewDefect(
+        type=finding.type,
+        location_mm=tuple(document["location"]),
+        normal=tuple(document["normal"]),
+        value_mm=document["value"] if in_mm else None,
+        tolerance_mm=document["tolerance"] if in_mm else None,
+        extent_mm=document["extent_mm"],
+        severity=severity or finding.severity,
+        confidence=document["confidence"],
+        measurements={
+            "value": document["value"],
+            "unit": finding.unit,
+            "tolerance": document["tolerance"],
+            **finding.source,
+            **document["measurements"],
+        },
+    )
+
+
+def _in_tolerance_seams(result: MeasureResult) -> list[NewDefect]:
+    """One `info` row per seam none of whose measurements is out of tolerance."""
+    flagged = {f.source["seam"] for f in result.defects if "seam" in f.source}
+    rows = []
+    for finding in result.findings:
+        seam = finding.source.get("seam")
+        if finding.type == "gap" and seam not in flagged:
+            rows.append(_new_defect(finding, severity="info"))
+    return rows
+
+
+def measure_job(ctx: JobContext) -> dict:
+    params = ctx.params
+    clouds = ctx.inputs_of_kind("cloud")
+    if len(clouds) != 1:
+        names = ", ".join(a.name for a in clouds) or "none"
+        raise JobInputError(f"measure needs exactly one `cloud` artifact; got {names}")
+    cloud = clouds[0]
+    try:
+        config = parse_config(ctx.claim.tolerances, "the inspection's tolerances")
+    except ConfigError as exc:
+        raise JobInputError(str(exc)) from exc
+    config = replace(
+        config,
+        cell_mm=params.cell_mm,
+        max_gap_mm=params.max_gap_mm,
+        sections=replace(config.sections, pitch_mm=params.pitch_mm),
+    )
+    ctx.progress(0.02, f"reading {cloud.name}")
+    try:
+        points = read_ply(cloud.path)
+    except PlyError as exc:
+        raise JobInputError(
+            str(exc).replace(str(cloud.path), f"artifact {cloud.id} ({cloud.name})")
+        ) from exc
+    try:
+        result = measure(
+            points,
+            config,
+            progress=lambda fraction, message: ctx.progress(0.1 + 0.8 * fraction, message),
+        )
+    except MeasureError as exc:
+        raise JobInputError(f"artifact {cloud.id} ({cloud.name}): {exc}") from exc
+    ctx.progress(0.92, "storing results")
+    ctx.add_artifact_json(result_document(result, config), kind="report", name="defects.json")
+    plot = ctx.workdir / "seam-profiles.png"
+    profile_png(result, config, plot)
+    ctx.add_artifact_file(plot, kind="plot", name="seam-profiles.png", media_type="image/png")
+    defects = [_new_defect(f) for f in result.defects]
+    if params.keep_in_tolerance:
+        defects += _in_tolerance_seams(result)
+    for defect in defects:
+        ctx.add_defect(defect)
+    by_type: dict[str, int] = {}
+    for finding in result.defects:
+        by_type[finding.type] = by_type.get(finding.type, 0) + 1
+    ctx.progress(
+        1.0, f"{len(result.defects)} defects out of tolerance in {len(result.seams)} seams"
+    )
+    return {
+        "panels": len(result.panel_areas_mm2),
+        "panel_area_m2": round(result.panel_area_m2, 5),
+        "seams": len(result.seams),
+        "junctions": len(result.junctions),
+        "defects": len(result.defects),
+        "defects_by_type": by_type,
+        "seconds": round(sum(result.seconds.values()), 3),
+    }

@@ -1,0 +1,36 @@
+"""Job kind of the defects service (imported by the API: keep it light)."""
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from supervisor.engine.registry import JobKind, register
+
+
+class MeasureParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    pitch_mm: float = Field(2.0, ge=0.2, le=100, description="Distance between seam sections.")
+    cell_mm: float = Field(
+        0.2, ge=0.05, le=5, description="Height-map cell (raised for sparse clouds)."
+    )
+    max_gap_mm: float = Field(10.0, gt=0, le=100, description="Widest gap to look for.")
+    keep_in_tolerance: bool = Field(
+        True, description="Store seams within tolerance as `info` measurements too."
+    )
+
+
+MEASURE = register(
+    JobKind(
+        name="measure",
+        queue="defects",
+        handler="services.defects.jobs:measure_job",
+        params=MeasureParams,
+        description=(
+            "Gap, step, parallelism and mismatch of every seam and junction, and dents, "
+            "bumps, scratches and colour patches, in a stitched `cloud` artifact (from a "
+            "`stitch` step or uploaded), judged against the inspection's tolerances. Writes "
+            "RESULT.json (kind `report`), the seam profiles (kind `plot`) and one defect per "
+            "finding out of tolerance (severity `info` for seams within it)."
+        ),
+        input_kinds=("cloud",),
+    )
+)

@@ -1,0 +1,214 @@
+"""Defect measurement against the simulator's ground truth (small assemblies; the accuracy
+sweep at 0.1 mm spacing is `vista bench defects`)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from services.defects.config import ConfigError, MeasureConfig, Tolerances, parse_config
+from services.defects.evaluate import evaluate
+from services.defects.example import write_defects_example
+from services.defects.measure import MeasureError, measure, severity
+from services.defects.report import result_document
+from services.defects.simulate import (
+    AssemblySpec,
+    edge_drop_mm,
+    layout_to_part,
+    part_to_layout,
+    random_assembly,
+    seam_gap_mm,
+)
+from services.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
+from services.pointcloud.ply import PointCloud, read_ply
+from supervisor.cli import app
+
+
+@pytest.fixture(scope="module")
+def flat_example(tmp_path_factory):
+    """A 2 × 2 flat assembly scanned every 0.2 mm, merged at the true poses."""
+    out = tmp_path_factory.mktemp("flat")
+    write_defects_example(out, AssemblySpec(), grid=(500, 770), seed=3)
+    return out
+
+
+def test_lab_round_trip_and_delta_e() -> None:
+    lab = np.array([[86.0, 0.5, 6.0], [50.0, 20.0, -30.0]])
+    back = srgb_to_lab(lab_to_srgb(lab))
+    assert np.all(delta_e(back, lab) < 0.6)  # 8-bit quantisation only
+    white = srgb_to_lab(np.array([255, 255, 255], np.uint8))
+    assert np.allclose(white, [100, 0, 0], atol=0.01)
+
+
+def test_simulated_layout_is_exact() -> None:
+    spec = AssemblySpec(rows=2, cols=3, radius_mm=1500.0)
+    assembly = random_assembly(spec, np.random.default_rng(1))
+    assert len(assembly.seams) == 7 and len(assembly.junctions) == 2
+    assert all(len(seams) == 4 for _, seams in assembly.junctions)
+    # layout ↔ part frame on the cylinder
+    layout = np.array([[10.0, 40.0], [200.0, -30.0]])
+    heights = np.array([1.5, -2.0])
+    back, h = part_to_layout(assembly, layout_to_part(assembly, layout, heights))
+    assert np.allclose(back, layout) and np.allclose(h, heights)
+    # each seam's ends: the two panel edges are the gap apart there
+    panels = {p.id: p for p in assembly.panels}
+    for seam in assembly.seams:
+        a, b = panels[seam.panels[0]], panels[seam.panels[1]]
+        assert abs(a.height_mm - b.height_mm + seam.step_mm) < 1e-12
+        gaps = seam_gap_mm(assembly, seam, np.array([0.0, 1.0]))
+        assert np.all((gaps > 0.29) & (gaps < 6.01))
+    # the rounded edge falls by the radius at the edge and not at all a radius inside
+    panel = assembly.panels[0]
+    drops = edge_drop_mm(panel, np.array([0.0, panel.edge_radius_mm, 5.0]))
+    assert np.allclose(drops, [panel.edge_radius_mm, 0.0, 0.0])
+
+
+def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) -> None:
+    cloud = read_ply(flat_example / "cloud.ply")
+    truth = json.loads((flat_example / "truth.json").read_text())
+    config = MeasureConfig()
+    result = measure(cloud, config)
+    summary = evaluate(result, truth, config.tolerances).summary()
+    assert summary["seams"] == "4/4 (+0 spurious)" and summary["junctions"] == "1/1"
+    assert summary["sections"] > 150
+    # 0.2 mm spacing here; the issue's 0.05 mm targets are for 0.1 mm (the bench)
+    assert summary["gap_error_p95_mm"] < 0.05
+    assert summary["step_error_p95_mm"] < 0.05
+    assert summary["parallelism_error_max_mm"] < 0.05
+    assert summary["mismatch_error_max_mm"] < 0.05
+    for kind, counts in summary["geometric"].items():
+        assert counts["fp"] == 0 and counts["fn"] == 0, (kind, counts)
+    # the fitted edge radii are the panels'
+    radii = {round(p["edge_radius_mm"], 2) for p in truth["panels"]}
+    measured = [r for s in result.seams for r in s.edge_radius_mm]
+    assert all(min(abs(r - t) for t in radii) < 0.15 for r in measured)
+
+
+def test_finds_every_surface_defect_without_false_alarms(flat_example) -> None:
+    cloud = read_ply(flat_example / "cloud.ply")
+    truth = json.loads((flat_example / "truth.json").read_text())
+    result = measure(cloud, MeasureConfig())
+    summary = evaluate(result, truth, Tolerances()).summary()
+    for kind, counts in summary["surface"].items():
+        assert counts["fn"] == 0 and counts["fp"] == 0, (kind, counts)
+    dents = [f for f in result.findings if f.type in ("dent", "bump")]
+    true_dents = [d for d in truth["defects"] if d["type"] in ("dent", "bump")]
+    for d in true_dents:
+        near = min(dents, key=lambda f: np.linalg.norm(f.location - d["location"]))
+        assert abs(near.value - d["depth_mm"]) < 0.05 * d["depth_mm"] + 0.02
+    colors = [f for f in result.findings if f.type == "color"]
+    for d in (d for d in truth["defects"] if d["type"] == "color"):
+        near = min(colors, key=lambda f: np.linalg.norm(f.location - d["location"]))
+        assert abs(near.value - d["delta_e"]) < 0.25 * d["delta_e"]
+
+
+def test_result_document_follows_the_contract(flat_example) -> None:
+    config = MeasureConfig()
+    result = measure(read_ply(flat_example / "cloud.ply"), config)
+    document = result_document(result, config)
+    seam = document["seams"][0]
+    assert {
+        "id",
+        "panels",
+        "start",
+        "end",
+        "length_mm",
+        "gap_mm",
+        "step_mm",
+        "parallelism_mm",
+        "sections",
+    } <= set(seam)
+    assert set(seam["gap_mm"]) == {"min", "mean", "max"} and len(seam["start"]) == 3
+    assert {"at", "gap_mm", "step_mm"} == set(seam["sections"][0])
+    assert {"at", "seams", "mismatch_mm"} <= set(document["junctions"][0])
+    for defect in document["defects"]:
+        assert {
+            "type",
+            "value_mm",
+            "tolerance_mm",
+            "location",
+            "normal",
+            "extent_mm",
+            "severity",
+            "confidence",
+        } <= set(defect)
+        assert defect["severity"] in ("minor", "major", "critical")
+        assert abs(np.linalg.norm(defect["normal"]) - 1) < 1e-3
+    json.dumps(document, allow_nan=False)
+
+
+def test_tolerances_decide_what_is_a_defect(flat_example) -> None:
+    cloud = read_ply(flat_example / "cloud.ply")
+    lenient = parse_config(
+        {
+            "gap_mm": {"min": 0, "max": 50},
+            "step_mm": {"max": 50},
+            "parallelism_mm": {"max": 50},
+            "mismatch_mm": {"max": 50},
+            "surface": {"dent_depth_mm": 50, "scratch_depth_mm": 50, "color_delta_e": 500},
+        }
+    )
+    result = measure(cloud, lenient)
+    assert result.defects == [] and len(result.seams) == 4
+    assert {f.severity for f in result.findings} == {"info"}
+    assert (
+        severity(0.6, 0.5, above=True) == "minor" and severity(1.2, 0.5, above=True) == "critical"
+    )
+    assert severity(0.2, 0.5, above=False) == "major" and severity(0.4, 0.5, above=True) == "info"
+
+
+def test_config_errors_name_the_key() -> None:
+    with pytest.raises(ConfigError, match=r"config.step_mm.max must be a positive number"):
+        parse_config({"step_mm": {"max": -1}})
+    with pytest.raises(ConfigError, match=r"unknown keys \['gap'\]"):
+        parse_config({"gap": {"max": 1}})
+    with pytest.raises(ConfigError, match=r"min 2.0 must be below max 1.0"):
+        parse_config({"gap_mm": {"min": 2, "max": 1}})
+    with pytest.raises(ConfigError, match=r"measurement: unknown key 'speed'"):
+        parse_config({"measurement": {"speed": 2}})
+    config = parse_config({"gap_mm": {"max": 4}, "measurement": {"pitch_mm": 5}})
+    assert config.tolerances.gap_max_mm == 4 and config.tolerances.gap_min_mm == 0.5
+    assert config.sections.pitch_mm == 5
+
+
+def test_a_cloud_without_panels_is_refused() -> None:
+    rng = np.random.default_rng(0)
+    spray = PointCloud(points=rng.uniform(0, 50, (5000, 3)).astype(np.float32))
+    with pytest.raises(MeasureError, match="no panel top"):
+        measure(spray, MeasureConfig())
+    with pytest.raises(MeasureError, match="at least 1000"):
+        measure(PointCloud(points=np.full((10, 3), np.nan, np.float32)), MeasureConfig())
+
+
+def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
+    runner = CliRunner()
+    out = tmp_path / "result.json"
+    done = runner.invoke(
+        app,
+        [
+            "measure",
+            str(flat_example / "cloud.ply"),
+            "--config",
+            str(flat_example / "config.json"),
+            "-o",
+            str(out),
+            "--plot",
+            str(tmp_path / "p.png"),
+            "--truth",
+            str(flat_example / "truth.json"),
+        ],
+    )
+    assert done.exit_code == 0, done.output
+    assert "4 seams, 1 junctions" in done.output and "against the truth" in done.output
+    assert json.loads(out.read_text())["seams"] and (tmp_path / "p.png").stat().st_size > 10_000
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"step_mm": {"max": "big"}}')
+    failed = runner.invoke(
+        app, ["measure", str(flat_example / "cloud.ply"), "--config", str(bad), "-o", str(out)]
+    )
+    assert failed.exit_code == 2 and "step_mm.max must be a positive number" in failed.output
+    missing = runner.invoke(app, ["measure", str(tmp_path / "none.ply"), "-o", str(out)])
+    assert missing.exit_code == 2 and "none.ply" in missing.output
