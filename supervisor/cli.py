@@ -203,3 +203,47 @@ defects_cli.register(app, simulate_app, bench_app)
 
 if __name__ == "__main__":
     app()
+
+
+@app.command()
+def demo(
+    spacing_mm: float = typer.Option(
+        0.2, min=0.1, max=0.5, help="Sensor sampling on the panels (0.1 = Gocator density, slower)."
+    ),
+    seed: int = typer.Option(0, help="Which simulated assembly."),
+    timeout: float = typer.Option(900, min=10, help="Seconds to wait for the run."),
+) -> None:
+    """Simulate a curved cabin sidewall with seams out of tolerance and surface defects and
+    run it through the whole chain (upload → calibrate → stitch → measure) on this
+    installation, so its inspection list shows real findings."""
+    from supervisor.demo import DEMO_PASSWORD, DEMO_USER, DemoError, run_demo
+
+    settings = get_settings()
+    try:
+        outcome = run_demo(
+            settings, spacing_mm=spacing_mm, seed=seed, timeout_s=timeout, say=typer.echo
+        )
+    except DemoError as exc:
+        _fail(str(exc))
+    inspection, run, defects = outcome["inspection"], outcome["run"], outcome["defects"]
+    measured = next(j for j in run["jobs"] if j["step"] == "measure")["result"]
+    found = [d for d in defects if d["severity"] != "info"]
+    typer.echo(
+        f"\ninspection {inspection['id']} “{inspection['title']}”, run {run['id']}: "
+        f"{measured['panels']} panels, {measured['seams']} seams, {measured['junctions']} "
+        f"junctions; {len(found)} defects out of tolerance, "
+        f"{len(defects) - len(found)} seams within it"
+    )
+    for d in sorted(found, key=lambda d: (d["type"], d["id"])):
+        m = d["measurements"]
+        unit = "ΔE" if m.get("unit") == "delta_e" else "mm"
+        typer.echo(
+            f"  #{d['id']:<5} {d['type']:<11} {m['value']:>8.3f} {unit} "
+            f"(tolerance {m['tolerance']:g}) {d['severity']:<8} confidence {d['confidence']:.2f}"
+        )
+    typer.echo(
+        f"\nsimulated data and its ground truth: {outcome['folder']}\n"
+        f"see it in the API: vista serve, then http://{settings.host}:{settings.port}/docs "
+        f"(sign in as {DEMO_USER} / {DEMO_PASSWORD}); GET /api/v1/defects?inspection="
+        f"{inspection['id']}"
+    )

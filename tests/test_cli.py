@@ -52,3 +52,24 @@ def test_unknown_worker_queue_is_refused(cli, monkeypatch):
     get_settings.cache_clear()
     refused = cli("worker", "--queues", "scan,paint")
     assert refused.exit_code == 2 and "unknown queue(s) ['paint']" in refused.output
+
+
+def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
+    shown = cli("demo", "--spacing-mm", "0.3", "--timeout", "300")
+    assert shown.exit_code == 0, shown.output
+    assert "calibrate succeeded 100%, stitch succeeded 100%, measure succeeded 100%" in shown.output
+    assert "“Demo: cabin sidewall lining”" in shown.output
+    for kind in ("dent", "bump", "scratch", "color"):
+        assert f" {kind} " in shown.output, kind
+    # the findings are the inspection's: a reviewer signing in sees them
+    with TestClient(create_app(get_settings(), run_engine=False)) as client:
+        signed_in = client.post(
+            "/api/v1/auth/token", json={"username": "demo", "password": "vista-demo"}
+        )
+        assert signed_in.status_code in (200, 201), signed_in.text
+        client.headers["authorization"] = f"Bearer {signed_in.json()['access_token']}"
+        defects = client.get("/api/v1/defects", params={"inspection": 1, "limit": 200}).json()
+    assert len([d for d in defects["items"] if d["severity"] != "info"]) >= 8
+    # a second demo adds a second inspection, the demo user is reused
+    again = cli("demo", "--spacing-mm", "0.3", "--seed", "1", "--timeout", "300")
+    assert again.exit_code == 0 and "inspection 2 " in again.output

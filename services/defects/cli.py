@@ -136,6 +136,21 @@ def simulate_defects(
     )
 
 
+def bench_defects(
+    out: Path = typer.Option(Path("bench-results/defects.json"), help="Where to write the JSON."),
+    seeds: int = typer.Option(2, min=1, help="Simulated assemblies per case."),
+    seed: int = typer.Option(0, help="Random seed."),
+) -> None:
+    """Gap, step, parallelism and mismatch accuracy against ground truth over a sweep (gap,
+    step, taper, edge radius, noise, curvature, density) with a single-profile gauge as the
+    peer; detection precision/recall per defect type; seconds per m². Prints tables,
+    writes JSON."""
+    from services.defects.bench import run_defects_bench
+
+    run_defects_bench(out, seeds=seeds, seed=seed)
+
+
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
     app.command("measure")(measure)
     simulate_app.command("defects")(simulate_defects)
+    bench_app.command("defects")(bench_defects)

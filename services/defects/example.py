@@ -16,7 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from services.defects.config import MeasureConfig, config_document
-from services.defects.simulate import AssemblySpec, random_assembly, scan_assembly, truth_document
+from services.defects.simulate import (
+    AssemblyScans,
+    AssemblySpec,
+    random_assembly,
+    scan_assembly,
+    truth_document,
+)
 from services.pointcloud.ply import PointCloud, write_ply
 from services.pointcloud.transforms import invert, make_transform, perturb, to_json
 from services.stitching.calibration_sim import simulate_calibration
@@ -36,6 +42,18 @@ class DefectsExample:
     junctions: int
     defects: int
     cloud_points: int
+
+
+def merged_cloud(scans: AssemblyScans, voxel_mm: float) -> PointCloud:
+    """The scans merged at their true poses (cleaned, closest-vertex merge): a perfect
+    stitch."""
+    clouds = [
+        PointCloud(points=g.reshape(-1, 3), colors=c.reshape(-1, 3), grid_shape=g.shape[:2])
+        for g, c in zip(scans.scans, scans.colors, strict=True)
+    ]
+    return stitch(
+        clouds, scans.base_T_sensor, np.eye(4), config=StitchConfig(voxel_mm=voxel_mm)
+    ).cloud
 
 
 def write_defects_example(
@@ -62,16 +80,7 @@ def write_defects_example(
     say(f"writing {len(scans.scans)} scans")
     write_session(out_dir, session, scans.scans, scans.colors, reported)
     say("merging the scans at their true poses into cloud.ply")
-    clouds = [
-        PointCloud(points=g.reshape(-1, 3), colors=c.reshape(-1, 3), grid_shape=g.shape[:2])
-        for g, c in zip(scans.scans, scans.colors, strict=True)
-    ]
-    merged = stitch(
-        clouds,
-        true_base_T_flange,
-        session.true_flange_T_sensor,
-        config=StitchConfig(voxel_mm=voxel_mm),
-    ).cloud
+    merged = merged_cloud(scans, voxel_mm)
     write_ply(out_dir / "cloud.ply", merged, comments=("vista simulated assembly, base frame, mm",))
     truth = {
         **calibration_truth(session),

@@ -40,6 +40,10 @@ class SectionConfig:
     end_margin_mm: float = 3.0
     """Sections stop this far (plus the half band of the seams around) from a seam's ends,
     clear of crossing seams and the rounded corners."""
+    edge_model: str = "arc"
+    """``arc``: the side faces from the fitted rounded edges (vista). ``void``: the last
+    measured point of each panel, what a single-profile gap gauge reports (the peer in
+    ``vista bench defects``)."""
 
 
 @dataclass(frozen=True)
@@ -88,7 +92,10 @@ def profile_seam(
     xm = np.where(side == 0, x - end_a[k], end_b[k] - x)
     group = 2 * k + side
     tops = _fit_tops(group, xm, w, y, config, 2 * count)
-    edge_x, radius, rms = _fit_edges(group, xm, w, y, tops, config, 2 * count)
+    if config.edge_model == "void":
+        edge_x, radius, rms = np.zeros(2 * count), np.full(2, np.nan), np.zeros(2 * count)
+    else:
+        edge_x, radius, rms = _fit_edges(group, xm, w, y, tops, config, 2 * count)
     alpha, beta = tops[:, 0], tops[:, 1]
     # Back to the section's (x, w): the side faces at top level, and the top directions.
     norm = np.sqrt(1 + beta**2)

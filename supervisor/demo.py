@@ -1,0 +1,164 @@
+"""``vista demo``: a simulated cabin sidewall inspected end to end through the real API.
+
+It simulates a curved assembly of lining panels with seams out of tolerance and surface
+defects, then — as a client would — creates an inspection with tolerances, uploads the
+calibration pairs and the scans, and starts one run calibrate → stitch → measure. The
+jobs run on this installation's engine (embedded, or the workers of a broker), and the
+findings land in the inspection's defect list, ready for reviewers.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from supervisor.settings import Settings
+
+DEMO_USER = "demo"
+DEMO_PASSWORD = "vista-demo"
+TOLERANCES = {
+    "gap_mm": {"min": 0.5, "max": 3.0},
+    "step_mm": {"max": 0.8},
+    "parallelism_mm": {"max": 0.5},
+    "mismatch_mm": {"max": 1.0},
+    "surface": {"dent_depth_mm": 0.3, "scratch_depth_mm": 0.1, "color_delta_e": 4.0},
+}
+
+
+class DemoError(RuntimeError):
+    pass
+
+
+def _demo_token(settings: Settings) -> str:
+    """A fresh API token for the demo inspector (created on first use)."""
+    from sqlalchemy import select
+
+    from supervisor.db import Database
+    from supervisor.models import User
+    from supervisor.users.service import create_token, create_user
+
+    db = Database(settings.resolved_database_url)
+    try:
+        with db.write() as session:
+            user = session.scalar(select(User).where(User.username == DEMO_USER))
+            if user is None:
+                user = create_user(
+                    session, username=DEMO_USER, role="inspector", password=DEMO_PASSWORD
+                )
+            return create_token(session, user=user, name="vista demo", kind="cli", ttl_hours=24)
+    finally:
+        db.dispose()
+
+
+def run_demo(
+    settings: Settings,
+    *,
+    spacing_mm: float,
+    seed: int,
+    timeout_s: float,
+    say: Callable[[str], None],
+) -> dict:
+    """Simulate, upload, run and wait; the inspection, its run and its defects."""
+    from fastapi.testclient import TestClient
+
+    from services.defects.example import write_defects_example
+    from services.defects.simulate import AssemblySpec
+    from supervisor.app import create_app
+    from supervisor.migrate import upgrade
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    upgrade(settings.resolved_database_url, "head")
+    folder = settings.data_dir / "demo" / f"assembly-{seed}"
+    spec = AssemblySpec(
+        rows=2,
+        cols=2,
+        panel_mm=(150.0, 100.0),
+        radius_mm=2000.0,
+        gap_mm=(0.8, 3.6),
+        step_mm=(-1.2, 1.2),
+        taper_mm=(0.0, 0.8),
+    )
+    say(f"simulating a curved cabin sidewall (2 × 2 panels, R 2000 mm) into {folder}")
+    grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
+    write_defects_example(folder, spec, grid=grid, seed=seed, progress=say)
+    token = _demo_token(settings)
+    with TestClient(create_app(settings)) as client:
+        client.headers["authorization"] = f"Bearer {token}"
+
+        def call(method: str, url: str, **kwargs) -> dict:  # noqa: ANN003
+            response = client.request(method, url, **kwargs)
+            if response.status_code >= 400:
+                raise DemoError(f"{method} {url}: {response.status_code} {response.text}")
+            return response.json() if response.content else {}
+
+        inspection = call(
+            "POST",
+            "/api/v1/inspections",
+            json={
+                "title": "Demo: cabin sidewall lining",
+                "aircraft": "simulated",
+                "area": "cabin",
+                "tolerances": TOLERANCES,
+            },
+        )
+        base = f"/api/v1/inspections/{inspection['id']}"
+
+        def upload(path: Path, kind: str, media_type: str) -> int:
+            return call(
+                "POST",
+                f"{base}/artifacts",
+                params={"kind": kind, "name": path.name},
+                content=path.read_bytes(),
+                headers={"content-type": media_type},
+            )["id"]
+
+        say("uploading the calibration pairs and the scans")
+        pairs = upload(folder / "pairs.json", "pairs", "application/json")
+        manifest = upload(folder / "scans.json", "scans", "application/json")
+        scans = [upload(p, "scan", "application/x-ply") for p in sorted(folder.glob("scan_*.ply"))]
+        run = call(
+            "POST",
+            f"{base}/runs",
+            json={
+                "name": "demo: calibrate → stitch → measure",
+                "steps": [
+                    {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
+                    {
+                        "name": "stitch",
+                        "kind": "stitch",
+                        "inputs": [manifest, *scans],
+                        "after": ["calibrate"],
+                        "params": {"voxel_mm": 0.1},
+                    },
+                    {"name": "measure", "kind": "measure", "after": ["stitch"]},
+                ],
+            },
+        )
+        run = _wait(call, run["id"], timeout_s, say)
+        failed = [j for j in run["jobs"] if j["status"] != "succeeded"]
+        if failed:
+            job = failed[0]
+            raise DemoError(f"job {job['id']} ({job['step']}) {job['status']}: {job['error']}")
+        defects = call("GET", "/api/v1/defects", params={"run": run["id"], "limit": 500})["items"]
+    return {"inspection": inspection, "run": run, "defects": defects, "folder": folder}
+
+
+def _wait(call: Callable, run_id: int, timeout_s: float, say: Callable[[str], None]) -> dict:
+    deadline = time.monotonic() + timeout_s
+    shown = ""
+    while True:
+        run = call("GET", f"/api/v1/runs/{run_id}")
+        running = [j for j in run["jobs"] if j["status"] in ("queued", "running", "waiting")]
+        line = ", ".join(f"{j['step']} {j['status']} {j['progress']:.0%}" for j in run["jobs"])
+        if line != shown:
+            say(line)
+            shown = line
+        if not running:
+            return run
+        if time.monotonic() > deadline:
+            raise DemoError(
+                f"the run did not finish in {timeout_s:.0f} s ({line}); with a broker "
+                "configured, start workers: vista worker --queues stitching,defects"
+            )
+        time.sleep(0.5)
