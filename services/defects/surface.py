@@ -78,8 +78,10 @@ def _blocks(values: np.ndarray, weights: np.ndarray, block: int) -> tuple[np.nda
 
 
 def _normalised_smooth(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
-    numerator = ndimage.gaussian_filter(np.where(weights > 0, values * weights, 0.0), sigma)
-    denominator = ndimage.gaussian_filter(weights.astype(np.float64), sigma)
+    numerator = ndimage.gaussian_filter(
+        np.where(weights > 0, values * weights, 0.0), sigma, truncate=3.0
+    )
+    denominator = ndimage.gaussian_filter(weights.astype(np.float64), sigma, truncate=3.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         return numerator / denominator
 
@@ -134,19 +136,19 @@ def find_surface_defects(
     margin = max(1, int(round(config.edge_margin_mm / cell)))
     blocks_lab = None if colors is None else _block_lab(raster, colors, block)
     findings: list[SurfaceFinding] = []
-    for label in range(1, panel_count + 1):
-        region = ndimage.binary_erosion(labels == label, EIGHT_CONNECTED, iterations=margin)
-        region &= np.isfinite(raster.height)
-        if region.sum() < 100:
+    for label, found in enumerate(ndimage.find_objects(labels, panel_count), start=1):
+        if found is None:
             continue
-        rows, cols = np.nonzero(region)
-        r0, r1 = rows.min(), rows.max() + 1
-        c0, c1 = cols.min(), cols.max() + 1
         # Work in the panel's bounding box, aligned to whole blocks.
-        r0, c0 = r0 - r0 % block, c0 - c0 % block
+        r0, r1 = found[0].start - found[0].start % block, found[0].stop
+        c0, c1 = found[1].start - found[1].start % block, found[1].stop
         box = (slice(r0, r1), slice(c0, c1))
+        own = np.pad(labels[box] == label, 1)
+        inside = ndimage.distance_transform_cdt(own, metric="chessboard")[1:-1, 1:-1] > margin
         height = raster.height[box].astype(np.float64)
-        inside = region[box]
+        inside &= np.isfinite(height)
+        if inside.sum() < 100:
+            continue
         findings += _relief(raster, label, height, inside, (r0, c0), block, config)
         if blocks_lab is not None:
             lab_box = (slice(r0 // block, -(-r1 // block)), slice(c0 // block, -(-c1 // block)))
