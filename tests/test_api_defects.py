@@ -24,7 +24,7 @@ def _seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> li
             "location_mm": [float(i), 0.0, 0.0],
             "normal": [0.0, 0.0, 1.0],
             "extent_mm": 3.0,
-            "severity": "minor",
+            "severity": "info" if i % 3 == 0 else "minor",
             "confidence": 0.9,
             "source": "job",
         }
@@ -64,6 +64,10 @@ def test_filters_and_cursor_pages(client, tokens, inspection, runtime):
         "/api/v1/defects", params={"status": "resolved", "limit": 500}, headers=headers
     )
     assert [d["id"] for d in resolved.json()["items"]] == ids[0::5]
+    measurements = client.get(
+        "/api/v1/defects", params={"severity": "info", "limit": 500}, headers=headers
+    )
+    assert [d["id"] for d in measurements.json()["items"]] == ids[0::3]
     assert (
         client.get("/api/v1/defects", params={"type": "crack"}, headers=headers).status_code == 422
     )

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 import redis
 
@@ -428,3 +429,15 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
         if a["job_id"] == jobs[2]["id"]
     }
     assert produced == {"defects.json", "seam-profiles.png"}
+
+    # A cloud that holds no panel assembly fails the job with the reason, storing nothing.
+    from services.pointcloud.ply import PointCloud, write_ply
+
+    spray = tmp_path / "spray.ply"
+    points = np.random.default_rng(0).uniform(0, 50, (5000, 3)).astype(np.float32)
+    write_ply(spray, PointCloud(points=points))
+    cloud = _upload(engine, spray, "cloud", "application/x-ply")
+    lonely = engine.run([{"name": "measure", "kind": "measure", "inputs": [cloud]}])
+    failed = engine.wait(lonely["jobs"][0]["id"])
+    assert failed["status"] == "failed" and "no panel top" in failed["error"]
+    assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []

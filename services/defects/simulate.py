@@ -22,7 +22,7 @@ both ends, its step, every junction's gaps and every defect's size and place.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -147,7 +147,6 @@ class AssemblySpec:
     scratch_depth_mm: tuple[float, float] = (0.1, 0.5)
     patch_delta_e: tuple[float, float] = (5.0, 20.0)
     patch_size_mm: tuple[float, float] = (4.0, 20.0)
-    extra: dict = field(default_factory=dict)
 
 
 def random_assembly(spec: AssemblySpec, rng: np.random.Generator) -> Assembly:

@@ -24,6 +24,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import erf, sqrt
 
 import numpy as np
 from scipy import ndimage
@@ -430,6 +431,4 @@ def _color(
 def _confidence(value: float, threshold: float, sigma: float) -> float:
     """How sure a finding is real: the normal probability that a value measured this far
     above the detection threshold, with this uncertainty, is not noise."""
-    from math import erf, sqrt
-
     return float(0.5 * (1 + erf((value - threshold) / (sigma * sqrt(2)))))

@@ -12,6 +12,7 @@ from supervisor.defects.schemas import (
     DefectStatus,
     DefectType,
     DefectUpdate,
+    Severity,
 )
 from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_session, require
 from supervisor.idempotency import create_once, digest_model
@@ -30,6 +31,9 @@ def list_defects(
     run: int | None = IdQuery("Only defects found by this run."),
     type: DefectType | None = Query(None),
     status: DefectStatus | None = Query(None),
+    severity: Severity | None = Query(
+        None, description="`info` = measurements within tolerance (e.g. seams), kept for review."
+    ),
     cursor: str | None = None,
     limit: Limit = DEFAULT_LIMIT,
     session: Session = Depends(get_session),
@@ -45,6 +49,8 @@ def list_defects(
         query = query.where(Defect.type == type)
     if status is not None:
         query = query.where(Defect.status == status)
+    if severity is not None:
+        query = query.where(Defect.severity == severity)
     rows = session.scalars(query.order_by(Defect.id).limit(limit + 1)).all()
     return Page[DefectOut](
         items=service.defects_out(session, list(rows[:limit])), next_cursor=next_cursor(rows, limit)
