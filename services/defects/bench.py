@@ -6,8 +6,9 @@ Each run simulates a 2 × 2 (or 2 × 3) assembly of 150 × 100 mm panels, scans 
 stitching simulator's sensor (σ along the ray, occlusion, incidence drop-out, strays) at
 the case's spacing, merges the scans at their true poses (so only the measurement is
 judged, not the stitch) and measures it. The peer measures the same seams the way a
-profile gauge does: one scan line per section (no averaging over a slab) and the gap
-between the last measured points of each panel (no model of the rounded edge).
+profile gauge does: one scan line per section (a slab of twice the point spacing instead
+of 1 mm) and the gap between the last measured points of each panel (no model of the
+rounded edge). It is modelled on profile-based gap/flush tools, not any vendor's firmware.
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ def _run(case: SweepCase, seed: int) -> tuple[Evaluation, Evaluation]:
     truth = truth_document(assembly, BASE_T_PART)
     config = MeasureConfig()
     vista = evaluate(measure(cloud, config), truth, config.tolerances)
-    gauge_sections = replace(config.sections, slab_mm=case.spacing_mm, edge_model="void")
+    # One scan line: the slab just wide enough to hold a continuous profile of the cloud.
+    gauge_sections = replace(config.sections, slab_mm=2 * case.spacing_mm, edge_model="void")
     gauge_config = replace(config, sections=gauge_sections)
     gauge = evaluate(measure(cloud, gauge_config), truth, config.tolerances)
     return vista, gauge

@@ -11,7 +11,8 @@
   ``scratch_background_mm``) in units of its robust noise level; depressions beyond
   ``scratch_sigma`` (hysteresis from ``scratch_sigma`` + 2) that are long and thin
   (length ≥ ``scratch_min_length_mm``, length / width ≥ 4) and at least
-  ``scratch_min_depth_mm`` deep are scratches. Length from the region's principal
+  ``scratch_min_depth_mm`` deep, and not within ``relief_rim_mm`` of a dent or bump
+  (whose foot curves like a groove), are scratches. Length from the region's principal
   axes; depth = the 98th percentile of the cells' depth below the smoothed surface (a
   lower bound for scratches narrower than a cell); width = 1.5 × the mean section area
   / depth (exact for a parabolic groove).
@@ -46,7 +47,9 @@ class SurfaceConfig:
     scratch_sigma: float = 3.5
     scratch_background_mm: float = 1.5
     scratch_min_length_mm: float = 3.0
-    scratch_min_depth_mm: float = 0.03
+    scratch_min_depth_mm: float = 0.04
+    relief_rim_mm: float = 4.0
+    """No scratch is looked for this close to a dent or bump."""
     color_detect: float = 2.0
     color_min_area_mm2: float = 3.0
 
@@ -230,8 +233,11 @@ def _relief(
                 _confidence(abs(depth), config.dent_detect_mm, 0.01),
             )
         )
+    # The foot of a dent or bump curves like a groove: keep scratches off its rim.
+    rim = int(np.ceil(config.relief_rim_mm / cell))
+    near_relief = ndimage.distance_transform_cdt(~relief_mask, metric="chessboard") <= rim
     scratches = _join_collinear(
-        _scratches(raster, label, deviation, inside, relief_mask, origin, config)
+        _scratches(raster, label, deviation, inside, near_relief, origin, config)
     )
     return [f for f in findings if not any(_on_scratch(f, s) for s in scratches)] + scratches
 
