@@ -55,6 +55,8 @@ class SeamResult:
     """Scatter of the section gaps about that line."""
     step_sigma_mm: float
     edge_radius_mm: tuple[float, float]
+    edge_fit_rms_mm: float
+    """Mean RMS distance of the edge points to the fitted rounded edges."""
     normal: np.ndarray
     sections_at: np.ndarray
     """(K, 3) section centres."""
@@ -278,6 +280,7 @@ def _seam_result(index: int, profile: SeamProfile, frame: SurfaceFrame) -> SeamR
         gap_sigma_mm=max(gap_sigma, MIN_SIGMA_MM),
         step_sigma_mm=max(float(np.std(step)), MIN_SIGMA_MM),
         edge_radius_mm=profile.edge_radius_mm,
+        edge_fit_rms_mm=float(np.nanmean(profile.fit_rms_mm)) if len(profile.fit_rms_mm) else 0.0,
         normal=normal / np.linalg.norm(normal),
         sections_at=frame.to_cloud(profile.at_local),
         sections_gap_mm=gap,

@@ -55,6 +55,7 @@ def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
             "gap_at_ends_mm": [_number(g) for g in s.gap_at_ends_mm],
             "gap_sigma_mm": _number(s.gap_sigma_mm),
             "edge_radius_mm": [_number(r, 3) for r in s.edge_radius_mm],
+            "edge_fit_rms_mm": _number(s.edge_fit_rms_mm),
             "normal": _point(s.normal),
             "sections": [
                 {"at": _point(at), "gap_mm": _number(g), "step_mm": _number(st)}

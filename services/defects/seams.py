@@ -29,8 +29,6 @@ class SeamLine:
     """Extent along ``direction_uv`` from ``centre_uv``."""
     half_band_mm: float
     """Half the width of the band without panel top around the centre line."""
-    junction_ends: tuple[bool, bool] = (False, False)
-    """Whether the start / end is a junction (else the assembly's rim)."""
 
     @property
     def across_uv(self) -> np.ndarray:
@@ -185,8 +183,7 @@ def find_junctions(
             seam = seams[i]
             along = float((at - seam.centre_uv) @ seam.direction_uv)
             start, stop = (along, seam.end_mm) if end == 0 else (seam.start_mm, along)
-            flags = (True, seam.junction_ends[1]) if end == 0 else (seam.junction_ends[0], True)
-            seams[i] = replace(seam, start_mm=start, end_mm=stop, junction_ends=flags)
+            seams[i] = replace(seam, start_mm=start, end_mm=stop)
         junctions.append(
             Junction(at, tuple(ends[k][0] for k in members), tuple(ends[k][1] for k in members))
         )
