@@ -311,6 +311,17 @@ def _upload(engine: Engine, path: Path, kind: str, media_type: str) -> int:
     return response.json()["id"]
 
 
+def _upload_session(engine: Engine, example: Path) -> tuple[int, int, list[int]]:
+    """pairs.json, scans.json and the scan PLYs of a simulated example: their ids."""
+    pairs = _upload(engine, example / "pairs.json", "pairs", "application/json")
+    manifest = _upload(engine, example / "scans.json", "scans", "application/json")
+    scans = [
+        _upload(engine, path, "scan", "application/x-ply")
+        for path in sorted(example.glob("scan_*.ply"))
+    ]
+    return pairs, manifest, scans
+
+
 def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     from typer.testing import CliRunner
 
@@ -320,12 +331,7 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     simulated = CliRunner().invoke(app, ["simulate", "stitching", str(example), "--corrupt", "1"])
     assert simulated.exit_code == 0, simulated.output
     engine = engine_factory()
-    pairs = _upload(engine, example / "pairs.json", "pairs", "application/json")
-    manifest = _upload(engine, example / "scans.json", "scans", "application/json")
-    scans = [
-        _upload(engine, path, "scan", "application/x-ply")
-        for path in sorted(example.glob("scan_*.ply"))
-    ]
+    pairs, manifest, scans = _upload_session(engine, example)
     run = engine.run(
         [
             {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
@@ -381,12 +387,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
         f"/api/v1/inspections/{engine.inspection}", json={"tolerances": tolerances}
     )
     assert patched.status_code == 200, patched.text
-    pairs = _upload(engine, example / "pairs.json", "pairs", "application/json")
-    manifest = _upload(engine, example / "scans.json", "scans", "application/json")
-    scans = [
-        _upload(engine, path, "scan", "application/x-ply")
-        for path in sorted(example.glob("scan_*.ply"))
-    ]
+    pairs, manifest, scans = _upload_session(engine, example)
     run = engine.run(
         [
             {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
