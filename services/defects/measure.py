@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from math import erf, sqrt
 
 import numpy as np
+from scipy import ndimage
 
 from services.defects.config import MeasureConfig
 from services.defects.panels import segment_panels
@@ -322,15 +323,24 @@ def _junction_results(
     return results
 
 
+def running_median(values: np.ndarray, window: int) -> np.ndarray:
+    """Median over ``window`` neighbouring sections: what a seam is judged on, so that one
+    section's noise cannot tip it over a limit (a deviation longer than the window stays)."""
+    if window <= 1 or len(values) < window:
+        return values
+    return ndimage.median_filter(values, size=window, mode="nearest")
+
+
 def _seam_findings(
     seams: list[SeamResult], junctions: list[JunctionResult], config: MeasureConfig
 ) -> list[Finding]:
     t = config.tolerances
     findings = []
+    window = config.sections.decision_sections
     for seam in seams:
-        steps, pitch = seam.sections_step_mm, config.sections.pitch_mm
+        steps, pitch = running_median(seam.sections_step_mm, window), config.sections.pitch_mm
         # The gap line at the seam's ends counts too: sections stop short of them.
-        gaps = np.concatenate([seam.sections_gap_mm, seam.gap_at_ends_mm])
+        gaps = np.concatenate([running_median(seam.sections_gap_mm, window), seam.gap_at_ends_mm])
         places = np.concatenate([seam.sections_at, [seam.start, seam.end]])
         low, high = gaps < t.gap_min_mm, gaps > t.gap_max_mm
         if high.any() or not low.any():

@@ -40,6 +40,9 @@ class SectionConfig:
     end_margin_mm: float = 3.0
     """Sections stop this far (plus the half band of the seams around) from a seam's ends,
     clear of crossing seams and the rounded corners."""
+    decision_sections: int = 5
+    """Gap and step are judged against the tolerances on their running median over this
+    many sections (10 mm at the default pitch)."""
     edge_model: str = "arc"
     """``arc``: the side faces from the fitted rounded edges (vista). ``void``: the last
     measured point of each panel, what a single-profile gap gauge reports (the peer in
