@@ -11,6 +11,7 @@ import typer
 
 from services.defects import cli as defects_cli
 from services.stitching import cli as stitching_cli
+from supervisor.cli_errors import fail
 from supervisor.settings import get_settings
 
 app = typer.Typer(
@@ -28,11 +29,6 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(simulate_app, name="simulate")
 
 
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
-
-
 @app.command()
 def migrate(revision: str = typer.Option("head", help="Target revision.")) -> None:
     """Create or upgrade the database schema (VISTA_DATABASE_URL, default a SQLite file)."""
@@ -44,7 +40,7 @@ def migrate(revision: str = typer.Option("head", help="Target revision.")) -> No
     try:
         upgrade(url, revision)
     except Exception as exc:  # noqa: BLE001 - shown to the user
-        _fail(f"migration failed on {_redact(url)}: {exc}")
+        fail(f"migration failed on {_redact(url)}: {exc}")
     typer.echo(f"database {_redact(url)} is at migration {current_revision(url)}")
 
 
@@ -71,7 +67,7 @@ def serve(
     try:
         check_schema(settings.resolved_database_url)
     except SchemaOutOfDate as exc:
-        _fail(str(exc))
+        fail(str(exc))
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
@@ -96,7 +92,7 @@ def serve(
     try:
         serving.serve(host, port, processes=processes, access_log=settings.access_log)
     except OSError as exc:
-        _fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
+        fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
 
 
 @app.command()
@@ -111,7 +107,7 @@ def worker(
 
     settings = get_settings()
     if not settings.broker_url:
-        _fail(
+        fail(
             "vista worker needs VISTA_BROKER_URL (redis://… or amqp://…); without a broker "
             "`vista serve` runs jobs itself"
         )
@@ -120,7 +116,7 @@ def worker(
     wanted = [q.strip() for q in queues.split(",") if q.strip()] if queues else available
     unknown = sorted(set(wanted) - set(available))
     if unknown:
-        _fail(f"unknown queue(s) {unknown}; the queues are {available}")
+        fail(f"unknown queue(s) {unknown}; the queues are {available}")
     args = [
         sys.executable,
         "-m",
@@ -152,12 +148,12 @@ def user_create(
     from supervisor.users.service import create_token, create_user
 
     if role not in ROLES:
-        _fail(f"--role must be one of {', '.join(ROLES)}, not {role!r}")
+        fail(f"--role must be one of {', '.join(ROLES)}, not {role!r}")
     secret = (
         typer.prompt("password", hide_input=True, confirmation_prompt=True) if password else None
     )
     if secret is not None and len(secret) < 8:
-        _fail("the password needs at least 8 characters")
+        fail("the password needs at least 8 characters")
     db = Database(get_settings().resolved_database_url)
     try:
         with db.write() as session:
@@ -165,7 +161,7 @@ def user_create(
             kind = "device" if role == "device" else "cli"
             token = create_token(session, user=user, name=token_name, kind=kind, ttl_hours=None)
     except Problem as exc:
-        _fail(exc.detail)
+        fail(exc.detail)
     finally:
         db.dispose()
     typer.echo(token)
@@ -224,7 +220,7 @@ def demo(
             settings, spacing_mm=spacing_mm, seed=seed, timeout_s=timeout, say=typer.echo
         )
     except DemoError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     inspection, run, defects = outcome["inspection"], outcome["run"], outcome["defects"]
     measured = next(j for j in run["jobs"] if j["step"] == "measure")["result"]
     found = [d for d in defects if d["severity"] != "info"]

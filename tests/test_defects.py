@@ -212,3 +212,16 @@ def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
     assert failed.exit_code == 2 and "step_mm.max must be a positive number" in failed.output
     missing = runner.invoke(app, ["measure", str(tmp_path / "none.ply"), "-o", str(out)])
     assert missing.exit_code == 2 and "none.ply" in missing.output
+
+
+def test_bench_compares_with_the_gauge_against_truth(tmp_path) -> None:
+    from services.defects.bench import SweepCase, run_defects_bench
+
+    case = SweepCase("small", AssemblySpec(panel_mm=(110.0, 80.0)), spacing_mm=0.25)
+    document = run_defects_bench(tmp_path / "defects.json", seeds=1, cases=(case,))
+    row = document["cases"][0]
+    vista, gauge = row["vista"], row["gauge"]
+    assert vista["sections"] > 100 and vista["gap_error_p95_mm"] < 0.05
+    # the gauge's last-point edges sit on the rounded edge: its gaps are too wide
+    assert gauge["gap_error_mean_mm"] > 5 * abs(vista["gap_error_mean_mm"]) + 0.05
+    assert json.loads((tmp_path / "defects.json").read_text())["verdict"] == document["verdict"]

@@ -322,6 +322,15 @@ def _upload_session(engine: Engine, example: Path) -> tuple[int, int, list[int]]
     return pairs, manifest, scans
 
 
+def _calibrate_stitch(pairs: int, manifest: int, scans: list[int], params=None) -> list[dict]:
+    """The steps of a calibrate → stitch run."""
+    stitch = {"name": "stitch", "kind": "stitch", "inputs": [manifest, *scans]}
+    return [
+        {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
+        {**stitch, "after": ["calibrate"], "params": params or {}},
+    ]
+
+
 def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     from typer.testing import CliRunner
 
@@ -332,18 +341,7 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     assert simulated.exit_code == 0, simulated.output
     engine = engine_factory()
     pairs, manifest, scans = _upload_session(engine, example)
-    run = engine.run(
-        [
-            {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
-            {
-                "name": "stitch",
-                "kind": "stitch",
-                "inputs": [manifest, *scans],
-                "after": ["calibrate"],
-                "params": {"icp": "bounded"},
-            },
-        ]
-    )
+    run = engine.run(_calibrate_stitch(pairs, manifest, scans, {"icp": "bounded"}))
     calibrate_job, stitch_job = (engine.wait(j["id"], timeout=120) for j in run["jobs"])
     assert calibrate_job["status"] == "succeeded", calibrate_job
     truth = json.loads((example / "truth.json").read_text())
@@ -390,13 +388,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     pairs, manifest, scans = _upload_session(engine, example)
     run = engine.run(
         [
-            {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
-            {
-                "name": "stitch",
-                "kind": "stitch",
-                "inputs": [manifest, *scans],
-                "after": ["calibrate"],
-            },
+            *_calibrate_stitch(pairs, manifest, scans),
             {"name": "measure", "kind": "measure", "after": ["stitch"]},
         ]
     )

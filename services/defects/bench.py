@@ -13,12 +13,7 @@ rounded edge). It is modelled on profile-based gap/flush tools, not any vendor's
 
 from __future__ import annotations
 
-import json
-import os
-import platform
-import sys
 from dataclasses import dataclass, field, replace
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +24,7 @@ from services.defects.example import BASE_T_PART, merged_cloud
 from services.defects.measure import measure
 from services.defects.simulate import AssemblySpec, random_assembly, scan_assembly, truth_document
 from services.stitching.scan_sim import SensorModel
+from supervisor.bench.document import print_verdict, say, write_document
 
 TARGETS = {
     "gap and step error p95 (mm)": 0.05,
@@ -61,10 +57,6 @@ CASES = (
 )
 
 
-def _say(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
 def _run(case: SweepCase, seed: int) -> tuple[Evaluation, Evaluation]:
     """(vista, gauge) evaluations of one simulated assembly."""
     rng = np.random.default_rng(seed)
@@ -77,7 +69,7 @@ def _run(case: SweepCase, seed: int) -> tuple[Evaluation, Evaluation]:
     vista = evaluate(measure(cloud, config), truth, config.tolerances)
     # One scan line: the slab just wide enough to hold a continuous profile of the cloud.
     gauge_sections = replace(config.sections, slab_mm=2 * case.spacing_mm, edge_model="void")
-    gauge_config = replace(config, sections=gauge_sections)
+    gauge_config = replace(config, sections=gauge_sections, surface=None)
     gauge = evaluate(measure(cloud, gauge_config), truth, config.tolerances)
     return vista, gauge
 
@@ -175,31 +167,28 @@ def run_defects_bench(out: Path, *, seeds: int = 2, seed: int = 0, cases=CASES) 
     for index, case in enumerate(cases):
         vista, gauge = Evaluation(), Evaluation()
         for k in range(seeds):
-            _say(f"{case.name}: assembly {k + 1} of {seeds}")
+            say(f"{case.name}: assembly {k + 1} of {seeds}")
             v, g = _run(case, seed + 1000 * k + index)
             vista.add(v)
             gauge.add(g)
         all_vista.add(vista)
         all_gauge.add(gauge)
         rows.append(_row(case, vista, gauge, seeds))
-        _say(
+        say(
             f"  gap p95 {_fmt(rows[-1]['vista']['gap_error_p95_mm'])} mm, "
             f"{_fmt(rows[-1]['vista']['seconds_per_m2'], 1)} s/m²"
         )
     total, gauge_total = all_vista.summary(), all_gauge.summary()
     verdict = _verdict(total, rows)
-    document = {
-        "bench": "defects",
-        "when": datetime.now(UTC).isoformat(timespec="seconds"),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
-        "targets": TARGETS,
-        "cases": rows,
-        "total": total,
-        "gauge_total": gauge_total,
-        "verdict": verdict,
-    }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(document, indent=1) + "\n")
+    document = write_document(
+        out,
+        bench="defects",
+        targets=TARGETS,
+        cases=rows,
+        total=total,
+        gauge_total=gauge_total,
+        verdict=verdict,
+    )
     print(f"\n## Accuracy against ground truth ({seeds} assemblies per case; peer in brackets)\n")
     print(_accuracy_table(rows))
     print("\n## Detection over all cases (default tolerances; surface: detection at the floors)\n")
@@ -208,8 +197,5 @@ def run_defects_bench(out: Path, *, seeds: int = 2, seed: int = 0, cases=CASES) 
         f"\nsurface false positives: {total['surface_false_positives_per_m2']:.2f} per m² of "
         f"panel ({total['panel_area_m2']:.3f} m² measured)"
     )
-    print("\n## Targets\n")
-    for name, met in verdict.items():
-        print(f"- {name}: {'met' if met else 'NOT met'}")
-    print(f"\nwrote {out}")
+    print_verdict(verdict, out)
     return document

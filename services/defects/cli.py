@@ -7,12 +7,9 @@ from pathlib import Path
 
 import typer
 
+from supervisor.cli_errors import fail
+
 # Heavy imports (numpy, scipy, open3d) stay inside the commands.
-
-
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
 
 
 def measure(
@@ -46,9 +43,9 @@ def measure(
         truth_document = None if truth is None else load_json(truth)
         points = read_ply(cloud)
     except (ConfigError, StitchingFileError, PlyError, OSError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if truth_document is not None and not {"seams", "junctions", "defects"} <= set(truth_document):
-        _fail(f"{truth}: not a truth.json of `vista simulate defects` (no seams/junctions/defects)")
+        fail(f"{truth}: not a truth.json of `vista simulate defects` (no seams/junctions/defects)")
     with typer.progressbar(length=100, label="measuring") as bar:
         done = 0
 
@@ -61,7 +58,7 @@ def measure(
         try:
             result = run_measure(points, settings, progress=progress)
         except MeasureError as exc:
-            _fail(f"{cloud}: {exc}")
+            fail(f"{cloud}: {exc}")
     document = result_document(result, settings)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(document, indent=1) + "\n")
@@ -121,7 +118,7 @@ def simulate_defects(
     from services.defects.simulate import AssemblySpec
 
     if not 2 <= rows * cols <= 12:
-        _fail(f"an assembly has 2 to 12 panels; --rows {rows} × --cols {cols} = {rows * cols}")
+        fail(f"an assembly has 2 to 12 panels; --rows {rows} × --cols {cols} = {rows * cols}")
     grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
     spec = AssemblySpec(rows=rows, cols=cols, panel_mm=panel_mm, radius_mm=radius_mm or None)
     example = write_defects_example(out_dir, spec, grid=grid, seed=seed, progress=typer.echo)

@@ -48,7 +48,8 @@ class MeasureConfig:
     max_gap_mm: float = 10.0
     min_seam_length_mm: float = 20.0
     sections: SectionConfig = field(default_factory=SectionConfig)
-    surface: SurfaceConfig = field(default_factory=SurfaceConfig)
+    surface: SurfaceConfig | None = field(default_factory=SurfaceConfig)
+    """None: seams and junctions only."""
 
 
 _TOLERANCE_KEYS = {

@@ -133,6 +133,7 @@ class Evaluation:
                 }
                 for k, c in self.surface.items()
             },
+            "surface_missed_below_floor": self.surface_missed_below_floor,
             "surface_false_positives_per_m2": (
                 false_positives / self.panel_area_m2 if self.panel_area_m2 else None
             ),

@@ -20,7 +20,7 @@ from services.defects.config import MeasureConfig
 from services.defects.panels import segment_panels
 from services.defects.raster import Raster, SurfaceFrame, fit_frame, point_spacing_mm, rasterize
 from services.defects.seams import Junction, SeamLine, find_junctions, find_seams
-from services.defects.sections import SeamProfile, profile_seam
+from services.defects.sections import SeamProfile, profile_seam, reach_mm
 from services.defects.surface import SurfaceFinding, find_surface_defects
 from services.pointcloud.ply import PointCloud
 
@@ -194,9 +194,11 @@ def measure(
     junctions = _junction_results(junction_lines, profiles, seam_of_line, frame)
     lap("seams_s")
     report(0.6, "looking for dents, bumps, scratches and colour patches")
-    surface = find_surface_defects(
-        raster, panels.labels, panels.count, config.surface, colors=colors
-    )
+    surface: list[SurfaceFinding] = []
+    if config.surface is not None:
+        surface = find_surface_defects(
+            raster, panels.labels, panels.count, config.surface, colors=colors
+        )
     lap("surface_s")
     findings = _seam_findings(seams, junctions, config)
     findings += [_surface_finding(f, raster, frame, config) for f in surface]
@@ -214,10 +216,7 @@ def _profile_seams(
         return []
     sections = config.sections
     margin = max(s.half_band_mm for s in lines) + sections.end_margin_mm
-    reach = [
-        s.half_band_mm + sections.edge_band_mm + sections.top_band_mm + 1.0 + raster.cell_mm
-        for s in lines
-    ]
+    reach = [reach_mm(s, sections) + raster.cell_mm for s in lines]
     cells = [_band_cells(raster, s, r) for s, r in zip(lines, reach, strict=True)]
     mask = np.zeros(raster.shape[0] * raster.shape[1], dtype=bool)
     for c in cells:

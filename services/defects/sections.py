@@ -66,6 +66,12 @@ class SeamProfile:
     """(K,) RMS distance of the edge points to the fitted edges."""
 
 
+def reach_mm(seam: SeamLine, config: SectionConfig) -> float:
+    """How far across its centre line a seam's sections take points: the band, the edge
+    band and the top band on each side, and 1 mm to spare."""
+    return seam.half_band_mm + config.edge_band_mm + config.top_band_mm + 1.0
+
+
 def profile_seam(
     local: np.ndarray, seam: SeamLine, config: SectionConfig, *, end_margin_mm: float
 ) -> SeamProfile | None:
@@ -80,7 +86,7 @@ def profile_seam(
     w = local[:, 2].astype(np.float64)
     k = np.rint((along - first) / config.pitch_mm).astype(np.int64)
     y = along - (first + k * config.pitch_mm)
-    reach = seam.half_band_mm + config.edge_band_mm + config.top_band_mm + 1.0
+    reach = reach_mm(seam, config)
     keep = (k >= 0) & (k < count) & (np.abs(y) <= config.slab_mm / 2) & (np.abs(across) < reach)
     k, y, x, w = k[keep], y[keep], across[keep], w[keep]
 

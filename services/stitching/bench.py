@@ -17,14 +17,12 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +31,8 @@ from services.pointcloud.ply import read_ply
 from services.pointcloud.transforms import pose_error
 from services.stitching.calibration import METHODS, OPENCV_METHODS, NoiseModel, calibrate
 from services.stitching.calibration_sim import simulate_calibration
+from supervisor.bench.document import print_verdict, write_document
+from supervisor.bench.document import say as say_progress
 
 TARGETS = {
     "stitch_seconds_max": 60.0,
@@ -70,12 +70,8 @@ CASES = (
 )
 
 
-def _say(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
 def calibration_bench(
-    sessions: int, *, thesis_sessions: int, seed: int = 0, say: Callable = _say
+    sessions: int, *, thesis_sessions: int, seed: int = 0, say: Callable = say_progress
 ) -> list[dict]:
     """Per case and method: median/p90 translation and rotation error, median time; for
     corrupted cases, in how many sessions vista named exactly the bad pairs; for vista, a
@@ -166,7 +162,7 @@ def _run_pipeline(which: str, example: Path, out: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def full_scale_bench(folder: Path, *, seed: int = 0, say: Callable = _say) -> dict:
+def full_scale_bench(folder: Path, *, seed: int = 0, say: Callable = say_progress) -> dict:
     from services.stitching.example import write_example
     from services.stitching.files import read_pairs, read_truth, write_handeye
     from services.stitching.report import distance_to_truth_mm
@@ -287,17 +283,14 @@ def run_stitching_bench(
             full = full_scale_bench(Path(folder), seed=seed)
     rows = calibration_bench(sessions, thesis_sessions=thesis_sessions, seed=seed)
     verdict = _verdict(full, rows)
-    document = {
-        "bench": "stitching",
-        "when": datetime.now(UTC).isoformat(timespec="seconds"),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
-        "targets": TARGETS,
-        "full_scale": full,
-        "calibration": rows,
-        "verdict": verdict,
-    }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(document, indent=1) + "\n")
+    document = write_document(
+        out,
+        bench="stitching",
+        targets=TARGETS,
+        full_scale=full,
+        calibration=rows,
+        verdict=verdict,
+    )
     if full is not None:
         print("\n## Full scale: stitch + clean, vista vs Open3D\n")
         print(_full_scale_table(full))
@@ -315,8 +308,5 @@ def run_stitching_bench(
             f"rotation vs {q['peer']} {q['mean_difference']:+.5f}°, better in "
             f"{q['vista_better_share']:.0%} (p {q['wilcoxon_p']:.3g})"
         )
-    print("\n## Targets\n")
-    for name, met in verdict.items():
-        print(f"- {name}: {'met' if met else 'NOT met'}")
-    print(f"\nwrote {out}")
+    print_verdict(verdict, out)
     return document

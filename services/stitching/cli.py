@@ -7,13 +7,10 @@ from pathlib import Path
 
 import typer
 
+from supervisor.cli_errors import fail
+
 # Heavy imports (numpy, scipy, open3d) stay inside the commands: every `vista` invocation
 # and every API process imports this module.
-
-
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
 
 
 def calibrate(
@@ -42,13 +39,13 @@ def calibrate(
     from services.stitching.files import StitchingFileError, read_pairs, write_handeye
 
     if method not in METHODS:
-        _fail(f"--method must be one of {', '.join(METHODS)}; got {method!r}")
+        fail(f"--method must be one of {', '.join(METHODS)}; got {method!r}")
     try:
         base_T_flange, sensor_T_target = read_pairs(pairs)
         noise = NoiseModel(robot_sigma_mm, robot_sigma_deg, sensor_sigma_mm, sensor_sigma_deg)
         result = run_calibration(base_T_flange, sensor_T_target, method=method, noise=noise)
     except (StitchingFileError, CalibrationError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     out.parent.mkdir(parents=True, exist_ok=True)
     write_handeye(out, result)
     typer.echo(
@@ -87,9 +84,9 @@ def simulate_stitching(
     from services.stitching.example import write_example
 
     if corrupt >= poses:
-        _fail(f"--corrupt ({corrupt}) must be less than --poses ({poses})")
+        fail(f"--corrupt ({corrupt}) must be less than --poses ({poses})")
     if component not in scan_sim.COMPONENTS:
-        _fail(f"--component must be one of {', '.join(scan_sim.COMPONENTS)}; got {component!r}")
+        fail(f"--component must be one of {', '.join(scan_sim.COMPONENTS)}; got {component!r}")
     grid = scan_sim.GOCATOR_GRID if full_scale else (250, 385)
     example = write_example(
         out_dir, component=component, poses=poses, corrupt=corrupt, grid=grid, seed=seed
@@ -147,12 +144,12 @@ def stitch(
         )
         simulated = None if truth is None else read_truth(truth)
         if simulated is not None and len(simulated.scan_base_T_flange) != len(files):
-            _fail(f"{truth} holds {len(simulated.scan_base_T_flange)} scans, {scans} {len(files)}")
+            fail(f"{truth} holds {len(simulated.scan_base_T_flange)} scans, {scans} {len(files)}")
         clouds = []
         for file in tqdm(files, desc="reading scans", unit="scan"):
             clouds.append(read_ply(file))
     except (StitchingFileError, PlyError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     with tqdm(total=100, desc="stitching", unit="%") as bar:
 
         def progress(fraction: float, message: str) -> None:
@@ -207,7 +204,7 @@ def compare_handeye(
         flange_T_sensor, _ = read_handeye(handeye)
         true_flange_T_sensor = np.asarray(load_json(truth)["flange_T_sensor"], dtype=float)
     except (StitchingFileError, KeyError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     translation_mm, rotation_deg = pose_error(flange_T_sensor, true_flange_T_sensor)
     typer.echo(f"flange_T_sensor error: {translation_mm:.4f} mm, {rotation_deg:.4f}°")
 
