@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass
 from math import erf, sqrt
 
 import numpy as np
 from scipy import ndimage
 
+from services.defects import binning
 from services.defects.config import MeasureConfig
 from services.defects.panels import segment_panels
 from services.defects.raster import Raster, SurfaceFrame, fit_frame, point_spacing_mm, rasterize
 from services.defects.seams import Junction, SeamLine, find_junctions, find_seams
-from services.defects.sections import SeamProfile, profile_seam, reach_mm
+from services.defects.sections import SeamProfile, profile_seam, reach_mm, section_range
 from services.defects.surface import SurfaceFinding, find_surface_defects
 from services.pointcloud.ply import PointCloud
 
@@ -151,21 +154,20 @@ def measure(
         clock = now
 
     points, colors, normals = cloud.points, cloud.colors, cloud.normals
-    if np.isnan(points).any() or np.isinf(points).any():
+    report(0.02, f"fitting the surface frame to {len(points)} points")
+    frame = fit_frame(points, normals)
+    bounds, not_finite = binning.uv_bounds(points, frame.origin, frame.axes)
+    if not_finite:
         finite = np.isfinite(points).all(axis=1)
         points = points[finite]
         colors = None if colors is None else colors[finite]
-        normals = None if normals is None else normals[finite]
     if len(points) < 1000:
         raise MeasureError(f"the cloud has {len(points)} finite points; at least 1000 needed")
-    report(0.02, f"fitting the surface frame to {len(points)} points")
-    frame = fit_frame(points, normals, np.random.default_rng(0))
-    local = frame.to_local(points)
-    raster = rasterize(local, config.cell_mm)
+    raster = rasterize(points, colors, frame, config.cell_mm, bounds)
     spacing = point_spacing_mm(raster)
     cell = max(config.cell_mm, 1.5 * spacing)
     if cell > config.cell_mm:
-        raster = rasterize(local, cell)
+        raster = rasterize(points, colors, frame, cell, bounds)
     lap("raster_s")
     report(0.15, f"segmenting panels on a {raster.shape[0]} × {raster.shape[1]} height map")
     panels = segment_panels(
@@ -184,22 +186,25 @@ def measure(
     )
     lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
     lap("segment_s")
-    report(0.3, f"{panels.count} panels, {len(lines)} seams: measuring sections")
-    profiles = _profile_seams(local, raster, lines, config)
+    report(0.3, f"{panels.count} panels, {len(lines)} seams: sections and surface")
+    # Seams and panels are measured independently, on as many threads as there are
+    # cores (the compiled passes, NumPy and SciPy release the GIL for the heavy part).
+    with ThreadPoolExecutor(binning.WORKERS) if binning.WORKERS > 1 else nullcontext() as pool:
+        map_fn = map if pool is None else pool.map
+        surface_parts = []
+        if config.surface is not None:
+            surface_parts = find_surface_defects(
+                raster, panels.labels, panels.count, config.surface, map_fn
+            )
+        profiles = _profile_seams(points, raster, lines, config, map_fn)
+        surface = [finding for part in surface_parts for finding in part]
     seam_of_line: dict[int, SeamResult] = {}
     for i, profile in enumerate(profiles):
         if profile is not None and len(profile.gap_mm):
             seam_of_line[i] = _seam_result(len(seam_of_line), profile, frame)
     seams = list(seam_of_line.values())
     junctions = _junction_results(junction_lines, profiles, seam_of_line, frame)
-    lap("seams_s")
-    report(0.6, "looking for dents, bumps, scratches and colour patches")
-    surface: list[SurfaceFinding] = []
-    if config.surface is not None:
-        surface = find_surface_defects(
-            raster, panels.labels, panels.count, config.surface, colors=colors
-        )
-    lap("surface_s")
+    lap("sections_and_surface_s")
     findings = _seam_findings(seams, junctions, config)
     findings += [_surface_finding(f, raster, frame, config) for f in surface]
     report(1.0, f"{len(seams)} seams, {len(junctions)} junctions, {len(findings)} findings")
@@ -209,31 +214,47 @@ def measure(
 
 
 def _profile_seams(
-    local: np.ndarray, raster: Raster, lines: list[SeamLine], config: MeasureConfig
+    points: np.ndarray,
+    raster: Raster,
+    lines: list[SeamLine],
+    config: MeasureConfig,
+    map_fn: Callable = map,
 ) -> list[SeamProfile | None]:
-    """Each seam's sections, from the points of the cells around it only."""
+    """Each seam's sections, from the points of the cells around it only; ``map_fn``
+    runs the seams."""
     if not lines:
         return []
     sections = config.sections
     margin = max(s.half_band_mm for s in lines) + sections.end_margin_mm
     reach = [reach_mm(s, sections) + raster.cell_mm for s in lines]
-    cells = [_band_cells(raster, s, r) for s, r in zip(lines, reach, strict=True)]
-    mask = np.zeros(raster.shape[0] * raster.shape[1], dtype=bool)
-    for c in cells:
-        mask[c] = True
-    near = np.flatnonzero(mask[raster.cell_of_point])
-    order = np.argsort(raster.cell_of_point[near], kind="stable")
-    near = near[order]
-    sorted_cells = raster.cell_of_point[near]
-    profiles = []
-    for seam, band in zip(lines, cells, strict=True):
-        low = np.searchsorted(sorted_cells, band, "left")
-        high = np.searchsorted(sorted_cells, band, "right")
+    bands = [_band_cells(raster, s, r) for s, r in zip(lines, reach, strict=True)]
+    chosen = np.zeros(raster.shape[0] * raster.shape[1], dtype=bool)
+    for band in bands:
+        chosen[band] = True
+    cells = np.flatnonzero(chosen)
+    order, offsets = raster.points_in(points, cells)
+
+    def profile(seam: SeamLine, band: np.ndarray) -> SeamProfile | None:
+        slot = np.searchsorted(cells, band)
+        low, high = offsets[slot], offsets[slot + 1]
         lengths = high - low
         starts = np.repeat(low - np.cumsum(lengths) + lengths, lengths)
-        chosen = near[starts + np.arange(lengths.sum())]
-        profiles.append(profile_seam(local[chosen], seam, sections, end_margin_mm=margin))
-    return profiles
+        first, count = section_range(seam, sections, end_margin_mm=margin)
+        if count < 1:
+            return None
+        slab = binning.slab_points(
+            points,
+            order[starts + np.arange(lengths.sum())],
+            raster.frame.origin,
+            raster.frame.axes,
+            np.concatenate([seam.centre_uv, seam.direction_uv]),
+            np.array(
+                [first, sections.pitch_mm, count, sections.slab_mm / 2, reach_mm(seam, sections)]
+            ),
+        )
+        return profile_seam(slab, seam, sections, first, count)
+
+    return list(map_fn(profile, lines, bands))
 
 
 def _band_cells(raster: Raster, seam: SeamLine, reach_mm: float) -> np.ndarray:
@@ -251,7 +272,7 @@ def _band_cells(raster: Raster, seam: SeamLine, reach_mm: float) -> np.ndarray:
     inside = (
         (np.abs(across) <= reach_mm) & (along >= seam.start_mm - 1) & (along <= seam.end_mm + 1)
     )
-    return np.sort(rows[inside] * raster.shape[1] + cols[inside])
+    return rows[inside] * raster.shape[1] + cols[inside]  # row-major: sorted
 
 
 def _seam_result(index: int, profile: SeamProfile, frame: SurfaceFrame) -> SeamResult:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from services.defects.morphology import erode
 from services.defects.raster import Raster
 
 FOUR_CONNECTED = ndimage.generate_binary_structure(2, 1)
@@ -38,8 +39,8 @@ def segment_panels(
     filled: they belong to the panel."""
     d_row, d_col = np.gradient(raster.height, raster.cell_mm)
     with np.errstate(invalid="ignore"):
-        flat = np.hypot(d_row, d_col) < np.tan(np.radians(max_slope_deg))
-    core = ndimage.binary_erosion(flat, structure=np.ones((3, 3), bool))
+        flat = d_row * d_row + d_col * d_col < np.tan(np.radians(max_slope_deg)) ** 2
+    core = erode(flat, 1)
     labels, count = ndimage.label(core, structure=FOUR_CONNECTED)
     cell_area = raster.cell_mm**2
     sizes = np.bincount(labels.ravel(), minlength=count + 1)[1:] * cell_area
@@ -61,9 +62,11 @@ def _below_surface(
 ) -> np.ndarray:
     """(len(candidates),) bool: parts whose mean height lies more than ``drop_mm`` below a
     quadric fitted (trimmed, area-weighted) to all candidate parts."""
-    rows, cols = np.nonzero(np.isin(labels, candidates))
-    step = max(1, len(rows) // 50_000)
-    rows, cols = rows[::step], cols[::step]
+    stride = max(1, int(np.sqrt(labels.size / 50_000)))
+    candidate = np.zeros(labels.max() + 1, bool)
+    candidate[candidates] = True
+    rows, cols = np.nonzero(candidate[labels[::stride, ::stride]])
+    rows, cols = rows * stride, cols * stride
     uv = raster.centres_uv(rows, cols)
     u, v = uv[:, 0], uv[:, 1]
     design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], 1)

@@ -11,7 +11,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SAMPLE_POINTS = 200_000
+from services.defects import binning
+
+SAMPLE_POINTS = 50_000
+BLOCK_MM = 1.0
+"""Coarse work (colour, the reference surface, point spacing) is done on blocks of cells
+about this size."""
+
+
+def block_cells(cell_mm: float) -> int:
+    """Cells along the side of a block."""
+    return max(1, int(round(BLOCK_MM / cell_mm)))
+
+
+def block_sums(values: np.ndarray, block: int) -> np.ndarray:
+    """Sums over ``block`` × ``block`` cells of a (rows, cols, …) array (zero-padded to
+    whole blocks)."""
+    rows, cols = values.shape[:2]
+    shape = (-(-rows // block), -(-cols // block))
+    padded = np.zeros((shape[0] * block, shape[1] * block, *values.shape[2:]), values.dtype)
+    padded[:rows, :cols] = values
+    return padded.reshape(shape[0], block, shape[1], block, *values.shape[2:]).sum((1, 3))
 
 
 @dataclass(frozen=True)
@@ -23,10 +43,8 @@ class SurfaceFrame:
     axes: np.ndarray
 
     def to_local(self, points: np.ndarray) -> np.ndarray:
-        """(N, 3) cloud-frame points → (N, 3) float32 (u, v, w), mm."""
-        return ((points - self.origin.astype(np.float32)) @ self.axes.T.astype(np.float32)).astype(
-            np.float32
-        )
+        """(N, 3) cloud-frame points → (N, 3) float64 (u, v, w), mm."""
+        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.axes.T
 
     def to_cloud(self, local: np.ndarray) -> np.ndarray:
         """(…, 3) (u, v, w) → (…, 3) cloud-frame points, float64."""
@@ -36,33 +54,41 @@ class SurfaceFrame:
         return np.asarray(local, dtype=np.float64) @ self.axes
 
 
-def fit_frame(
-    points: np.ndarray, normals: np.ndarray | None, rng: np.random.Generator
-) -> SurfaceFrame:
-    """Principal axes of a sample of the points; w points where the normals do (or +z)."""
-    sample = rng.choice(len(points), min(len(points), SAMPLE_POINTS), replace=False)
-    chosen = points[sample].astype(np.float64)
+def fit_frame(points: np.ndarray, normals: np.ndarray | None) -> SurfaceFrame:
+    """Principal axes of an even sample of the finite points (every k-th: the scans'
+    order spreads it over the whole cloud); w points where the normals do (or +z)."""
+    step = max(1, len(points) // SAMPLE_POINTS)
+    chosen = points[::step].astype(np.float64)
+    finite = np.isfinite(chosen).all(axis=1)
+    if finite.sum() < 3:
+        return SurfaceFrame(np.zeros(3), np.eye(3))
+    chosen = chosen[finite]
     origin = chosen.mean(0)
-    _, _, vt = np.linalg.svd(chosen - origin, full_matrices=False)
-    towards = normals[sample].mean(0) if normals is not None else np.array([0.0, 0.0, 1.0])
-    w = vt[2] if vt[2] @ towards >= 0 else -vt[2]
-    u = vt[0]
+    _, vectors = np.linalg.eigh(np.cov((chosen - origin).T))
+    towards = np.array([0.0, 0.0, 1.0])
+    if normals is not None:
+        towards = np.nanmean(normals[::step][finite], axis=0)
+    w = vectors[:, 0] if vectors[:, 0] @ towards >= 0 else -vectors[:, 0]
+    u = vectors[:, 2]
     return SurfaceFrame(origin, np.stack([u, np.cross(w, u), w]))
 
 
 @dataclass(frozen=True)
 class Raster:
-    """Cells of edge ``cell_mm`` over the (u, v) plane; cell (i, j) covers
+    """Cells of edge ``cell_mm`` over the (u, v) plane of ``frame``; cell (i, j) covers
     u ∈ origin_u + [i, i + 1)·cell, v likewise."""
 
+    frame: SurfaceFrame
     cell_mm: float
     origin_uv: np.ndarray
     height: np.ndarray
     """(rows, cols) float32 mean w of the points in each cell, NaN where none."""
     count: np.ndarray
     """(rows, cols) int32 points per cell."""
-    cell_of_point: np.ndarray
-    """(N,) int64 flat cell index of every point."""
+    block_rgb: np.ndarray | None
+    """(⌈rows / b⌉, ⌈cols / b⌉, 3) float32 mean sRGB colour of the points in each block
+    of b = ``block_cells(cell_mm)`` cells square (NaN where none), if the cloud has
+    colours."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -79,32 +105,61 @@ class Raster:
         inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
         return np.clip(rows, 0, self.shape[0] - 1), np.clip(cols, 0, self.shape[1] - 1), inside
 
+    def _grid(self) -> np.ndarray:
+        return np.array([self.origin_uv[0], self.origin_uv[1], 1 / self.cell_mm])
 
-def rasterize(local: np.ndarray, cell_mm: float) -> Raster:
-    """Bin (N, 3) (u, v, w) points into cells of ``cell_mm``: mean height and count."""
-    u, v = local[:, 0], local[:, 1]
-    origin = np.array([float(u.min()) - cell_mm, float(v.min()) - cell_mm])
-    scale = np.float32(1 / cell_mm)
-    rows = ((u - np.float32(origin[0])) * scale).astype(np.int32)
-    cols = ((v - np.float32(origin[1])) * scale).astype(np.int32)
-    shape = (int(rows.max()) + 2, int(cols.max()) + 2)
-    flat = rows.astype(np.int64) * shape[1] + cols
-    count = np.bincount(flat, minlength=shape[0] * shape[1])
-    total = np.bincount(flat, weights=local[:, 2], minlength=shape[0] * shape[1])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        height = (total / count).astype(np.float32)
-    return Raster(
-        cell_mm, origin, height.reshape(shape), count.reshape(shape).astype(np.int32), flat
+    def points_in(self, points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The points binned into ``cells`` (sorted unique flat indices), grouped by cell:
+        (indices into ``points``, (len(cells) + 1,) offsets of each cell's group)."""
+        slot = np.full(self.shape[0] * self.shape[1], -1, np.int64)
+        slot[cells] = np.arange(len(cells))
+        offsets = np.concatenate([[0], np.cumsum(self.count.ravel()[cells], dtype=np.int64)])
+        order = binning.gather_cells(
+            points, self.frame.origin, self.frame.axes, self._grid(), self.shape[1], slot, offsets
+        )
+        return order, offsets
+
+
+def rasterize(
+    points: np.ndarray,
+    colors: np.ndarray | None,
+    frame: SurfaceFrame,
+    cell_mm: float,
+    bounds_uv: np.ndarray,
+) -> Raster:
+    """Bin (N, 3) finite cloud-frame points (and their (N, 3) uint8 colours) into cells of
+    ``cell_mm`` on ``frame``, within ``bounds_uv`` (u_min, u_max, v_min, v_max, from
+    ``binning.uv_bounds``): count and mean height per cell, mean colour per block."""
+    origin = np.array([bounds_uv[0] - cell_mm, bounds_uv[2] - cell_mm])
+    shape = (
+        int((bounds_uv[1] - origin[0]) / cell_mm) + 2,
+        int((bounds_uv[3] - origin[1]) / cell_mm) + 2,
     )
+    grid = np.array([origin[0], origin[1], 1 / cell_mm])
+    count, total, color_total = binning.bin_points(
+        points,
+        colors,
+        frame.origin,
+        frame.axes,
+        grid,
+        shape,
+        block_cells(cell_mm),
+    )
+    count = count.reshape(shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        height = (total.reshape(shape) / count).astype(np.float32)
+        block_rgb = None
+        if colors is not None:
+            in_block = block_sums(count, block_cells(cell_mm))
+            block_rgb = (color_total.reshape(*in_block.shape, 3) / in_block[..., None]).astype(
+                np.float32
+            )
+    return Raster(frame, cell_mm, origin, height, count, block_rgb)
 
 
 def point_spacing_mm(raster: Raster) -> float:
     """Typical distance between neighbouring points: √(covered area / points), the area
-    counted in 1 mm blocks of the raster."""
-    block = max(1, int(round(1.0 / raster.cell_mm)))
-    rows, cols = raster.shape
-    padded = np.zeros((-(-rows // block) * block, -(-cols // block) * block), np.int64)
-    padded[:rows, :cols] = raster.count
-    blocks = padded.reshape(padded.shape[0] // block, block, -1, block).sum(axis=(1, 3))
-    area_mm2 = np.count_nonzero(blocks) * (block * raster.cell_mm) ** 2
+    counted in blocks of the raster."""
+    block = block_cells(raster.cell_mm)
+    area_mm2 = np.count_nonzero(block_sums(raster.count, block)) * (block * raster.cell_mm) ** 2
     return float(np.sqrt(area_mm2 / max(int(raster.count.sum()), 1)))

@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from services.defects.seams import SeamLine
 
@@ -72,24 +73,21 @@ def reach_mm(seam: SeamLine, config: SectionConfig) -> float:
     return seam.half_band_mm + config.edge_band_mm + config.top_band_mm + 1.0
 
 
-def profile_seam(
-    local: np.ndarray, seam: SeamLine, config: SectionConfig, *, end_margin_mm: float
-) -> SeamProfile | None:
-    """Measure every section of ``seam`` from ``local`` (N, 3) (u, v, w) points near it."""
+def section_range(
+    seam: SeamLine, config: SectionConfig, *, end_margin_mm: float
+) -> tuple[float, int]:
+    """Position along the seam line of the first section, and how many there are."""
     first = seam.start_mm + end_margin_mm
-    count = int(np.floor((seam.end_mm - end_margin_mm - first) / config.pitch_mm)) + 1
-    if count < 1:
-        return None
-    rel = local[:, :2].astype(np.float64) - seam.centre_uv
-    along = rel @ seam.direction_uv
-    across = rel @ seam.across_uv
-    w = local[:, 2].astype(np.float64)
-    k = np.rint((along - first) / config.pitch_mm).astype(np.int64)
-    y = along - (first + k * config.pitch_mm)
-    reach = reach_mm(seam, config)
-    keep = (k >= 0) & (k < count) & (np.abs(y) <= config.slab_mm / 2) & (np.abs(across) < reach)
-    k, y, x, w = k[keep], y[keep], across[keep], w[keep]
+    return first, int(np.floor((seam.end_mm - end_margin_mm - first) / config.pitch_mm)) + 1
 
+
+def profile_seam(
+    slab: np.ndarray, seam: SeamLine, config: SectionConfig, first: float, count: int
+) -> SeamProfile | None:
+    """Measure the ``count`` sections of ``seam`` from ``first`` on, given the points in
+    their slabs as (4, M) rows (section k, y along from its plane, x across, height w;
+    ``binning.slab_points``)."""
+    k, y, x, w = slab[0].astype(np.int64), slab[1], slab[2], slab[3]
     ends = _gap_ends(k, x, w, y, seam, config, count)
     if ends is None:
         return None
@@ -255,24 +253,11 @@ def _edge_step(
     fit_radius: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One damped Gauss–Newton step of the edge model (arc, then vertical face)."""
-    c, r = centre[g], radius[g]
-    on_arc = (xp >= c) & (depth < r)
-    on_face = depth >= r
-    dx, dz = xp - c, depth - r
-    distance = np.maximum(np.hypot(dx, dz), 1e-9)
-    residual = np.where(on_arc, distance - r, np.where(on_face, xp - c - r, 0.0))
-    j_c = np.where(on_arc, -dx / distance, np.where(on_face, -1.0, 0.0))
-    j_r = np.where(on_arc, -dz / distance - 1.0, np.where(on_face, -1.0, 0.0))
-    used = (on_arc | on_face) & np.isfinite(residual)
-    residual, j_c, j_r, g = residual[used], j_c[used], j_r[used], g[used]
-    n = np.bincount(g, minlength=groups)
-    rms = np.sqrt(np.bincount(g, weights=residual**2, minlength=groups) / np.maximum(n, 1))
-    a = np.bincount(g, weights=j_c * j_c, minlength=groups) + 1e-6
-    b_c = np.bincount(g, weights=j_c * residual, minlength=groups)
+    n, sq, a, b_c, b, d, b_r = _edge_sums(g, xp, depth, centre, radius, groups)
+    rms = np.sqrt(sq / np.maximum(n, 1))
+    a += 1e-6
     if fit_radius:
-        b = np.bincount(g, weights=j_c * j_r, minlength=groups)
-        d = np.bincount(g, weights=j_r * j_r, minlength=groups) + 1e-6
-        b_r = np.bincount(g, weights=j_r * residual, minlength=groups)
+        d += 1e-6
         damp = 1e-3 * (a + d)
         det = (a + damp) * (d + damp) - b * b
         step_c = -((d + damp) * b_c - b * b_r) / det
@@ -285,3 +270,39 @@ def _edge_step(
     new_centre = np.where(enough, centre + step_c, np.nan)
     new_radius = np.where(enough, np.clip(radius + step_r, 0.05, 10.0), np.nan)
     return new_centre, new_radius, np.where(enough, rms, np.nan)
+
+
+@njit(cache=True, nogil=True)
+def _edge_sums(
+    g: np.ndarray,
+    xp: np.ndarray,
+    depth: np.ndarray,
+    centre: np.ndarray,
+    radius: np.ndarray,
+    groups: int,
+) -> np.ndarray:
+    """Per group, the normal equations of one Gauss–Newton step: (7, groups) rows n, Σr²,
+    Σj_c², Σj_c·r, Σj_c·j_r, Σj_r², Σj_r·r over the points on the arc (x' ≥ x_c, δ < ρ;
+    residual = distance to the centre − ρ) or on the face (δ ≥ ρ; residual x' − x_c − ρ)."""
+    sums = np.zeros((7, groups))
+    for i in range(g.shape[0]):
+        k = g[i]
+        c, r = centre[k], radius[k]
+        dx, dz = xp[i] - c, depth[i] - r
+        if depth[i] >= r:
+            residual, j_c, j_r = dx - r, -1.0, -1.0
+        elif xp[i] >= c:
+            distance = max(np.hypot(dx, dz), 1e-9)
+            residual, j_c, j_r = distance - r, -dx / distance, -dz / distance - 1.0
+        else:
+            continue
+        if not np.isfinite(residual):
+            continue
+        sums[0, k] += 1.0
+        sums[1, k] += residual * residual
+        sums[2, k] += j_c * j_c
+        sums[3, k] += j_c * residual
+        sums[4, k] += j_c * j_r
+        sums[5, k] += j_r * j_r
+        sums[6, k] += j_r * residual
+    return sums

@@ -24,16 +24,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from math import erf, sqrt
 
 import numpy as np
 from scipy import ndimage
 
-from services.defects.raster import Raster
+from services.defects.morphology import dilate, erode
+from services.defects.raster import BLOCK_MM, Raster, block_cells, block_sums
 from services.pointcloud.color import delta_e, srgb_to_lab
 
-BLOCK_MM = 1.0
 EIGHT_CONNECTED = np.ones((3, 3), bool)
 
 
@@ -70,24 +71,42 @@ class SurfaceFinding:
 
 def _blocks(values: np.ndarray, weights: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
     """Weighted block means over block × block cells and the weight in each block."""
-    rows, cols = values.shape
-    shape = (-(-rows // block), -(-cols // block))
-    pad = ((0, shape[0] * block - rows), (0, shape[1] * block - cols))
-    v = np.pad(np.where(weights > 0, values, 0.0) * weights, pad)
-    w = np.pad(weights.astype(np.float64), pad)
-    v = v.reshape(shape[0], block, shape[1], block).sum(axis=(1, 3))
-    w = w.reshape(shape[0], block, shape[1], block).sum(axis=(1, 3))
+    total = block_sums(np.where(weights > 0, values, 0.0) * weights, block)
+    weight = block_sums(weights.astype(np.float64), block)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return v / w, w
+        return total / weight, weight
 
 
 def _normalised_smooth(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
-    numerator = ndimage.gaussian_filter(
-        np.where(weights > 0, values * weights, 0.0), sigma, truncate=3.0
+    """Σ G·w·v / Σ G·w with a Gaussian G of ``sigma`` cells. A wide one is taken on
+    coarser cells (σ ≥ 3 of them, weighted means) and interpolated back: what it smooths
+    away is far finer than those cells."""
+    weighted = np.where(weights > 0, values * weights, 0.0)
+    factor = int(sigma // 3)
+    if factor > 1:
+        weighted, weights = block_sums(weighted, factor), block_sums(weights, factor)
+    numerator = ndimage.gaussian_filter(weighted, sigma / max(factor, 1), truncate=3.0)
+    denominator = ndimage.gaussian_filter(
+        weights.astype(np.float64), sigma / max(factor, 1), truncate=3.0
     )
-    denominator = ndimage.gaussian_filter(weights.astype(np.float64), sigma, truncate=3.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return numerator / denominator
+        smooth = numerator / denominator
+    return _upsample(smooth, factor, values.shape) if factor > 1 else smooth
+
+
+def _upsample(blocks: np.ndarray, block: int, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear interpolation of block values at the centres of the ``shape`` cells they
+    cover (edge blocks held constant beyond their centres)."""
+    for axis in (0, 1):
+        n = blocks.shape[axis]
+        at = np.clip((np.arange(shape[axis]) + 0.5) / block - 0.5, 0, n - 1)
+        low = np.minimum(at.astype(np.int64), max(n - 2, 0))
+        high = np.minimum(low + 1, n - 1)
+        t = at - low
+        a, b = np.take(blocks, low, axis), np.take(blocks, high, axis)
+        t = t[:, None] if axis == 0 else t[None, :]
+        blocks = a + (b - a) * t
+    return blocks
 
 
 def _reference(
@@ -101,10 +120,11 @@ def _reference(
     design = np.stack([a**i * b**j for i in range(4) for j in range(4 - i)], -1)
     target = height[inside]
     weight = np.ones(len(target))
+    rows = design[inside]
     for _ in range(6):
-        sw = np.sqrt(weight)
-        coef, *_ = np.linalg.lstsq(design[inside] * sw[:, None], target * sw, rcond=None)
-        residual = target - design[inside] @ coef
+        weighted = rows * weight[:, None]
+        coef = np.linalg.lstsq(weighted.T @ rows, weighted.T @ target, rcond=None)[0]
+        residual = target - rows @ coef
         sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
         weight = np.clip(1 - (residual / (4.685 * sigma)) ** 2, 0.0, None) ** 2
     surface = design @ coef
@@ -130,42 +150,50 @@ def find_surface_defects(
     labels: np.ndarray,
     panel_count: int,
     config: SurfaceConfig,
-    *,
-    colors: np.ndarray | None = None,
+    map_fn: Callable = map,
+) -> Iterator[list[SurfaceFinding]]:
+    """Dents, bumps, scratches and (if the raster has colours) colour patches, panel by
+    panel: ``map_fn`` (e.g. an executor's ``map``) runs the panels."""
+    blocks_lab = None if raster.block_rgb is None else _block_lab(raster)
+    found = ndimage.find_objects(labels, panel_count)
+    boxes = [(label, box) for label, box in enumerate(found, start=1) if box is not None]
+    return map_fn(lambda item: _panel(raster, labels, *item, blocks_lab, config), boxes)
+
+
+def _panel(
+    raster: Raster,
+    labels: np.ndarray,
+    label: int,
+    found: tuple[slice, slice],
+    blocks_lab: np.ndarray | None,
+    config: SurfaceConfig,
 ) -> list[SurfaceFinding]:
-    """Dents, bumps, scratches and (given (N, 3) uint8 ``colors`` of the raster's points)
-    colour patches on every panel."""
     cell = raster.cell_mm
-    block = max(1, int(round(BLOCK_MM / cell)))
+    block = block_cells(cell)
     margin = max(1, int(round(config.edge_margin_mm / cell)))
-    blocks_lab = None if colors is None else _block_lab(raster, colors, block)
-    findings: list[SurfaceFinding] = []
-    for label, found in enumerate(ndimage.find_objects(labels, panel_count), start=1):
-        if found is None:
-            continue
-        # Work in the panel's bounding box, aligned to whole blocks.
-        r0, r1 = found[0].start - found[0].start % block, found[0].stop
-        c0, c1 = found[1].start - found[1].start % block, found[1].stop
-        box = (slice(r0, r1), slice(c0, c1))
-        own = np.pad(labels[box] == label, 1)
-        inside = ndimage.distance_transform_cdt(own, metric="chessboard")[1:-1, 1:-1] > margin
-        height = raster.height[box].astype(np.float64)
-        inside &= np.isfinite(height)
-        if inside.sum() < 100:
-            continue
-        findings += _relief(raster, label, height, inside, (r0, c0), block, config)
-        if blocks_lab is not None:
-            lab_box = (slice(r0 // block, -(-r1 // block)), slice(c0 // block, -(-c1 // block)))
-            inside_blocks = _blocks(inside.astype(np.float64), inside.astype(np.float64), block)[1]
-            findings += _color(
-                raster,
-                label,
-                blocks_lab[lab_box],
-                inside_blocks >= 0.5 * block * block,
-                (r0, c0),
-                block,
-                config,
-            )
+    # Work in the panel's bounding box, aligned to whole blocks.
+    r0, r1 = found[0].start - found[0].start % block, found[0].stop
+    c0, c1 = found[1].start - found[1].start % block, found[1].stop
+    box = (slice(r0, r1), slice(c0, c1))
+    # More than ``margin`` cells from anything not this panel (the box's outside too).
+    inside = erode(labels[box] == label, margin)
+    height = raster.height[box].astype(np.float64)
+    inside &= np.isfinite(height)
+    if inside.sum() < 100:
+        return []
+    findings = _relief(raster, label, height, inside, (r0, c0), block, config)
+    if blocks_lab is not None:
+        lab_box = (slice(r0 // block, -(-r1 // block)), slice(c0 // block, -(-c1 // block)))
+        inside_blocks = block_sums(inside, block)
+        findings += _color(
+            raster,
+            label,
+            blocks_lab[lab_box],
+            inside_blocks >= 0.5 * block * block,
+            (r0, c0),
+            block,
+            config,
+        )
     return findings
 
 
@@ -188,9 +216,19 @@ def _relief(
         origin[0] + (b_rows + 0.5) * block - 0.5, origin[1] + (b_cols + 0.5) * block - 0.5
     )
     reference, _ = _reference(uv, coarse, coarse_inside, config.smooth_mm / BLOCK_MM)
-    fine_reference = ndimage.zoom(reference, block, order=1, mode="nearest", grid_mode=True)
-    fine_reference = fine_reference[: height.shape[0], : height.shape[1]]
+    fine_reference = _upsample(reference, block, height.shape)
     deviation = np.where(inside, height - fine_reference, np.nan)
+    # The scratches' background: the deviation smoothed on the blocks (a block is well
+    # under the smoothing's σ, so this is the fine smoothing at 1/25 of the work).
+    background = _upsample(
+        _normalised_smooth(
+            np.where(coarse_inside, coarse - reference, 0.0),
+            np.where(coarse_inside, weight, 0.0),
+            config.scratch_background_mm / BLOCK_MM,
+        ),
+        block,
+        height.shape,
+    )
     smoothed = ndimage.uniform_filter(np.nan_to_num(deviation), 3) / np.maximum(
         ndimage.uniform_filter(inside.astype(np.float64), 3), 1e-9
     )
@@ -235,9 +273,9 @@ def _relief(
         )
     # The foot of a dent or bump curves like a groove: keep scratches off its rim.
     rim = int(np.ceil(config.relief_rim_mm / cell))
-    near_relief = ndimage.distance_transform_cdt(~relief_mask, metric="chessboard") <= rim
+    near_relief = dilate(relief_mask, rim)
     scratches = _join_collinear(
-        _scratches(raster, label, deviation, inside, near_relief, origin, config)
+        _scratches(raster, label, deviation, background, inside, near_relief, origin, config)
     )
     return [f for f in findings if not any(_on_scratch(f, s) for s in scratches)] + scratches
 
@@ -308,18 +346,18 @@ def _scratches(
     raster: Raster,
     label: int,
     deviation: np.ndarray,
+    background: np.ndarray,
     inside: np.ndarray,
     relief: np.ndarray,
     origin: tuple[int, int],
     config: SurfaceConfig,
 ) -> list[SurfaceFinding]:
     """Scratches in ``deviation``, the height above the panel's reference surface (tilt
-    and curvature removed, so smoothing near the panel's border stays unbiased)."""
+    and curvature removed, so smoothing near the panel's border stays unbiased), against
+    its smooth ``background``."""
     cell = raster.cell_mm
     height = np.where(inside, deviation, 0.0)
-    weight = inside.astype(np.float64)
-    background = _normalised_smooth(height, weight, config.scratch_background_mm / cell)
-    band = _normalised_smooth(height, weight, 1.0) - background
+    band = _normalised_smooth(height, inside.astype(np.float64), 1.0) - background
     depth = np.where(inside & ~relief, -band, 0.0)
     raw_depth = np.where(inside & ~relief, background - height, 0.0)
     noise = max(1.4826 * float(np.median(np.abs(depth[inside & ~relief]))), 1e-5)
@@ -364,17 +402,9 @@ def _scratches(
     return findings
 
 
-def _block_lab(raster: Raster, colors: np.ndarray, block: int) -> np.ndarray:
+def _block_lab(raster: Raster) -> np.ndarray:
     """(rows, cols, 3) mean L*a*b* of the points in each block (NaN where none)."""
-    cells = raster.shape[0] * raster.shape[1]
-    count = raster.count.astype(np.float64)
-    channels = []
-    for c in range(3):
-        total = np.bincount(raster.cell_of_point, weights=colors[:, c], minlength=cells)
-        channels.append(
-            _blocks(total.reshape(raster.shape) / np.maximum(count, 1), count, block)[0]
-        )
-    mean = np.stack(channels, -1)
+    mean = raster.block_rgb
     lab = srgb_to_lab(np.clip(np.nan_to_num(mean), 0, 255))
     lab[~np.isfinite(mean).all(-1)] = np.nan
     return lab
