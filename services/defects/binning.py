@@ -48,10 +48,10 @@ def bin_points(
     grid: np.ndarray,
     shape: tuple[int, int],
     block: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Per cell of a ``shape`` grid (``grid`` = u0, v0, 1 / cell): point count and sum of
-    heights w (axes row 2); and the sum of the (N, 3) ``colors`` per block of ``block`` ×
-    ``block`` cells (None without colours). The points must be finite."""
+    heights w (axes row 2); per block of ``block`` × ``block`` cells: point count and the
+    sum of the (N, 3) ``colors`` (None without colours). The points must be finite."""
     no_colors = np.zeros((0, 3), np.uint8)
     parts = _in_shares(
         lambda share: _bin_points(
@@ -65,8 +65,8 @@ def bin_points(
         ),
         len(points),
     )
-    count, height, color = (sum(part[i] for part in parts) for i in range(3))
-    return count, height, None if colors is None else color
+    count, height, block_count, color = (sum(part[i] for part in parts) for i in range(4))
+    return count, height, block_count, None if colors is None else color
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -118,16 +118,18 @@ def _bin_points(
     grid: np.ndarray,
     shape: tuple[int, int],
     block: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per cell of a ``shape`` grid: point count and sum of heights w (axes row 2); and,
-    if ``colors`` has a row per point, the sum of the colour channels per block of
-    ``block`` × ``block`` cells (else a (0, 3) array). The points must be finite."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per cell of a ``shape`` grid: point count and sum of heights w (axes row 2); per
+    block of ``block`` × ``block`` cells: point count and, if ``colors`` has a row per
+    point, the sum of the colour channels (else a (0, 3) array). The points must be
+    finite."""
     rows, cols = shape
     count = np.zeros(rows * cols, np.int32)
     height = np.zeros(rows * cols, np.float64)
-    with_color = colors.shape[0] == points.shape[0]
     block_cols = -(-cols // block)
-    color = np.zeros((-(-rows // block) * block_cols if with_color else 0, 3), np.float64)
+    block_count = np.zeros(-(-rows // block) * block_cols, np.int32)
+    with_color = colors.shape[0] == points.shape[0]
+    color = np.zeros((block_count.shape[0] if with_color else 0, 3), np.float64)
     t = _transform(origin, axes, grid)
     block_scale = t[14] / block
     for i in range(points.shape[0]):
@@ -136,15 +138,14 @@ def _bin_points(
         cell = row * cols + col
         count[cell] += 1
         height[cell] += w
+        # As the cell, scaled: no integer division in the loop.
+        b = np.int64((u - t[12]) * block_scale) * block_cols + np.int64((v - t[13]) * block_scale)
+        block_count[b] += 1
         if with_color:
-            # As the cell, scaled: no integer division in the loop.
-            b = np.int64((u - t[12]) * block_scale) * block_cols + np.int64(
-                (v - t[13]) * block_scale
-            )
             color[b, 0] += colors[i, 0]
             color[b, 1] += colors[i, 1]
             color[b, 2] += colors[i, 2]
-    return count, height, color
+    return count, height, block_count, color
 
 
 @njit(cache=True, nogil=True)

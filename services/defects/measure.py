@@ -180,22 +180,24 @@ def measure(
         raise MeasureError(
             f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
         )
-    max_half_band = config.max_gap_mm / 2 + config.sections.edge_band_mm
-    lines = find_seams(
-        raster, panels, max_half_band_mm=max_half_band, min_length_mm=config.min_seam_length_mm
-    )
-    lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
-    lap("segment_s")
-    report(0.3, f"{panels.count} panels, {len(lines)} seams: sections and surface")
-    # Seams and panels are measured independently, on as many threads as there are
-    # cores (the compiled passes, NumPy and SciPy release the GIL for the heavy part).
+    lap("panels_s")
+    report(0.3, f"{panels.count} panels: seams, sections and surface")
+    # The panels' surfaces and the seams are measured independently, on as many threads
+    # as there are cores (the compiled passes, NumPy and SciPy release the GIL for the
+    # heavy part); the surface work starts first, while the seam lines are found.
     with ThreadPoolExecutor(binning.WORKERS) if binning.WORKERS > 1 else nullcontext() as pool:
         map_fn = map if pool is None else pool.map
         surface_parts = []
         if config.surface is not None:
-            surface_parts = find_surface_defects(
-                raster, panels.labels, panels.count, config.surface, map_fn
-            )
+            surface_parts = find_surface_defects(raster, panels, config.surface, map_fn)
+        max_half_band = config.max_gap_mm / 2 + config.sections.edge_band_mm
+        lines = find_seams(
+            raster,
+            panels,
+            max_half_band_mm=max_half_band,
+            min_length_mm=config.min_seam_length_mm,
+        )
+        lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
         profiles = _profile_seams(points, raster, lines, config, map_fn)
         surface = [finding for part in surface_parts for finding in part]
     seam_of_line: dict[int, SeamResult] = {}
@@ -204,7 +206,7 @@ def measure(
             seam_of_line[i] = _seam_result(len(seam_of_line), profile, frame)
     seams = list(seam_of_line.values())
     junctions = _junction_results(junction_lines, profiles, seam_of_line, frame)
-    lap("sections_and_surface_s")
+    lap("seams_and_surface_s")
     findings = _seam_findings(seams, junctions, config)
     findings += [_surface_finding(f, raster, frame, config) for f in surface]
     report(1.0, f"{len(seams)} seams, {len(junctions)} junctions, {len(findings)} findings")

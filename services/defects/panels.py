@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from services.defects.morphology import erode
+from services.defects.morphology import dilate, erode
 from services.defects.raster import Raster
 
 FOUR_CONNECTED = ndimage.generate_binary_structure(2, 1)
@@ -21,6 +21,8 @@ class Panels:
     count: int
     area_mm2: np.ndarray
     """(count,) top area of each panel."""
+    boxes: list[tuple[slice, slice]]
+    """(count,) each panel's bounding box in the height map."""
 
 
 def segment_panels(
@@ -37,24 +39,51 @@ def segment_panels(
     ``background_drop_mm`` below the surface the panels make (the backing structure seen
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
     filled: they belong to the panel."""
-    d_row, d_col = np.gradient(raster.height, raster.cell_mm)
-    with np.errstate(invalid="ignore"):
-        flat = d_row * d_row + d_col * d_col < np.tan(np.radians(max_slope_deg)) ** 2
+    flat = _flat(raster.height, raster.cell_mm, max_slope_deg)
     core = erode(flat, 1)
     labels, count = ndimage.label(core, structure=FOUR_CONNECTED)
     cell_area = raster.cell_mm**2
-    sizes = np.bincount(labels.ravel(), minlength=count + 1)[1:] * cell_area
+    # Sizes from every 4th cell: plenty to tell a panel top from specks.
+    sizes = np.bincount(labels[::2, ::2].ravel(), minlength=count + 1)[1:] * 4 * cell_area
     keep = np.flatnonzero(sizes >= min_area_mm2) + 1
     keep = keep[~_below_surface(raster, labels, keep, background_drop_mm)]
     relabel = np.zeros(count + 1, dtype=np.int32)
     relabel[keep] = np.arange(1, len(keep) + 1)
     labels = relabel[labels]
-    labels = np.where(flat, ndimage.maximum_filter(labels, size=3), 0).astype(np.int32)
-    for label, found in enumerate(ndimage.find_objects(labels), start=1):
-        holes = ndimage.binary_fill_holes(labels[found] == label) & (labels[found] == 0)
-        labels[found][holes] = label
+    labels = _grow(labels, flat)
+    boxes = ndimage.find_objects(labels, len(keep))
+    for label, found in enumerate(boxes, start=1):
+        # Holes: parts of the rest of the panel's box that do not reach the box's border.
+        rest, _ = ndimage.label(labels[found] != label)
+        border = np.unique(np.concatenate([rest[0], rest[-1], rest[:, 0], rest[:, -1]]))
+        reaches = np.zeros(rest.max() + 1, bool)
+        reaches[border] = True
+        labels[found][~reaches[rest] & (labels[found] == 0)] = label
     area = np.bincount(labels.ravel(), minlength=len(keep) + 1)[1:] * cell_area
-    return Panels(labels, len(keep), area)
+    return Panels(labels, len(keep), area, boxes)
+
+
+def _grow(labels: np.ndarray, allowed: np.ndarray) -> np.ndarray:
+    """Labels grown by one cell (the largest of the 3 × 3 neighbours) into the
+    ``allowed`` cells without one; only that ring of cells is looked at."""
+    ring = allowed & (labels == 0) & dilate(labels > 0, 1)
+    ring[[0, -1], :] = ring[:, [0, -1]] = False  # every ring cell has 8 neighbours
+    rows, cols = np.nonzero(ring)
+    grown = labels.astype(np.int32)
+    neighbours = [labels[rows + dr, cols + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)]
+    grown[rows, cols] = np.max(neighbours, axis=0)
+    return grown
+
+
+def _flat(height: np.ndarray, cell_mm: float, max_slope_deg: float) -> np.ndarray:
+    """Cells whose slope (central differences) is below ``max_slope_deg``; the border
+    cells of the map are not."""
+    d_row = (height[2:, 1:-1] - height[:-2, 1:-1]) / (2 * cell_mm)
+    d_col = (height[1:-1, 2:] - height[1:-1, :-2]) / (2 * cell_mm)
+    flat = np.zeros(height.shape, bool)
+    with np.errstate(invalid="ignore"):
+        flat[1:-1, 1:-1] = d_row * d_row + d_col * d_col < np.tan(np.radians(max_slope_deg)) ** 2
+    return flat
 
 
 def _below_surface(
@@ -73,7 +102,8 @@ def _below_surface(
     height = raster.height[rows, cols].astype(np.float64)
     inlier = np.ones(len(u), dtype=bool)
     for _ in range(5):
-        coef, *_ = np.linalg.lstsq(design[inlier], height[inlier], rcond=None)
+        chosen = design[inlier]
+        coef = np.linalg.solve(chosen.T @ chosen, chosen.T @ height[inlier])
         inlier = np.abs(height - design @ coef) < drop_mm / 2
     residual = height - design @ coef
     part = labels[rows, cols]

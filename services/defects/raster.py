@@ -26,12 +26,20 @@ def block_cells(cell_mm: float) -> int:
 
 def block_sums(values: np.ndarray, block: int) -> np.ndarray:
     """Sums over ``block`` × ``block`` cells of a (rows, cols, …) array (zero-padded to
-    whole blocks)."""
+    whole blocks; booleans are counted)."""
     rows, cols = values.shape[:2]
     shape = (-(-rows // block), -(-cols // block))
-    padded = np.zeros((shape[0] * block, shape[1] * block, *values.shape[2:]), values.dtype)
+    dtype = np.int32 if values.dtype == bool else values.dtype
+    padded = np.zeros((shape[0] * block, shape[1] * block, *values.shape[2:]), dtype)
     padded[:rows, :cols] = values
-    return padded.reshape(shape[0], block, shape[1], block, *values.shape[2:]).sum((1, 3))
+    # Strided adds: several times faster than summing a reshaped array's inner axes.
+    across = padded[:, 0::block].copy()
+    for i in range(1, block):
+        across += padded[:, i::block]
+    sums = across[0::block].copy()
+    for i in range(1, block):
+        sums += across[i::block]
+    return sums
 
 
 @dataclass(frozen=True)
@@ -85,10 +93,12 @@ class Raster:
     """(rows, cols) float32 mean w of the points in each cell, NaN where none."""
     count: np.ndarray
     """(rows, cols) int32 points per cell."""
+    block_count: np.ndarray
+    """(⌈rows / b⌉, ⌈cols / b⌉) int32 points per block of b = ``block_cells(cell_mm)``
+    cells square."""
     block_rgb: np.ndarray | None
     """(⌈rows / b⌉, ⌈cols / b⌉, 3) float32 mean sRGB colour of the points in each block
-    of b = ``block_cells(cell_mm)`` cells square (NaN where none), if the cloud has
-    colours."""
+    (NaN where none), if the cloud has colours."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -111,7 +121,7 @@ class Raster:
     def points_in(self, points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The points binned into ``cells`` (sorted unique flat indices), grouped by cell:
         (indices into ``points``, (len(cells) + 1,) offsets of each cell's group)."""
-        slot = np.full(self.shape[0] * self.shape[1], -1, np.int64)
+        slot = np.full(self.shape[0] * self.shape[1], -1, np.int32)
         slot[cells] = np.arange(len(cells))
         offsets = np.concatenate([[0], np.cumsum(self.count.ravel()[cells], dtype=np.int64)])
         order = binning.gather_cells(
@@ -136,30 +146,24 @@ def rasterize(
         int((bounds_uv[3] - origin[1]) / cell_mm) + 2,
     )
     grid = np.array([origin[0], origin[1], 1 / cell_mm])
-    count, total, color_total = binning.bin_points(
-        points,
-        colors,
-        frame.origin,
-        frame.axes,
-        grid,
-        shape,
-        block_cells(cell_mm),
+    block = block_cells(cell_mm)
+    count, total, block_count, color_total = binning.bin_points(
+        points, colors, frame.origin, frame.axes, grid, shape, block
     )
     count = count.reshape(shape)
+    block_count = block_count.reshape(-(-shape[0] // block), -(-shape[1] // block))
     with np.errstate(invalid="ignore", divide="ignore"):
         height = (total.reshape(shape) / count).astype(np.float32)
         block_rgb = None
-        if colors is not None:
-            in_block = block_sums(count, block_cells(cell_mm))
-            block_rgb = (color_total.reshape(*in_block.shape, 3) / in_block[..., None]).astype(
-                np.float32
-            )
-    return Raster(frame, cell_mm, origin, height, count, block_rgb)
+        if color_total is not None:
+            rgb = color_total.reshape(*block_count.shape, 3) / block_count[..., None]
+            block_rgb = rgb.astype(np.float32)
+    return Raster(frame, cell_mm, origin, height, count, block_count, block_rgb)
 
 
 def point_spacing_mm(raster: Raster) -> float:
     """Typical distance between neighbouring points: √(covered area / points), the area
     counted in blocks of the raster."""
-    block = block_cells(raster.cell_mm)
-    area_mm2 = np.count_nonzero(block_sums(raster.count, block)) * (block * raster.cell_mm) ** 2
-    return float(np.sqrt(area_mm2 / max(int(raster.count.sum()), 1)))
+    block_mm = block_cells(raster.cell_mm) * raster.cell_mm
+    area_mm2 = np.count_nonzero(raster.block_count) * block_mm**2
+    return float(np.sqrt(area_mm2 / max(int(raster.block_count.sum()), 1)))

@@ -28,6 +28,8 @@ from numba import njit
 from services.defects.seams import SeamLine
 
 MIN_POINTS = 8
+_KEY_SPAN = 1000.0
+"""Wider than any x or gap in a section (mm): sorts by section, then by x or gap."""
 
 
 @dataclass(frozen=True)
@@ -159,13 +161,13 @@ def _gap_ends(
     floor = np.where(np.isfinite(floor), floor, np.inf)
     near = (np.abs(x) < seam.half_band_mm + 1.5) & (w >= floor[k])
     kn, xn = k[near], x[near]
-    order = np.lexsort((xn, kn))
+    order = np.argsort(kn * _KEY_SPAN + xn)  # by section, then x (|x| < _KEY_SPAN / 2)
     kn, xn = kn[order], xn[order]
     if len(kn) < 2:
         return None
     width = np.diff(xn)
     width[kn[1:] != kn[:-1]] = -1.0
-    best = np.lexsort((-width, kn[:-1]))
+    best = np.argsort(kn[:-1] * _KEY_SPAN - width)  # by section, widest first
     first_of_group = np.r_[True, kn[:-1][best][1:] != kn[:-1][best][:-1]]
     pick = best[first_of_group]
     sections = kn[pick]
@@ -190,17 +192,15 @@ def _fit_tops(
     groups: int,
 ) -> np.ndarray:
     """(groups, 3) α, β, γ of each side's top plane w = α + β·xm + γ·y."""
-    band = (xm <= -config.edge_band_mm) & (xm >= -config.edge_band_mm - config.top_band_mm)
-    g, basis, target = group[band], [np.ones(band.sum()), xm[band], y[band]], w[band]
+    sums = _top_sums(
+        group, xm, w, y, -config.edge_band_mm - config.top_band_mm, -config.edge_band_mm, groups
+    )
+    basis_products = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
     normal = np.zeros((groups, 3, 3))
-    rhs = np.zeros((groups, 3))
-    for i in range(3):
-        rhs[:, i] = np.bincount(g, weights=basis[i] * target, minlength=groups)
-        for j in range(i, 3):
-            normal[:, i, j] = normal[:, j, i] = np.bincount(
-                g, weights=basis[i] * basis[j], minlength=groups
-            )
-    enough = np.bincount(g, minlength=groups) >= MIN_POINTS
+    for row, (i, j) in enumerate(basis_products):
+        normal[:, i, j] = normal[:, j, i] = sums[row]
+    rhs = sums[6:9].T
+    enough = sums[0] >= MIN_POINTS
     normal[~enough] = np.eye(3)
     solution = np.linalg.solve(normal, rhs[..., None])[..., 0]
     solution[~enough] = np.nan
@@ -230,7 +230,10 @@ def _fit_edges(
     radius = np.full(groups, 1.0)
     centre = last - 0.97 * radius
     for _ in range(12):
+        before = centre
         centre, radius, _ = _edge_step(g, xp, depth, centre, radius, groups, fit_radius=True)
+        if _converged(before, centre):
+            break
     # The radius belongs to the whole edge: its median over the seam, side by side.
     side_radius = np.array(
         [np.nanmedian(np.where(np.isfinite(centre[s::2]), radius[s::2], np.nan)) for s in (0, 1)]
@@ -238,8 +241,17 @@ def _fit_edges(
     radius = np.tile(side_radius, groups // 2)
     centre = last - 0.97 * radius
     for _ in range(6):
+        before = centre
         centre, radius, rms = _edge_step(g, xp, depth, centre, radius, groups, fit_radius=False)
+        if _converged(before, centre):
+            break
     return centre + radius, side_radius, rms
+
+
+def _converged(before: np.ndarray, after: np.ndarray, tolerance_mm: float = 1e-5) -> bool:
+    """Whether no edge moved by more than ``tolerance_mm`` (lost ones aside)."""
+    moved = np.abs(after - before)
+    return not np.any(moved[np.isfinite(moved)] > tolerance_mm)
 
 
 def _edge_step(
@@ -305,4 +317,35 @@ def _edge_sums(
         sums[4, k] += j_c * j_r
         sums[5, k] += j_r * j_r
         sums[6, k] += j_r * residual
+    return sums
+
+
+@njit(cache=True, nogil=True)
+def _top_sums(
+    group: np.ndarray,
+    xm: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    low: float,
+    high: float,
+    groups: int,
+) -> np.ndarray:
+    """Per group, the normal equations of the plane w = α + β·xm + γ·y through the points
+    with ``low`` ≤ xm ≤ ``high``: (9, groups) rows Σ1, Σxm, Σy, Σxm², Σxm·y, Σy², Σw,
+    Σxm·w, Σy·w."""
+    sums = np.zeros((9, groups))
+    for i in range(group.shape[0]):
+        x = xm[i]
+        if not low <= x <= high:
+            continue
+        k, b, h = group[i], y[i], w[i]
+        sums[0, k] += 1.0
+        sums[1, k] += x
+        sums[2, k] += b
+        sums[3, k] += x * x
+        sums[4, k] += x * b
+        sums[5, k] += b * b
+        sums[6, k] += h
+        sums[7, k] += x * h
+        sums[8, k] += b * h
     return sums

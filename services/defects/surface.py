@@ -32,6 +32,7 @@ import numpy as np
 from scipy import ndimage
 
 from services.defects.morphology import dilate, erode
+from services.defects.panels import Panels
 from services.defects.raster import BLOCK_MM, Raster, block_cells, block_sums
 from services.pointcloud.color import delta_e, srgb_to_lab
 
@@ -72,7 +73,7 @@ class SurfaceFinding:
 def _blocks(values: np.ndarray, weights: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
     """Weighted block means over block × block cells and the weight in each block."""
     total = block_sums(np.where(weights > 0, values, 0.0) * weights, block)
-    weight = block_sums(weights.astype(np.float64), block)
+    weight = block_sums(weights.astype(values.dtype), block)
     with np.errstate(invalid="ignore", divide="ignore"):
         return total / weight, weight
 
@@ -87,7 +88,7 @@ def _normalised_smooth(values: np.ndarray, weights: np.ndarray, sigma: float) ->
         weighted, weights = block_sums(weighted, factor), block_sums(weights, factor)
     numerator = ndimage.gaussian_filter(weighted, sigma / max(factor, 1), truncate=3.0)
     denominator = ndimage.gaussian_filter(
-        weights.astype(np.float64), sigma / max(factor, 1), truncate=3.0
+        weights.astype(weighted.dtype), sigma / max(factor, 1), truncate=3.0
     )
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = numerator / denominator
@@ -102,7 +103,7 @@ def _upsample(blocks: np.ndarray, block: int, shape: tuple[int, int]) -> np.ndar
         at = np.clip((np.arange(shape[axis]) + 0.5) / block - 0.5, 0, n - 1)
         low = np.minimum(at.astype(np.int64), max(n - 2, 0))
         high = np.minimum(low + 1, n - 1)
-        t = at - low
+        t = (at - low).astype(blocks.dtype)
         a, b = np.take(blocks, low, axis), np.take(blocks, high, axis)
         t = t[:, None] if axis == 0 else t[None, :]
         blocks = a + (b - a) * t
@@ -117,13 +118,19 @@ def _reference(
     scale = np.maximum(np.ptp(points, axis=0), 1.0) / 2
     centre = points.mean(0)
     a, b = ((uv - centre) / scale).transpose(2, 0, 1)
-    design = np.stack([a**i * b**j for i in range(4) for j in range(4 - i)], -1)
+    powers_a, powers_b = [np.ones_like(a)], [np.ones_like(b)]
+    for _ in range(3):
+        powers_a.append(powers_a[-1] * a)
+        powers_b.append(powers_b[-1] * b)
+    design = np.stack([powers_a[i] * powers_b[j] for i in range(4) for j in range(4 - i)], -1)
     target = height[inside]
     weight = np.ones(len(target))
     rows = design[inside]
     for _ in range(6):
         weighted = rows * weight[:, None]
-        coef = np.linalg.lstsq(weighted.T @ rows, weighted.T @ target, rcond=None)[0]
+        coef = np.linalg.solve(
+            weighted.T @ rows + 1e-9 * np.eye(rows.shape[1]), weighted.T @ target
+        )
         residual = target - rows @ coef
         sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
         weight = np.clip(1 - (residual / (4.685 * sigma)) ** 2, 0.0, None) ** 2
@@ -146,18 +153,13 @@ def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, f
 
 
 def find_surface_defects(
-    raster: Raster,
-    labels: np.ndarray,
-    panel_count: int,
-    config: SurfaceConfig,
-    map_fn: Callable = map,
+    raster: Raster, panels: Panels, config: SurfaceConfig, map_fn: Callable = map
 ) -> Iterator[list[SurfaceFinding]]:
     """Dents, bumps, scratches and (if the raster has colours) colour patches, panel by
     panel: ``map_fn`` (e.g. an executor's ``map``) runs the panels."""
     blocks_lab = None if raster.block_rgb is None else _block_lab(raster)
-    found = ndimage.find_objects(labels, panel_count)
-    boxes = [(label, box) for label, box in enumerate(found, start=1) if box is not None]
-    return map_fn(lambda item: _panel(raster, labels, *item, blocks_lab, config), boxes)
+    boxes = [(label, box) for label, box in enumerate(panels.boxes, start=1) if box is not None]
+    return map_fn(lambda item: _panel(raster, panels.labels, *item, blocks_lab, config), boxes)
 
 
 def _panel(
@@ -177,7 +179,7 @@ def _panel(
     box = (slice(r0, r1), slice(c0, c1))
     # More than ``margin`` cells from anything not this panel (the box's outside too).
     inside = erode(labels[box] == label, margin)
-    height = raster.height[box].astype(np.float64)
+    height = raster.height[box]  # float32 on the fine cells: half the memory traffic
     inside &= np.isfinite(height)
     if inside.sum() < 100:
         return []
@@ -207,7 +209,8 @@ def _relief(
     config: SurfaceConfig,
 ) -> list[SurfaceFinding]:
     cell = raster.cell_mm
-    coarse, weight = _blocks(height, inside.astype(np.float64), block)
+    coarse, weight = _blocks(height, inside.astype(np.float32), block)
+    coarse, weight = coarse.astype(np.float64), weight.astype(np.float64)
     coarse_inside = weight >= 0.5 * block * block
     b_rows, b_cols = np.meshgrid(
         np.arange(coarse.shape[0]), np.arange(coarse.shape[1]), indexing="ij"
@@ -216,7 +219,7 @@ def _relief(
         origin[0] + (b_rows + 0.5) * block - 0.5, origin[1] + (b_cols + 0.5) * block - 0.5
     )
     reference, _ = _reference(uv, coarse, coarse_inside, config.smooth_mm / BLOCK_MM)
-    fine_reference = _upsample(reference, block, height.shape)
+    fine_reference = _upsample(reference.astype(np.float32), block, height.shape)
     deviation = np.where(inside, height - fine_reference, np.nan)
     # The scratches' background: the deviation smoothed on the blocks (a block is well
     # under the smoothing's σ, so this is the fine smoothing at 1/25 of the work).
@@ -225,12 +228,12 @@ def _relief(
             np.where(coarse_inside, coarse - reference, 0.0),
             np.where(coarse_inside, weight, 0.0),
             config.scratch_background_mm / BLOCK_MM,
-        ),
+        ).astype(np.float32),
         block,
         height.shape,
     )
     smoothed = ndimage.uniform_filter(np.nan_to_num(deviation), 3) / np.maximum(
-        ndimage.uniform_filter(inside.astype(np.float64), 3), 1e-9
+        ndimage.uniform_filter(inside.astype(np.float32), 3), 1e-9
     )
     smoothed = np.where(inside, smoothed, 0.0)
     findings = []
@@ -357,10 +360,14 @@ def _scratches(
     its smooth ``background``."""
     cell = raster.cell_mm
     height = np.where(inside, deviation, 0.0)
-    band = _normalised_smooth(height, inside.astype(np.float64), 1.0) - background
-    depth = np.where(inside & ~relief, -band, 0.0)
-    raw_depth = np.where(inside & ~relief, background - height, 0.0)
-    noise = max(1.4826 * float(np.median(np.abs(depth[inside & ~relief]))), 1e-5)
+    band = _normalised_smooth(height, inside.astype(np.float32), 1.0) - background
+    clear = inside & ~relief
+    depth = np.where(clear, -band, 0.0)
+    raw_depth = np.where(clear, background - height, 0.0)
+    # The noise level from every 4th cell: as good an estimate at a quarter of the work.
+    sample = depth[::2, ::2][clear[::2, ::2]]
+    noise = 1.4826 * float(np.median(np.abs(sample))) if len(sample) else 0.0
+    noise = max(noise, 1e-5)
     score = depth / noise
     seeds = score > config.scratch_sigma + 2
     grown, _ = ndimage.label(score > config.scratch_sigma, EIGHT_CONNECTED)
