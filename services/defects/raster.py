@@ -75,7 +75,8 @@ def fit_frame(points: np.ndarray, normals: np.ndarray | None) -> SurfaceFrame:
     _, vectors = np.linalg.eigh(np.cov((chosen - origin).T))
     towards = np.array([0.0, 0.0, 1.0])
     if normals is not None:
-        towards = np.nanmean(normals[::step][finite], axis=0)
+        sampled = normals[::step][finite]
+        towards = sampled[np.isfinite(sampled).all(axis=1)].sum(axis=0)
     w = vectors[:, 0] if vectors[:, 0] @ towards >= 0 else -vectors[:, 0]
     u = vectors[:, 2]
     return SurfaceFrame(origin, np.stack([u, np.cross(w, u), w]))

@@ -28,8 +28,6 @@ from numba import njit
 from services.defects.seams import SeamLine
 
 MIN_POINTS = 8
-_KEY_SPAN = 1000.0
-"""Wider than any x or gap in a section (mm): sorts by section, then by x or gap."""
 
 
 @dataclass(frozen=True)
@@ -160,24 +158,10 @@ def _gap_ends(
     floor = np.nanmin(tops, axis=1) - (config.edge_band_mm + 1.5)
     floor = np.where(np.isfinite(floor), floor, np.inf)
     near = (np.abs(x) < seam.half_band_mm + 1.5) & (w >= floor[k])
-    kn, xn = k[near], x[near]
-    order = np.argsort(kn * _KEY_SPAN + xn)  # by section, then x (|x| < _KEY_SPAN / 2)
-    kn, xn = kn[order], xn[order]
-    if len(kn) < 2:
+    if near.sum() < 2:
         return None
-    width = np.diff(xn)
-    width[kn[1:] != kn[:-1]] = -1.0
-    best = np.argsort(kn[:-1] * _KEY_SPAN - width)  # by section, widest first
-    first_of_group = np.r_[True, kn[:-1][best][1:] != kn[:-1][best][:-1]]
-    pick = best[first_of_group]
-    sections = kn[pick]
-    end_a = np.full(count, np.nan)
-    end_b = np.full(count, np.nan)
-    end_a[sections] = xn[pick]
-    end_b[sections] = xn[pick + 1]
-    valid = np.zeros(count, dtype=bool)
-    valid[sections] = width[pick] > 0
-    valid &= np.isfinite(tops).all(axis=1)
+    end_a, end_b, width = _widest_gaps(k, x, near, count)
+    valid = (width > 0) & np.isfinite(tops).all(axis=1)
     end_a = np.where(valid, end_a, 0.0)
     end_b = np.where(valid, end_b, 0.0)
     return end_a, end_b, valid, floor
@@ -349,3 +333,31 @@ def _top_sums(
         sums[7, k] += x * h
         sums[8, k] += b * h
     return sums
+
+
+@njit(cache=True, nogil=True)
+def _widest_gaps(
+    k: np.ndarray, x: np.ndarray, near: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per section k, the widest stretch between consecutive ``near`` points along x:
+    its two ends and its width (−1 with fewer than two points)."""
+    starts = np.zeros(count + 1, np.int64)
+    for i in range(k.shape[0]):
+        if near[i]:
+            starts[k[i] + 1] += 1
+    starts = np.cumsum(starts)
+    xs = np.empty(starts[-1])
+    fill = starts[:-1].copy()
+    for i in range(k.shape[0]):
+        if near[i]:
+            xs[fill[k[i]]] = x[i]
+            fill[k[i]] += 1
+    end_a, end_b = np.zeros(count), np.zeros(count)
+    width = np.full(count, -1.0)
+    for s in range(count):
+        section = np.sort(xs[starts[s] : starts[s + 1]])
+        for j in range(section.shape[0] - 1):
+            if section[j + 1] - section[j] > width[s]:
+                width[s] = section[j + 1] - section[j]
+                end_a[s], end_b[s] = section[j], section[j + 1]
+    return end_a, end_b, width
