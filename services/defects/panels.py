@@ -103,7 +103,7 @@ def _below_surface(
     inlier = np.ones(len(u), dtype=bool)
     for _ in range(5):
         chosen = design[inlier]
-        coef = np.linalg.solve(chosen.T @ chosen, chosen.T @ height[inlier])
+        coef = np.linalg.lstsq(chosen.T @ chosen, chosen.T @ height[inlier], rcond=None)[0]
         inlier = np.abs(height - design @ coef) < drop_mm / 2
     residual = height - design @ coef
     part = labels[rows, cols]
