@@ -21,7 +21,7 @@ import numpy as np
 from services.defects.config import MeasureConfig
 from services.defects.evaluate import Evaluation, evaluate
 from services.defects.example import BASE_T_PART, merged_cloud
-from services.defects.measure import measure
+from services.defects.measure import measure, warm_up
 from services.defects.simulate import AssemblySpec, random_assembly, scan_assembly, truth_document
 from services.stitching.scan_sim import SensorModel
 from supervisor.bench.document import print_verdict, say, write_document
@@ -162,6 +162,7 @@ def _verdict(total: dict, rows: list[dict]) -> dict[str, bool]:
 
 
 def run_defects_bench(out: Path, *, seeds: int = 2, seed: int = 0, cases=CASES) -> dict:
+    warm_up()  # compiling the numba passes is once per installation, not per m²
     rows = []
     all_vista, all_gauge = Evaluation(), Evaluation()
     for index, case in enumerate(cases):

@@ -50,10 +50,6 @@ class SurfaceFrame:
     origin: np.ndarray
     axes: np.ndarray
 
-    def to_local(self, points: np.ndarray) -> np.ndarray:
-        """(N, 3) cloud-frame points → (N, 3) float64 (u, v, w), mm."""
-        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.axes.T
-
     def to_cloud(self, local: np.ndarray) -> np.ndarray:
         """(…, 3) (u, v, w) → (…, 3) cloud-frame points, float64."""
         return np.asarray(local, dtype=np.float64) @ self.axes + self.origin

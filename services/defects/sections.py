@@ -219,9 +219,8 @@ def _fit_edges(
         if _converged(before, centre):
             break
     # The radius belongs to the whole edge: its median over the seam, side by side.
-    side_radius = np.array(
-        [np.nanmedian(np.where(np.isfinite(centre[s::2]), radius[s::2], np.nan)) for s in (0, 1)]
-    )
+    fitted = [radius[s::2][np.isfinite(centre[s::2])] for s in (0, 1)]
+    side_radius = np.array([np.median(r) if len(r) else np.nan for r in fitted])
     radius = np.tile(side_radius, groups // 2)
     centre = last - 0.97 * radius
     for _ in range(6):

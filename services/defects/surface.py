@@ -8,7 +8,8 @@
   height map inside (signed: below = dent), diameter = that of the circle with the
   region's area where the deviation exceeds a quarter of the depth.
 - **Scratches.** A band-pass of the fine height map (Gaussian σ = one cell minus σ =
-  ``scratch_background_mm``) in units of its robust noise level; depressions beyond
+  ``scratch_background_mm``, the latter taken on the blocks) in units of its robust
+  noise level; depressions beyond
   ``scratch_sigma`` (hysteresis from ``scratch_sigma`` + 2) that are long and thin
   (length ≥ ``scratch_min_length_mm``, length / width ≥ 4) and at least
   ``scratch_min_depth_mm`` deep, and not within ``relief_rim_mm`` of a dent or bump
