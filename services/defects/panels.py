@@ -91,7 +91,7 @@ def _below_surface(
 ) -> np.ndarray:
     """(len(candidates),) bool: parts whose mean height lies more than ``drop_mm`` below a
     quadric fitted (trimmed, area-weighted) to all candidate parts."""
-    stride = max(1, int(np.sqrt(labels.size / 50_000)))
+    stride = max(1, int(np.sqrt(labels.size / 20_000)))
     candidate = np.zeros(labels.max() + 1, bool)
     candidate[candidates] = True
     rows, cols = np.nonzero(candidate[labels[::stride, ::stride]])

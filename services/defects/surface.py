@@ -142,6 +142,23 @@ def _reference(
     return surface + np.where(np.isfinite(detail), detail, 0.0), inlier
 
 
+def _mean3(deviation: np.ndarray, inside: np.ndarray, window: tuple[slice, slice]) -> np.ndarray:
+    """The 3 × 3 mean of ``deviation`` over the ``inside`` cells, in ``window`` only (0
+    outside): computed on the window grown by a cell, so it equals the whole map's."""
+    grown = tuple(
+        slice(max(w.start - 1, 0), min(w.stop + 1, n))
+        for w, n in zip(window, deviation.shape, strict=True)
+    )
+    crop = tuple(
+        slice(w.start - g.start, w.start - g.start + min(w.stop, n) - w.start)
+        for w, g, n in zip(window, grown, deviation.shape, strict=True)
+    )
+    mask = inside[grown]
+    total = ndimage.uniform_filter(np.where(mask, deviation[grown], 0.0), 3)
+    weight = np.maximum(ndimage.uniform_filter(mask.astype(np.float32), 3), 1e-9)
+    return np.where(mask, total / weight, 0.0)[crop]
+
+
 def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, float, np.ndarray]:
     """(length, width, direction) of a region from the spread along its principal axes
     (a uniform bar of length L has standard deviation L / √12)."""
@@ -233,10 +250,6 @@ def _relief(
         block,
         height.shape,
     )
-    smoothed = ndimage.uniform_filter(np.nan_to_num(deviation), 3) / np.maximum(
-        ndimage.uniform_filter(inside.astype(np.float32), 3), 1e-9
-    )
-    smoothed = np.where(inside, smoothed, 0.0)
     findings = []
     coarse_deviation = np.where(coarse_inside, coarse - reference, 0.0)
     relief_mask = np.zeros(height.shape, bool)
@@ -249,10 +262,11 @@ def _relief(
             slice(found[0].start * block, found[0].stop * block),
             slice(found[1].start * block, found[1].stop * block),
         )
+        smoothed = _mean3(deviation, inside, fine)
         own_fine = np.repeat(np.repeat(own, block, 0), block, 1)[
-            : smoothed[fine].shape[0], : smoothed[fine].shape[1]
+            : smoothed.shape[0], : smoothed.shape[1]
         ]
-        values = np.where(own_fine, smoothed[fine], 0.0)
+        values = np.where(own_fine, smoothed, 0.0)
         peak = np.unravel_index(np.argmax(np.abs(values)), values.shape)
         depth = float(values[peak])
         core = own_fine & (np.abs(values) >= abs(depth) / 4) & (np.sign(values) == np.sign(depth))
@@ -364,7 +378,6 @@ def _scratches(
     band = _normalised_smooth(height, inside.astype(np.float32), 1.0) - background
     clear = inside & ~relief
     depth = np.where(clear, -band, 0.0)
-    raw_depth = np.where(clear, background - height, 0.0)
     # The noise level from every 4th cell: as good an estimate at a quarter of the work.
     sample = depth[::2, ::2][clear[::2, ::2]]
     noise = 1.4826 * float(np.median(np.abs(sample))) if len(sample) else 0.0
@@ -380,10 +393,11 @@ def _scratches(
         own = grown[found] == index
         rows, cols = np.nonzero(own)
         length, width, direction = _shape(rows, cols, cell)
-        deepest = float(np.percentile(raw_depth[found][own], 98))
+        raw_depth = (background[found] - height[found])[own]  # own ⊂ clear
+        deepest = float(np.percentile(raw_depth, 98))
         thin = length >= config.scratch_min_length_mm and length >= 4 * width
         # A parabolic groove's section is ⅔ width × depth.
-        section_mm2 = float(np.clip(raw_depth[found][own], 0, None).sum()) * cell * cell / length
+        section_mm2 = float(np.clip(raw_depth, 0, None).sum()) * cell * cell / length
         width = float(np.clip(1.5 * section_mm2 / max(deepest, 1e-6), cell / 2, width))
         if not thin or deepest < config.scratch_min_depth_mm:
             continue
