@@ -1,11 +1,13 @@
-"""Compiled passes over the points: one to bound them, one to bin them into the height map
-(count, height and colour sums together), one to gather the points of chosen cells.
+"""Compiled passes over the points: one to bin them into the height map (count, height and
+colour sums together), one to gather the points of chosen cells, one to take a seam's
+section slabs; and the bounds of an even sample of them.
 
 A stitched assembly is ~100 M points per m² at 0.1 mm spacing; each numpy pass over them
 costs more than the whole budget allows, so these three loops are compiled (numba) and
 read each point once. They run without the GIL and hold no state, so jobs in threads may
-call them at the same time. Every pass computes a point's cell with ``_uvw`` and ``_cell_of``, so the
-cells of the gather are exactly those of the binning.
+call them at the same time. Every pass computes a point's cell with ``_uvw`` and
+``_cell_of``, so the cells of the gather are exactly those of the binning; points outside
+the grid (not finite, or strays beyond the sampled extent) belong to no cell.
 """
 
 from __future__ import annotations
@@ -29,15 +31,14 @@ def _in_shares(task: Callable[[slice], tuple], n: int) -> list[tuple]:
         return list(pool.map(task, shares))
 
 
-def uv_bounds(points: np.ndarray, origin: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, int]:
-    """(u_min, u_max, v_min, v_max) of the finite (N, 3) points in the frame (origin, axes
-    rows u, v), and how many points are not finite."""
-    parts = _in_shares(lambda share: _uv_bounds(points[share], origin, axes), len(points))
-    bounds = np.array([part[0] for part in parts])
-    return (
-        np.array([bounds[:, 0].min(), bounds[:, 1].max(), bounds[:, 2].min(), bounds[:, 3].max()]),
-        sum(part[1] for part in parts),
-    )
+def uv_bounds(
+    points: np.ndarray, origin: np.ndarray, axes: np.ndarray, stride: int = 8
+) -> np.ndarray:
+    """(u_min, u_max, v_min, v_max) of every ``stride``-th finite point of (N, 3) points
+    in the frame (origin, axes rows u, v): neighbouring points follow each other in a
+    scanned or voxel-merged cloud, so the sample misses the extent by about ``stride``
+    point spacings at most."""
+    return _uv_bounds(points[::stride], origin, axes)
 
 
 def bin_points(
@@ -51,7 +52,8 @@ def bin_points(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Per cell of a ``shape`` grid (``grid`` = u0, v0, 1 / cell): point count and sum of
     heights w (axes row 2); per block of ``block`` × ``block`` cells: point count and the
-    sum of the (N, 3) ``colors`` (None without colours). The points must be finite."""
+    sum of the (N, 3) ``colors`` (None without colours). Points outside the grid are
+    left out."""
     no_colors = np.zeros((0, 3), np.uint8)
     parts = _in_shares(
         lambda share: _bin_points(
@@ -65,7 +67,10 @@ def bin_points(
         ),
         len(points),
     )
-    count, height, block_count, color = (sum(part[i] for part in parts) for i in range(4))
+    count, height, block_count, color = parts[0]
+    for part in parts[1:]:  # in place: no fresh (page-faulting) arrays of the grid's size
+        for total, share in zip((count, height, block_count, color), part, strict=True):
+            total += share
     return count, height, block_count, None if colors is None else color
 
 
@@ -89,24 +94,25 @@ def _uvw(points: np.ndarray, i: int, t: tuple) -> tuple[float, float, float]:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _cell_of(u: float, v: float, t: tuple) -> tuple[int, int]:
-    """(row, col) of the cell holding (u, v); ``t[12:15]`` = (u0, v0, 1 / cell)."""
-    return np.int64((u - t[12]) * t[14]), np.int64((v - t[13]) * t[14])
+def _cell_of(u: float, v: float, t: tuple, rows: int, cols: int) -> int:
+    """Flat index of the cell holding (u, v), −1 outside the grid (or not finite);
+    ``t[12:15]`` = (u0, v0, 1 / cell)."""
+    row, col = (u - t[12]) * t[14], (v - t[13]) * t[14]
+    if not (0.0 <= row < rows and 0.0 <= col < cols):
+        return -1
+    return np.int64(row) * cols + np.int64(col)
 
 
 @njit(cache=True, nogil=True)
-def _uv_bounds(points: np.ndarray, origin: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, int]:
+def _uv_bounds(points: np.ndarray, origin: np.ndarray, axes: np.ndarray) -> np.ndarray:
     t = _transform(origin, axes, np.zeros(3))
     u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
-    bad = 0
     for i in range(points.shape[0]):
         u, v, w = _uvw(points, i, t)
-        if not abs(u) + abs(v) + abs(w) < np.inf:
-            bad += 1
-            continue
-        u_min, u_max = min(u_min, u), max(u_max, u)
-        v_min, v_max = min(v_min, v), max(v_max, v)
-    return np.array([u_min, u_max, v_min, v_max]), bad
+        if abs(u) + abs(v) + abs(w) < np.inf:
+            u_min, u_max = min(u_min, u), max(u_max, u)
+            v_min, v_max = min(v_min, v), max(v_max, v)
+    return np.array([u_min, u_max, v_min, v_max])
 
 
 @njit(cache=True, nogil=True)
@@ -121,11 +127,11 @@ def _bin_points(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per cell of a ``shape`` grid: point count and sum of heights w (axes row 2); per
     block of ``block`` × ``block`` cells: point count and, if ``colors`` has a row per
-    point, the sum of the colour channels (else a (0, 3) array). The points must be
-    finite."""
+    point, the sum of the colour channels (else a (0, 3) array); points outside the grid
+    are left out."""
     rows, cols = shape
     count = np.zeros(rows * cols, np.int32)
-    height = np.zeros(rows * cols, np.float64)
+    height = np.zeros(rows * cols, np.float32)  # a few heights of ±tens of mm: ample
     block_cols = -(-cols // block)
     block_count = np.zeros(-(-rows // block) * block_cols, np.int32)
     with_color = colors.shape[0] == points.shape[0]
@@ -134,8 +140,9 @@ def _bin_points(
     block_scale = t[14] / block
     for i in range(points.shape[0]):
         u, v, w = _uvw(points, i, t)
-        row, col = _cell_of(u, v, t)
-        cell = row * cols + col
+        cell = _cell_of(u, v, t, rows, cols)
+        if cell < 0:
+            continue
         count[cell] += 1
         height[cell] += w
         # As the cell, scaled: no integer division in the loop.
@@ -154,20 +161,21 @@ def gather_cells(
     origin: np.ndarray,
     axes: np.ndarray,
     grid: np.ndarray,
-    cols: int,
+    shape: tuple[int, int],
     slot: np.ndarray,
     offsets: np.ndarray,
 ) -> np.ndarray:
     """Indices of the points in the chosen cells, grouped by cell: ``slot`` maps a flat
     cell to its place among the chosen ones (−1 if not chosen), and the points of chosen
     cell s go to [offsets[s], offsets[s + 1]) in point order."""
+    rows, cols = shape
     order = np.empty(offsets[-1], np.int64)
     fill = offsets[:-1].copy()
     t = _transform(origin, axes, grid)
     for i in range(points.shape[0]):
         u, v, _ = _uvw(points, i, t)
-        row, col = _cell_of(u, v, t)
-        s = slot[row * cols + col]
+        cell = _cell_of(u, v, t, rows, cols)
+        s = slot[cell] if cell >= 0 else -1
         if s >= 0:
             order[fill[s]] = i
             fill[s] += 1

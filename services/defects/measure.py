@@ -28,6 +28,8 @@ from services.defects.surface import SurfaceFinding, find_surface_defects
 from services.pointcloud.ply import PointCloud
 
 Progress = Callable[[float, str], None]
+MAX_CELLS = 60e6
+"""Largest height map measured (2.4 m² at 0.2 mm cells; ~2 GB of work arrays)."""
 MIN_SIGMA_MM = 0.005
 
 
@@ -153,17 +155,24 @@ def measure(
         seconds[name] = now - clock
         clock = now
 
-    points, colors, normals = cloud.points, cloud.colors, cloud.normals
+    points, colors, normals = cloud.points, cloud.colors, cloud.normals  # NaNs are skipped
     report(0.02, f"fitting the surface frame to {len(points)} points")
     frame = fit_frame(points, normals)
-    bounds, not_finite = binning.uv_bounds(points, frame.origin, frame.axes)
-    if not_finite:
-        finite = np.isfinite(points).all(axis=1)
-        points = points[finite]
-        colors = None if colors is None else colors[finite]
     if len(points) < 1000:
-        raise MeasureError(f"the cloud has {len(points)} finite points; at least 1000 needed")
+        raise MeasureError(f"the cloud has {len(points)} points; at least 1000 needed")
+    bounds = binning.uv_bounds(points, frame.origin, frame.axes)
+    if not np.isfinite(bounds).all():
+        raise MeasureError("the cloud has no finite points")
+    span_u, span_v = bounds[1] - bounds[0], bounds[3] - bounds[2]
+    if span_u * span_v / config.cell_mm**2 > MAX_CELLS:
+        raise MeasureError(
+            f"the cloud spans {span_u:.0f} × {span_v:.0f} mm: more than {MAX_CELLS:.0e} cells "
+            f"of {config.cell_mm:g} mm (far stray points? crop the cloud, or raise cell_mm)"
+        )
     raster = rasterize(points, colors, frame, config.cell_mm, bounds)
+    binned = int(raster.count.sum())
+    if binned < 1000:
+        raise MeasureError(f"the cloud has {binned} finite points; at least 1000 needed")
     spacing = point_spacing_mm(raster)
     cell = max(config.cell_mm, 1.5 * spacing)
     if cell > config.cell_mm:

@@ -14,6 +14,8 @@ import numpy as np
 from services.defects import binning
 
 SAMPLE_POINTS = 50_000
+BOUNDS_MARGIN_MM = 3.0
+"""The height map reaches this far beyond the extent of the points' sample."""
 BLOCK_MM = 1.0
 """Coarse work (colour, the reference surface, point spacing) is done on blocks of cells
 about this size."""
@@ -122,7 +124,7 @@ class Raster:
         slot[cells] = np.arange(len(cells))
         offsets = np.concatenate([[0], np.cumsum(self.count.ravel()[cells], dtype=np.int64)])
         order = binning.gather_cells(
-            points, self.frame.origin, self.frame.axes, self._grid(), self.shape[1], slot, offsets
+            points, self.frame.origin, self.frame.axes, self._grid(), self.shape, slot, offsets
         )
         return order, offsets
 
@@ -134,13 +136,16 @@ def rasterize(
     cell_mm: float,
     bounds_uv: np.ndarray,
 ) -> Raster:
-    """Bin (N, 3) finite cloud-frame points (and their (N, 3) uint8 colours) into cells of
-    ``cell_mm`` on ``frame``, within ``bounds_uv`` (u_min, u_max, v_min, v_max, from
-    ``binning.uv_bounds``): count and mean height per cell, mean colour per block."""
-    origin = np.array([bounds_uv[0] - cell_mm, bounds_uv[2] - cell_mm])
+    """Bin (N, 3) cloud-frame points (and their (N, 3) uint8 colours) into cells of
+    ``cell_mm`` on ``frame``: count and mean height per cell, mean colour per block. The
+    grid covers ``bounds_uv`` (u_min, u_max, v_min, v_max of a sample, from
+    ``binning.uv_bounds``) and ``BOUNDS_MARGIN_MM`` around; points beyond it (strays) and
+    points that are not finite are left out."""
+    margin = BOUNDS_MARGIN_MM + cell_mm
+    origin = np.array([bounds_uv[0] - margin, bounds_uv[2] - margin])
     shape = (
-        int((bounds_uv[1] - origin[0]) / cell_mm) + 2,
-        int((bounds_uv[3] - origin[1]) / cell_mm) + 2,
+        int((bounds_uv[1] + margin - origin[0]) / cell_mm) + 1,
+        int((bounds_uv[3] + margin - origin[1]) / cell_mm) + 1,
     )
     grid = np.array([origin[0], origin[1], 1 / cell_mm])
     block = block_cells(cell_mm)
@@ -150,7 +155,7 @@ def rasterize(
     count = count.reshape(shape)
     block_count = block_count.reshape(-(-shape[0] // block), -(-shape[1] // block))
     with np.errstate(invalid="ignore", divide="ignore"):
-        height = (total.reshape(shape) / count).astype(np.float32)
+        height = np.divide(total.reshape(shape), count, dtype=np.float32)
         block_rgb = None
         if color_total is not None:
             rgb = color_total.reshape(*block_count.shape, 3) / block_count[..., None]
