@@ -9,14 +9,13 @@
   region's area where the deviation exceeds a quarter of the depth.
 - **Scratches.** A band-pass of the fine height map (Gaussian σ = one cell minus σ =
   ``scratch_background_mm``, the latter taken on the blocks) in units of its robust
-  noise level; depressions beyond
-  ``scratch_sigma`` (hysteresis from ``scratch_sigma`` + 2) that are long and thin
-  (length ≥ ``scratch_min_length_mm``, length / width ≥ 4) and at least
-  ``scratch_min_depth_mm`` deep, and not within ``relief_rim_mm`` of a dent or bump
-  (whose foot curves like a groove), are scratches. Length from the region's principal
-  axes; depth = the 98th percentile of the cells' depth below the smoothed surface (a
-  lower bound for scratches narrower than a cell); width = 1.5 × the mean section area
-  / depth (exact for a parabolic groove).
+  noise level; depressions beyond ``scratch_sigma`` (hysteresis from ``scratch_sigma`` +
+  2) that are long and thin (length ≥ ``scratch_min_length_mm``, length / width ≥ 4)
+  and at least ``scratch_min_depth_mm`` deep, and not within ``relief_rim_mm`` of a dent
+  or bump at least twice that across (whose foot curves like a groove), are scratches.
+  Length from the region's principal axes; depth = the 98th percentile of the cells'
+  depth below the smoothed surface (a lower bound for scratches narrower than a cell);
+  width = 1.5 × the mean section area / depth (exact for a parabolic groove).
 - **Colour.** Mean colour on 1 mm blocks in CIE L*a*b*; the panel's own colour is the
   normalised Gaussian average (σ = ``smooth_mm``) of the blocks within ``color_detect``
   ΔE of its median; blocks further than ``color_detect`` from it form patches (area,
@@ -34,7 +33,7 @@ from scipy import ndimage
 
 from services.defects.morphology import dilate, erode
 from services.defects.panels import Panels
-from services.defects.raster import BLOCK_MM, Raster, block_cells, block_sums
+from services.defects.raster import Raster, block_cells, block_sums
 from services.pointcloud.color import delta_e, srgb_to_lab
 
 EIGHT_CONNECTED = np.ones((3, 3), bool)
@@ -236,7 +235,8 @@ def _relief(
     uv = raster.centres_uv(
         origin[0] + (b_rows + 0.5) * block - 0.5, origin[1] + (b_cols + 0.5) * block - 0.5
     )
-    reference, _ = _reference(uv, coarse, coarse_inside, config.smooth_mm / BLOCK_MM)
+    block_mm = block * cell
+    reference, _ = _reference(uv, coarse, coarse_inside, config.smooth_mm / block_mm)
     fine_reference = _upsample(reference.astype(np.float32), block, height.shape)
     deviation = np.where(inside, height - fine_reference, np.nan)
     # The scratches' background: the deviation smoothed on the blocks (a block is well
@@ -245,7 +245,7 @@ def _relief(
         _normalised_smooth(
             np.where(coarse_inside, coarse - reference, 0.0),
             np.where(coarse_inside, weight, 0.0),
-            config.scratch_background_mm / BLOCK_MM,
+            config.scratch_background_mm / block_mm,
         ).astype(np.float32),
         block,
         height.shape,
@@ -274,7 +274,8 @@ def _relief(
         length, width, _ = _shape(*np.nonzero(core), cell)
         if diameter < config.dent_min_diameter_mm or length > 4 * width:
             continue  # thin: a scratch's business
-        relief_mask[fine] |= own_fine
+        if diameter >= 2 * config.relief_rim_mm:  # a small pit's foot is no groove
+            relief_mask[fine] |= own_fine
         at = raster.centres_uv(
             origin[0] + fine[0].start + peak[0], origin[1] + fine[1].start + peak[1]
         )
@@ -448,7 +449,9 @@ def _color(
     inlier = inside & (delta_e(lab, base) < config.color_detect)
     reference = np.stack(
         [
-            _normalised_smooth(lab[..., c], inlier.astype(np.float64), config.smooth_mm / BLOCK_MM)
+            _normalised_smooth(
+                lab[..., c], inlier.astype(np.float64), config.smooth_mm / (block * raster.cell_mm)
+            )
             for c in range(3)
         ],
         -1,
