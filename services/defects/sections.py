@@ -213,28 +213,38 @@ def _fit_edges(
     np.maximum.at(last, g, np.where(np.isfinite(xp), xp, -np.inf))
     radius = np.full(groups, 1.0)
     centre = last - 0.97 * radius
-    for _ in range(12):
-        before = centre
-        centre, radius, _ = _edge_step(g, xp, depth, centre, radius, groups, fit_radius=True)
-        if _converged(before, centre):
-            break
+    centre, radius, _ = _fit_arc(g, xp, depth, centre, radius, groups, fit_radius=True)
     # The radius belongs to the whole edge: its median over the seam, side by side.
     fitted = [radius[s::2][np.isfinite(centre[s::2])] for s in (0, 1)]
     side_radius = np.array([np.median(r) if len(r) else np.nan for r in fitted])
     radius = np.tile(side_radius, groups // 2)
     centre = last - 0.97 * radius
-    for _ in range(6):
-        before = centre
-        centre, radius, rms = _edge_step(g, xp, depth, centre, radius, groups, fit_radius=False)
-        if _converged(before, centre):
-            break
+    centre, radius, rms = _fit_arc(g, xp, depth, centre, radius, groups, fit_radius=False)
     return centre + radius, side_radius, rms
 
 
-def _converged(before: np.ndarray, after: np.ndarray, tolerance_mm: float = 1e-5) -> bool:
-    """Whether no edge moved by more than ``tolerance_mm`` (lost ones aside)."""
-    moved = np.abs(after - before)
-    return not np.any(moved[np.isfinite(moved)] > tolerance_mm)
+def _fit_arc(
+    g: np.ndarray,
+    xp: np.ndarray,
+    depth: np.ndarray,
+    centre: np.ndarray,
+    radius: np.ndarray,
+    groups: int,
+    *,
+    fit_radius: bool,
+    tolerance_mm: float = 1e-5,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss–Newton steps (12 with the radius free, 6 with it fixed) until no edge moves
+    by more than ``tolerance_mm`` (lost ones aside)."""
+    for _ in range(12 if fit_radius else 6):
+        before = centre
+        centre, radius, rms = _edge_step(
+            g, xp, depth, centre, radius, groups, fit_radius=fit_radius
+        )
+        moved = np.abs(centre - before)
+        if not np.any(moved[np.isfinite(moved)] > tolerance_mm):
+            break
+    return centre, radius, rms
 
 
 def _edge_step(
