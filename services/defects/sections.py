@@ -88,7 +88,7 @@ def profile_seam(
     their slabs as (4, M) rows (section k, y along from its plane, x across, height w;
     ``binning.slab_points``)."""
     k, y, x, w = slab[0].astype(np.int64), slab[1], slab[2], slab[3]
-    ends = _gap_ends(k, x, w, y, seam, config, count)
+    ends = _gap_ends(k, x, w, seam, config, count)
     if ends is None:
         return None
     end_a, end_b, valid, floor = ends
@@ -141,7 +141,6 @@ def _gap_ends(
     k: np.ndarray,
     x: np.ndarray,
     w: np.ndarray,
-    y: np.ndarray,
     seam: SeamLine,
     config: SectionConfig,
     count: int,
@@ -234,47 +233,30 @@ def _fit_arc(
     fit_radius: bool,
     tolerance_mm: float = 1e-5,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss–Newton steps (12 with the radius free, 6 with it fixed) until no edge moves
-    by more than ``tolerance_mm`` (lost ones aside)."""
+    """Damped Gauss–Newton steps of the edge model (arc, then vertical face): 12 with the
+    radius free, 6 with it fixed, or until no edge moves by more than ``tolerance_mm``
+    (lost ones aside). Groups with too few points are lost (NaN)."""
     for _ in range(12 if fit_radius else 6):
+        n, sq, a, b_c, b, d, b_r = _edge_sums(g, xp, depth, centre, radius, groups)
+        rms = np.sqrt(sq / np.maximum(n, 1))
+        a += 1e-6
+        if fit_radius:
+            d += 1e-6
+            damp = 1e-3 * (a + d)
+            det = (a + damp) * (d + damp) - b * b
+            step_c = -((d + damp) * b_c - b * b_r) / det
+            step_r = -((a + damp) * b_r - b * b_c) / det
+        else:
+            step_c, step_r = -b_c / a, np.zeros(groups)
+        enough = n >= MIN_POINTS
         before = centre
-        centre, radius, rms = _edge_step(
-            g, xp, depth, centre, radius, groups, fit_radius=fit_radius
-        )
+        centre = np.where(enough, centre + np.clip(step_c, -0.5, 0.5), np.nan)
+        radius = np.where(enough, np.clip(radius + np.clip(step_r, -0.5, 0.5), 0.05, 10.0), np.nan)
+        rms = np.where(enough, rms, np.nan)
         moved = np.abs(centre - before)
         if not np.any(moved[np.isfinite(moved)] > tolerance_mm):
             break
     return centre, radius, rms
-
-
-def _edge_step(
-    g: np.ndarray,
-    xp: np.ndarray,
-    depth: np.ndarray,
-    centre: np.ndarray,
-    radius: np.ndarray,
-    groups: int,
-    *,
-    fit_radius: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One damped Gauss–Newton step of the edge model (arc, then vertical face)."""
-    n, sq, a, b_c, b, d, b_r = _edge_sums(g, xp, depth, centre, radius, groups)
-    rms = np.sqrt(sq / np.maximum(n, 1))
-    a += 1e-6
-    if fit_radius:
-        d += 1e-6
-        damp = 1e-3 * (a + d)
-        det = (a + damp) * (d + damp) - b * b
-        step_c = -((d + damp) * b_c - b * b_r) / det
-        step_r = -((a + damp) * b_r - b * b_c) / det
-    else:
-        step_c, step_r = -b_c / a, np.zeros(groups)
-    step_c = np.clip(step_c, -0.5, 0.5)
-    step_r = np.clip(step_r, -0.5, 0.5)
-    enough = n >= MIN_POINTS
-    new_centre = np.where(enough, centre + step_c, np.nan)
-    new_radius = np.where(enough, np.clip(radius + step_r, 0.05, 10.0), np.nan)
-    return new_centre, new_radius, np.where(enough, rms, np.nan)
 
 
 @njit(cache=True, nogil=True)
