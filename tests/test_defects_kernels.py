@@ -1,5 +1,7 @@
 """The fast building blocks of `vista measure` against plain NumPy/SciPy references: the
-compiled passes over the points, square morphology, block sums and block interpolation."""
+compiled passes over the points (binning, seam slabs, the frame's sample), square
+morphology, labelling, block sums, block interpolation, Gaussian smoothing, the robust
+reference fit and region shapes."""
 
 from __future__ import annotations
 
@@ -8,9 +10,10 @@ import pytest
 from scipy import ndimage
 
 from services.defects import binning
-from services.defects.morphology import dilate, erode
-from services.defects.raster import block_sums, fit_frame, rasterize
-from services.defects.surface import _upsample
+from services.defects.morphology import dilate, erode, label4
+from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, rasterize
+from services.defects.smoothing import gaussian_pair
+from services.defects.surface import _shape, _tukey_fit, _upsample
 
 
 @pytest.mark.parametrize("shape", [(1, 7), (9, 1), (40, 33)])
@@ -38,7 +41,7 @@ def test_block_sums_and_upsampling_equal_the_references() -> None:
     assert np.allclose(_upsample(blocks, 5, (23, 17)), zoomed)
 
 
-def test_binning_and_gathering_agree_with_numpy_and_skip_strays() -> None:
+def test_binning_agrees_with_numpy_and_skips_strays() -> None:
     rng = np.random.default_rng(2)
     points = np.column_stack(
         [rng.uniform(0, 40, 20_000), rng.uniform(0, 30, 20_000), rng.normal(0, 0.1, 20_000)]
@@ -66,9 +69,128 @@ def test_binning_and_gathering_agree_with_numpy_and_skip_strays() -> None:
     seen = raster.block_count > 0
     assert np.allclose(raster.block_rgb[..., 0][seen], red[seen] / raster.block_count[seen])
 
-    cells = np.flatnonzero(count)[::7]
-    order, offsets = raster.points_in(points, cells)
-    for i in (0, len(cells) // 2, len(cells) - 1):
-        inside = np.flatnonzero(flat == cells[i]) + 8
-        assert np.array_equal(order[offsets[i] : offsets[i + 1]], inside)
-    assert len(order) == count[cells].sum()
+
+def _slab_reference(local: np.ndarray, line: np.ndarray, sections: np.ndarray) -> np.ndarray:
+    """(M, 4) sorted (k, y, x, w) rows of the points in one seam's slabs, by NumPy."""
+    rel = local[:, :2] - line[:2]
+    along = rel @ line[2:4]
+    across = rel @ np.array([-line[3], line[2]])
+    first, pitch, count, half_slab, reach = sections
+    k = np.rint((along - first) / pitch)
+    y = along - (first + k * pitch)
+    inside = (k >= 0) & (k < count) & (np.abs(y) <= half_slab) & (np.abs(across) < reach)
+    rows = np.column_stack([k, y, across, local[:, 2]])[inside]
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+@pytest.mark.parametrize("order", ["scan", "shuffled"])
+def test_seam_slabs_equal_numpy_with_and_without_skipping_runs(order) -> None:
+    rng = np.random.default_rng(3)
+    u, v = np.meshgrid(np.arange(0, 60, 0.1), np.arange(0, 40, 0.1), indexing="ij")
+    points = np.column_stack([u.ravel(), v.ravel(), rng.normal(0, 0.05, u.size)])
+    if order == "shuffled":  # every run of points spans the plate: none can be skipped
+        points = points[rng.permutation(len(points))]
+    points = points.astype(np.float32)
+    points[:3] = np.nan
+    frame = fit_frame(points, None)
+    raster = rasterize(
+        points, None, frame, 0.1, binning.uv_bounds(points, frame.origin, frame.axes)
+    )
+    local = (points[3:].astype(np.float64) - frame.origin) @ frame.axes.T
+    # One seam along u, one diagonal crossing it: the cells where they meet are in both
+    # bands.
+    direction = np.array([1.0, 1.0]) / np.sqrt(2)
+    lines = np.array(
+        [
+            [local[:, 0].mean(), local[:, 1].mean(), 1.0, 0.0, -25.0, 25.0],
+            [local[:, 0].mean(), local[:, 1].mean(), *direction, -20.0, 20.0],
+        ]
+    )
+    sections = np.array([[-20.0, 2.0, 21, 0.5, 4.0], [-15.0, 2.5, 13, 0.5, 3.0]])
+    pieces = binning.seam_slabs(
+        points,
+        frame.origin,
+        frame.axes,
+        raster.grid,
+        raster.count,
+        raster.chunk_uv,
+        lines,
+        sections,
+    )
+    for seam in range(2):
+        found = np.concatenate(pieces[seam], 1).T
+        found = found[np.lexsort(found.T[::-1])]
+        expected = _slab_reference(local, lines[seam, :4], sections[seam])
+        assert len(found) > 1000
+        assert np.allclose(found, expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("shape", [(1, 9), (9, 1), (60, 45), (0, 4)])
+def test_labelling_equals_scipy(shape) -> None:
+    rng = np.random.default_rng(4)
+    for share in (0.3, 0.55, 0.8):
+        mask = rng.random(shape) < share
+        labels, sizes = label4(mask)
+        expected, count = ndimage.label(mask)
+        assert np.array_equal(labels, expected)
+        assert np.array_equal(sizes, np.bincount(expected.ravel(), minlength=count + 1)[1:])
+
+
+@pytest.mark.parametrize("sigma", [1.0, 2.2, 4.0])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_gaussian_pair_equals_scipy(sigma, dtype) -> None:
+    rng = np.random.default_rng(5)
+    for shape in ((31, 44), (3, 2), (1, 7)):  # kernels wider than the array: mirrored on
+        a, b = rng.random(shape).astype(dtype), rng.random(shape).astype(dtype)
+        smooth_a, smooth_b = gaussian_pair(a, b, sigma)
+        assert smooth_a.dtype == dtype
+        tolerance = 1e-6 if dtype == np.float32 else 1e-12
+        assert np.allclose(
+            smooth_a, ndimage.gaussian_filter(a, sigma, truncate=3.0), atol=tolerance
+        )
+        assert np.allclose(
+            smooth_b, ndimage.gaussian_filter(b, sigma, truncate=3.0), atol=tolerance
+        )
+
+
+def test_tukey_fit_and_region_shape_equal_numpy() -> None:
+    rng = np.random.default_rng(6)
+    design = np.column_stack([np.ones(3000), rng.random((3000, 5))])
+    target = design @ rng.normal(size=6) + rng.normal(0, 0.01, 3000)
+    target[::50] += 5.0  # outliers: weighted out
+    weight = np.ones(len(target))
+    for _ in range(4):
+        weighted = design * weight[:, None]
+        coef = np.linalg.solve(weighted.T @ design + 1e-9 * np.eye(6), weighted.T @ target)
+        residual = target - design @ coef
+        sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
+        weight = np.clip(1 - (residual / (4.685 * sigma)) ** 2, 0.0, None) ** 2
+    found, found_weight = _tukey_fit(design, target, 4)
+    assert np.allclose(found, coef, atol=1e-10) and np.allclose(found_weight, weight)
+    assert (found_weight[::50] == 0).all()
+
+    for rows, cols in [
+        (rng.integers(0, 40, 300), rng.integers(0, 9, 300)),
+        (np.arange(50), np.arange(50) // 2),
+        (np.arange(30), np.full(30, 4)),
+    ]:
+        values, vectors = np.linalg.eigh(np.cov(np.stack([rows, cols]) * 0.1))
+        spread = np.sqrt(np.maximum(values, 0.0) * 12) + 0.1
+        length, width, direction = _shape(rows, cols, 0.1)
+        assert np.isclose(length, spread[1]) and np.isclose(width, spread[0], atol=1e-6)
+        assert np.isclose(abs(direction @ vectors[:, 1]), 1.0)
+
+
+def test_frame_from_the_sample_equals_numpy() -> None:
+    rng = np.random.default_rng(7)
+    points = rng.normal(0, 1, (200_000, 3)) * [40.0, 20.0, 0.5] + [300.0, -50.0, 1000.0]
+    points[::97] = np.nan
+    normals = np.tile([0.0, 0.0, -1.0], (len(points), 1))
+    frame = fit_frame(points.astype(np.float32), normals)
+    step = len(points) // SAMPLE_POINTS
+    sample = points[::step].astype(np.float32).astype(np.float64)
+    sample = sample[np.isfinite(sample).all(1)]
+    assert np.allclose(frame.origin, sample.mean(0), atol=1e-6)
+    values, vectors = np.linalg.eigh(np.cov(sample.T))
+    assert np.isclose(abs(frame.axes[0] @ vectors[:, 2]), 1.0)
+    assert np.allclose(frame.axes[2], -vectors[:, 0] * np.sign(vectors[2, 0]), atol=1e-9)

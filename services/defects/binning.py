@@ -21,10 +21,19 @@ from numba import njit
 
 WORKERS = min(2, os.cpu_count() or 1)
 """Threads for the passes over all points (each takes a share of the points)."""
+CHUNK = 64
+"""The binning notes the (u, v) box of each run of this many consecutive points, so that
+later passes skip the runs far from what they look for (in a scanned or voxel-merged
+cloud, consecutive points are neighbours)."""
+TILE = 16
+"""Cells along the side of the tiles that tell the seam pass which runs to read."""
 
 
 def _in_shares(task: Callable[[slice], tuple], n: int) -> list[tuple]:
-    shares = [slice(i * n // WORKERS, (i + 1) * n // WORKERS) for i in range(WORKERS)]
+    """``task`` on ``WORKERS`` shares of n points, each starting at a whole chunk."""
+    chunks = -(-n // CHUNK)
+    bounds = [min(n, (i * chunks // WORKERS) * CHUNK) for i in range(WORKERS + 1)]
+    shares = [slice(bounds[i], bounds[i + 1]) for i in range(WORKERS)]
     if WORKERS == 1:
         return [task(shares[0])]
     with ThreadPoolExecutor(WORKERS) as pool:
@@ -41,6 +50,57 @@ def uv_bounds(
     return _uv_bounds(points[::stride], origin, axes)
 
 
+def sample_moments(
+    points: np.ndarray, normals: np.ndarray | None, step: int
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """Of every ``step``-th finite point of (N, 3) ``points``: their number, mean and
+    (3, 3) covariance, and the sum of their finite (N, 3) ``normals`` (zeros without)."""
+    no_normals = np.zeros((0, 3), np.float32)
+    return _sample_moments(points, no_normals if normals is None else normals, step)
+
+
+def seam_slabs(
+    points: np.ndarray,
+    origin: np.ndarray,
+    axes: np.ndarray,
+    grid: np.ndarray,
+    count: np.ndarray,
+    chunk_uv: np.ndarray,
+    lines: np.ndarray,
+    sections: np.ndarray,
+) -> list[list[np.ndarray]]:
+    """The points in each seam's section slabs, as pieces of (4, M) rows: section k, y
+    along the seam from its section's plane, x across the seam, height w.
+
+    Grid as for ``bin_points``, with its (rows, cols) point ``count`` and ``chunk_uv``
+    boxes. Per seam, ``lines`` rows = (u, v of its centre, direction u, v, start, end
+    along it) and ``sections`` rows = (position of section 0 along the line, pitch,
+    number of sections, half slab width, reach across the line). Only the runs of points
+    whose box touches a tile near a seam (its band: cell centres within reach + one cell
+    of the line) are read."""
+    seam_of_cell, band_tiles, capacity = _seam_bands(grid, count, lines, sections[:, 4])
+    offsets = np.concatenate([[0], np.cumsum(capacity)])
+    parts = _in_shares(
+        lambda share: _seam_slabs(
+            points[share],
+            chunk_uv[share.start // CHUNK :],
+            origin,
+            axes,
+            grid,
+            seam_of_cell,
+            band_tiles,
+            lines,
+            sections,
+            offsets,
+        ),
+        len(points),
+    )
+    return [
+        [slab[:, offsets[s] : offsets[s] + filled[s]] for slab, filled in parts]
+        for s in range(len(lines))
+    ]
+
+
 def bin_points(
     points: np.ndarray,
     colors: np.ndarray | None,
@@ -49,11 +109,12 @@ def bin_points(
     grid: np.ndarray,
     shape: tuple[int, int],
     block: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
     """Per cell of a ``shape`` grid (``grid`` = u0, v0, 1 / cell): point count and sum of
     heights w (axes row 2); per block of ``block`` × ``block`` cells: point count and the
-    sum of the (N, 3) ``colors`` (None without colours). Points outside the grid are
-    left out."""
+    sum of the (N, 3) ``colors`` (None without colours); per ``CHUNK`` consecutive
+    points: (u_min, u_max, v_min, v_max) of those in the grid (float32; min > max if
+    none). Points outside the grid are left out."""
     no_colors = np.zeros((0, 3), np.uint8)
     parts = _in_shares(
         lambda share: _bin_points(
@@ -67,11 +128,12 @@ def bin_points(
         ),
         len(points),
     )
-    count, height, block_count, color = parts[0]
+    count, height, block_count, color, _ = parts[0]
     for part in parts[1:]:  # in place: no fresh (page-faulting) arrays of the grid's size
-        for total, share in zip((count, height, block_count, color), part, strict=True):
+        for total, share in zip((count, height, block_count, color), part[:4], strict=True):
             total += share
-    return count, height, block_count, None if colors is None else color
+    chunk_uv = np.concatenate([part[4] for part in parts])
+    return count, height, block_count, None if colors is None else color, chunk_uv
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -116,6 +178,41 @@ def _uv_bounds(points: np.ndarray, origin: np.ndarray, axes: np.ndarray) -> np.n
 
 
 @njit(cache=True, nogil=True)
+def _sample_moments(
+    points: np.ndarray, normals: np.ndarray, step: int
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    with_normals = normals.shape[0] == points.shape[0]
+    ref = np.zeros(3)  # sums about a point of the cloud: no cancellation far from 0
+    found = False
+    n = 0
+    total = np.zeros(3)
+    products = np.zeros((3, 3))
+    towards = np.zeros(3)
+    for i in range(0, points.shape[0], step):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if not abs(x) + abs(y) + abs(z) < np.inf:
+            continue
+        if not found:
+            ref[0], ref[1], ref[2] = x, y, z
+            found = True
+        d = (x - ref[0], y - ref[1], z - ref[2])
+        n += 1
+        for a in range(3):
+            total[a] += d[a]
+            for b in range(3):
+                products[a, b] += d[a] * d[b]
+        if with_normals:
+            nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+            if abs(nx) + abs(ny) + abs(nz) < np.inf:
+                towards[0] += nx
+                towards[1] += ny
+                towards[2] += nz
+    mean = total / max(n, 1)
+    covariance = (products - n * np.outer(mean, mean)) / max(n - 1, 1)
+    return n, ref + mean, covariance, towards
+
+
+@njit(cache=True, nogil=True)
 def _bin_points(
     points: np.ndarray,
     colors: np.ndarray,
@@ -124,11 +221,11 @@ def _bin_points(
     grid: np.ndarray,
     shape: tuple[int, int],
     block: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per cell of a ``shape`` grid: point count and sum of heights w (axes row 2); per
     block of ``block`` × ``block`` cells: point count and, if ``colors`` has a row per
     point, the sum of the colour channels (else a (0, 3) array); points outside the grid
-    are left out."""
+    are left out; and the (u, v) box of each ``CHUNK`` points in the grid."""
     rows, cols = shape
     count = np.zeros(rows * cols, np.int32)
     height = np.zeros(rows * cols, np.float32)  # a few heights of ±tens of mm: ample
@@ -136,84 +233,129 @@ def _bin_points(
     block_count = np.zeros(-(-rows // block) * block_cols, np.int32)
     with_color = colors.shape[0] == points.shape[0]
     color = np.zeros((block_count.shape[0] if with_color else 0, 3), np.float64)
+    n = points.shape[0]
+    chunk_uv = np.empty((-(-n // CHUNK), 4), np.float32)
     t = _transform(origin, axes, grid)
     block_scale = t[14] / block
-    for i in range(points.shape[0]):
-        u, v, w = _uvw(points, i, t)
-        cell = _cell_of(u, v, t, rows, cols)
-        if cell < 0:
-            continue
-        count[cell] += 1
-        height[cell] += w
-        # As the cell, scaled: no integer division in the loop.
-        b = np.int64((u - t[12]) * block_scale) * block_cols + np.int64((v - t[13]) * block_scale)
-        block_count[b] += 1
-        if with_color:
-            color[b, 0] += colors[i, 0]
-            color[b, 1] += colors[i, 1]
-            color[b, 2] += colors[i, 2]
-    return count, height, block_count, color
+    for chunk in range(chunk_uv.shape[0]):
+        u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
+        for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
+            u, v, w = _uvw(points, i, t)
+            cell = _cell_of(u, v, t, rows, cols)
+            if cell < 0:
+                continue
+            u_min, u_max = min(u_min, u), max(u_max, u)
+            v_min, v_max = min(v_min, v), max(v_max, v)
+            count[cell] += 1
+            height[cell] += w
+            # As the cell, scaled: no integer division in the loop.
+            row, col = (u - t[12]) * block_scale, (v - t[13]) * block_scale
+            b = np.int64(row) * block_cols + np.int64(col)
+            block_count[b] += 1
+            if with_color:
+                color[b, 0] += colors[i, 0]
+                color[b, 1] += colors[i, 1]
+                color[b, 2] += colors[i, 2]
+        chunk_uv[chunk, 0], chunk_uv[chunk, 1] = u_min, u_max
+        chunk_uv[chunk, 2], chunk_uv[chunk, 3] = v_min, v_max
+    return count, height, block_count, color, chunk_uv
 
 
 @njit(cache=True, nogil=True)
-def gather_cells(
+def _seam_bands(
+    grid: np.ndarray, count: np.ndarray, lines: np.ndarray, reach: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) int32: the seam whose band holds each cell, −1 none, −2 several; the
+    ``TILE``-cell tiles holding band cells; and each seam's points in its band (an upper
+    bound of those in its slabs)."""
+    rows, cols = count.shape
+    seam_of_cell = np.full((rows, cols), -1, np.int32)
+    band_tiles = np.zeros((-(-rows // TILE), -(-cols // TILE)), np.bool_)
+    capacity = np.zeros(lines.shape[0], np.int64)
+    cell = 1.0 / grid[2]
+    for s in range(lines.shape[0]):
+        cu, cv, du, dv = lines[s, 0], lines[s, 1], lines[s, 2], lines[s, 3]
+        start, end = lines[s, 4], lines[s, 5]
+        wide = reach[s] + cell
+        # The band's bounding box: its four corners' cells.
+        row0, row1, col0, col1 = rows, -1, cols, -1
+        for along, across in (
+            (start - 1, wide),
+            (start - 1, -wide),
+            (end + 1, wide),
+            (end + 1, -wide),
+        ):
+            u, v = cu + along * du - across * dv, cv + along * dv + across * du
+            row, col = (
+                int(np.floor((u - grid[0]) * grid[2])),
+                int(np.floor((v - grid[1]) * grid[2])),
+            )
+            row0, row1 = min(row0, row), max(row1, row)
+            col0, col1 = min(col0, col), max(col1, col)
+        for i in range(max(row0, 0), min(row1 + 1, rows)):
+            for j in range(max(col0, 0), min(col1 + 1, cols)):
+                du_c, dv_c = grid[0] + (i + 0.5) * cell - cu, grid[1] + (j + 0.5) * cell - cv
+                along = du_c * du + dv_c * dv
+                if abs(dv_c * du - du_c * dv) <= wide and start - 1 <= along <= end + 1:
+                    seam_of_cell[i, j] = s if seam_of_cell[i, j] == -1 else -2
+                    band_tiles[i // TILE, j // TILE] = True
+                    capacity[s] += count[i, j]
+    return seam_of_cell, band_tiles, capacity
+
+
+@njit(cache=True, nogil=True)
+def _seam_slabs(
     points: np.ndarray,
+    chunk_uv: np.ndarray,
     origin: np.ndarray,
     axes: np.ndarray,
     grid: np.ndarray,
-    shape: tuple[int, int],
-    slot: np.ndarray,
-    offsets: np.ndarray,
-) -> np.ndarray:
-    """Indices of the points in the chosen cells, grouped by cell: ``slot`` maps a flat
-    cell to its place among the chosen ones (−1 if not chosen), and the points of chosen
-    cell s go to [offsets[s], offsets[s + 1]) in point order."""
-    rows, cols = shape
-    order = np.empty(offsets[-1], np.int64)
-    fill = offsets[:-1].copy()
-    t = _transform(origin, axes, grid)
-    for i in range(points.shape[0]):
-        u, v, _ = _uvw(points, i, t)
-        cell = _cell_of(u, v, t, rows, cols)
-        s = slot[cell] if cell >= 0 else -1
-        if s >= 0:
-            order[fill[s]] = i
-            fill[s] += 1
-    return order
-
-
-@njit(cache=True, nogil=True)
-def slab_points(
-    points: np.ndarray,
-    chosen: np.ndarray,
-    origin: np.ndarray,
-    axes: np.ndarray,
-    line: np.ndarray,
+    seam_of_cell: np.ndarray,
+    band_tiles: np.ndarray,
+    lines: np.ndarray,
     sections: np.ndarray,
-) -> np.ndarray:
-    """The ``chosen`` points lying in a seam's section slabs, as (4, M) rows: section k,
-    y along the seam from its section's plane, x across the seam, height w.
-
-    ``line`` = (u, v of the seam's centre, direction u, v); ``sections`` = (position of
-    section 0 along the line, pitch, count, half slab width, reach across the line)."""
-    t = _transform(origin, axes, np.zeros(3))
-    cu, cv, du, dv = line[0], line[1], line[2], line[3]
-    first, pitch, count, half_slab, reach = (
-        sections[0],
-        sections[1],
-        sections[2],
-        sections[3],
-        sections[4],
-    )
-    slab = np.empty((4, chosen.shape[0]))
-    n = 0
-    for j in range(chosen.shape[0]):
-        u, v, w = _uvw(points, chosen[j], t)
-        along = (u - cu) * du + (v - cv) * dv
-        across = (v - cv) * du - (u - cu) * dv
-        k = np.rint((along - first) / pitch)
-        y = along - (first + k * pitch)
-        if 0 <= k < count and abs(y) <= half_slab and abs(across) < reach:
-            slab[0, n], slab[1, n], slab[2, n], slab[3, n] = k, y, across, w
-            n += 1
-    return slab[:, :n]
+    offsets: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(4, offsets[-1]) slab rows, seam s's from offsets[s]; and how many each seam has."""
+    rows, cols = seam_of_cell.shape
+    seams = lines.shape[0]
+    flat = seam_of_cell.ravel()
+    slab = np.empty((4, offsets[-1]))
+    filled = np.zeros(seams, np.int64)
+    t = _transform(origin, axes, grid)
+    tile_scale = t[14] / TILE
+    for chunk in range(-(-points.shape[0] // CHUNK)):
+        # The tiles the run's box covers, give or take the box's float32 rounding (all of
+        # the run if that is more than a few).
+        box = chunk_uv[chunk]
+        if box[0] > box[1]:
+            continue  # no point of the run in the grid
+        row0 = int(max((box[0] - t[12]) * tile_scale - 0.01, 0.0))
+        row1 = int((box[1] - t[12]) * tile_scale + 0.01)
+        col0 = int(max((box[2] - t[13]) * tile_scale - 0.01, 0.0))
+        col1 = int((box[3] - t[13]) * tile_scale + 0.01)
+        if (row1 - row0 + 1) * (col1 - col0 + 1) <= 16 and not band_tiles[
+            row0 : row1 + 1, col0 : col1 + 1
+        ].any():
+            continue
+        for i in range(chunk * CHUNK, min((chunk + 1) * CHUNK, points.shape[0])):
+            u, v, w = _uvw(points, i, t)
+            cell = _cell_of(u, v, t, rows, cols)
+            code = flat[cell] if cell >= 0 else -1
+            if code == -1:
+                continue
+            # A cell in several bands (at junctions): try every seam; slabs lie in bands.
+            low, high = (code, code + 1) if code >= 0 else (0, seams)
+            for s in range(low, high):
+                cu, cv, du, dv = lines[s, 0], lines[s, 1], lines[s, 2], lines[s, 3]
+                first, pitch, count = sections[s, 0], sections[s, 1], sections[s, 2]
+                half_slab, reach = sections[s, 3], sections[s, 4]
+                along = (u - cu) * du + (v - cv) * dv
+                across = (v - cv) * du - (u - cu) * dv
+                k = np.rint((along - first) / pitch)
+                y = along - (first + k * pitch)
+                if 0 <= k < count and abs(y) <= half_slab and abs(across) < reach:
+                    n = offsets[s] + filled[s]
+                    slab[0, n], slab[1, n], slab[2, n], slab[3, n] = k, y, across, w
+                    filled[s] += 1
+    return slab, filled

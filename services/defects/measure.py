@@ -241,59 +241,39 @@ def _profile_seams(
     config: MeasureConfig,
     map_fn: Callable = map,
 ) -> list[SeamProfile | None]:
-    """Each seam's sections, from the points of the cells around it only; ``map_fn``
+    """Each seam's sections, from one pass over the points near any seam; ``map_fn``
     runs the seams."""
     if not lines:
         return []
     sections = config.sections
     margin = max(s.half_band_mm for s in lines) + sections.end_margin_mm
-    reach = [reach_mm(s, sections) + raster.cell_mm for s in lines]
-    bands = [_band_cells(raster, s, r) for s, r in zip(lines, reach, strict=True)]
-    chosen = np.zeros(raster.shape[0] * raster.shape[1], dtype=bool)
-    for band in bands:
-        chosen[band] = True
-    cells = np.flatnonzero(chosen)
-    order, offsets = raster.points_in(points, cells)
-
-    def profile(seam: SeamLine, band: np.ndarray) -> SeamProfile | None:
-        slot = np.searchsorted(cells, band)
-        low, high = offsets[slot], offsets[slot + 1]
-        lengths = high - low
-        starts = np.repeat(low - np.cumsum(lengths) + lengths, lengths)
-        first, count = section_range(seam, sections, end_margin_mm=margin)
-        if count < 1:
-            return None
-        slab = binning.slab_points(
-            points,
-            order[starts + np.arange(lengths.sum())],
-            raster.frame.origin,
-            raster.frame.axes,
-            np.concatenate([seam.centre_uv, seam.direction_uv]),
-            np.array(
-                [first, sections.pitch_mm, count, sections.slab_mm / 2, reach_mm(seam, sections)]
-            ),
-        )
-        return profile_seam(slab, seam, sections, first, count)
-
-    return list(map_fn(profile, lines, bands))
-
-
-def _band_cells(raster: Raster, seam: SeamLine, reach_mm: float) -> np.ndarray:
-    """Sorted flat indices of the cells within ``reach_mm`` of the seam's centre line."""
-    ends = seam.point_uv(np.array([seam.start_mm, seam.end_mm]))
-    corners = np.concatenate([ends + reach_mm * seam.across_uv, ends - reach_mm * seam.across_uv])
-    rows0, cols0, _ = raster.cell_at(corners.min(0))
-    rows1, cols1, _ = raster.cell_at(corners.max(0))
-    rows, cols = np.meshgrid(
-        np.arange(rows0, rows1 + 1), np.arange(cols0, cols1 + 1), indexing="ij"
+    ranges = [section_range(s, sections, end_margin_mm=margin) for s in lines]
+    slabs = binning.seam_slabs(
+        points,
+        raster.frame.origin,
+        raster.frame.axes,
+        raster.grid,
+        raster.count,
+        raster.chunk_uv,
+        np.array([[*s.centre_uv, *s.direction_uv, s.start_mm, s.end_mm] for s in lines]),
+        np.array(
+            [
+                [
+                    first,
+                    sections.pitch_mm,
+                    max(count, 0),
+                    sections.slab_mm / 2,
+                    reach_mm(s, sections),
+                ]
+                for s, (first, count) in zip(lines, ranges, strict=True)
+            ]
+        ),
     )
-    rel = raster.centres_uv(rows, cols) - seam.centre_uv
-    along = rel @ seam.direction_uv
-    across = rel @ seam.across_uv
-    inside = (
-        (np.abs(across) <= reach_mm) & (along >= seam.start_mm - 1) & (along <= seam.end_mm + 1)
-    )
-    return rows[inside] * raster.shape[1] + cols[inside]  # row-major: sorted
+
+    def profile(seam: SeamLine, pieces: list, at: tuple[float, int]) -> SeamProfile | None:
+        return profile_seam(np.concatenate(pieces, 1), seam, sections, *at) if at[1] else None
+
+    return list(map_fn(profile, lines, slabs, ranges))
 
 
 def _seam_result(index: int, profile: SeamProfile, frame: SurfaceFrame) -> SeamResult:

@@ -5,12 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
+from numba import njit
 
-from services.defects.morphology import dilate, erode
+from services.defects.morphology import label4
 from services.defects.raster import Raster
-
-FOUR_CONNECTED = ndimage.generate_binary_structure(2, 1)
 
 
 @dataclass(frozen=True)
@@ -39,51 +37,79 @@ def segment_panels(
     ``background_drop_mm`` below the surface the panels make (the backing structure seen
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
     filled: they belong to the panel."""
-    flat = _flat(raster.height, raster.cell_mm, max_slope_deg)
-    core = erode(flat, 1)
-    labels, count = ndimage.label(core, structure=FOUR_CONNECTED)
+    flat, core = _flat_core(raster.height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
+    labels, sizes = label4(core)
+    count = len(sizes)
     cell_area = raster.cell_mm**2
-    # Sizes from every 4th cell: plenty to tell a panel top from specks.
-    sizes = np.bincount(labels[::2, ::2].ravel(), minlength=count + 1)[1:] * 4 * cell_area
-    keep = np.flatnonzero(sizes >= min_area_mm2) + 1
+    keep = np.flatnonzero(sizes * cell_area >= min_area_mm2) + 1
     keep = keep[~_below_surface(raster, labels, keep, background_drop_mm)]
     relabel = np.zeros(count + 1, dtype=np.int32)
     relabel[keep] = np.arange(1, len(keep) + 1)
-    labels = relabel[labels]
-    labels = _grow(labels, flat)
-    boxes = ndimage.find_objects(labels, len(keep))
+    labels, corners, cells = _relabel_grow(labels, relabel, flat, len(keep))
+    boxes = [(slice(r0, r1 + 1), slice(c0, c1 + 1)) for r0, c0, r1, c1 in corners]
     for label, found in enumerate(boxes, start=1):
         # Holes: parts of the rest of the panel's box that do not reach the box's border.
-        rest, _ = ndimage.label(labels[found] != label)
+        rest, _ = label4(labels[found] != label)
         border = np.unique(np.concatenate([rest[0], rest[-1], rest[:, 0], rest[:, -1]]))
         reaches = np.zeros(rest.max() + 1, bool)
         reaches[border] = True
-        labels[found][~reaches[rest] & (labels[found] == 0)] = label
-    area = np.bincount(labels.ravel(), minlength=len(keep) + 1)[1:] * cell_area
-    return Panels(labels, len(keep), area, boxes)
+        hole = ~reaches[rest] & (labels[found] == 0)
+        labels[found][hole] = label
+        cells[label - 1] += np.count_nonzero(hole)
+    return Panels(labels, len(keep), cells * cell_area, boxes)
 
 
-def _grow(labels: np.ndarray, allowed: np.ndarray) -> np.ndarray:
-    """Labels grown by one cell (the largest of the 3 × 3 neighbours) into the
-    ``allowed`` cells without one; only that ring of cells is looked at."""
-    ring = allowed & (labels == 0) & dilate(labels > 0, 1)
-    ring[[0, -1], :] = ring[:, [0, -1]] = False  # every ring cell has 8 neighbours
-    rows, cols = np.nonzero(ring)
-    grown = labels.astype(np.int32)
-    neighbours = [labels[rows + dr, cols + dc] for dr in (-1, 0, 1) for dc in (-1, 0, 1)]
-    grown[rows, cols] = np.max(neighbours, axis=0)
-    return grown
+@njit(cache=True, nogil=True)
+def _flat_core(height: np.ndarray, max_rise_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(flat, core): cells whose slope (central differences) rises less than
+    ``max_rise_mm`` over two cells — the map's border cells and cells next to an empty
+    one are not flat — and the flat cells whose 3 × 3 neighbours are all flat."""
+    rows, cols = height.shape
+    limit = max_rise_mm * max_rise_mm
+    flat = np.zeros((rows, cols), np.bool_)
+    for i in range(1, rows - 1):
+        for j in range(1, cols - 1):
+            d_row = np.float64(height[i + 1, j]) - height[i - 1, j]
+            d_col = np.float64(height[i, j + 1]) - height[i, j - 1]
+            flat[i, j] = d_row * d_row + d_col * d_col < limit  # NaN: not flat
+    across = np.zeros((rows, cols), np.bool_)  # flat with both neighbours along the row
+    for i in range(rows):
+        for j in range(1, cols - 1):
+            across[i, j] = flat[i, j - 1] and flat[i, j] and flat[i, j + 1]
+    core = np.zeros((rows, cols), np.bool_)
+    for i in range(1, rows - 1):
+        for j in range(cols):
+            core[i, j] = across[i - 1, j] and across[i, j] and across[i + 1, j]
+    return flat, core
 
 
-def _flat(height: np.ndarray, cell_mm: float, max_slope_deg: float) -> np.ndarray:
-    """Cells whose slope (central differences) is below ``max_slope_deg``; the border
-    cells of the map are not."""
-    d_row = (height[2:, 1:-1] - height[:-2, 1:-1]) / (2 * cell_mm)
-    d_col = (height[1:-1, 2:] - height[1:-1, :-2]) / (2 * cell_mm)
-    flat = np.zeros(height.shape, bool)
-    with np.errstate(invalid="ignore"):
-        flat[1:-1, 1:-1] = d_row * d_row + d_col * d_col < np.tan(np.radians(max_slope_deg)) ** 2
-    return flat
+@njit(cache=True, nogil=True)
+def _relabel_grow(
+    labels: np.ndarray, relabel: np.ndarray, flat: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parts renamed by ``relabel`` and grown by one cell (the largest of the 3 × 3
+    neighbours) into the ``flat`` cells without one (not on the map's border); with each
+    of the ``count`` labels' (row0, col0, row1, col1) inclusive box and its cells."""
+    rows, cols = labels.shape
+    grown = np.empty((rows, cols), np.int32)
+    corners = np.empty((count, 4), np.int64)
+    corners[:, :2] = max(rows, cols)
+    corners[:, 2:] = -1
+    cells = np.zeros(count, np.int64)
+    for i in range(rows):
+        for j in range(cols):
+            label = relabel[labels[i, j]]
+            if label == 0 and flat[i, j] and 0 < i < rows - 1 and 0 < j < cols - 1:
+                for di in range(-1, 2):
+                    for dj in range(-1, 2):
+                        label = max(label, relabel[labels[i + di, j + dj]])
+            grown[i, j] = label
+            if label > 0:
+                box = corners[label - 1]
+                box[0], box[1] = min(box[0], i), min(box[1], j)
+                box[2], box[3] = max(box[2], i), max(box[3], j)
+                cells[label - 1] += 1
+    return grown, corners, cells
 
 
 def _below_surface(

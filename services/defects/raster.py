@@ -64,17 +64,12 @@ def fit_frame(points: np.ndarray, normals: np.ndarray | None) -> SurfaceFrame:
     """Principal axes of an even sample of the finite points (every k-th: the scans'
     order spreads it over the whole cloud); w points where the normals do (or +z)."""
     step = max(1, len(points) // SAMPLE_POINTS)
-    chosen = points[::step].astype(np.float64)
-    finite = np.isfinite(chosen).all(axis=1)
-    if finite.sum() < 3:
+    count, origin, covariance, towards = binning.sample_moments(points, normals, step)
+    if count < 3:
         return SurfaceFrame(np.zeros(3), np.eye(3))
-    chosen = chosen[finite]
-    origin = chosen.mean(0)
-    _, vectors = np.linalg.eigh(np.cov((chosen - origin).T))
-    towards = np.array([0.0, 0.0, 1.0])
-    if normals is not None:
-        sampled = normals[::step][finite]
-        towards = sampled[np.isfinite(sampled).all(axis=1)].sum(axis=0)
+    _, vectors = np.linalg.eigh(covariance)
+    if not towards.any():  # no (finite) normals
+        towards = np.array([0.0, 0.0, 1.0])
     w = vectors[:, 0] if vectors[:, 0] @ towards >= 0 else -vectors[:, 0]
     u = vectors[:, 2]
     return SurfaceFrame(origin, np.stack([u, np.cross(w, u), w]))
@@ -98,6 +93,10 @@ class Raster:
     block_rgb: np.ndarray | None
     """(⌈rows / b⌉, ⌈cols / b⌉, 3) float32 mean sRGB colour of the points in each block
     (NaN where none), if the cloud has colours."""
+    chunk_uv: np.ndarray
+    """(⌈N / binning.CHUNK⌉, 4) float32 (u_min, u_max, v_min, v_max) of each run of
+    ``binning.CHUNK`` consecutive points of the binned cloud (min > max if none is in the
+    grid): where later passes over the same points may look."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -114,19 +113,10 @@ class Raster:
         inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < self.shape[1])
         return np.clip(rows, 0, self.shape[0] - 1), np.clip(cols, 0, self.shape[1] - 1), inside
 
-    def _grid(self) -> np.ndarray:
+    @property
+    def grid(self) -> np.ndarray:
+        """(u0, v0, 1 / cell) for the compiled passes."""
         return np.array([self.origin_uv[0], self.origin_uv[1], 1 / self.cell_mm])
-
-    def points_in(self, points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The points binned into ``cells`` (sorted unique flat indices), grouped by cell:
-        (indices into ``points``, (len(cells) + 1,) offsets of each cell's group)."""
-        slot = np.full(self.shape[0] * self.shape[1], -1, np.int32)
-        slot[cells] = np.arange(len(cells))
-        offsets = np.concatenate([[0], np.cumsum(self.count.ravel()[cells], dtype=np.int64)])
-        order = binning.gather_cells(
-            points, self.frame.origin, self.frame.axes, self._grid(), self.shape, slot, offsets
-        )
-        return order, offsets
 
 
 def rasterize(
@@ -149,7 +139,7 @@ def rasterize(
     )
     grid = np.array([origin[0], origin[1], 1 / cell_mm])
     block = block_cells(cell_mm)
-    count, total, block_count, color_total = binning.bin_points(
+    count, total, block_count, color_total, chunk_uv = binning.bin_points(
         points, colors, frame.origin, frame.axes, grid, shape, block
     )
     count = count.reshape(shape)
@@ -160,7 +150,7 @@ def rasterize(
         if color_total is not None:
             rgb = color_total.reshape(*block_count.shape, 3) / block_count[..., None]
             block_rgb = rgb.astype(np.float32)
-    return Raster(frame, cell_mm, origin, height, count, block_count, block_rgb)
+    return Raster(frame, cell_mm, origin, height, count, block_count, block_rgb, chunk_uv)
 
 
 def point_spacing_mm(raster: Raster) -> float:

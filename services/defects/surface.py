@@ -29,11 +29,13 @@ from dataclasses import dataclass
 from math import erf, sqrt
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 
 from services.defects.morphology import dilate, erode
 from services.defects.panels import Panels
 from services.defects.raster import Raster, block_cells, block_sums
+from services.defects.smoothing import gaussian_pair
 from services.pointcloud.color import delta_e, srgb_to_lab
 
 EIGHT_CONNECTED = np.ones((3, 3), bool)
@@ -86,9 +88,8 @@ def _normalised_smooth(values: np.ndarray, weights: np.ndarray, sigma: float) ->
     factor = int(sigma // 3)
     if factor > 1:
         weighted, weights = block_sums(weighted, factor), block_sums(weights, factor)
-    numerator = ndimage.gaussian_filter(weighted, sigma / max(factor, 1), truncate=3.0)
-    denominator = ndimage.gaussian_filter(
-        weights.astype(weighted.dtype), sigma / max(factor, 1), truncate=3.0
+    numerator, denominator = gaussian_pair(
+        weighted, weights.astype(weighted.dtype), sigma / max(factor, 1)
     )
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = numerator / denominator
@@ -123,22 +124,41 @@ def _reference(
         powers_a.append(powers_a[-1] * a)
         powers_b.append(powers_b[-1] * b)
     design = np.stack([powers_a[i] * powers_b[j] for i in range(4) for j in range(4 - i)], -1)
-    target = height[inside]
-    weight = np.ones(len(target))
-    rows = design[inside]
-    for _ in range(6):
-        weighted = rows * weight[:, None]
-        coef = np.linalg.solve(
-            weighted.T @ rows + 1e-9 * np.eye(rows.shape[1]), weighted.T @ target
-        )
-        residual = target - rows @ coef
-        sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
-        weight = np.clip(1 - (residual / (4.685 * sigma)) ** 2, 0.0, None) ** 2
+    coef, weight = _tukey_fit(design[inside], height[inside], 6)
     surface = design @ coef
     inlier = np.zeros(inside.shape, bool)
     inlier[inside] = weight > 0
     detail = _normalised_smooth(height - surface, inlier.astype(np.float64), smooth_blocks)
     return surface + np.where(np.isfinite(detail), detail, 0.0), inlier
+
+
+@njit(cache=True, nogil=True)
+def _tukey_fit(
+    design: np.ndarray, target: np.ndarray, iterations: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares of ``design`` @ coef ≈ ``target`` reweighted ``iterations`` times with
+    Tukey's biweight (c = 4.685 robust σ of the residual): (coef, final weights).
+    Compiled: these passes over a panel's blocks otherwise hold the GIL, and the panels
+    are fitted on several threads."""
+    n, m = design.shape
+    weight = np.ones(n)
+    coef = np.zeros(m)
+    for _ in range(iterations):
+        normal = 1e-9 * np.eye(m)
+        right = np.zeros(m)
+        for i in range(n):
+            if weight[i] == 0.0:
+                continue
+            for p in range(m):
+                row = weight[i] * design[i, p]
+                right[p] += row * target[i]
+                for q in range(m):
+                    normal[p, q] += row * design[i, q]
+        coef = np.linalg.solve(normal, right)
+        residual = target - design @ coef
+        sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
+        weight = np.maximum(1 - (residual / (4.685 * sigma)) ** 2, 0.0) ** 2
+    return coef, weight
 
 
 def _mean3(deviation: np.ndarray, inside: np.ndarray, window: tuple[slice, slice]) -> np.ndarray:
@@ -161,12 +181,21 @@ def _mean3(deviation: np.ndarray, inside: np.ndarray, window: tuple[slice, slice
 def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, float, np.ndarray]:
     """(length, width, direction) of a region from the spread along its principal axes
     (a uniform bar of length L has standard deviation L / √12)."""
-    points = np.stack([rows, cols], 1).astype(np.float64) * cell_mm
-    if len(points) < 3:
+    if len(rows) < 3:
         return cell_mm, cell_mm, np.array([1.0, 0.0])
-    values, vectors = np.linalg.eigh(np.cov(points.T))
+    # The 2 × 2 covariance's eigen-decomposition in closed form (np.cov and eigh cost
+    # more in call overhead than the regions in work).
+    r, c = rows - rows.mean(), cols - cols.mean()
+    n = len(rows) - 1
+    a, b, d = float(r @ r) / n, float(r @ c) / n, float(c @ c) / n
+    half_sum, root = (a + d) / 2, float(np.hypot((a - d) / 2, b))
+    values = np.array([half_sum - root, half_sum + root]) * cell_mm**2
     spread = np.sqrt(np.maximum(values, 0.0) * 12) + cell_mm
-    return float(spread[1]), float(spread[0]), vectors[:, 1]
+    if b != 0.0:
+        direction = np.array([b, half_sum + root - a])
+    else:
+        direction = np.array([1.0, 0.0]) if a >= d else np.array([0.0, 1.0])
+    return float(spread[1]), float(spread[0]), direction / np.linalg.norm(direction)
 
 
 def find_surface_defects(
@@ -386,11 +415,10 @@ def _scratches(
     score = depth / noise
     seeds = score > config.scratch_sigma + 2
     grown, _ = ndimage.label(score > config.scratch_sigma, EIGHT_CONNECTED)
-    keep = np.unique(grown[seeds])
+    boxes = ndimage.find_objects(grown)
     findings = []
-    for index, found in enumerate(ndimage.find_objects(grown), start=1):
-        if found is None or index not in keep:
-            continue
+    for index in np.unique(grown[seeds]).tolist():  # the parts holding a seed
+        found = boxes[index - 1]
         own = grown[found] == index
         rows, cols = np.nonzero(own)
         length, width, direction = _shape(rows, cols, cell)
