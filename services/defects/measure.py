@@ -13,13 +13,16 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
+from functools import cache
 from math import erf, sqrt
 
 import numpy as np
 from scipy import ndimage
+from threadpoolctl import ThreadpoolController
 
 from services.defects import binning
 from services.defects.config import MeasureConfig
+from services.defects.heap import keep_work_arrays_in_heap
 from services.defects.panels import segment_panels
 from services.defects.raster import Raster, SurfaceFrame, fit_frame, point_spacing_mm, rasterize
 from services.defects.seams import Junction, SeamLine, find_junctions, find_seams
@@ -144,7 +147,20 @@ def measure(
     cloud: PointCloud, config: MeasureConfig | None = None, *, progress: Progress | None = None
 ) -> MeasureResult:
     """Seams, junctions and surface findings of a stitched panel-assembly cloud."""
-    config = config or MeasureConfig()
+    keep_work_arrays_in_heap()
+    # The work runs on its own threads (one per core); BLAS threads on top of them would
+    # only fight them for the cores (and spin while they wait).
+    with _blas().limit(limits=1, user_api="blas"):
+        return _measure(cloud, config or MeasureConfig(), progress)
+
+
+@cache
+def _blas() -> ThreadpoolController:
+    """The BLAS libraries loaded (looked up once: a few ms)."""
+    return ThreadpoolController()
+
+
+def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None) -> MeasureResult:
     report = progress or (lambda fraction, message: None)
     seconds: dict[str, float] = {}
     clock = time.perf_counter()

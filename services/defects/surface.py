@@ -203,9 +203,8 @@ def find_surface_defects(
 ) -> Iterator[list[SurfaceFinding]]:
     """Dents, bumps, scratches and (if the raster has colours) colour patches, panel by
     panel: ``map_fn`` (e.g. an executor's ``map``) runs the panels."""
-    blocks_lab = None if raster.block_rgb is None else _block_lab(raster)
     boxes = [(label, box) for label, box in enumerate(panels.boxes, start=1) if box is not None]
-    return map_fn(lambda item: _panel(raster, panels.labels, *item, blocks_lab, config), boxes)
+    return map_fn(lambda item: _panel(raster, panels.labels, *item, config), boxes)
 
 
 def _panel(
@@ -213,7 +212,6 @@ def _panel(
     labels: np.ndarray,
     label: int,
     found: tuple[slice, slice],
-    blocks_lab: np.ndarray | None,
     config: SurfaceConfig,
 ) -> list[SurfaceFinding]:
     cell = raster.cell_mm
@@ -230,13 +228,13 @@ def _panel(
     if inside.sum() < 100:
         return []
     findings = _relief(raster, label, height, inside, (r0, c0), block, config)
-    if blocks_lab is not None:
+    if raster.block_rgb is not None:
         lab_box = (slice(r0 // block, -(-r1 // block)), slice(c0 // block, -(-c1 // block)))
         inside_blocks = block_sums(inside, block)
         findings += _color(
             raster,
             label,
-            blocks_lab[lab_box],
+            _block_lab(raster.block_rgb[lab_box]),
             inside_blocks >= 0.5 * block * block,
             (r0, c0),
             block,
@@ -453,9 +451,8 @@ def _scratches(
     return findings
 
 
-def _block_lab(raster: Raster) -> np.ndarray:
-    """(rows, cols, 3) mean L*a*b* of the points in each block (NaN where none)."""
-    mean = raster.block_rgb
+def _block_lab(mean: np.ndarray) -> np.ndarray:
+    """(rows, cols, 3) L*a*b* of blocks' (rows, cols, 3) mean sRGB (NaN where none)."""
     lab = srgb_to_lab(np.clip(np.nan_to_num(mean), 0, 255))
     lab[~np.isfinite(mean).all(-1)] = np.nan
     return lab
