@@ -9,6 +9,9 @@ judged, not the stitch) and measures it. The peer measures the same seams the wa
 profile gauge does: one scan line per section (a slab of twice the point spacing instead
 of 1 mm) and the gap between the last measured points of each panel (no model of the
 rounded edge). It is modelled on profile-based gap/flush tools, not any vendor's firmware.
+
+Time per m² is that of vista's whole measurement (frame to findings; the cloud in memory),
+the median of ``TIMED_RUNS`` runs on each assembly, over the cases' panel area.
 """
 
 from __future__ import annotations
@@ -34,6 +37,11 @@ TARGETS = {
     "surface false positives per m²": 1.0,
     "seconds per m²": 5.0,
 }
+
+
+TIMED_RUNS = 3
+"""Each assembly is measured this many times and the median time kept (a measuring worker
+in its steady state): single timings on a shared 2-core machine spread by ±15 %."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +74,9 @@ def _run(case: SweepCase, seed: int) -> tuple[Evaluation, Evaluation]:
     cloud = merged_cloud(scan_assembly(assembly, BASE_T_PART, sensor, rng=rng), voxel_mm=0.1)
     truth = truth_document(assembly, BASE_T_PART)
     config = MeasureConfig()
-    vista = evaluate(measure(cloud, config), truth, config.tolerances)
+    results = [measure(cloud, config) for _ in range(TIMED_RUNS)]
+    seconds = float(np.median([sum(r.seconds.values()) for r in results]))
+    vista = replace(evaluate(results[0], truth, config.tolerances), seconds=seconds)
     # One scan line: the slab just wide enough to hold a continuous profile of the cloud.
     gauge_sections = replace(config.sections, slab_mm=2 * case.spacing_mm, edge_model="void")
     gauge_config = replace(config, sections=gauge_sections, surface=None)
