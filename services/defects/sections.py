@@ -86,7 +86,7 @@ def profile_seam(
 ) -> SeamProfile | None:
     """Measure the ``count`` sections of ``seam`` from ``first`` on, given the points in
     their slabs as (4, M) rows (section k, y along from its plane, x across, height w;
-    ``binning.slab_points``)."""
+    ``binning.seam_slabs``)."""
     k, y, x, w = slab[0].astype(np.int64), slab[1], slab[2], slab[3]
     ends = _gap_ends(k, x, w, seam, config, count)
     if ends is None:

@@ -1,8 +1,8 @@
 """Gaussian smoothing of height-map arrays, compiled and without the GIL.
 
-``scipy.ndimage.gaussian_filter`` holds the GIL while it filters, so the panels' surface
-work, which smooths a lot, ran no faster on two threads than on one. ``gaussian_pair``
-filters two arrays alike (a normalised smoothing's weighted values and weights) exactly
+``scipy.ndimage.gaussian_filter`` holds the GIL while it filters: one of the reasons the
+panels' surface work, which smooths a lot, ran no faster on two threads than on one.
+``gaussian_pair`` filters two arrays alike (a normalised smoothing's weighted values and weights) exactly
 as ``gaussian_filter(…, sigma, truncate=3.0)`` does with its default ``reflect`` edges.
 """
 
