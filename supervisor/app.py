@@ -18,12 +18,14 @@ from supervisor.deps import TokenCache
 from supervisor.engine.embedded import EmbeddedPool
 from supervisor.engine.maintenance import MaintenanceLoop, resend_queued
 from supervisor.engine.runtime import Runtime
+from supervisor.exports.router import router as exports_router
 from supervisor.inspections.router import router as inspections_router
 from supervisor.jobs.router import router as jobs_router
 from supervisor.judgments.router import router as judgments_router
 from supervisor.migrate import current_revision, head_revision
 from supervisor.problems import install_problem_handlers
 from supervisor.settings import Settings, get_settings
+from supervisor.sync.router import router as sync_router
 from supervisor.users.router import router as users_router
 
 log = logging.getLogger("vista")
@@ -113,6 +115,8 @@ def create_app(
         jobs_router,
         defects_router,
         judgments_router,
+        sync_router,
+        exports_router,
     ):
         api.include_router(router)
     app.include_router(api)

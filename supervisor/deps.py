@@ -20,6 +20,8 @@ READ_ROLES = ("admin", "inspector", "viewer", "device")
 EDIT_ROLES = ("admin", "inspector")
 JUDGE_ROLES = ("admin", "inspector", "device")
 ADMIN_ROLES = ("admin",)
+DEVICE_WRITE_PATHS = ("/api/v1/sync/judgments",)
+"""The only writes a device token (a headset's) may make; it reads everything else."""
 
 _bearer = HTTPBearer(auto_error=False, description="A token from POST /api/v1/auth/token.")
 
@@ -101,12 +103,26 @@ async def current_user(
     digest = token_digest(credentials.credentials)
     user = cache.get(digest)
     if user is not None:
-        return user
+        return _device_checked(request, user)
     found = await run_in_threadpool(_look_up, request, credentials.credentials)
     if found is None:
         raise Problem(401, "The token is unknown, expired or revoked.", headers=challenge)
     user, expires_in = found
     cache.put(digest, user, expires_in)
+    return _device_checked(request, user)
+
+
+def _device_checked(request: Request, user: CurrentUser) -> CurrentUser:
+    if (
+        user.token_kind == "device"
+        and request.method not in ("GET", "HEAD", "OPTIONS")
+        and request.url.path not in DEVICE_WRITE_PATHS
+    ):
+        raise Problem(
+            403,
+            "A device token may only read and sync (POST /api/v1/sync/judgments); "
+            "sign in as a person to change anything else.",
+        )
     return user
 
 

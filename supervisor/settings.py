@@ -46,6 +46,12 @@ class Settings(BaseSettings):
     job_time_limit_s: int = Field(6 * 3600, ge=1, description="Hard limit on one job attempt.")
     retry_backoff_s: float = Field(5.0, ge=0, description="First retry delay; doubles each time.")
     token_ttl_hours: float = Field(12.0, gt=0, description="Lifetime of a sign-in token.")
+    scene_max_points: int = Field(
+        500_000, ge=1000, le=20_000_000, description="Points of the stitched cloud in scene.glb."
+    )
+    web_dir: Path | None = Field(
+        None, description="The dashboard's built files; unset = clients/web/dist of the source."
+    )
     extra_job_kinds: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description="Extra modules that register job kinds (comma separated).",

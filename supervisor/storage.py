@@ -111,5 +111,10 @@ class Storage:
     def delete(self, uri: str) -> None:
         self.path(uri).unlink(missing_ok=True)
 
+    def export_dir(self, inspection_id: int) -> Path:
+        """Where an inspection's built exports (scene.glb) are cached."""
+        return self.root / "exports" / str(inspection_id)
+
     def delete_inspection(self, inspection_id: int) -> None:
         shutil.rmtree(self.root / "inspections" / str(inspection_id), ignore_errors=True)
+        shutil.rmtree(self.export_dir(inspection_id), ignore_errors=True)

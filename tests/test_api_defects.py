@@ -1,38 +1,16 @@
 from __future__ import annotations
 
+import uuid
 from concurrent.futures import ThreadPoolExecutor
+from datetime import UTC, datetime
 
 import httpx
 import pytest
-from sqlalchemy import func, insert, select
+from sqlalchemy import func, select
 
-from supervisor.models import Defect, Judgment, JudgmentRevision
+from supervisor.models import Judgment, JudgmentRevision
 from tests.conftest import add_user, auth, make_settings
-
-
-def _seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> list[int]:
-    types = ("gap", "step", "scratch", "dent")
-    rows = [
-        {
-            "inspection_id": inspection_id,
-            "run_id": run_id,
-            "type": types[i % 4],
-            "status": "open" if i % 5 else "resolved",
-            "value_mm": 1.0 + i / 100,
-            "tolerance_mm": 1.0,
-            "measurements": {},
-            "location_mm": [float(i), 0.0, 0.0],
-            "normal": [0.0, 0.0, 1.0],
-            "extent_mm": 3.0,
-            "severity": "info" if i % 3 == 0 else "minor",
-            "confidence": 0.9,
-            "source": "job",
-        }
-        for i in range(count)
-    ]
-    with runtime.db.write() as session:
-        session.execute(insert(Defect), rows)
-        return list(session.scalars(select(Defect.id).order_by(Defect.id)))
+from tests.seeding import seed_defects
 
 
 @pytest.fixture
@@ -45,7 +23,7 @@ def inspection(client, tokens) -> int:
 
 
 def test_filters_and_cursor_pages(client, tokens, inspection, runtime):
-    ids = _seed_defects(runtime, inspection, 45)
+    ids = seed_defects(runtime, inspection, 45)
     headers = auth(tokens["viewer"])
     gaps, cursor = [], None
     while True:
@@ -107,7 +85,7 @@ def test_manual_defect_and_status_workflow(client, tokens, inspection):
 
 
 def test_judgment_revisions_history_and_consensus(client, tokens, inspection, runtime):
-    (defect,) = _seed_defects(runtime, inspection, 1)
+    (defect,) = seed_defects(runtime, inspection, 1)
     url = f"/api/v1/defects/{defect}/judgments/me"
     first = client.put(url, json={"verdict": "confirmed"}, headers=auth(tokens["inspector"])).json()
     assert first["judgment"]["revision"] == 1
@@ -123,7 +101,7 @@ def test_judgment_revisions_history_and_consensus(client, tokens, inspection, ru
     client.put(
         url, json={"verdict": "reclassified", "new_type": "dent"}, headers=auth(tokens["admin"])
     )
-    client.put(url, json={"verdict": "uncertain"}, headers=auth(tokens["device"]))
+    _device_judges(client, tokens["device"], defect, {"verdict": "uncertain"})
     listing = client.get(
         f"/api/v1/defects/{defect}/judgments", headers=auth(tokens["viewer"])
     ).json()
@@ -136,10 +114,10 @@ def test_judgment_revisions_history_and_consensus(client, tokens, inspection, ru
         (1, "confirmed"),
         (2, "reclassified"),
     ]
-    for voter in ("inspector2", "device"):
-        client.put(
-            url, json={"verdict": "reclassified", "new_type": "dent"}, headers=auth(tokens[voter])
-        )
+    retype = {"verdict": "reclassified", "new_type": "dent"}
+    client.put(url, json=retype, headers=auth(tokens["inspector2"]))
+    assert client.put(url, json=retype, headers=auth(tokens["device"])).status_code == 403
+    _device_judges(client, tokens["device"], defect, retype)
     settled = client.get(f"/api/v1/defects/{defect}", headers=auth(tokens["viewer"])).json()[
         "consensus"
     ]
@@ -147,8 +125,20 @@ def test_judgment_revisions_history_and_consensus(client, tokens, inspection, ru
     assert not settled["needs_review"]
 
 
+def _device_judges(client, token: str, defect_id: int, judgment: dict) -> None:
+    """A headset's judgment goes through the sync (its token may not PUT)."""
+    item = {
+        "client_id": uuid.uuid4().hex,
+        "defect_id": defect_id,
+        "client_time": datetime.now(UTC).isoformat(),
+        **judgment,
+    }
+    answer = client.post("/api/v1/sync/judgments", json={"items": [item]}, headers=auth(token))
+    assert answer.status_code == 200 and answer.json()["results"][0]["status"] == "applied"
+
+
 def test_judgment_rules(client, tokens, inspection, runtime):
-    (defect,) = _seed_defects(runtime, inspection, 1)  # a gap
+    (defect,) = seed_defects(runtime, inspection, 1)  # a gap
     url = f"/api/v1/defects/{defect}/judgments/me"
     viewer = client.put(url, json={"verdict": "confirmed"}, headers=auth(tokens["viewer"]))
     assert viewer.status_code == 403 and "viewer" in viewer.json()["detail"]
@@ -202,7 +192,7 @@ def test_32_concurrent_clients_lose_no_update(tmp_path, database_url, start_serv
         json={"title": "c", "area": "cargo"},
         headers=auth(admin),
     ).json()["id"]
-    defects = _seed_defects(runtime, inspection, 8)
+    defects = seed_defects(runtime, inspection, 8)
     verdicts = ("confirmed", "rejected", "uncertain")
 
     def judge(number: int) -> dict[int, int]:

@@ -318,8 +318,15 @@ def read_ply(path: Path) -> PointCloud:
     )
 
 
-def write_ply(path: Path, cloud: PointCloud, *, comments: tuple[str, ...] = ()) -> None:
-    """Write ``cloud`` as binary little-endian PLY (vista's on-disk point cloud)."""
+def write_ply(
+    path: Path,
+    cloud: PointCloud,
+    *,
+    comments: tuple[str, ...] = (),
+    faces: np.ndarray | None = None,
+) -> None:
+    """Write ``cloud`` as binary little-endian PLY (vista's on-disk point cloud); with
+    ``faces`` ((M, 3) vertex indices) a triangle mesh."""
     fields: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if cloud.normals is not None:
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
@@ -342,7 +349,68 @@ def write_ply(path: Path, cloud: PointCloud, *, comments: tuple[str, ...] = ()) 
         lines += [f"comment width {cloud.grid_shape[1]}", f"comment height {cloud.grid_shape[0]}"]
     lines.append(f"element vertex {len(rows)}")
     lines += [f"property {ply_names[t]} {n}" for n, t in fields]
+    if faces is not None:
+        lines += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
     lines.append("end_header")
     with open(path, "wb") as out:
         out.write(("\n".join(lines) + "\n").encode("ascii"))
         rows.tofile(out)
+        if faces is not None:
+            triangles = np.empty(len(faces), dtype=_TRIANGLE)
+            triangles["n"], triangles["items"] = 3, faces
+            triangles.tofile(out)
+
+
+_TRIANGLE = np.dtype([("n", "u1"), ("items", "<i4", (3,))])
+
+
+def read_mesh(path: Path) -> tuple[PointCloud, np.ndarray]:
+    """A triangle mesh: its vertices and (M, 3) int64 faces (element ``face``, lists of
+    three indices each, written by ``write_ply(..., faces=...)``)."""
+    cloud = read_ply(path)
+    header = read_header(path)
+    face = next((e for e in header.elements if e.name == "face"), None)
+    if face is None:
+        raise PlyError("the file has no 'face' element: it is a point cloud, not a mesh")
+    kinds = tuple(_SCALAR_TYPES.get(t) for t in (face.list_property or ())[:2])
+    if kinds not in (("u1", "<i4"), ("u1", "<u4")):
+        raise PlyError("faces must be 'property list uchar int vertex_indices'")
+    offset = header.header_bytes
+    for element in header.elements:
+        if element is face:
+            break
+        if element.dtype is None:
+            raise PlyError(f"element '{element.name}' before the faces has list properties")
+        offset += element.count * element.dtype.itemsize
+    triangles = np.fromfile(path, dtype=_TRIANGLE, count=face.count, offset=offset)
+    if len(triangles) != face.count or np.any(triangles["n"] != 3):
+        raise PlyError("faces must all be triangles, and all present")
+    faces = triangles["items"].astype(np.int64)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(cloud.points)):
+        raise PlyError("a face refers to a vertex that does not exist")
+    return cloud, faces
+
+
+def read_ply_sample(path: Path, max_points: int, *, seed: int = 0) -> PointCloud:
+    """At most ``max_points`` finite vertices, picked uniformly at random (a fixed
+    ``seed`` picks the same ones each time), in file order; reads only those rows."""
+    header = read_header(path)
+    vertex = _vertex_element(header)
+    mapped = np.memmap(
+        path, dtype=vertex.dtype, mode="r", offset=header.header_bytes, shape=(vertex.count,)
+    )
+    if vertex.count > max_points:
+        rng = np.random.default_rng(seed)
+        rows = mapped[np.sort(rng.choice(vertex.count, size=max_points, replace=False))]
+    else:
+        rows = np.asarray(mapped).copy()
+    del mapped
+    points = _columns(rows, ("x", "y", "z"), "float32")
+    finite = np.isfinite(points).all(axis=1)
+    rows = rows[finite]
+    return PointCloud(
+        points=points[finite],
+        normals=_columns(rows, ("nx", "ny", "nz"), "float32"),
+        colors=_columns(rows, ("red", "green", "blue"), "uint8"),
+        grid_shape=None,
+    )

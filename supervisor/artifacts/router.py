@@ -84,7 +84,9 @@ async def upload_artifact(
     try:
         if received.size_bytes == 0:
             raise Problem(422, "The upload is empty.")
-        meta = await run_in_threadpool(validate_upload, temp_path, media_type=media_type, name=name)
+        meta = await run_in_threadpool(
+            validate_upload, temp_path, media_type=media_type, name=name, kind=kind
+        )
         return await run_in_threadpool(
             _store, request, runtime, user, inspection_id, kind, name, media_type, received, meta
         )

@@ -6,21 +6,28 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, validate_ply
+from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_mesh, validate_ply
 from supervisor.problems import Problem
 
 MAX_JSON_BYTES = 256 * 1024 * 1024
 
 
-def validate_upload(path: Path, *, media_type: str, name: str) -> dict:
-    """Returns metadata learned from the file; raises a 422 Problem if it is not valid."""
+def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> dict:
+    """Returns metadata learned from the file; raises a 422 Problem if it is not valid.
+    A ``mesh`` must be a PLY triangle mesh (panel meshes in the scene export)."""
+    if kind == "mesh" and media_type != PLY_MEDIA_TYPE:
+        raise Problem(422, f"kind=mesh: {name} must be a PLY triangle mesh ({PLY_MEDIA_TYPE}).")
     if media_type == PLY_MEDIA_TYPE:
         try:
             info = validate_ply(path)
+            faces = len(read_mesh(path)[1]) if kind == "mesh" else None
         except PlyError as exc:
-            raise Problem(422, f"{name} is not a valid PLY point cloud: {exc}.") from exc
+            what = "triangle mesh" if kind == "mesh" else "point cloud"
+            raise Problem(422, f"{name} is not a valid PLY {what}: {exc}.") from exc
         meta = asdict(info)
         meta["grid_shape"] = list(info.grid_shape) if info.grid_shape else None
+        if faces is not None:
+            meta["faces"] = faces
         return {"ply": meta}
     if media_type == "application/json":
         if path.stat().st_size > MAX_JSON_BYTES:

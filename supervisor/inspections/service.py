@@ -23,6 +23,7 @@ def create(session: Session, *, data: InspectionCreate, user_id: int) -> Inspect
         serial=data.serial,
         area=data.area,
         tolerances=data.tolerances.model_dump(mode="json", exclude_none=True),
+        markers=[m.model_dump(mode="json") for m in data.markers],
         status=data.status,
         created_by=user_id,
     )
@@ -44,13 +45,15 @@ def update(
 ) -> Inspection:
     inspection = get(session, inspection_id=inspection_id)
     changes = data.model_dump(exclude_unset=True)
-    for field in ("title", "area", "status"):
+    for field in ("title", "area", "status", "markers"):
         if field in changes and changes[field] is None:
             raise Problem(422, f"{field} cannot be null.")
     if "tolerances" in changes:
         changes["tolerances"] = (
             data.tolerances.model_dump(mode="json", exclude_none=True) if data.tolerances else {}
         )
+    if "markers" in changes:
+        changes["markers"] = [m.model_dump(mode="json") for m in data.markers]
     for field, value in changes.items():
         setattr(inspection, field, value if value is not None else "")
     session.flush()

@@ -44,6 +44,7 @@ def _sqlite_upsert() -> Insert:
         comment=bindparam("comment"),
         revision=1,
         updated_at=bindparam("now"),
+        client_time=bindparam("now"),
     )
     incoming = statement.excluded
     return statement.on_conflict_do_update(
@@ -54,6 +55,7 @@ def _sqlite_upsert() -> Insert:
             "comment": incoming.comment,
             "revision": _judgments.c.revision + 1,
             "updated_at": incoming.updated_at,
+            "client_time": incoming.client_time,
         },
         where=or_(
             _judgments.c.verdict != incoming.verdict,
@@ -83,19 +85,22 @@ _PG_PUT = text(
 WITH d AS (
     SELECT id, inspection_id, type FROM defects WHERE id = :defect_id
 ), up AS (
-    INSERT INTO judgments AS j (defect_id, user_id, verdict, new_type, comment, revision, updated_at)
-    SELECT d.id, :user_id, :verdict, :new_type, :comment, 1, :now FROM d
+    INSERT INTO judgments AS j (defect_id, user_id, verdict, new_type, comment, revision,
+                                updated_at, client_time)
+    SELECT d.id, :user_id, :verdict, :new_type, :comment, 1, :now, :now FROM d
     WHERE NOT (CAST(:verdict AS varchar) = 'reclassified' AND d.type IS NOT DISTINCT FROM CAST(:new_type AS varchar))
     ON CONFLICT (defect_id, user_id) DO UPDATE SET
         verdict = excluded.verdict, new_type = excluded.new_type, comment = excluded.comment,
-        revision = j.revision + 1, updated_at = excluded.updated_at
+        revision = j.revision + 1, updated_at = excluded.updated_at,
+        client_time = excluded.client_time
     WHERE j.verdict <> excluded.verdict OR j.new_type IS DISTINCT FROM excluded.new_type
         OR j.comment <> excluded.comment
     RETURNING j.*
 ), revision AS (
     INSERT INTO judgment_revisions (defect_id, user_id, revision, verdict, new_type, comment,
-                                    created_at)
-    SELECT defect_id, user_id, revision, verdict, new_type, comment, updated_at FROM up
+                                    client_time, created_at)
+    SELECT defect_id, user_id, revision, verdict, new_type, comment, client_time, updated_at
+    FROM up
 ), change AS (
     INSERT INTO changes (entity, entity_id, op, inspection_id, user_id, created_at)
     SELECT 'judgment', up.defect_id, 'update', d.inspection_id, up.user_id, up.updated_at
@@ -107,14 +112,14 @@ WITH d AS (
     WHERE defect_id = :defect_id AND user_id = :user_id AND NOT EXISTS (SELECT FROM up)
 )
 SELECT d.type AS defect_type, mine.defect_id, mine.user_id, mine.verdict, mine.new_type,
-       mine.comment, mine.revision, mine.updated_at,
+       mine.comment, mine.revision, mine.updated_at, mine.client_time,
        (SELECT coalesce(json_agg(json_build_array(v.verdict, v.new_type)), '[]')
         FROM (SELECT verdict, new_type FROM judgments
               WHERE defect_id = :defect_id AND user_id <> :user_id
               UNION ALL SELECT verdict, new_type FROM mine) AS v) AS votes
 FROM d LEFT JOIN mine ON true
 """
-).columns(updated_at=UTCDateTime())
+).columns(updated_at=UTCDateTime(), client_time=UTCDateTime())
 
 
 def _refuse_same_type(data: JudgmentIn, defect_type: str) -> None:
@@ -155,7 +160,10 @@ def _put_in_transaction(session: Session, data: JudgmentIn, values: dict) -> Row
     if row is None:  # nothing changed: the same judgment again
         return session.execute(_CURRENT, values).one()
     now = values["now"]
-    session.execute(_ADD_REVISION, {**values, "revision": row.revision, "created_at": now})
+    session.execute(
+        _ADD_REVISION,
+        {**values, "revision": row.revision, "client_time": now, "created_at": now},
+    )
     session.execute(
         _ADD_CHANGE,
         {

@@ -1,7 +1,7 @@
 """ORM models, one module per table family; importing this registers them all."""
 
 from supervisor.models.changes import Change, IdempotencyRecord
-from supervisor.models.defects import Defect, Judgment, JudgmentRevision
+from supervisor.models.defects import Defect, Judgment, JudgmentRevision, SyncReceipt
 from supervisor.models.inspections import Artifact, Inspection
 from supervisor.models.jobs import Job, JobDependency, Run
 from supervisor.models.users import ApiToken, User
@@ -18,5 +18,6 @@ __all__ = [
     "Judgment",
     "JudgmentRevision",
     "Run",
+    "SyncReceipt",
     "User",
 ]

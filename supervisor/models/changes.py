@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from sqlalchemy import ForeignKey, Integer, String, Text, UniqueConstraint
+from sqlalchemy import ForeignKey, Index, Integer, String, Text, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
 
 from supervisor.db import Base
@@ -13,9 +13,10 @@ from supervisor.models._types import JSONType, created_at_column
 
 class Change(Base):
     __tablename__ = "changes"
+    __table_args__ = (Index("ix_changes_inspection_id_seq", "inspection_id", "seq"),)
 
     seq: Mapped[int] = mapped_column(primary_key=True)
-    inspection_id: Mapped[int | None] = mapped_column(Integer, index=True)
+    inspection_id: Mapped[int | None] = mapped_column(Integer)
     entity: Mapped[str] = mapped_column(String(32))
     entity_id: Mapped[int] = mapped_column(Integer)
     op: Mapped[str] = mapped_column(String(16))

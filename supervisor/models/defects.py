@@ -64,6 +64,9 @@ class Judgment(Base):
     comment: Mapped[str] = mapped_column(Text, default="")
     revision: Mapped[int] = mapped_column(Integer, default=1)
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow)
+    client_time: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    """When the judging client made this version: a headset's clock for offline edits, the
+    server's for edits over the API. A user's newest version by this time wins."""
 
 
 class JudgmentRevision(Base):
@@ -79,4 +82,22 @@ class JudgmentRevision(Base):
     verdict: Mapped[str] = mapped_column(String(16))
     new_type: Mapped[str | None] = mapped_column(String(16))
     comment: Mapped[str] = mapped_column(Text, default="")
+    client_time: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    created_at: Mapped[datetime] = created_at_column()
+
+
+class SyncReceipt(Base):
+    """The outcome of one offline judgment a client sent, by its client-generated id, so
+    that a retried batch gets the same answer and changes nothing."""
+
+    __tablename__ = "sync_receipts"
+    __table_args__ = (UniqueConstraint("user_id", "client_id"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    client_id: Mapped[str] = mapped_column(String(64))
+    defect_id: Mapped[int] = mapped_column(ForeignKey("defects.id", ondelete="CASCADE"), index=True)
+    request_sha256: Mapped[str] = mapped_column(String(64))
+    status: Mapped[str] = mapped_column(String(16))
+    revision: Mapped[int] = mapped_column(Integer)
     created_at: Mapped[datetime] = created_at_column()

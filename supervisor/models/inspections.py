@@ -27,6 +27,8 @@ class Inspection(Base):
     serial: Mapped[str] = mapped_column(String(100), default="")
     area: Mapped[str] = mapped_column(String(16))
     tolerances: Mapped[dict] = mapped_column(JSONType, default=dict)
+    markers: Mapped[list] = mapped_column(JSONType, default=list)
+    """Image markers at known poses (cargo, cabin) that align a headset with the scene."""
     status: Mapped[str] = mapped_column(String(16), default="planned")
     created_by: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = created_at_column()

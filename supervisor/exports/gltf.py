@@ -1,0 +1,280 @@
+"""A binary glTF 2.0 (GLB) writer for inspection scenes: points, triangle meshes, marker
+nodes and anchor nodes. Pure: arrays and dicts in, bytes out.
+
+Everything given here is already in glTF's frame (metres, +Y up); ``base_to_gltf`` and
+``pose_to_gltf`` convert from vista's base frame (millimetres, +Z up).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+FLOAT, UNSIGNED_BYTE, UNSIGNED_INT = 5126, 5121, 5125
+POINTS, TRIANGLES = 0, 4
+
+GLTF_R_BASE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""Rotation of vista's Z-up base frame into glTF's Y-up frame: (x, y, z) → (x, z, −y)."""
+MM_TO_M = 1e-3
+GLTF_T_BASE = np.block([[GLTF_R_BASE * MM_TO_M, np.zeros((3, 1))], [np.zeros((1, 3)), 1.0]])
+"""The whole conversion as one 4 × 4 matrix (points in mm → points in m)."""
+
+
+def base_to_gltf(points_mm: np.ndarray, dtype: type = np.float32) -> np.ndarray:
+    """(N, 3) base-frame points, mm → (N, 3) glTF points, m (float32 for vertex data,
+    float64 for node positions)."""
+    return (np.asarray(points_mm, dtype=np.float64) @ (GLTF_R_BASE.T * MM_TO_M)).astype(dtype)
+
+
+def quaternion_xyzw(rotation: np.ndarray) -> list[float]:
+    """The unit quaternion (x, y, z, w) of a 3 × 3 rotation matrix (Shepperd's method)."""
+    m = np.asarray(rotation, dtype=np.float64)
+    trace = np.trace(m)
+    candidates = [trace, m[0, 0], m[1, 1], m[2, 2]]
+    k = int(np.argmax(candidates))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    elif k == 1:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+    elif k == 2:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+    q = np.array(q) / np.linalg.norm(q)
+    return [float(c) for c in (q if q[3] >= 0 else -q)]
+
+
+def pose_to_gltf(base_T_frame: np.ndarray) -> tuple[list[float], list[float]]:
+    """A base-frame pose (4 × 4, mm) → glTF (translation m, rotation quaternion xyzw)."""
+    pose = np.asarray(base_T_frame, dtype=np.float64)
+    rotation = GLTF_R_BASE @ pose[:3, :3] @ GLTF_R_BASE.T
+    translation = GLTF_R_BASE @ pose[:3, 3] * MM_TO_M
+    return [float(c) for c in translation], quaternion_xyzw(rotation)
+
+
+@dataclass(frozen=True)
+class Material:
+    name: str
+    rgba: tuple[float, float, float, float]
+    double_sided: bool = False
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """Triangles (``indices`` (M, 3)) or points (``indices`` None), in glTF metres."""
+
+    name: str
+    positions: np.ndarray
+    """(N, 3) float32, m."""
+    colors: np.ndarray | None = None
+    """(N, 4) uint8 RGBA, or None."""
+    normals: np.ndarray | None = None
+    """(N, 3) float32 unit vectors, or None."""
+    indices: np.ndarray | None = None
+    material: int | None = None
+
+
+@dataclass(frozen=True)
+class Node:
+    name: str
+    mesh: int | None = None
+    translation: list[float] | None = None
+    rotation: list[float] | None = None
+    scale: list[float] | None = None
+    children: list[int] = field(default_factory=list)
+    extras: dict | None = None
+
+
+class _Buffer:
+    """The binary chunk: views appended 4-byte aligned."""
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = []
+        self.length = 0
+        self.views: list[dict] = []
+        self.accessors: list[dict] = []
+
+    def add(self, array: np.ndarray, *, target: int, component: int, kind: str, **extra) -> int:
+        data = np.ascontiguousarray(array).tobytes()
+        self.views.append(
+            {"buffer": 0, "byteOffset": self.length, "byteLength": len(data), "target": target}
+        )
+        padding = -len(data) % 4
+        self.parts += [data, b"\0" * padding]
+        self.length += len(data) + padding
+        self.accessors.append(
+            {
+                "bufferView": len(self.views) - 1,
+                "componentType": component,
+                "count": int(len(array)),
+                "type": kind,
+                **extra,
+            }
+        )
+        return len(self.accessors) - 1
+
+
+def _primitive(buffer: _Buffer, mesh: Mesh) -> dict:
+    positions = np.asarray(mesh.positions, dtype=np.float32)
+    if positions.ndim != 2 or positions.shape[1] != 3 or not len(positions):
+        raise ValueError(f"mesh {mesh.name}: positions must be a non-empty (N, 3) array")
+    attributes = {
+        "POSITION": buffer.add(
+            positions,
+            target=ARRAY_BUFFER,
+            component=FLOAT,
+            kind="VEC3",
+            min=[float(c) for c in positions.min(axis=0)],
+            max=[float(c) for c in positions.max(axis=0)],
+        )
+    }
+    if mesh.normals is not None:
+        attributes["NORMAL"] = buffer.add(
+            np.asarray(mesh.normals, dtype=np.float32),
+            target=ARRAY_BUFFER,
+            component=FLOAT,
+            kind="VEC3",
+        )
+    if mesh.colors is not None:
+        attributes["COLOR_0"] = buffer.add(
+            np.asarray(mesh.colors, dtype=np.uint8),
+            target=ARRAY_BUFFER,
+            component=UNSIGNED_BYTE,
+            kind="VEC4",
+            normalized=True,
+        )
+    primitive: dict = {"attributes": attributes, "mode": POINTS}
+    if mesh.indices is not None:
+        indices = np.asarray(mesh.indices, dtype=np.uint32).reshape(-1)
+        primitive["indices"] = buffer.add(
+            indices, target=ELEMENT_ARRAY_BUFFER, component=UNSIGNED_INT, kind="SCALAR"
+        )
+        primitive["mode"] = TRIANGLES
+    if mesh.material is not None:
+        primitive["material"] = mesh.material
+    return primitive
+
+
+def _node_json(node: Node) -> dict:
+    out: dict = {"name": node.name}
+    for key in ("mesh", "translation", "rotation", "scale", "extras"):
+        value = getattr(node, key)
+        if value is not None:
+            out[key] = value
+    if node.children:
+        out["children"] = node.children
+    return out
+
+
+def write_glb(
+    *,
+    meshes: list[Mesh],
+    materials: list[Material],
+    nodes: list[Node],
+    roots: list[int],
+    asset_extras: dict,
+) -> bytes:
+    """The GLB file of one scene whose top-level nodes are ``roots``."""
+    buffer = _Buffer()
+    meshes_json = [{"name": m.name, "primitives": [_primitive(buffer, m)]} for m in meshes]
+    document = {
+        "asset": {"version": "2.0", "generator": "vista supervisor", "extras": asset_extras},
+        "scene": 0,
+        "scenes": [{"name": "inspection", "nodes": roots}],
+        "nodes": [_node_json(n) for n in nodes],
+        "meshes": meshes_json,
+        "materials": [
+            {
+                "name": m.name,
+                "pbrMetallicRoughness": {
+                    "baseColorFactor": list(m.rgba),
+                    "metallicFactor": 0.0,
+                    "roughnessFactor": 0.8,
+                },
+                **({"doubleSided": True} if m.double_sided else {}),
+                **({"alphaMode": "BLEND"} if m.rgba[3] < 1 else {}),
+            }
+            for m in materials
+        ],
+        "accessors": buffer.accessors,
+        "bufferViews": buffer.views,
+        "buffers": [{"byteLength": buffer.length}],
+    }
+    if not buffer.length:
+        del document["buffers"]
+    for key in ("meshes", "materials", "accessors", "bufferViews"):
+        if not document[key]:
+            del document[key]  # glTF forbids empty arrays
+    payload = json.dumps(document, separators=(",", ":")).encode()
+    payload += b" " * (-len(payload) % 4)
+    binary = b"".join(buffer.parts)
+    chunks = struct.pack("<II", len(payload), 0x4E4F534A) + payload
+    if binary:
+        chunks += struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(chunks)) + chunks
+
+
+def icosphere(subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """A unit sphere: (V, 3) float32 vertices (= normals) and (F, 3) uint32 faces."""
+    t = (1.0 + 5**0.5) / 2
+    vertices = [
+        (-1, t, 0),
+        (1, t, 0),
+        (-1, -t, 0),
+        (1, -t, 0),
+        (0, -1, t),
+        (0, 1, t),
+        (0, -1, -t),
+        (0, 1, -t),
+        (t, 0, -1),
+        (t, 0, 1),
+        (-t, 0, -1),
+        (-t, 0, 1),
+    ]
+    faces = [
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
+    ]
+    points = [np.array(v, dtype=np.float64) / np.linalg.norm(v) for v in vertices]
+    for _ in range(subdivisions):
+        midpoints: dict[tuple[int, int], int] = {}
+        refined = []
+        for face in faces:
+            middle = []
+            for a, b in ((face[0], face[1]), (face[1], face[2]), (face[2], face[0])):
+                key = (min(a, b), max(a, b))
+                if key not in midpoints:
+                    point = points[a] + points[b]
+                    points.append(point / np.linalg.norm(point))
+                    midpoints[key] = len(points) - 1
+                middle.append(midpoints[key])
+            (a, b, c), (ab, bc, ca) = face, middle
+            refined += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = refined
+    return np.array(points, dtype=np.float32), np.array(faces, dtype=np.uint32)

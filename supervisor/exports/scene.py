@@ -1,0 +1,253 @@
+"""An inspection's 3D scene as glTF: the stitched cloud decimated to a budget, panel meshes
+where a job made them, one marker node per defect and one anchor node per image marker.
+
+Node layout (names are stable; clients find things by them)::
+
+    inspection-<id>
+    ├── cloud                 POINTS with COLOR_0 (the newest `cloud` artifact)
+    ├── panels-<artifact id>  triangles (each `mesh` artifact), if any
+    ├── defects
+    │   └── defect-<id>       a sphere of the defect's extent; extras: id, type, value, …
+    └── anchors
+        └── marker-<name>     the image marker's pose; extras: name, area, size_mm, image
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from services.pointcloud.ply import PLY_MEDIA_TYPE
+from supervisor.exports.gltf import (
+    GLTF_T_BASE,
+    Material,
+    Mesh,
+    Node,
+    base_to_gltf,
+    icosphere,
+    pose_to_gltf,
+    write_glb,
+)
+from supervisor.models import Artifact, Defect, Inspection
+from supervisor.storage import Storage
+
+MIN_MARKER_MM = 6.0
+"""Smallest marker diameter: a 0.5 mm gap defect must still be visible and pickable."""
+MARKER_SPHERE_SUBDIVISIONS = 2
+
+TYPE_COLORS = {
+    "gap": (0.90, 0.16, 0.16, 1.0),
+    "step": (0.95, 0.55, 0.10, 1.0),
+    "parallelism": (0.85, 0.80, 0.10, 1.0),
+    "mismatch": (0.60, 0.25, 0.80, 1.0),
+    "scratch": (0.10, 0.60, 0.95, 1.0),
+    "dent": (0.10, 0.75, 0.45, 1.0),
+    "bump": (0.05, 0.55, 0.35, 1.0),
+    "color": (0.95, 0.35, 0.75, 1.0),
+}
+PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)
+
+
+@dataclass(frozen=True)
+class SceneSource:
+    """What one export reads: rows and files, gathered in one database session."""
+
+    inspection_id: int
+    markers: list[dict]
+    defects: list[dict]
+    consensus: dict[int, dict]
+    cloud_path: Path | None
+    cloud_artifact_id: int | None
+    meshes: list[tuple[int, Path]]
+
+
+def gather(session: Session, storage: Storage, *, inspection: Inspection) -> SceneSource:
+    from supervisor.sync.service import consensus_docs
+
+    defects = [
+        {
+            "id": d.id,
+            "type": d.type,
+            "status": d.status,
+            "severity": d.severity,
+            "value_mm": d.value_mm,
+            "tolerance_mm": d.tolerance_mm,
+            "measurements": d.measurements or {},
+            "location_mm": d.location_mm,
+            "normal": d.normal,
+            "extent_mm": d.extent_mm,
+            "confidence": d.confidence,
+        }
+        for d in session.execute(
+            select(
+                Defect.id,
+                Defect.type,
+                Defect.status,
+                Defect.severity,
+                Defect.value_mm,
+                Defect.tolerance_mm,
+                Defect.measurements,
+                Defect.location_mm,
+                Defect.normal,
+                Defect.extent_mm,
+                Defect.confidence,
+            )
+            .where(Defect.inspection_id == inspection.id)
+            .order_by(Defect.id)
+        )
+    ]
+    consensus = {c["defect_id"]: c for c in consensus_docs(session, [d["id"] for d in defects])}
+    artifacts = session.execute(
+        select(Artifact.id, Artifact.kind, Artifact.storage_uri)
+        .where(
+            Artifact.inspection_id == inspection.id,
+            Artifact.kind.in_(("cloud", "mesh")),
+            Artifact.media_type == PLY_MEDIA_TYPE,
+        )
+        .order_by(Artifact.id)
+    ).all()
+    clouds = [a for a in artifacts if a.kind == "cloud"]
+    return SceneSource(
+        inspection_id=inspection.id,
+        markers=list(inspection.markers or []),
+        defects=defects,
+        consensus=consensus,
+        cloud_path=storage.path(clouds[-1].storage_uri) if clouds else None,
+        cloud_artifact_id=clouds[-1].id if clouds else None,
+        meshes=[(a.id, storage.path(a.storage_uri)) for a in artifacts if a.kind == "mesh"],
+    )
+
+
+def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray:
+    """(N, 4) RGBA bytes: the scan's colours, or grey shaded by height where it has none."""
+    rgba = np.full((len(points_m), 4), 255, dtype=np.uint8)
+    if colors is not None:
+        rgba[:, :3] = colors
+        return rgba
+    up = points_m[:, 1]
+    span = max(float(np.ptp(up)), 1e-9)
+    rgba[:, :3] = (90 + 140 * (up - up.min()) / span).astype(np.uint8)[:, None]
+    return rgba
+
+
+def _defect_extras(defect: dict, consensus: dict | None) -> dict:
+    measurements = defect["measurements"]
+    return {
+        "defect_id": defect["id"],
+        "type": defect["type"],
+        "value": measurements.get("value", defect["value_mm"]),
+        "unit": measurements.get("unit", "mm"),
+        "tolerance": measurements.get("tolerance", defect["tolerance_mm"]),
+        "status": defect["status"],
+        "severity": defect["severity"],
+        "confidence": defect["confidence"],
+        "location_mm": defect["location_mm"],
+        "normal": defect["normal"],
+        "extent_mm": defect["extent_mm"],
+        "consensus": (
+            {k: consensus[k] for k in ("majority", "agreement", "total", "needs_review", "counts")}
+            if consensus
+            else None
+        ),
+    }
+
+
+def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
+    """The GLB of ``source`` (see the module docstring for its layout)."""
+    from services.pointcloud.ply import read_mesh, read_ply_sample
+
+    meshes: list[Mesh] = []
+    used = {d["type"] for d in source.defects}
+    materials = [Material(f"defect-{t}", rgba) for t, rgba in TYPE_COLORS.items() if t in used]
+    nodes: list[Node] = [Node(f"inspection-{source.inspection_id}")]
+    top: list[int] = []
+    extras = {
+        "units": "metre",
+        "up": "+Y",
+        "converted_from": "vista base frame: millimetres, +Z up",
+        "gltf_T_base": GLTF_T_BASE.tolist(),
+        "inspection_id": source.inspection_id,
+        "scene_etag": etag,
+    }
+    if source.cloud_path is not None:
+        cloud = read_ply_sample(source.cloud_path, max_points)
+        if len(cloud.points):
+            points = base_to_gltf(cloud.points)
+            meshes.append(Mesh("cloud", points, colors=_cloud_colors(cloud.colors, points)))
+            nodes.append(Node("cloud", mesh=len(meshes) - 1))
+            top.append(len(nodes) - 1)
+            extras["cloud"] = {"artifact_id": source.cloud_artifact_id, "points": len(points)}
+    if source.meshes:
+        materials.append(Material("panel", PANEL_COLOR, double_sided=True))
+    for artifact_id, path in source.meshes:
+        vertices, faces = read_mesh(path)
+        meshes.append(
+            Mesh(
+                f"panels-{artifact_id}",
+                base_to_gltf(vertices.points),
+                indices=faces,
+                material=len(materials) - 1,
+            )
+        )
+        nodes.append(Node(f"panels-{artifact_id}", mesh=len(meshes) - 1))
+        top.append(len(nodes) - 1)
+    sphere, sphere_faces = icosphere(MARKER_SPHERE_SUBDIVISIONS)
+    marker_mesh = {}
+    for defect_type in sorted({d["type"] for d in source.defects}, key=list(TYPE_COLORS).index):
+        material = [m.name for m in materials].index(f"defect-{defect_type}")
+        meshes.append(
+            Mesh(
+                f"marker-{defect_type}",
+                sphere,
+                normals=sphere,
+                indices=sphere_faces,
+                material=material,
+            )
+        )
+        marker_mesh[defect_type] = len(meshes) - 1
+    if source.defects:
+        group = Node("defects", children=[])
+        nodes.append(group)
+        top.append(len(nodes) - 1)
+        locations = base_to_gltf([d["location_mm"] for d in source.defects], np.float64)
+        for defect, at in zip(source.defects, locations, strict=True):
+            radius_m = max(float(defect["extent_mm"]), MIN_MARKER_MM) / 2000.0
+            group.children.append(len(nodes))
+            nodes.append(
+                Node(
+                    f"defect-{defect['id']}",
+                    mesh=marker_mesh[defect["type"]],
+                    translation=[float(c) for c in at],
+                    scale=[radius_m] * 3,
+                    extras=_defect_extras(defect, source.consensus.get(defect["id"])),
+                )
+            )
+    anchors = Node("anchors", children=[])
+    if source.markers:
+        nodes.append(anchors)
+        top.append(len(nodes) - 1)
+    for marker in source.markers:
+        translation, rotation = pose_to_gltf(np.array(marker["base_T_marker"]))
+        anchors.children.append(len(nodes))
+        nodes.append(
+            Node(
+                f"marker-{marker['name']}",
+                translation=translation,
+                rotation=rotation,
+                extras={
+                    "marker": marker["name"],
+                    "area": marker["area"],
+                    "size_mm": marker["size_mm"],
+                    "image": marker.get("image", ""),
+                    "base_T_marker": marker["base_T_marker"],
+                },
+            )
+        )
+    nodes[0] = Node(nodes[0].name, children=top)
+    return write_glb(
+        meshes=meshes, materials=materials, nodes=nodes, roots=[0], asset_extras=extras
+    )

@@ -1,0 +1,111 @@
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from supervisor.defects.schemas import Consensus, DefectType, Verdict
+from supervisor.ids import IdField
+
+MAX_BATCH = 1000
+
+ItemStatus = Literal["applied", "unchanged", "stale", "rejected"]
+
+
+class SyncDefect(BaseModel):
+    """A defect as a client keeps it (the measurement details in ``measurements``)."""
+
+    id: int
+    run_id: int | None
+    type: DefectType
+    status: str
+    severity: str
+    value_mm: float | None
+    tolerance_mm: float | None
+    location_mm: list[float]
+    normal: list[float]
+    extent_mm: float
+    confidence: float
+    source: str
+    measurements: dict
+    created_at: datetime
+
+
+class SyncJudgment(BaseModel):
+    defect_id: int
+    user_id: int
+    username: str
+    verdict: Verdict
+    new_type: DefectType | None
+    comment: str
+    revision: int
+    updated_at: datetime
+    client_time: datetime | None
+
+
+class SyncConsensus(Consensus):
+    defect_id: int
+
+
+class SyncOut(BaseModel):
+    inspection: dict | None = Field(
+        description="The inspection, when this page starts a full sync or it changed."
+    )
+    defects: list[SyncDefect] = Field(description="Defects created or changed (their state now).")
+    judgments: list[SyncJudgment] = Field(description="Judgments created or changed.")
+    consensus: list[SyncConsensus] = Field(
+        description="The consensus of every defect whose judgments are in this page."
+    )
+    scene_etag: str = Field(description="The ETag of the inspection's scene.glb right now.")
+    next_cursor: str = Field(description="Pass as `since` next time.")
+    more: bool = Field(description="More is waiting: call again at once with next_cursor.")
+
+
+class OfflineJudgment(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    client_id: str = Field(
+        min_length=1, max_length=64, description="Made by the client (a UUID); retries reuse it."
+    )
+    defect_id: IdField
+    verdict: Verdict
+    new_type: DefectType | None = None
+    comment: str = Field("", max_length=4000)
+    client_time: datetime = Field(description="When the user judged, by the client's clock.")
+
+    @field_validator("client_time")
+    @classmethod
+    def _aware(cls, value: datetime) -> datetime:
+        if value.tzinfo is None:
+            raise ValueError("give a time zone (e.g. a trailing 'Z' for UTC)")
+        return value
+
+    @model_validator(mode="after")
+    def _new_type_only_when_reclassified(self) -> OfflineJudgment:
+        if (self.verdict == "reclassified") != (self.new_type is not None):
+            raise ValueError("new_type is given exactly when the verdict is 'reclassified'")
+        return self
+
+
+class JudgmentBatch(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    items: list[OfflineJudgment] = Field(min_length=1, max_length=MAX_BATCH)
+
+
+class ItemResult(BaseModel):
+    client_id: str
+    defect_id: int
+    status: ItemStatus = Field(
+        description="applied: now your judgment; unchanged: the same as your judgment; stale: "
+        "you judged this defect later (by client time) elsewhere; rejected: see detail."
+    )
+    replayed: bool = Field(False, description="This client_id was sent before: first answer.")
+    detail: str | None = None
+    judgment: SyncJudgment | None = Field(None, description="Your judgment of the defect now.")
+
+
+class BatchOut(BaseModel):
+    results: list[ItemResult]
+    consensus: list[SyncConsensus]

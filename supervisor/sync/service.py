@@ -1,0 +1,463 @@
+"""Headset sync: an inspection's state after a cursor, and batches of offline judgments.
+
+A cursor is a position in the change log (``changes.seq``, one row per change to a
+synced entity). From no cursor the client gets a snapshot of the inspection (its
+defects in id order, in pages, with their judgments) and then every change after the
+log position the snapshot started at; the same entity may come twice, and clients
+upsert by id.
+
+On PostgreSQL two transactions may take log positions in one order and commit in the
+other, so a reader can briefly see position n + 1 without n. The cursor never passes such
+a hole while it is younger than ``GAP_SETTLE_S``: what is still committing is read next
+time. (A hole left by a rolled-back transaction delays the cursor by that much once.)
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import hashlib
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime
+
+from sqlalchemy import bindparam, func, select, text
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from supervisor.changes import record_change
+from supervisor.db import Database
+from supervisor.defects.service import tally
+from supervisor.exports.etag import scene_etag
+from supervisor.inspections.schemas import InspectionOut
+from supervisor.models import (
+    Change,
+    Defect,
+    Inspection,
+    Judgment,
+    JudgmentRevision,
+    SyncReceipt,
+    User,
+)
+from supervisor.models._types import utcnow
+from supervisor.problems import Problem, not_found
+from supervisor.sync.schemas import OfflineJudgment
+
+GAP_SETTLE_S = 10.0
+MAX_CLOCK_AHEAD_S = 300.0
+RECENT_CHANGES = 1000
+DEFAULT_PAGE = 20_000
+MAX_PAGE = 50_000
+
+_CURSOR_PREFIX = "sync"
+
+
+@dataclass(frozen=True)
+class Cursor:
+    seq: int
+    """Every change up to this log position is in the client's copy (or in the snapshot)."""
+    snapshot_after: int | None = None
+    """During a snapshot: the last defect id sent; None once the snapshot is done."""
+
+
+def encode_cursor(cursor: Cursor) -> str:
+    parts = [_CURSOR_PREFIX, str(cursor.seq)]
+    if cursor.snapshot_after is not None:
+        parts.append(str(cursor.snapshot_after))
+    return base64.urlsafe_b64encode(":".join(parts).encode()).decode().rstrip("=")
+
+
+def decode_cursor(value: str | None) -> Cursor | None:
+    """None for a full sync (no cursor, or ``0``)."""
+    if not value or value == "0":
+        return None
+    try:
+        raw = base64.urlsafe_b64decode(value + "=" * (-len(value) % 4)).decode()
+        prefix, *numbers = raw.split(":")
+        if prefix != _CURSOR_PREFIX or len(numbers) not in (1, 2):
+            raise ValueError(raw)
+        ints = [int(n) for n in numbers]
+        if any(n < 0 for n in ints):
+            raise ValueError(raw)
+    except (ValueError, binascii.Error, UnicodeDecodeError) as exc:
+        raise Problem(
+            400, "since: not a cursor this server gave out; sync from the start (since=0)."
+        ) from exc
+    return Cursor(ints[0], ints[1] if len(ints) == 2 else None)
+
+
+# --- reading -----------------------------------------------------------------------
+
+
+def _settled(rows: Sequence, after_seq: int, now: datetime) -> list:
+    """The leading rows that have no young hole before them (see the module docstring)."""
+    settled, expected = [], after_seq + 1
+    for row in rows:
+        if row.seq != expected and (now - row.created_at).total_seconds() < GAP_SETTLE_S:
+            break
+        settled.append(row)
+        expected = row.seq + 1
+    return settled
+
+
+def _high_water(session: Session, now: datetime) -> int:
+    recent = session.execute(
+        select(Change.seq, Change.created_at).order_by(Change.seq.desc()).limit(RECENT_CHANGES)
+    ).all()[::-1]
+    if not recent:
+        return 0
+    first = recent[0].seq - 1
+    settled = _settled(recent, first, now)
+    return settled[-1].seq if settled else first
+
+
+_DEFECT_COLUMNS = (
+    Defect.id,
+    Defect.run_id,
+    Defect.type,
+    Defect.status,
+    Defect.severity,
+    Defect.value_mm,
+    Defect.tolerance_mm,
+    Defect.location_mm,
+    Defect.normal,
+    Defect.extent_mm,
+    Defect.confidence,
+    Defect.source,
+    Defect.measurements,
+    Defect.created_at,
+)
+_JUDGMENT_COLUMNS = (
+    Judgment.defect_id,
+    Judgment.user_id,
+    User.username,
+    Judgment.verdict,
+    Judgment.new_type,
+    Judgment.comment,
+    Judgment.revision,
+    Judgment.updated_at,
+    Judgment.client_time,
+)
+
+
+def _time(value: datetime | None) -> str | None:
+    return value.isoformat() if value is not None else None
+
+
+def _defect_doc(row) -> dict:  # noqa: ANN001 - a result row
+    doc = row._asdict()
+    doc["created_at"] = _time(doc["created_at"])
+    return doc
+
+
+def judgment_doc(row, username: str) -> dict:  # noqa: ANN001 - a result row or a Judgment
+    return {
+        "defect_id": row.defect_id,
+        "user_id": row.user_id,
+        "username": username,
+        "verdict": row.verdict,
+        "new_type": row.new_type,
+        "comment": row.comment,
+        "revision": row.revision,
+        "updated_at": _time(row.updated_at),
+        "client_time": _time(row.client_time),
+    }
+
+
+def _judgments_of(session: Session, defect_ids: list[int]) -> list:
+    if not defect_ids:
+        return []
+    return session.execute(
+        select(*_JUDGMENT_COLUMNS)
+        .join(User, User.id == Judgment.user_id)
+        .where(Judgment.defect_id.in_(bindparam("ids", expanding=True)))
+        .order_by(Judgment.defect_id, Judgment.user_id),
+        {"ids": defect_ids},
+    ).all()
+
+
+def consensus_docs(session: Session, defect_ids: Sequence[int]) -> list[dict]:
+    """The consensus of each of these defects that has judgments."""
+    if not defect_ids:
+        return []
+    votes: dict[int, list] = {}
+    for defect_id, verdict, new_type, count in session.execute(
+        select(Judgment.defect_id, Judgment.verdict, Judgment.new_type, func.count())
+        .where(Judgment.defect_id.in_(bindparam("ids", expanding=True)))
+        .group_by(Judgment.defect_id, Judgment.verdict, Judgment.new_type),
+        {"ids": list(defect_ids)},
+    ):
+        votes.setdefault(defect_id, []).append((verdict, new_type, count))
+    return [
+        {"defect_id": defect_id, **tally(v).model_dump(mode="json")}
+        for defect_id, v in sorted(votes.items())
+    ]
+
+
+def _inspection_doc(inspection: Inspection) -> dict:
+    return InspectionOut.model_validate(inspection).model_dump(mode="json")
+
+
+def changes_since(
+    session: Session, *, inspection_id: int, cursor: Cursor | None, limit: int, scene_points: int
+) -> dict:
+    """One page of what changed in the inspection after ``cursor`` (None: everything)."""
+    now = utcnow()
+    inspection = session.get(Inspection, inspection_id)
+    if inspection is None:
+        deleted = cursor is not None and session.scalar(
+            select(Change.seq).where(
+                Change.inspection_id == inspection_id,
+                Change.entity == "inspection",
+                Change.op == "delete",
+            )
+        )
+        if deleted:
+            raise Problem(410, f"Inspection {inspection_id} was deleted; drop its local copy.")
+        raise not_found("inspection", inspection_id)
+    if cursor is None:
+        cursor = Cursor(_high_water(session, now), snapshot_after=0)
+    if cursor.snapshot_after is not None:
+        page = _snapshot_page(session, inspection, cursor, limit)
+    else:
+        page = _change_page(session, inspection, cursor, limit, now)
+    page["scene_etag"] = scene_etag(session, inspection_id=inspection_id, max_points=scene_points)
+    return page
+
+
+def _snapshot_page(session: Session, inspection: Inspection, cursor: Cursor, limit: int) -> dict:
+    rows = session.execute(
+        select(*_DEFECT_COLUMNS)
+        .where(Defect.inspection_id == inspection.id, Defect.id > cursor.snapshot_after)
+        .order_by(Defect.id)
+        .limit(limit + 1)
+    ).all()
+    more = len(rows) > limit
+    rows = rows[:limit]
+    defect_ids = [r.id for r in rows]
+    judgments = _judgments_of(session, defect_ids)
+    judged = sorted({j.defect_id for j in judgments})
+    after = Cursor(cursor.seq, rows[-1].id if more else None)
+    return {
+        "inspection": _inspection_doc(inspection) if cursor.snapshot_after == 0 else None,
+        "defects": [_defect_doc(r) for r in rows],
+        "judgments": [judgment_doc(j, j.username) for j in judgments],
+        "consensus": consensus_docs(session, judged),
+        "next_cursor": encode_cursor(after),
+        "more": more,
+    }
+
+
+def _change_page(
+    session: Session, inspection: Inspection, cursor: Cursor, limit: int, now: datetime
+) -> dict:
+    # The whole log after the cursor, not only this inspection's rows: a hole is a hole
+    # whichever inspection the missing row belongs to.
+    rows = (
+        session.execute(
+            select(Change).where(Change.seq > cursor.seq).order_by(Change.seq).limit(limit + 1)
+        )
+        .scalars()
+        .all()
+    )
+    settled = _settled(rows[:limit], cursor.seq, now)
+    more = len(rows) > limit and len(settled) == limit
+    mine = [c for c in settled if c.inspection_id == inspection.id]
+    defect_ids = sorted({c.entity_id for c in mine if c.entity == "defect"})
+    judged_pairs = {(c.entity_id, c.user_id) for c in mine if c.entity == "judgment"}
+    inspection_changed = any(c.entity == "inspection" for c in mine)
+    defects = (
+        session.execute(
+            select(*_DEFECT_COLUMNS)
+            .where(Defect.id.in_(bindparam("ids", expanding=True)))
+            .order_by(Defect.id),
+            {"ids": defect_ids},
+        ).all()
+        if defect_ids
+        else []
+    )
+    judged_defects = sorted({d for d, _ in judged_pairs})
+    judgments = [
+        j
+        for j in _judgments_of(session, judged_defects)
+        if (j.defect_id, j.user_id) in judged_pairs
+    ]
+    last = settled[-1].seq if settled else cursor.seq
+    return {
+        "inspection": _inspection_doc(inspection) if inspection_changed else None,
+        "defects": [_defect_doc(r) for r in defects],
+        "judgments": [judgment_doc(j, j.username) for j in judgments],
+        "consensus": consensus_docs(session, judged_defects),
+        "next_cursor": encode_cursor(Cursor(last)),
+        "more": more,
+    }
+
+
+# --- offline judgments ---------------------------------------------------------------
+
+
+def _digest(item: OfflineJudgment) -> str:
+    content = item.model_dump(mode="json", exclude={"client_id"})
+    return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
+
+
+def _same_content(judgment: Judgment, item: OfflineJudgment) -> bool:
+    return (judgment.verdict, judgment.new_type, judgment.comment) == (
+        item.verdict,
+        item.new_type,
+        item.comment,
+    )
+
+
+def apply_batch(db: Database, *, user_id: int, username: str, items: list[OfflineJudgment]):
+    """Apply a batch of offline judgments of one user; returns (results, consensus docs).
+
+    A user's batches run one at a time (a lock per user on PostgreSQL; SQLite has one
+    writer), so a retried batch racing its first attempt replays instead of applying
+    twice. A concurrent PUT of the same judgment can still win the insert; the batch is
+    then run again and sees it.
+    """
+    for attempt in range(3):
+        try:
+            with db.write() as session:
+                if not db.is_sqlite:
+                    session.execute(
+                        text("SELECT pg_advisory_xact_lock(7413, :user_id)"), {"user_id": user_id}
+                    )
+                return _apply(session, user_id=user_id, username=username, items=items)
+        except IntegrityError:
+            if attempt == 2:
+                raise
+    raise AssertionError("unreachable")
+
+
+def _apply(session: Session, *, user_id: int, username: str, items: list[OfflineJudgment]):
+    now = utcnow()
+    client_ids = list({item.client_id for item in items})
+    defect_ids = list({item.defect_id for item in items})
+    receipts = {
+        r.client_id: r
+        for r in session.scalars(
+            select(SyncReceipt).where(
+                SyncReceipt.user_id == user_id,
+                SyncReceipt.client_id.in_(bindparam("ids", expanding=True)),
+            ),
+            {"ids": client_ids},
+        )
+    }
+    defects = {
+        d.id: d
+        for d in session.execute(
+            select(Defect.id, Defect.inspection_id, Defect.type).where(
+                Defect.id.in_(bindparam("ids", expanding=True))
+            ),
+            {"ids": defect_ids},
+        )
+    }
+    current_query = select(Judgment).where(
+        Judgment.user_id == user_id, Judgment.defect_id.in_(bindparam("ids", expanding=True))
+    )
+    if session.bind.dialect.name != "sqlite":
+        current_query = current_query.with_for_update()
+    current = {j.defect_id: j for j in session.scalars(current_query, {"ids": defect_ids})}
+    results = []
+    for item in items:
+        digest = _digest(item)
+        result = {"client_id": item.client_id, "defect_id": item.defect_id, "replayed": False}
+        receipt = receipts.get(item.client_id)
+        status, detail = None, None
+        if receipt is not None:
+            if receipt.request_sha256 != digest or receipt.defect_id != item.defect_id:
+                status = "rejected"
+                detail = f"client_id {item.client_id} was already used for another judgment."
+            else:
+                status, result["replayed"] = receipt.status, True
+        else:
+            status, detail = _apply_one(session, item, defects, current, user_id, now)
+            if status != "rejected":
+                judgment = current[item.defect_id]
+                receipt = SyncReceipt(
+                    user_id=user_id,
+                    client_id=item.client_id,
+                    defect_id=item.defect_id,
+                    request_sha256=digest,
+                    status=status,
+                    revision=judgment.revision,
+                )
+                session.add(receipt)
+                receipts[item.client_id] = receipt
+        judgment = current.get(item.defect_id) if status != "rejected" else None
+        result["status"], result["detail"] = status, detail
+        result["judgment"] = judgment_doc(judgment, username) if judgment is not None else None
+        results.append(result)
+    session.flush()
+    touched = sorted({r["defect_id"] for r in results if r["status"] == "applied"})
+    return results, consensus_docs(session, touched)
+
+
+def _apply_one(
+    session: Session,
+    item: OfflineJudgment,
+    defects: dict,
+    current: dict[int, Judgment],
+    user_id: int,
+    now: datetime,
+) -> tuple[str, str | None]:
+    defect = defects.get(item.defect_id)
+    if defect is None:
+        return "rejected", f"There is no defect with id {item.defect_id}."
+    if item.verdict == "reclassified" and item.new_type == defect.type:
+        return "rejected", f"new_type: the defect already is a {defect.type}; pick another type."
+    ahead_s = (item.client_time - now).total_seconds()
+    if ahead_s > MAX_CLOCK_AHEAD_S:
+        return "rejected", (
+            f"client_time is {ahead_s:.0f} s ahead of the server's clock "
+            f"(at most {MAX_CLOCK_AHEAD_S:.0f} s allowed): set the device's clock."
+        )
+    judgment = current.get(item.defect_id)
+    if (
+        judgment is not None
+        and judgment.client_time is not None
+        and judgment.client_time >= item.client_time
+    ):
+        return "stale", (
+            f"your judgment of defect {item.defect_id} made at "
+            f"{judgment.client_time.isoformat()} is newer and stays."
+        )
+    if judgment is not None and _same_content(judgment, item):
+        judgment.client_time = item.client_time
+        return "unchanged", None
+    if judgment is None:
+        judgment = Judgment(defect_id=item.defect_id, user_id=user_id, revision=0)
+        session.add(judgment)
+        current[item.defect_id] = judgment
+    judgment.verdict, judgment.new_type, judgment.comment = (
+        item.verdict,
+        item.new_type,
+        item.comment,
+    )
+    judgment.revision += 1
+    judgment.updated_at = now
+    judgment.client_time = item.client_time
+    session.add(
+        JudgmentRevision(
+            defect_id=item.defect_id,
+            user_id=user_id,
+            revision=judgment.revision,
+            verdict=item.verdict,
+            new_type=item.new_type,
+            comment=item.comment,
+            client_time=item.client_time,
+            created_at=now,
+        )
+    )
+    record_change(
+        session,
+        entity="judgment",
+        entity_id=item.defect_id,
+        op="update",
+        inspection_id=defect.inspection_id,
+        user_id=user_id,
+    )
+    return "applied", None

@@ -1,0 +1,43 @@
+"""Defects written the way a measuring job writes them (rows plus change-log entries)."""
+
+from __future__ import annotations
+
+from sqlalchemy import insert, select
+
+from supervisor.models import Change, Defect
+
+TYPES = ("gap", "step", "scratch", "dent")
+
+
+def seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> list[int]:
+    """``count`` defects: types cycle gap, step, scratch, dent; defect i sits at x = i mm."""
+    rows = [
+        {
+            "inspection_id": inspection_id,
+            "run_id": run_id,
+            "type": TYPES[i % 4],
+            "status": "open" if i % 5 else "resolved",
+            "value_mm": 1.0 + i / 100,
+            "tolerance_mm": 1.0,
+            "measurements": {},
+            "location_mm": [float(i), 0.0, 0.0],
+            "normal": [0.0, 0.0, 1.0],
+            "extent_mm": 3.0,
+            "severity": "info" if i % 3 == 0 else "minor",
+            "confidence": 0.9,
+            "source": "job",
+        }
+        for i in range(count)
+    ]
+    with runtime.db.write() as session:
+        before = session.scalar(select(Defect.id).order_by(Defect.id.desc()).limit(1)) or 0
+        session.execute(insert(Defect), rows)
+        ids = list(session.scalars(select(Defect.id).where(Defect.id > before).order_by(Defect.id)))
+        session.execute(
+            insert(Change),
+            [
+                {"entity": "defect", "entity_id": i, "op": "create", "inspection_id": inspection_id}
+                for i in ids
+            ],
+        )
+        return ids

@@ -1,0 +1,210 @@
+"""scene.glb: the Khronos validator finds no error, and re-imported with an independent
+reader (pygltflib) every marker sits on its defect to 0.1 mm and every anchor on its pose."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pygltflib import GLTF2
+
+from services.pointcloud.ply import PointCloud, write_ply
+from supervisor.exports.gltf import pose_to_gltf, quaternion_xyzw
+from tests.conftest import auth
+from tests.seeding import seed_defects
+
+WEB = Path(__file__).resolve().parent.parent / "clients" / "web"
+VALIDATOR = WEB / "tools" / "validate-gltf.mjs"
+MARKERS = [
+    {
+        "name": "cabin-left",
+        "area": "cabin",
+        "base_T_marker": [[0, -1, 0, 1200.5], [1, 0, 0, -340.25], [0, 0, 1, 95.0], [0, 0, 0, 1]],
+        "size_mm": 210.0,
+        "image": "vista-cabin",
+    },
+    {
+        "name": "cargo",
+        "area": "cargo",
+        "base_T_marker": [[1, 0, 0, -50.0], [0, 0, -1, 800.0], [0, 1, 0, 0.0], [0, 0, 0, 1]],
+        "size_mm": 150.0,
+    },
+]
+
+
+def validate(path: Path) -> dict:
+    """The glTF-Validator's report of one file (npm package gltf-validator)."""
+    if not (WEB / "node_modules" / "gltf-validator").exists():
+        pytest.fail("clients/web/node_modules is missing: run `make install-test`")
+    done = subprocess.run(
+        ["node", str(VALIDATOR), str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode in (0, 1), done.stderr
+    return json.loads(done.stdout)[0]
+
+
+def _upload_ply(client, token, inspection, path: Path, kind: str) -> int:
+    answer = client.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": kind, "name": path.name},
+        content=path.read_bytes(),
+        headers={**auth(token), "Content-Type": "application/x-ply"},
+    )
+    assert answer.status_code == 201, answer.text
+    return answer.json()["id"]
+
+
+@pytest.fixture
+def scene_inspection(client, tokens, runtime, tmp_path) -> dict:
+    token = tokens["inspector"]
+    inspection = client.post(
+        "/api/v1/inspections",
+        json={"title": "sidewall", "area": "cabin", "markers": MARKERS},
+        headers=auth(token),
+    ).json()["id"]
+    rng = np.random.default_rng(3)
+    points = (rng.random((30_000, 3)) * [300, 200, 5] + [0, 0, 100]).astype(np.float32)
+    colors = rng.integers(0, 256, (30_000, 3), dtype=np.uint8)
+    write_ply(tmp_path / "cloud.ply", PointCloud(points=points, colors=colors))
+    _upload_ply(client, token, inspection, tmp_path / "cloud.ply", "cloud")
+    grid = np.stack(np.meshgrid(np.arange(4.0), np.arange(3.0)), -1).reshape(-1, 2) * 50
+    vertices = np.column_stack([grid, np.full(len(grid), 100.0)]).astype(np.float32)
+    quads = [
+        (r * 4 + c, r * 4 + c + 1, r * 4 + c + 4, r * 4 + c + 5) for r in range(2) for c in range(3)
+    ]
+    faces = np.array([f for a, b, c, d in quads for f in ((a, b, d), (a, d, c))])
+    write_ply(tmp_path / "panels.ply", PointCloud(points=vertices), faces=faces)
+    _upload_ply(client, token, inspection, tmp_path / "panels.ply", "mesh")
+    ids = seed_defects(runtime, inspection, 40)
+    client.put(
+        f"/api/v1/defects/{ids[5]}/judgments/me",
+        json={"verdict": "confirmed"},
+        headers=auth(token),
+    )
+    return {"id": inspection, "defects": ids, "points": points}
+
+
+def test_scene_is_valid_gltf_with_markers_on_the_defects(
+    client, tokens, scene_inspection, tmp_path
+):
+    inspection = scene_inspection["id"]
+    answer = client.get(
+        f"/api/v1/inspections/{inspection}/scene.glb",
+        params={"points": 10_000},
+        headers=auth(tokens["device"]),
+    )
+    assert answer.status_code == 200 and answer.headers["content-type"] == "model/gltf-binary"
+    path = tmp_path / "scene.glb"
+    path.write_bytes(answer.content)
+
+    report = validate(path)
+    assert report["issues"]["numErrors"] == 0, report["issues"]["messages"]
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"]
+
+    gltf = GLTF2().load_binary(str(path))
+    nodes = {n.name: n for n in gltf.nodes}
+    assert gltf.asset.extras["units"] == "metre" and gltf.asset.extras["up"] == "+Y"
+    defects = client.get(
+        "/api/v1/defects", params={"inspection": inspection}, headers=auth(tokens["viewer"])
+    ).json()["items"]
+    assert len(defects) == 40
+    for defect in defects:
+        node = nodes[f"defect-{defect['id']}"]
+        x, y, z = node.translation
+        back_mm = np.array([x, -z, y]) * 1000.0  # glTF (m, +Y up) → base (mm, +Z up)
+        assert np.abs(back_mm - defect["location_mm"]).max() < 0.1
+        assert node.extras["defect_id"] == defect["id"] and node.extras["type"] == defect["type"]
+        assert node.extras["status"] == defect["status"]
+        assert node.scale[0] == pytest.approx(6.0 / 2000)  # extent 3 mm < the 6 mm minimum
+    judged = nodes[f"defect-{scene_inspection['defects'][5]}"].extras["consensus"]
+    assert judged["majority"] == "confirmed" and judged["total"] == 1
+
+    for marker in MARKERS:
+        node = nodes[f"marker-{marker['name']}"]
+        pose = np.array(marker["base_T_marker"], dtype=float)
+        back = np.array([node.translation[0], -node.translation[2], node.translation[1]]) * 1000
+        assert np.abs(back - pose[:3, 3]).max() < 1e-6
+        assert node.extras["area"] == marker["area"] and node.extras["size_mm"] == marker["size_mm"]
+        assert np.allclose(node.rotation, pose_to_gltf(pose)[1])
+
+    cloud = gltf.meshes[nodes["cloud"].mesh].primitives[0]
+    assert cloud.mode == 0 and cloud.attributes.COLOR_0 is not None
+    assert gltf.accessors[cloud.attributes.POSITION].count == 10_000
+    blob = gltf.binary_blob()
+    view = gltf.bufferViews[gltf.accessors[cloud.attributes.POSITION].bufferView]
+    xyz = np.frombuffer(blob, np.float32, 30_000, view.byteOffset).reshape(-1, 3)
+    base = np.column_stack([xyz[:, 0], -xyz[:, 2], xyz[:, 1]]) * 1000
+    source = scene_inspection["points"]
+    assert (base.min(0) >= source.min(0) - 1e-3).all() and (
+        base.max(0) <= source.max(0) + 1e-3
+    ).all()
+    panels = next(m for m in gltf.meshes if m.name.startswith("panels-"))
+    assert gltf.accessors[panels.primitives[0].indices].count == 12 * 3
+
+
+def test_scene_etag_conditional_get_and_changes(client, tokens, scene_inspection):
+    url = f"/api/v1/inspections/{scene_inspection['id']}/scene.glb"
+    viewer = auth(tokens["viewer"])
+    first = client.get(url, headers=viewer)
+    etag = first.headers["etag"]
+    again = client.get(url, headers={**viewer, "If-None-Match": etag})
+    assert again.status_code == 304 and again.content == b"" and again.headers["etag"] == etag
+    client.put(
+        f"/api/v1/defects/{scene_inspection['defects'][0]}/judgments/me",
+        json={"verdict": "rejected"},
+        headers=auth(tokens["inspector"]),
+    )
+    changed = client.get(url, headers={**viewer, "If-None-Match": etag})
+    assert changed.status_code == 200 and changed.headers["etag"] != etag
+    other_budget = client.get(url, params={"points": 2000}, headers=viewer)
+    assert other_budget.headers["etag"] not in (etag, changed.headers["etag"])
+    sync = client.get(
+        "/api/v1/sync", params={"inspection": scene_inspection["id"]}, headers=viewer
+    ).json()
+    assert sync["scene_etag"] == changed.headers["etag"]
+
+
+def test_scene_of_an_empty_inspection_and_bad_meshes(client, tokens, tmp_path):
+    token = tokens["inspector"]
+    inspection = client.post(
+        "/api/v1/inspections", json={"title": "new", "area": "cargo"}, headers=auth(token)
+    ).json()["id"]
+    answer = client.get(f"/api/v1/inspections/{inspection}/scene.glb", headers=auth(token))
+    path = tmp_path / "empty.glb"
+    path.write_bytes(answer.content)
+    assert validate(path)["issues"]["numErrors"] == 0
+    assert client.get("/api/v1/inspections/999/scene.glb", headers=auth(token)).status_code == 404
+    write_ply(tmp_path / "cloud.ply", PointCloud(points=np.zeros((10, 3), np.float32)))
+    refused = client.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "mesh", "name": "cloud.ply"},
+        content=(tmp_path / "cloud.ply").read_bytes(),
+        headers={**auth(token), "Content-Type": "application/x-ply"},
+    )
+    assert refused.status_code == 422 and "no 'face' element" in refused.json()["detail"]
+    bad_marker = dict(
+        MARKERS[0], base_T_marker=[[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    )
+    wrong = client.patch(
+        f"/api/v1/inspections/{inspection}", json={"markers": [bad_marker]}, headers=auth(token)
+    )
+    assert wrong.status_code == 422 and "orthonormal" in wrong.text
+
+
+def test_quaternions_match_rotations():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        q *= np.sign(np.linalg.det(q))
+        x, y, z, w = quaternion_xyzw(q)
+        rebuilt = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        assert np.abs(rebuilt - q).max() < 1e-9

@@ -1,0 +1,243 @@
+"""Headset sync: cursors, snapshots in pages, incremental changes, offline batches."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import UTC, datetime, timedelta
+from types import SimpleNamespace
+
+import pytest
+
+from supervisor.sync.service import GAP_SETTLE_S, _settled
+from tests.conftest import auth
+from tests.seeding import seed_defects
+
+SYNC = "/api/v1/sync"
+BATCH = "/api/v1/sync/judgments"
+
+
+@pytest.fixture
+def inspection(client, tokens) -> int:
+    return client.post(
+        "/api/v1/inspections",
+        json={"title": "sidewall", "area": "cabin"},
+        headers=auth(tokens["inspector"]),
+    ).json()["id"]
+
+
+def _sync(client, token, inspection, since=None, **params):
+    answer = client.get(
+        SYNC, params={"inspection": inspection, "since": since, **params}, headers=auth(token)
+    )
+    assert answer.status_code == 200, answer.text
+    return answer.json()
+
+
+def _item(defect_id, verdict="confirmed", *, at: datetime, client_id=None, **extra) -> dict:
+    return {
+        "client_id": client_id or uuid.uuid4().hex,
+        "defect_id": defect_id,
+        "verdict": verdict,
+        "client_time": at.isoformat(),
+        **extra,
+    }
+
+
+def test_full_then_incremental_sync_returns_only_what_changed(client, tokens, inspection, runtime):
+    ids = seed_defects(runtime, inspection, 5)
+    put = client.put(
+        f"/api/v1/defects/{ids[0]}/judgments/me",
+        json={"verdict": "rejected"},
+        headers=auth(tokens["inspector"]),
+    )
+    assert put.status_code == 200
+    device = tokens["device"]
+    full = _sync(client, device, inspection)
+    assert full["inspection"]["id"] == inspection and not full["more"]
+    assert [d["id"] for d in full["defects"]] == ids
+    assert [(j["defect_id"], j["verdict"]) for j in full["judgments"]] == [(ids[0], "rejected")]
+    assert [(c["defect_id"], c["majority"]) for c in full["consensus"]] == [(ids[0], "rejected")]
+    assert full["defects"][2]["location_mm"] == [2.0, 0.0, 0.0]
+
+    quiet = _sync(client, device, inspection, full["next_cursor"])
+    assert quiet["defects"] == quiet["judgments"] == quiet["consensus"] == []
+    assert quiet["inspection"] is None and quiet["scene_etag"] == full["scene_etag"]
+
+    client.put(
+        f"/api/v1/defects/{ids[3]}/judgments/me",
+        json={"verdict": "confirmed", "comment": "seen on site"},
+        headers=auth(tokens["inspector2"]),
+    )
+    one = _sync(client, device, inspection, quiet["next_cursor"])
+    assert one["defects"] == [] and one["inspection"] is None
+    assert [(j["defect_id"], j["username"], j["comment"]) for j in one["judgments"]] == [
+        (ids[3], "ivan", "seen on site")
+    ]
+    assert [(c["defect_id"], c["counts"]["confirmed"]) for c in one["consensus"]] == [(ids[3], 1)]
+    assert one["scene_etag"] != quiet["scene_etag"]  # markers carry the consensus
+
+    client.patch(
+        f"/api/v1/defects/{ids[1]}", json={"status": "resolved"}, headers=auth(tokens["inspector"])
+    )
+    client.patch(
+        f"/api/v1/inspections/{inspection}", json={"status": "review"}, headers=auth(device)
+    )  # refused: a device token does not change inspections
+    status = _sync(client, device, inspection, one["next_cursor"])
+    assert [(d["id"], d["status"]) for d in status["defects"]] == [(ids[1], "resolved")]
+    assert status["judgments"] == [] and status["inspection"] is None
+
+
+def test_full_sync_in_pages_replays_what_changed_meanwhile(client, tokens, inspection, runtime):
+    ids = seed_defects(runtime, inspection, 5)
+    viewer = tokens["viewer"]
+    first = _sync(client, viewer, inspection, limit=2)
+    assert [d["id"] for d in first["defects"]] == ids[:2] and first["more"]
+    client.put(
+        f"/api/v1/defects/{ids[0]}/judgments/me",
+        json={"verdict": "uncertain"},
+        headers=auth(tokens["inspector"]),
+    )
+    second = _sync(client, viewer, inspection, first["next_cursor"], limit=2)
+    third = _sync(client, viewer, inspection, second["next_cursor"], limit=2)
+    assert [d["id"] for d in second["defects"] + third["defects"]] == ids[2:]
+    assert second["inspection"] is None and not third["more"]
+    after = _sync(client, viewer, inspection, third["next_cursor"])
+    assert [(j["defect_id"], j["verdict"]) for j in after["judgments"]] == [(ids[0], "uncertain")]
+
+
+def test_offline_batch_is_idempotent_and_last_writer_wins(client, tokens, inspection, runtime):
+    a, b, c = seed_defects(runtime, inspection, 3)
+    device = tokens["inspector"]  # the same person on two devices: web and headset
+    now = datetime.now(UTC)
+    batch = {
+        "items": [
+            _item(a, "confirmed", at=now - timedelta(minutes=30), comment="offline"),
+            _item(b, "reclassified", at=now - timedelta(minutes=20), new_type="dent"),
+            _item(a, "rejected", at=now - timedelta(minutes=40)),  # older than the first
+        ]
+    }
+    first = client.post(BATCH, json=batch, headers=auth(device))
+    assert first.status_code == 200, first.text
+    results = first.json()["results"]
+    assert [r["status"] for r in results] == ["applied", "applied", "stale"]
+    assert (
+        results[0]["judgment"]["comment"] == "offline" and results[0]["judgment"]["revision"] == 1
+    )
+    assert {x["defect_id"]: x["majority"] for x in first.json()["consensus"]} == {
+        a: "confirmed",
+        b: "reclassified",
+    }
+    retry = client.post(BATCH, json=batch, headers=auth(device)).json()["results"]
+    assert [(r["status"], r["replayed"]) for r in retry] == [
+        ("applied", True),
+        ("applied", True),
+        ("stale", True),
+    ]
+    history = client.get(f"/api/v1/defects/{a}/judgments", headers=auth(device)).json()
+    assert [h["revision"] for h in history["judgments"][0]["history"]] == [1]
+
+    # Online edit now; an offline edit made before it arrives later and loses.
+    client.put(
+        f"/api/v1/defects/{c}/judgments/me", json={"verdict": "rejected"}, headers=auth(device)
+    )
+    late = [_item(c, "confirmed", at=now - timedelta(minutes=5))]
+    newer = [_item(a, "uncertain", at=now + timedelta(seconds=1))]
+    answer = client.post(BATCH, json={"items": late + newer}, headers=auth(device)).json()
+    assert [r["status"] for r in answer["results"]] == ["stale", "applied"]
+    assert answer["results"][0]["judgment"]["verdict"] == "rejected"
+    assert answer["results"][1]["judgment"]["revision"] == 2
+
+    same = [_item(a, "uncertain", at=now + timedelta(seconds=2))]
+    assert (
+        client.post(BATCH, json={"items": same}, headers=auth(device)).json()["results"][0][
+            "status"
+        ]
+        == "unchanged"
+    )
+    reused = dict(batch["items"][0], comment="another text")
+    bad = [
+        reused,
+        _item(999_999, at=now),
+        _item(b, "reclassified", at=now, new_type="step"),
+        _item(b, at=now + timedelta(hours=1)),
+    ]
+    rejected = client.post(BATCH, json={"items": bad}, headers=auth(device)).json()["results"]
+    assert [r["status"] for r in rejected] == ["rejected"] * 4
+    details = [r["detail"] for r in rejected]
+    assert "already used" in details[0] and "no defect with id 999999" in details[1]
+    assert "already is a step" in details[2] and "ahead of the server's clock" in details[3]
+
+
+def test_bad_sync_input_is_refused_and_changes_nothing(client, tokens, inspection, runtime):
+    (defect,) = seed_defects(runtime, inspection, 1)
+    device = tokens["device"]
+    now = datetime.now(UTC)
+    for body, phrase in [
+        ({"items": []}, "at least 1"),
+        ({"items": [_item(defect, at=now) | {"client_time": "2026-01-01T10:00:00"}]}, "time zone"),
+        ({"items": [_item(defect, "reclassified", at=now)]}, "new_type is given exactly"),
+        ({"items": [_item(defect, at=now)] * 1001}, "at most 1000"),
+    ]:
+        answer = client.post(BATCH, json=body, headers=auth(device))
+        assert answer.status_code == 422 and phrase in answer.text, answer.text
+    assert (
+        client.get(f"/api/v1/defects/{defect}/judgments", headers=auth(device)).json()["judgments"]
+        == []
+    )
+    viewer = client.post(
+        BATCH, json={"items": [_item(defect, at=now)]}, headers=auth(tokens["viewer"])
+    )
+    assert viewer.status_code == 403
+    bad_cursor = client.get(
+        SYNC, params={"inspection": inspection, "since": "xyz"}, headers=auth(device)
+    )
+    assert bad_cursor.status_code == 400 and "since=0" in bad_cursor.json()["detail"]
+    missing = client.get(SYNC, params={"inspection": 4242}, headers=auth(device))
+    assert missing.status_code == 404
+    cursor = _sync(client, device, inspection)["next_cursor"]
+    client.delete(f"/api/v1/inspections/{inspection}", headers=auth(tokens["inspector"]))
+    gone = client.get(
+        SYNC, params={"inspection": inspection, "since": cursor}, headers=auth(device)
+    )
+    assert gone.status_code == 410 and "deleted" in gone.json()["detail"]
+
+
+def test_device_tokens_only_read_and_sync(client, tokens, inspection, runtime):
+    (defect,) = seed_defects(runtime, inspection, 1)
+    device = auth(tokens["device"])
+    assert client.get(f"/api/v1/defects/{defect}", headers=device).status_code == 200
+    for method, url, body in [
+        ("PUT", f"/api/v1/defects/{defect}/judgments/me", {"verdict": "confirmed"}),
+        ("POST", "/api/v1/inspections", {"title": "x", "area": "cabin"}),
+        ("PATCH", f"/api/v1/defects/{defect}", {"status": "resolved"}),
+    ]:
+        answer = client.request(method, url, json=body, headers=device)
+        assert answer.status_code == 403 and "only read and sync" in answer.json()["detail"]
+
+
+def test_sync_compresses_when_asked(client, tokens, inspection, runtime):
+    seed_defects(runtime, inspection, 200)
+    plain = client.get(
+        SYNC,
+        params={"inspection": inspection},
+        headers={**auth(tokens["device"]), "Accept-Encoding": "identity"},
+    )
+    packed = client.get(
+        SYNC,
+        params={"inspection": inspection},
+        headers={**auth(tokens["device"]), "Accept-Encoding": "gzip"},
+    )
+    assert "content-encoding" not in plain.headers
+    assert packed.headers["content-encoding"] == "gzip" and packed.json() == plain.json()
+    assert int(packed.headers["content-length"]) < len(plain.content) / 4
+
+
+def test_cursor_waits_at_a_young_hole_in_the_log():
+    now = datetime.now(UTC)
+    row = lambda seq, age_s: SimpleNamespace(seq=seq, created_at=now - timedelta(seconds=age_s))  # noqa: E731
+    assert [r.seq for r in _settled([row(11, 1), row(12, 1)], 10, now)] == [11, 12]
+    # 12 is missing and 13 is young: 12 may still be committing
+    assert [r.seq for r in _settled([row(11, 1), row(13, 1)], 10, now)] == [11]
+    # old enough: 12 was rolled back
+    old = GAP_SETTLE_S + 1
+    assert [r.seq for r in _settled([row(11, old), row(13, old)], 10, now)] == [11, 13]
