@@ -8,10 +8,16 @@ VISTA       := $(VENV)/bin/vista
 DEB_PACKAGES := python3-venv python3-dev build-essential
 STAMP_RUN   := $(VENV)/.installed-run
 STAMP_TEST  := $(VENV)/.installed-test
+WEB         := clients/web
+WEB_STAMP   := $(WEB)/node_modules/.installed
+WEB_BUILT   := $(WEB)/dist/index.html
+# The browser, C# and HTTP pieces the client tests use: Debian's Chromium (no browser
+# download), mono's C# compiler and runtime, and Node.js/npm for the dashboard's build.
+TEST_DEB_PACKAGES := chromium mono-mcs mono-runtime libmono-system-net-http4.0-cil nodejs npm
 
-.PHONY: run test install install-test lint bench clean
+.PHONY: run test install install-test lint bench clean web
 
-run: $(STAMP_RUN)
+run: $(STAMP_RUN) $(WEB_BUILT)
 	$(VISTA) migrate
 	$(VISTA) serve
 
@@ -19,11 +25,12 @@ test: $(STAMP_TEST)
 	$(PY) -m pytest -q
 
 lint: $(STAMP_TEST)
-	$(VENV)/bin/ruff check supervisor services tests
-	$(VENV)/bin/ruff format --check supervisor services tests
+	$(VENV)/bin/ruff check supervisor services tests clients/python
+	$(VENV)/bin/ruff format --check supervisor services tests clients/python
 
-install: $(STAMP_RUN)
+install: $(STAMP_RUN) $(WEB_BUILT)
 install-test: $(STAMP_TEST)
+web: $(WEB_BUILT)
 
 $(VENV)/bin/activate:
 	@$(PYTHON) -m venv --help >/dev/null 2>&1 && $(PYTHON) -c "import ensurepip" 2>/dev/null || \
@@ -34,16 +41,29 @@ $(VENV)/bin/activate:
 
 # torch is pinned to 2.13.0 in pyproject.toml: that takes the local CPU build.
 # open3d needs Debian's libusb-1.0-0.
-$(STAMP_RUN): pyproject.toml | $(VENV)/bin/activate
+$(STAMP_RUN): pyproject.toml clients/python/pyproject.toml | $(VENV)/bin/activate
 	@ldconfig -p | grep -q 'libusb-1.0.so.0' || \
 	  { echo "installing Debian package libusb-1.0-0 (for open3d)"; \
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0; }
-	$(PY) -m pip install -q -e .
+	$(PY) -m pip install -q -e . -e clients/python
 	@touch $@
 
-$(STAMP_TEST): pyproject.toml $(STAMP_RUN)
+$(STAMP_TEST): pyproject.toml $(STAMP_RUN) $(WEB_BUILT)
+	@missing=$$(for p in $(TEST_DEB_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || echo $$p; done); \
+	  [ -z "$$missing" ] || { echo "installing Debian packages:" $$missing; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; }
 	$(PY) -m pip install -q -e ".[test]"
 	@touch $@
 
+# The dashboard: npm packages from the registry only (package-lock.json), bundled by esbuild.
+$(WEB_STAMP): $(WEB)/package.json $(WEB)/package-lock.json
+	@command -v npm >/dev/null || { echo "installing Debian packages nodejs npm"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nodejs npm; }
+	cd $(WEB) && npm ci --no-audit --no-fund --loglevel=error
+	@touch $@
+
+$(WEB_BUILT): $(WEB_STAMP) $(wildcard $(WEB)/src/*) $(WEB)/tools/build.mjs
+	cd $(WEB) && npm run --silent build
+
 clean:
-	rm -rf $(VENV) vista-data bench-results .pytest_cache
+	rm -rf $(VENV) vista-data bench-results .pytest_cache $(WEB)/node_modules $(WEB)/dist

@@ -6,9 +6,12 @@ import fcntl
 import gc
 import logging
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import IO
 
 from fastapi import APIRouter, FastAPI
+from fastapi.responses import HTMLResponse
+from fastapi.staticfiles import StaticFiles
 
 from supervisor import health
 from supervisor.artifacts.router import router as artifacts_router
@@ -19,6 +22,7 @@ from supervisor.engine.embedded import EmbeddedPool
 from supervisor.engine.maintenance import MaintenanceLoop, resend_queued
 from supervisor.engine.runtime import Runtime
 from supervisor.exports.router import router as exports_router
+from supervisor.feedback.router import router as feedback_router
 from supervisor.inspections.router import router as inspections_router
 from supervisor.jobs.router import router as jobs_router
 from supervisor.judgments.router import router as judgments_router
@@ -30,6 +34,7 @@ from supervisor.users.router import router as users_router
 
 log = logging.getLogger("vista")
 API_PREFIX = "/api/v1"
+WEB_DIST = Path(__file__).resolve().parent.parent / "clients" / "web" / "dist"
 
 
 class SchemaOutOfDate(RuntimeError):
@@ -117,9 +122,27 @@ def create_app(
         judgments_router,
         sync_router,
         exports_router,
+        feedback_router,
     ):
         api.include_router(router)
     app.include_router(api)
     app.include_router(health.router, include_in_schema=False)
     app.include_router(health.router, prefix=API_PREFIX)
+    _serve_dashboard(app, settings)
     return app
+
+
+def _serve_dashboard(app: FastAPI, settings: Settings) -> None:
+    """The web dashboard's built files at `/` (after the API, which keeps its paths)."""
+    folder = settings.web_dir or WEB_DIST
+    if (folder / "index.html").exists():
+        app.mount("/", StaticFiles(directory=folder, html=True), name="dashboard")
+        return
+
+    @app.get("/", include_in_schema=False)
+    def dashboard_missing() -> HTMLResponse:
+        return HTMLResponse(
+            f"<h1>vista</h1><p>The dashboard is not built ({folder} has no index.html): run "
+            "<code>make web</code>. The API is at <a href='/docs'>/docs</a>.</p>",
+            status_code=503,
+        )

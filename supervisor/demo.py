@@ -26,6 +26,31 @@ TOLERANCES = {
 }
 
 
+PART_T_CABIN_MARKER = [
+    [1.0, 0.0, 0.0, -80.0],
+    [0.0, 1.0, 0.0, 50.0],
+    [0.0, 0.0, 1.0, 0.0],
+    [0.0, 0.0, 0.0, 1.0],
+]
+"""The cabin's image marker: printed beside the sidewall, 80 mm before its first panel."""
+
+
+def _cabin_marker(truth_path: Path) -> dict:
+    import json
+
+    import numpy as np
+
+    base_T_part = np.array(json.loads(truth_path.read_text())["base_T_part"])
+    base_T_marker = base_T_part @ np.array(PART_T_CABIN_MARKER)
+    return {
+        "name": "cabin-sidewall",
+        "area": "cabin",
+        "base_T_marker": base_T_marker.tolist(),
+        "size_mm": 120.0,
+        "image": "vista-cabin-marker",
+    }
+
+
 class DemoError(RuntimeError):
     pass
 
@@ -100,6 +125,7 @@ def run_demo(
                 "aircraft": "simulated",
                 "area": "cabin",
                 "tolerances": TOLERANCES,
+                "markers": [_cabin_marker(folder / "truth.json")],
             },
         )
         base = f"/api/v1/inspections/{inspection['id']}"

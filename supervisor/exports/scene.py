@@ -35,8 +35,10 @@ from supervisor.exports.gltf import (
 from supervisor.models import Artifact, Defect, Inspection
 from supervisor.storage import Storage
 
-MIN_MARKER_MM = 6.0
-"""Smallest marker diameter: a 0.5 mm gap defect must still be visible and pickable."""
+MARKER_MM = (6.0, 40.0)
+"""Marker diameters: the defect's extent within these bounds. The smallest keeps a 0.5 mm
+dent visible and pickable; the largest keeps a gap along a 140 mm stretch of seam from
+hiding its panels (its whole extent is in the node's extras)."""
 MARKER_SPHERE_SUBDIVISIONS = 2
 
 TYPE_COLORS = {
@@ -215,7 +217,7 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         top.append(len(nodes) - 1)
         locations = base_to_gltf([d["location_mm"] for d in source.defects], np.float64)
         for defect, at in zip(source.defects, locations, strict=True):
-            radius_m = max(float(defect["extent_mm"]), MIN_MARKER_MM) / 2000.0
+            radius_m = float(np.clip(defect["extent_mm"], *MARKER_MM)) / 2000.0
             group.children.append(len(nodes))
             nodes.append(
                 Node(

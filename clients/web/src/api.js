@@ -1,0 +1,80 @@
+// The supervisor's REST API (same origin): bearer token, problem-detail errors.
+const API = "/api/v1";
+const TOKEN_KEY = "vista.token";
+
+export class ApiError extends Error {
+  constructor(status, detail) {
+    super(detail);
+    this.status = status;
+  }
+}
+
+export const session = {
+  get token() { return sessionStorage.getItem(TOKEN_KEY); },
+  set token(value) {
+    if (value) sessionStorage.setItem(TOKEN_KEY, value);
+    else sessionStorage.removeItem(TOKEN_KEY);
+  },
+};
+
+async function failure(response) {
+  let detail = response.statusText;
+  try {
+    const problem = await response.json();
+    detail = problem.detail || problem.title || detail;
+  } catch { /* not JSON: keep the status text */ }
+  return new ApiError(response.status, detail);
+}
+
+export async function request(method, path, { body, params, headers, raw } = {}) {
+  const url = new URL(API + path, location.origin);
+  for (const [key, value] of Object.entries(params || {})) {
+    if (value !== undefined && value !== null && value !== "") url.searchParams.set(key, value);
+  }
+  const init = { method, headers: { ...(headers || {}) } };
+  if (session.token) init.headers.Authorization = `Bearer ${session.token}`;
+  if (body !== undefined) {
+    init.headers["Content-Type"] = "application/json";
+    init.body = JSON.stringify(body);
+  }
+  const response = await fetch(url, init);
+  if (!response.ok && response.status !== 304) throw await failure(response);
+  return raw ? response : response.json();
+}
+
+export const api = {
+  signIn: (username, password) => request("POST", "/auth/token", { body: { username, password } }),
+  me: () => request("GET", "/me"),
+  inspections: () => request("GET", "/inspections", { params: { limit: 500 } }),
+  inspection: (id) => request("GET", `/inspections/${id}`),
+  runs: (id) => request("GET", `/inspections/${id}/runs`, { params: { limit: 100 } }),
+  sync: (id, since) => request("GET", "/sync", { params: { inspection: id, since } }),
+  judge: (defectId, body) => request("PUT", `/defects/${defectId}/judgments/me`, { body }),
+  judgments: (defectId) => request("GET", `/defects/${defectId}/judgments`),
+  feedback: (id) => request("GET", "/feedback", { params: { inspection: id } }),
+  scene: (id) => request("GET", `/inspections/${id}/scene.glb`, { raw: true }),
+};
+
+// Server-sent events of one job through fetch (EventSource cannot send the token).
+export async function followJob(jobId, onEvent, signal) {
+  const response = await fetch(`${API}/jobs/${jobId}/events`, {
+    headers: { Authorization: `Bearer ${session.token}` },
+    signal,
+  });
+  if (!response.ok) throw await failure(response);
+  const reader = response.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buffer = "";
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    buffer += value;
+    let cut;
+    while ((cut = buffer.indexOf("\n\n")) >= 0) {
+      const block = buffer.slice(0, cut);
+      buffer = buffer.slice(cut + 2);
+      const event = /^event: (.*)$/m.exec(block)?.[1];
+      const data = /^data: (.*)$/m.exec(block)?.[1];
+      if (event && data) onEvent(event, JSON.parse(data));
+    }
+  }
+}

@@ -1,0 +1,420 @@
+// vista's dashboard: sign in, inspections, the run timeline with live progress, defects
+// with filters and sort, the 3D scene, judgments and consensus, and the feedback loop.
+import { api, ApiError, followJob, session } from "./api.js";
+import { SceneView } from "./scene.js";
+
+const TYPES = ["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"];
+const TYPE_COLORS = {
+  gap: "#e62929", step: "#f28c1a", parallelism: "#d9cc1a", mismatch: "#9940cc",
+  scratch: "#1a99f2", dent: "#1abf73", bump: "#0d8c59", color: "#f259bf",
+};
+const SEVERITY_RANK = { critical: 3, major: 2, minor: 1, info: 0 };
+const LIVE_POLL_MS = 3000;
+const $ = (selector) => document.querySelector(selector);
+
+const state = {
+  me: null,
+  inspection: null,
+  defects: new Map(),
+  judgments: new Map(), // defect id → Map(user id → judgment)
+  consensus: new Map(),
+  cursor: null,
+  selected: null,
+  sortDescending: false,
+  poll: null,
+  jobStreams: new AbortController(),
+  scene: null,
+  sceneEtag: null,
+};
+
+// ---- small helpers ------------------------------------------------------------------
+
+function el(tag, attributes = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [key, value] of Object.entries(attributes)) {
+    if (key === "class") node.className = value;
+    else if (key.startsWith("on")) node.addEventListener(key.slice(2), value);
+    else if (key === "dataset") Object.assign(node.dataset, value);
+    else node.setAttribute(key, value);
+  }
+  node.append(...children.filter((c) => c !== null && c !== undefined));
+  return node;
+}
+
+function show(view) {
+  for (const node of document.querySelectorAll(".view")) node.hidden = node.id !== `view-${view}`;
+}
+
+function number(value, digits = 3) {
+  return value === null || value === undefined ? "–" : Number(value).toFixed(digits);
+}
+
+function valueOf(defect) {
+  const m = defect.measurements || {};
+  return { value: m.value ?? defect.value_mm, tolerance: m.tolerance ?? defect.tolerance_mm, unit: m.unit || "mm" };
+}
+
+function beyondLimit(defect) {
+  const { value, tolerance } = valueOf(defect);
+  if (value === null || value === undefined || tolerance === null || tolerance === undefined) return 0;
+  const magnitude = defect.type === "step" ? Math.abs(value) : value;
+  return defect.type === "gap" && value < tolerance && defect.severity !== "info" ? tolerance - value : magnitude - tolerance;
+}
+
+function consensusText(consensus) {
+  if (!consensus || !consensus.total) return "not judged";
+  const top = consensus.majority ? `${consensus.counts[consensus.majority]}/${consensus.total} ${consensus.majority}` : `split ${consensus.total}`;
+  return consensus.needs_review ? `${top} · needs review` : top;
+}
+
+async function guarded(action) {
+  try {
+    return await action();
+  } catch (error) {
+    if (error instanceof ApiError && error.status === 401) {
+      session.token = null;
+      location.hash = "#/sign-in";
+      return undefined;
+    }
+    throw error;
+  }
+}
+
+// ---- sign-in and inspections ----------------------------------------------------------
+
+$("#sign-in-form").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const form = new FormData(event.target);
+  $("#sign-in-error").textContent = "";
+  try {
+    const answer = await api.signIn(form.get("username"), form.get("password"));
+    session.token = answer.access_token;
+    if (!location.hash || location.hash === "#/sign-in") location.hash = "#/inspections";
+    else route();
+  } catch (error) {
+    $("#sign-in-error").textContent = error.message;
+  }
+});
+
+$("#sign-out").addEventListener("click", () => {
+  session.token = null;
+  state.me = null;
+  location.hash = "#/sign-in";
+});
+
+async function showInspections() {
+  show("inspections");
+  $("#crumbs").textContent = "inspections";
+  const page = await guarded(api.inspections);
+  if (!page) return;
+  const body = $("#inspection-table tbody");
+  body.replaceChildren(...page.items.map((i) => el(
+    "tr", { onclick: () => { location.hash = `#/inspections/${i.id}`; }, dataset: { id: i.id } },
+    el("td", {}, String(i.id)), el("td", {}, i.title), el("td", {}, i.aircraft || "–"),
+    el("td", {}, i.area), el("td", {}, i.status), el("td", {}, new Date(i.created_at).toLocaleString()),
+  )));
+  $("#inspections-empty").hidden = page.items.length > 0;
+}
+
+// ---- one inspection -----------------------------------------------------------------------
+
+function resetInspection() {
+  clearInterval(state.poll);
+  state.jobStreams.abort();
+  state.jobStreams = new AbortController();
+  state.defects.clear();
+  state.judgments.clear();
+  state.consensus.clear();
+  state.cursor = null;
+  state.selected = null;
+  state.sceneEtag = null;
+  $("#detail").hidden = true;
+}
+
+function fold(page) {
+  if (page.inspection) state.inspection = page.inspection;
+  for (const defect of page.defects) state.defects.set(defect.id, defect);
+  for (const judgment of page.judgments) {
+    if (!state.judgments.has(judgment.defect_id)) state.judgments.set(judgment.defect_id, new Map());
+    state.judgments.get(judgment.defect_id).set(judgment.user_id, judgment);
+  }
+  for (const consensus of page.consensus) state.consensus.set(consensus.defect_id, consensus);
+  state.cursor = page.next_cursor;
+  return page;
+}
+
+async function pull() {
+  let page;
+  do page = fold(await api.sync(state.inspection.id, state.cursor)); while (page.more);
+  return page;
+}
+
+async function showInspection(id, defectId) {
+  if (state.inspection?.id !== id || !state.cursor) {
+    resetInspection();
+    state.inspection = { id };
+    show("inspection");
+    const page = await guarded(pull);
+    if (!page) return;
+    $("#crumbs").replaceChildren(el("a", { href: "#/inspections" }, "inspections"), ` / ${state.inspection.title}`);
+    renderList();
+    performance.mark("vista:list-drawn");
+    loadScene(page.scene_etag);
+    loadTimeline();
+    loadFeedback();
+    state.poll = setInterval(live, LIVE_POLL_MS);
+  }
+  show("inspection");
+  if (defectId) select(defectId, true);
+}
+
+async function live() {
+  try {
+    const before = state.cursor;
+    const page = await pull();
+    if (state.cursor !== before && (page.defects.length || page.judgments.length)) {
+      renderList();
+      if (state.selected) renderDetail();
+      loadFeedback();
+    }
+  } catch { /* offline for a moment: the next poll catches up */ }
+}
+
+// ---- defect list ------------------------------------------------------------------------
+
+for (const type of TYPES) {
+  $("#filter-type").append(el("option", { value: type }, type));
+  $("#new-type").append(el("option", { value: type }, type));
+}
+for (const id of ["#filter-type", "#filter-status", "#filter-severity", "#filter-consensus", "#sort"]) {
+  $(id).addEventListener("change", renderList);
+}
+$("#sort-direction").addEventListener("click", () => {
+  state.sortDescending = !state.sortDescending;
+  $("#sort-direction").textContent = state.sortDescending ? "↑" : "↓";
+  renderList();
+});
+
+function visibleDefects() {
+  const type = $("#filter-type").value;
+  const status = $("#filter-status").value;
+  const severity = $("#filter-severity").value;
+  const wanted = $("#filter-consensus").value;
+  const rows = [...state.defects.values()].filter((d) => {
+    const consensus = state.consensus.get(d.id);
+    if (type && d.type !== type) return false;
+    if (status && d.status !== status) return false;
+    if (severity === "out" && d.severity === "info") return false;
+    if (severity && severity !== "out" && d.severity !== severity) return false;
+    if (wanted === "none" && consensus?.total) return false;
+    if (wanted === "review" && !consensus?.needs_review) return false;
+    if (["confirmed", "rejected", "reclassified"].includes(wanted) && consensus?.majority !== wanted) return false;
+    return true;
+  });
+  const keys = {
+    id: (d) => d.id,
+    type: (d) => TYPES.indexOf(d.type) * 1e9 + d.id,
+    value: (d) => beyondLimit(d),
+    status: (d) => d.status,
+    consensus: (d) => state.consensus.get(d.id)?.agreement ?? -1,
+  };
+  const key = keys[$("#sort").value];
+  rows.sort((a, b) => {
+    const ka = key(a);
+    const kb = key(b);
+    return (ka < kb ? -1 : ka > kb ? 1 : a.id - b.id) * (state.sortDescending ? -1 : 1);
+  });
+  return rows;
+}
+
+function rowFor(defect) {
+  const { value, tolerance, unit } = valueOf(defect);
+  const relation = defect.severity === "info" ? "within" : "beyond";
+  const text = `#${defect.id} ${defect.type} ${number(value)} ${unit} (${relation} ${number(tolerance, 2)}) · ${defect.severity} · ${defect.status}`;
+  return el(
+    "div",
+    {
+      class: "row", role: "option", dataset: { id: defect.id },
+      "aria-selected": String(defect.id === state.selected),
+      onclick: () => { location.hash = `#/inspections/${state.inspection.id}/defects/${defect.id}`; },
+    },
+    el("span", { class: "dot", style: `background:${TYPE_COLORS[defect.type]}` }),
+    el("span", { class: "what", title: text }, text),
+    el("span", { class: "verdict" }, consensusText(state.consensus.get(defect.id))),
+  );
+}
+
+function renderList() {
+  const rows = visibleDefects();
+  $("#defect-list").replaceChildren(...rows.map(rowFor));
+  $("#defect-count").textContent = `${rows.length} of ${state.defects.size} defects`;
+}
+
+// ---- selection, detail and judging ------------------------------------------------------
+
+function select(defectId, fly) {
+  if (!state.defects.has(defectId)) return;
+  state.selected = defectId;
+  for (const row of document.querySelectorAll("#defect-list .row")) {
+    row.setAttribute("aria-selected", String(Number(row.dataset.id) === defectId));
+  }
+  document.querySelector(`#defect-list .row[data-id="${defectId}"]`)?.scrollIntoView({ block: "nearest" });
+  state.scene?.select(defectId, fly);
+  renderDetail();
+  refreshJudgments(defectId);
+}
+
+function renderDetail() {
+  const defect = state.defects.get(state.selected);
+  if (!defect) return;
+  const { value, tolerance, unit } = valueOf(defect);
+  $("#detail").hidden = false;
+  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${defect.severity}, ${defect.status}`;
+  const facts = [
+    ["value", `${number(value)} ${unit}`], ["tolerance", `${number(tolerance, 2)} ${unit}`],
+    ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
+    ["location", defect.location_mm.map((c) => number(c, 1)).join(", ") + " mm"],
+  ];
+  $("#detail-facts").replaceChildren(...facts.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
+  const consensus = state.consensus.get(defect.id);
+  $("#consensus").textContent = `Consensus: ${consensusText(consensus)}`;
+  $("#consensus").dataset.total = String(consensus?.total || 0);
+  const others = [...(state.judgments.get(defect.id)?.values() || [])];
+  $("#judgments").replaceChildren(...others.map((j) => el(
+    "li", { dataset: { user: j.username } },
+    el("b", {}, j.username), ` ${j.verdict}${j.new_type ? ` → ${j.new_type}` : ""}`,
+    j.comment ? el("span", { class: "muted" }, ` — ${j.comment}`) : null,
+    el("span", { class: "muted" }, ` (rev ${j.revision}, ${new Date(j.updated_at).toLocaleString()})`),
+  )));
+  const mine = state.judgments.get(defect.id)?.get(state.me?.id);
+  for (const button of document.querySelectorAll(".verdicts button")) {
+    button.classList.toggle("active", mine?.verdict === button.dataset.verdict);
+  }
+  const canJudge = ["admin", "inspector"].includes(state.me?.role);
+  for (const button of document.querySelectorAll(".verdicts button")) button.disabled = !canJudge;
+}
+
+async function refreshJudgments(defectId) {
+  const listing = await guarded(() => api.judgments(defectId));
+  if (!listing || defectId !== state.selected) return;
+  state.judgments.set(defectId, new Map(listing.judgments.map((j) => [j.user_id, j])));
+  state.consensus.set(defectId, { defect_id: defectId, ...listing.consensus });
+  renderDetail();
+}
+
+for (const button of document.querySelectorAll(".verdicts button")) {
+  button.addEventListener("click", async () => {
+    const verdict = button.dataset.verdict;
+    const body = { verdict, comment: $("#comment").value };
+    if (verdict === "reclassified") body.new_type = $("#new-type").value;
+    $("#judge-error").textContent = "";
+    try {
+      const answer = await guarded(() => api.judge(state.selected, body));
+      if (!answer) return;
+      const id = state.selected;
+      if (!state.judgments.has(id)) state.judgments.set(id, new Map());
+      state.judgments.get(id).set(answer.judgment.user_id, answer.judgment);
+      state.consensus.set(id, { defect_id: id, ...answer.consensus });
+      renderDetail();
+      document.querySelector(`#defect-list .row[data-id="${id}"] .verdict`).textContent = consensusText(answer.consensus);
+    } catch (error) {
+      $("#judge-error").textContent = error.message;
+    }
+  });
+}
+
+// ---- scene --------------------------------------------------------------------------------
+
+async function loadScene(etag) {
+  if (!state.scene) state.scene = new SceneView($("#scene"), (id) => { location.hash = `#/inspections/${state.inspection.id}/defects/${id}`; });
+  $("#scene-status").textContent = "loading the scene…";
+  try {
+    const response = await api.scene(state.inspection.id);
+    const loaded = await state.scene.load(await response.arrayBuffer());
+    state.sceneEtag = response.headers.get("etag") || etag;
+    $("#scene-status").textContent = `${loaded.markers} markers · drag to orbit, click a marker to select it`;
+    if (state.selected) state.scene.select(state.selected, true);
+  } catch (error) {
+    $("#scene-status").textContent = `the scene could not be shown: ${error.message}`;
+  }
+}
+
+// ---- run timeline ----------------------------------------------------------------------
+
+function jobRow(job) {
+  const bar = el("progress", { max: "1", value: String(job.progress) });
+  const status = el("span", { class: `status-${job.status}` }, job.status);
+  const message = el("div", { class: "muted" }, job.error || job.message || "");
+  return { node: el("div", { class: "job", dataset: { job: job.id } }, el("span", {}, `${job.step} (${job.kind})`), bar, status, message), bar, status, message };
+}
+
+async function loadTimeline() {
+  const page = await guarded(() => api.runs(state.inspection.id));
+  if (!page) return;
+  $("#timeline").replaceChildren(...page.items.map((run) => {
+    const rows = run.jobs.map((job) => {
+      const row = jobRow(job);
+      if (!["succeeded", "failed", "cancelled"].includes(job.status)) {
+        followJob(job.id, (event, data) => {
+          if (event !== "progress") return;
+          row.bar.value = data.progress;
+          row.status.textContent = data.status;
+          row.status.className = `status-${data.status}`;
+          row.message.textContent = data.message || "";
+        }, state.jobStreams.signal).catch(() => {});
+      }
+      return row.node;
+    });
+    return el("li", {}, el("b", {}, `run ${run.id} ${run.name || ""}`), ` — ${run.status}, ${new Date(run.created_at).toLocaleString()}`, ...rows);
+  }));
+}
+
+// ---- feedback ---------------------------------------------------------------------------
+
+async function loadFeedback() {
+  const out = await guarded(() => api.feedback(state.inspection.id));
+  if (!out) return;
+  $("#feedback-table tbody").replaceChildren(...out.groups.map((g) => el(
+    "tr", { title: g.suggestion.reason },
+    el("td", {}, g.type), el("td", {}, `${g.bound} ${g.tolerance} ${g.unit}`), el("td", {}, String(g.flagged)),
+    el("td", {}, String(g.reviewed)), el("td", {}, String(g.confirmed)), el("td", {}, String(g.rejected)),
+    el("td", {}, String(g.missed)), el("td", {}, `${g.suggestion.action} ${g.suggestion.tolerance}`),
+  )));
+  $("#suggested-tolerances").textContent = JSON.stringify(out.suggested_tolerances, null, 2);
+}
+
+// ---- tabs and routing ---------------------------------------------------------------------
+
+for (const tab of document.querySelectorAll("[role=tab]")) {
+  tab.addEventListener("click", () => {
+    for (const other of document.querySelectorAll("[role=tab]")) {
+      other.setAttribute("aria-selected", String(other === tab));
+      $(`#tab-${other.dataset.tab}`).hidden = other !== tab;
+    }
+  });
+}
+
+async function route() {
+  if (!session.token) {
+    show("sign-in");
+    $("#sign-out").hidden = true;
+    $("#who").textContent = "";
+    return;
+  }
+  if (!state.me) {
+    state.me = await guarded(api.me);
+    if (!state.me) return;
+  }
+  $("#who").textContent = `${state.me.username} (${state.me.role})`;
+  $("#sign-out").hidden = false;
+  const match = /^#\/inspections\/(\d+)(?:\/defects\/(\d+))?$/.exec(location.hash);
+  if (match) await showInspection(Number(match[1]), match[2] ? Number(match[2]) : null);
+  else {
+    resetInspection();
+    state.inspection = null;
+    await showInspections();
+  }
+}
+
+window.addEventListener("hashchange", route);
+route();

@@ -1,0 +1,128 @@
+// The 3D scene: scene.glb in three.js, the selected defect highlighted, the camera flown to it.
+import * as THREE from "three";
+import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
+import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+
+const HIGHLIGHT = new THREE.MeshStandardMaterial({
+  color: 0xffcc00, emissive: 0x664400, roughness: 0.5,
+});
+const FLIGHT_MS = 600;
+
+export class SceneView {
+  constructor(canvas, onPick) {
+    this.canvas = canvas;
+    this.onPick = onPick;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(0x0f1722);
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x445566, 2.0));
+    const sun = new THREE.DirectionalLight(0xffffff, 1.5);
+    sun.position.set(1, 2, 1);
+    this.scene.add(sun);
+    this.camera = new THREE.PerspectiveCamera(45, 1, 0.001, 100);
+    this.camera.position.set(0, 1, 2);
+    this.controls = new OrbitControls(this.camera, canvas);
+    this.controls.enableDamping = true;
+    this.markers = new Map();
+    this.selected = null;
+    this.flight = null;
+    this.root = null;
+    this.raycaster = new THREE.Raycaster();
+    canvas.addEventListener("click", (event) => this.pick(event));
+    new ResizeObserver(() => this.resize()).observe(canvas);
+    this.resize();
+    this.renderer.setAnimationLoop((time) => this.frame(time));
+  }
+
+  resize() {
+    const { clientWidth: width, clientHeight: height } = this.canvas;
+    if (!width || !height) return;
+    this.renderer.setSize(width, height, false);
+    this.camera.aspect = width / height;
+    this.camera.updateProjectionMatrix();
+  }
+
+  async load(arrayBuffer) {
+    const gltf = await new GLTFLoader().parseAsync(arrayBuffer, "");
+    if (this.root) this.scene.remove(this.root);
+    this.root = gltf.scene;
+    this.scene.add(this.root);
+    this.markers.clear();
+    this.root.traverse((node) => {
+      const id = node.userData?.defect_id;
+      if (id !== undefined && node.isMesh) this.markers.set(id, { node, material: node.material, scale: node.scale.clone() });
+      if (node.isPoints) {
+        node.material.size = 2.0;
+        node.material.sizeAttenuation = false;
+      }
+    });
+    const box = new THREE.Box3().setFromObject(this.root);
+    const size = box.getSize(new THREE.Vector3()).length() || 1;
+    const centre = box.getCenter(new THREE.Vector3());
+    this.controls.target.copy(centre);
+    this.camera.position.copy(centre).add(new THREE.Vector3(0, size * 0.5, size * 0.9));
+    this.camera.near = size / 1000;
+    this.camera.far = size * 20;
+    this.camera.updateProjectionMatrix();
+    this.extent = size;
+    if (this.selected !== null) this.select(this.selected, false);
+    return { markers: this.markers.size };
+  }
+
+  select(defectId, fly = true) {
+    const previous = this.markers.get(this.selected);
+    if (previous) {
+      previous.node.material = previous.material;
+      previous.node.scale.copy(previous.scale);
+    }
+    this.selected = defectId;
+    const marker = this.markers.get(defectId);
+    if (!marker) return;
+    marker.node.material = HIGHLIGHT;
+    marker.node.scale.copy(marker.scale).multiplyScalar(1.4);
+    if (fly) this.flyTo(marker.node);
+  }
+
+  flyTo(node) {
+    const target = node.getWorldPosition(new THREE.Vector3());
+    const [nx, ny, nz] = node.userData.normal || [0, 0, 1];
+    const normal = new THREE.Vector3(nx, nz, -ny).normalize(); // base frame → glTF (+Y up)
+    const distance = Math.max(0.25, node.scale.x * 8);
+    const position = target.clone().add(normal.multiplyScalar(distance)).add(new THREE.Vector3(0, distance * 0.3, 0));
+    this.flight = {
+      start: performance.now(),
+      fromTarget: this.controls.target.clone(), toTarget: target,
+      fromPosition: this.camera.position.clone(), toPosition: position,
+    };
+  }
+
+  pick(event) {
+    const rect = this.canvas.getBoundingClientRect();
+    const pointer = new THREE.Vector2(
+      ((event.clientX - rect.left) / rect.width) * 2 - 1,
+      -((event.clientY - rect.top) / rect.height) * 2 + 1,
+    );
+    this.raycaster.setFromCamera(pointer, this.camera);
+    const nodes = [...this.markers.values()].map((m) => m.node);
+    const hit = this.raycaster.intersectObjects(nodes, false)[0];
+    if (hit) this.onPick(hit.object.userData.defect_id);
+  }
+
+  frame(time) {
+    if (this.flight) {
+      const t = Math.min(1, (time - this.flight.start) / FLIGHT_MS);
+      const ease = t * t * (3 - 2 * t);
+      this.controls.target.lerpVectors(this.flight.fromTarget, this.flight.toTarget, ease);
+      this.camera.position.lerpVectors(this.flight.fromPosition, this.flight.toPosition, ease);
+      if (t >= 1) this.flight = null;
+    }
+    this.controls.update();
+    this.renderer.render(this.scene, this.camera);
+    if (!this.firstFrame && this.root) {
+      this.firstFrame = true;
+      performance.mark("vista:scene-drawn");
+      this.canvas.dataset.drawn = "true";
+    }
+  }
+}

@@ -1,0 +1,143 @@
+"""The Python SDK and the headset simulator against a live supervisor: offline work,
+reconnect, conflicting edits from the web and a second headset, a lost response retried."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import httpx
+import pytest
+from vista_client import Headset, HeadsetOffline, VistaClient, VistaError
+
+from tests.conftest import add_user, make_settings
+from tests.seeding import seed_defects
+
+
+class LosingTransport(httpx.HTTPTransport):
+    """Delivers the next ``lose`` requests but loses their responses (a dropped link)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lose = 0
+
+    def handle_request(self, request: httpx.Request) -> httpx.Response:
+        response = super().handle_request(request)
+        if self.lose:
+            self.lose -= 1
+            response.read()
+            raise httpx.ReadError("connection reset while reading the response")
+        return response
+
+
+@pytest.fixture
+def live(start_server, tmp_path, sqlite_url):
+    settings = make_settings(tmp_path, sqlite_url)
+    server = start_server(settings, run_engine=False)
+    from supervisor.engine.runtime import Runtime
+
+    runtime = Runtime.create(settings)
+    admin = add_user(runtime, "ada", "admin", "admin-pw")
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    add_user(runtime, "ivan", "inspector", "ivan-pw")
+    yield server, runtime, admin
+    runtime.db.dispose()
+
+
+def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):
+    server, runtime, admin_token = live
+    admin = VistaClient(server.url, admin_token)
+    ines_id = next(u["id"] for u in admin.users() if u["username"] == "ines")
+    device_token = admin.create_token(ines_id, "hololens-7", kind="device")
+    web = VistaClient(server.url)
+    web.sign_in("ines", "ines-pw")
+    ivan = VistaClient(server.url)
+    ivan.sign_in("ivan", "ivan-pw")
+    inspection = web.create_inspection("A320 cabin", "cabin")["id"]
+    ids = seed_defects(runtime, inspection, 30)
+
+    transport = LosingTransport()
+    now = datetime.now(UTC)
+    headset = Headset(VistaClient(server.url, device_token, transport=transport), inspection)
+    first = headset.sync()
+    assert (first.defects, first.judgments, first.scene_changed) == (30, 0, True)
+    assert headset.load_scene()[:4] == b"glTF" and headset.load_scene() is None  # 304
+    with pytest.raises(VistaError) as refused:
+        headset.client.judge(ids[0], "confirmed")
+    assert refused.value.status == 403  # a device token only reads and syncs
+
+    # Offline: three judgments queued, shown locally at once.
+    headset.go_offline()
+    headset.judge(ids[0], "confirmed", at=now - timedelta(minutes=10))
+    headset.judge(ids[1], "rejected", comment="reflection", at=now - timedelta(minutes=9))
+    headset.judge(ids[2], "reclassified", new_type="dent", at=now - timedelta(minutes=8))
+    assert headset.judgments[(ids[1], ines_id)]["comment"] == "reflection"
+    with pytest.raises(HeadsetOffline):
+        headset.push()
+    headset.save(tmp_path / "headset.json")  # the headset restarts while offline
+    headset = Headset.load(
+        VistaClient(server.url, device_token, transport=transport), tmp_path / "headset.json"
+    )
+    assert len(headset.outbox) == 3
+
+    # Meanwhile on the web: Ines changes her mind about defect 0 later than the headset;
+    # Ivan judges defect 1.
+    web.judge(ids[0], "rejected", comment="checked with a gauge")
+    ivan.judge(ids[1], "confirmed")
+
+    # Reconnect; the first push reaches the server but its answer is lost.
+    transport.lose = 1
+    with pytest.raises(HeadsetOffline):
+        headset.push()
+    assert len(headset.outbox) == 3
+    pushed = headset.push()  # the retry: answered as the first time
+    assert [(r["status"], r["replayed"]) for r in pushed.results] == [
+        ("stale", True),
+        ("applied", True),
+        ("applied", True),
+    ]
+    assert headset.outbox == []
+    assert headset.judgments[(ids[0], ines_id)]["verdict"] == "rejected"  # the web's, later
+    history = web.judgments(ids[1])
+    mine = next(j for j in history["judgments"] if j["username"] == "ines")
+    assert mine["revision"] == 1 and mine["comment"] == "reflection"
+    assert history["consensus"]["counts"]["confirmed"] == 1
+    assert history["consensus"]["counts"]["rejected"] == 1
+
+    # The incremental sync brings Ivan's judgment and the consensus, nothing else.
+    pulled = headset.sync()
+    assert pulled.defects == 0
+    assert headset.judgments[(ids[1], ivan.me()["id"])]["verdict"] == "confirmed"
+    assert headset.consensus[ids[1]]["needs_review"] is True
+
+    # Two headsets of the same person edit defect 3 offline; the later edit wins, whatever
+    # the order they reconnect in.
+    other = Headset(VistaClient(server.url, device_token), inspection)
+    other.sync()
+    other.judge(ids[3], "uncertain", at=now - timedelta(minutes=1))
+    headset.judge(ids[3], "confirmed", at=now - timedelta(minutes=2))
+    assert other.push().results[0]["status"] == "applied"
+    late = headset.push().results[0]
+    assert late["status"] == "stale" and late["judgment"]["verdict"] == "uncertain"
+    assert web.judgments(ids[3])["judgments"][0]["verdict"] == "uncertain"
+    assert headset.sync().scene_changed  # the markers' consensus changed
+
+
+def test_sdk_covers_inspections_defects_feedback_and_errors(live):
+    server, runtime, admin_token = live
+    web = VistaClient(server.url)
+    with pytest.raises(VistaError) as wrong:
+        web.sign_in("ines", "nope")
+    assert wrong.value.status == 401 and "password" in wrong.value.detail
+    web.sign_in("ines", "ines-pw")
+    created = web.create_inspection("wing", "component", aircraft="A320")
+    assert web.inspection(created["id"])["aircraft"] == "A320"
+    seed_defects(runtime, created["id"], 620)
+    listed = list(web.defects(created["id"]))  # two pages of 500
+    assert len(listed) == 620 and listed[-1]["location_mm"] == [619.0, 0.0, 0.0]
+    gaps = list(web.defects(created["id"], type="gap"))
+    assert len(gaps) == 155 and {d["type"] for d in gaps} == {"gap"}
+    assert web.judge(listed[0]["id"], "confirmed")["consensus"]["total"] == 1
+    assert web.feedback(created["id"])["inspection_id"] == created["id"]
+    with pytest.raises(VistaError) as missing:
+        web.inspection(10_000)
+    assert missing.value.status == 404 and "10000" in missing.value.detail
