@@ -12,8 +12,8 @@ WEB         := clients/web
 WEB_STAMP   := $(WEB)/node_modules/.installed
 WEB_BUILT   := $(WEB)/dist/index.html
 # The browser, C# and HTTP pieces the client tests use: Debian's Chromium (no browser
-# download), mono's C# compiler and runtime, and Node.js/npm for the dashboard's build.
-TEST_DEB_PACKAGES := chromium mono-mcs mono-runtime libmono-system-net-http4.0-cil nodejs npm
+# download), mono's C# compiler, runtime and System.Net.Http (Node.js and npm: see below).
+TEST_DEB_PACKAGES := chromium mono-mcs mono-runtime libmono-system-net-http4.0-cil
 
 .PHONY: run test install install-test lint bench clean web
 

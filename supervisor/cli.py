@@ -194,6 +194,24 @@ def bench_api(
     )
 
 
+@bench_app.command("clients")
+def bench_clients(
+    out: Path = typer.Option(Path("bench-results/clients.json"), help="Where to write the JSON."),
+    points: int = typer.Option(2_500_000, min=10_000, help="Points of the stitched cloud."),
+    scene_defects: int = typer.Option(1000, min=1, help="Defects in the scene's inspection."),
+    sync_defects: int = typer.Option(10_000, min=1, help="Defects in the synced inspection."),
+) -> None:
+    """scene.glb export time and the Khronos validator's verdict (trimesh as the peer),
+    sync from cursor 0 and after one change (paged GET /defects as the peer), and the
+    dashboard's first meaningful paint in headless Chromium (a screenshot beside the JSON),
+    against a real `vista serve` process."""
+    from supervisor.bench.clients import run_clients_bench
+
+    run_clients_bench(
+        out=out, points=points, scene_defects=scene_defects, sync_defects=sync_defects
+    )
+
+
 stitching_cli.register(app, simulate_app, bench_app)
 defects_cli.register(app, simulate_app, bench_app)
 

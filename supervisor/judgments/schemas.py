@@ -42,6 +42,9 @@ class JudgmentOut(BaseModel):
     comment: str
     revision: int
     updated_at: datetime
+    client_time: datetime | None = Field(
+        None, description="When it was made by the judging client's clock (last one wins)."
+    )
     history: list[JudgmentRevisionOut] | None = None
 
 

@@ -188,6 +188,7 @@ def judgment_out(judgment: Row | Judgment, username: str) -> JudgmentOut:
         comment=judgment.comment,
         revision=judgment.revision,
         updated_at=judgment.updated_at,
+        client_time=judgment.client_time,
     )
 
 

@@ -7,6 +7,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from supervisor.defects.schemas import Consensus, DefectType, Verdict
 from supervisor.ids import IdField
+from supervisor.judgments.schemas import JudgmentOut
 
 MAX_BATCH = 1000
 
@@ -32,18 +33,6 @@ class SyncDefect(BaseModel):
     created_at: datetime
 
 
-class SyncJudgment(BaseModel):
-    defect_id: int
-    user_id: int
-    username: str
-    verdict: Verdict
-    new_type: DefectType | None
-    comment: str
-    revision: int
-    updated_at: datetime
-    client_time: datetime | None
-
-
 class SyncConsensus(Consensus):
     defect_id: int
 
@@ -53,7 +42,7 @@ class SyncOut(BaseModel):
         description="The inspection, when this page starts a full sync or it changed."
     )
     defects: list[SyncDefect] = Field(description="Defects created or changed (their state now).")
-    judgments: list[SyncJudgment] = Field(description="Judgments created or changed.")
+    judgments: list[JudgmentOut] = Field(description="Judgments created or changed.")
     consensus: list[SyncConsensus] = Field(
         description="The consensus of every defect whose judgments are in this page."
     )
@@ -103,7 +92,7 @@ class ItemResult(BaseModel):
     )
     replayed: bool = Field(False, description="This client_id was sent before: first answer.")
     detail: str | None = None
-    judgment: SyncJudgment | None = Field(None, description="Your judgment of the defect now.")
+    judgment: JudgmentOut | None = Field(None, description="Your judgment of the defect now.")
 
 
 class BatchOut(BaseModel):

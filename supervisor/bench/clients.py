@@ -1,0 +1,398 @@
+"""``vista bench clients``: what the reporting clients wait for, against a real
+``vista serve`` process — the scene export (and the Khronos validator's verdict on it),
+the headset sync, and the dashboard's first meaningful paint in headless Chromium.
+
+Peers in the same run: the scene built by trimesh (the library a Python user would reach
+for) from the same points and markers, and the defect list fetched page by page from
+``GET /defects`` (what a client does without the sync).
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import statistics
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+from sqlalchemy import insert
+
+from supervisor.bench.api import defect_rows, running_server, seed_database
+from supervisor.bench.browser import launch_chromium
+from supervisor.bench.document import print_verdict, say, write_document
+from supervisor.db import Database
+from supervisor.models import Artifact, Change, Defect, Inspection
+from supervisor.storage import URI_SCHEME
+
+WEB = Path(__file__).resolve().parent.parent.parent / "clients" / "web"
+TARGETS = {
+    "scene_s": 2.0,
+    "sync_s": 1.0,
+    "sync_mb": 5.0,
+    "paint_s": 2.0,
+}
+
+
+def _measurements(rng: random.Random, value: float, tolerance: float) -> dict:
+    """What the measuring job stores with a seam defect (see services/defects/jobs.py)."""
+    gap = [round(value - rng.uniform(0, 0.3), 4), round(value - 0.1, 4), round(value, 4)]
+    return {
+        "value": value,
+        "unit": "mm",
+        "tolerance": tolerance,
+        "seam": rng.randrange(40),
+        "panels": [rng.randrange(20), rng.randrange(20)],
+        "gap_mm": {"min": gap[0], "mean": gap[1], "max": gap[2]},
+        "step_mm": {"min": -0.1234, "mean": 0.0345, "max": 0.2345},
+        "parallelism_mm": round(rng.uniform(0, 0.6), 4),
+        "length_mm": round(rng.uniform(50, 600), 3),
+    }
+
+
+def _cloud(path: Path, points: int, rng: np.random.Generator) -> None:
+    """A coloured, gently curved 2 × 1 m sidewall (a stand-in for a stitched cloud)."""
+    from services.pointcloud.ply import PointCloud, write_ply
+
+    uv = rng.random((points, 2)) * [2000.0, 1000.0]
+    z = 2000.0 - np.sqrt(2000.0**2 - (uv[:, 0] - 1000.0) ** 2) + rng.normal(0, 0.02, points)
+    colors = (200 + rng.integers(-20, 20, (points, 3))).astype(np.uint8)
+    write_ply(path, PointCloud(points=np.column_stack([uv, z]).astype(np.float32), colors=colors))
+
+
+def _seed(url: str, *, defects: int, cloud: Path, storage_root: Path) -> tuple:
+    seeded = seed_database(url, clients=1, defects=0, rng=random.Random(5))
+    rng = random.Random(7)
+    rows = defect_rows(seeded.inspection_id, defects, rng)
+    for row in rows:
+        row["measurements"] = _measurements(rng, row["value_mm"], row["tolerance_mm"])
+        row["location_mm"] = [rng.uniform(0, 2000), rng.uniform(0, 1000), 10.0]
+        row["source"] = "job"
+    db = Database(url)
+    try:
+        with db.write() as session:
+            session.execute(insert(Defect), rows)
+            target = storage_root / "inspections" / str(seeded.inspection_id)
+            target.mkdir(parents=True, exist_ok=True)
+            stored = target / "cloud.ply"
+            stored.write_bytes(cloud.read_bytes())
+            artifact = session.execute(
+                insert(Artifact)
+                .values(
+                    inspection_id=seeded.inspection_id,
+                    kind="cloud",
+                    name="cloud.ply",
+                    media_type="application/x-ply",
+                    size_bytes=stored.stat().st_size,
+                    sha256="0" * 64,
+                    storage_uri=f"{URI_SCHEME}inspections/{seeded.inspection_id}/cloud.ply",
+                    meta={},
+                )
+                .returning(Artifact.id)
+            ).scalar_one()
+            session.execute(
+                insert(Change).values(
+                    entity="artifact",
+                    entity_id=artifact,
+                    op="create",
+                    inspection_id=seeded.inspection_id,
+                )
+            )
+    finally:
+        db.dispose()
+    return seeded
+
+
+def _validate(path: Path) -> dict:
+    done = subprocess.run(
+        ["node", str(WEB / "tools" / "validate-gltf.mjs"), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if done.returncode not in (0, 1):
+        raise RuntimeError(f"the glTF validator failed: {done.stderr}")
+    issues = json.loads(done.stdout)[0]["issues"]
+    return {k: issues[k] for k in ("numErrors", "numWarnings", "numInfos", "numHints")}
+
+
+def _trimesh_scene(cloud: Path, defects: list[dict], points: int, out: Path) -> float:
+    """The peer: the same decimated points and one sphere per defect, exported by trimesh."""
+    import trimesh
+
+    from services.pointcloud.ply import read_ply_sample
+    from supervisor.exports.gltf import base_to_gltf
+
+    started = time.perf_counter()
+    sample = read_ply_sample(cloud, points)
+    scene = trimesh.Scene()
+    rgba = np.column_stack([sample.colors, np.full(len(sample.colors), 255, np.uint8)])
+    scene.add_geometry(trimesh.PointCloud(base_to_gltf(sample.points), colors=rgba), "cloud")
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    for defect in defects:
+        at = base_to_gltf([defect["location_mm"]], np.float64)[0]
+        transform = trimesh.transformations.translation_matrix(at)
+        transform[:3, :3] *= max(defect["extent_mm"], 6.0) / 2000.0
+        scene.add_geometry(
+            sphere, node_name=f"defect-{defect['id']}", geom_name="marker", transform=transform
+        )
+    out.write_bytes(scene.export(file_type="glb"))
+    return time.perf_counter() - started
+
+
+def _median_time(fn, runs: int) -> tuple[float, list[float]]:  # noqa: ANN001
+    times = []
+    for _ in range(runs):
+        started = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - started)
+    return statistics.median(times), times
+
+
+def _scene_part(base: str, token: str, inspection: int, storage: Path, work: Path) -> dict:
+    headers = {"Authorization": f"Bearer {token}"}
+    url = f"{base}/api/v1/inspections/{inspection}/scene.glb"
+    cache = storage / "exports" / str(inspection)
+
+    def cold() -> None:
+        for old in cache.glob("*.glb"):
+            old.unlink()
+        response = httpx.get(url, headers=headers, timeout=120)
+        response.raise_for_status()
+        (work / "scene.glb").write_bytes(response.content)
+
+    seconds, runs = _median_time(cold, 3)
+    etag = httpx.get(url, headers=headers, timeout=60).headers["etag"]
+    cached_s, _ = _median_time(
+        lambda: httpx.get(url, headers=headers, timeout=60).raise_for_status(), 5
+    )
+    not_modified = httpx.get(url, headers={**headers, "If-None-Match": etag}, timeout=60)
+    size = (work / "scene.glb").stat().st_size
+    say(f"scene.glb: {seconds:.3f} s (runs {', '.join(f'{t:.3f}' for t in runs)}), {size} B")
+    return {
+        "seconds": round(seconds, 3),
+        "runs_s": [round(t, 3) for t in runs],
+        "cached_seconds": round(cached_s, 4),
+        "not_modified_status": not_modified.status_code,
+        "bytes": size,
+        "validator": _validate(work / "scene.glb"),
+    }
+
+
+def _sync_part(base: str, token: str, inspection: int, defect_ids: list[int]) -> dict:
+    headers = {"Authorization": f"Bearer {token}", "Accept-Encoding": "identity"}
+    params = {"inspection": inspection}
+    url = f"{base}/api/v1/sync"
+
+    def full() -> httpx.Response:
+        response = httpx.get(url, params=params, headers=headers, timeout=60)
+        response.raise_for_status()
+        return response
+
+    seconds, runs = _median_time(full, 5)
+    plain = full()
+    document = plain.json()
+    zipped = httpx.get(
+        url, params=params, headers={**headers, "Accept-Encoding": "gzip"}, timeout=60
+    )
+    gzip_s, _ = _median_time(
+        lambda: httpx.get(
+            url, params=params, headers={**headers, "Accept-Encoding": "gzip"}, timeout=60
+        ),
+        5,
+    )
+    httpx.put(
+        f"{base}/api/v1/defects/{defect_ids[len(defect_ids) // 2]}/judgments/me",
+        json={"verdict": "confirmed", "comment": "bench"},
+        headers=headers,
+        timeout=30,
+    ).raise_for_status()
+    started = time.perf_counter()
+    one = httpx.get(
+        url,
+        params={**params, "since": document["next_cursor"]},
+        headers=headers,
+        timeout=30,
+    ).json()
+    incremental_s = time.perf_counter() - started
+
+    def paged() -> int:
+        total, cursor = 0, None
+        while True:
+            page = httpx.get(
+                f"{base}/api/v1/defects",
+                params={"inspection": inspection, "limit": 500, "cursor": cursor},
+                headers=headers,
+                timeout=60,
+            )
+            page.raise_for_status()
+            total += len(page.content)
+            cursor = page.json()["next_cursor"]
+            if not cursor:
+                return total
+
+    peer_s, _ = _median_time(paged, 3)
+    say(f"sync of {len(document['defects'])} defects: {seconds:.3f} s, {len(plain.content)} B")
+    return {
+        "defects": len(document["defects"]),
+        "seconds": round(seconds, 3),
+        "runs_s": [round(t, 3) for t in runs],
+        "bytes": len(plain.content),
+        "gzip_wire_bytes": int(zipped.headers.get("content-length", len(zipped.content))),
+        "gzip_seconds": round(gzip_s, 3),
+        "incremental": {
+            "seconds": round(incremental_s, 4),
+            "defects": len(one["defects"]),
+            "judgments": len(one["judgments"]),
+            "consensus": len(one["consensus"]),
+        },
+        "peer_paged_defects": {"seconds": round(peer_s, 3), "bytes": paged()},
+    }
+
+
+def _paint_part(base: str, token: str, inspection: int, screenshot: Path) -> dict:
+    loads = []
+    with launch_chromium() as browser:
+        for attempt in range(4):
+            context = browser.new_context(viewport={"width": 1400, "height": 900})
+            context.add_init_script(f"sessionStorage.setItem('vista.token', {json.dumps(token)})")
+            page = context.new_page()
+            page.goto(f"{base}/#/inspections/{inspection}")
+            page.wait_for_selector("#scene[data-drawn=true]", timeout=60_000)
+            marks = page.evaluate(
+                "() => Object.fromEntries(performance.getEntriesByType('mark')"
+                ".map(m => [m.name, m.startTime]))"
+            )
+            rows = page.locator("#defect-list .row").count()
+            loads.append(
+                {
+                    "list_s": round(marks["vista:list-drawn"] / 1000, 3),
+                    "scene_s": round(marks["vista:scene-drawn"] / 1000, 3),
+                    "rows": rows,
+                    "cold_cache": attempt == 0,
+                }
+            )
+            if attempt == 3:
+                page.wait_for_timeout(500)
+                page.screenshot(path=str(screenshot))
+            context.close()
+    paint = [max(load["list_s"], load["scene_s"]) for load in loads]
+    say(f"dashboard: list + scene drawn after {', '.join(f'{p:.2f}' for p in paint)} s")
+    return {
+        "loads": loads,
+        "first_meaningful_paint_s": round(statistics.median(paint), 3),
+        "cold_s": round(paint[0], 3),
+        "screenshot": str(screenshot),
+    }
+
+
+def run_clients_bench(*, out: Path, points: int, scene_defects: int, sync_defects: int) -> dict:
+    rng = np.random.default_rng(11)
+    with tempfile.TemporaryDirectory(prefix="vista-bench-clients-") as folder:
+        work = Path(folder)
+        data = work / "data"
+        data.mkdir()
+        url = f"sqlite:///{data / 'vista.db'}"
+        from supervisor.migrate import upgrade
+
+        upgrade(url)
+        say(f"simulating a {points}-point cloud")
+        _cloud(work / "cloud.ply", points, rng)
+        storage = data / "artifacts"
+        scene_seed = _seed(
+            url, defects=scene_defects, cloud=work / "cloud.ply", storage_root=storage
+        )
+        db = Database(url)
+        with db.write() as session:
+            sync_inspection = session.execute(
+                insert(Inspection)
+                .values(title="bench sync", area="cabin", tolerances={}, markers=[])
+                .returning(Inspection.id)
+            ).scalar_one()
+            rows = defect_rows(sync_inspection, sync_defects, random.Random(3))
+            measurements_rng = random.Random(4)
+            for row in rows:
+                row["measurements"] = _measurements(
+                    measurements_rng, row["value_mm"], row["tolerance_mm"]
+                )
+            session.execute(insert(Defect), rows)
+        db.dispose()
+        with running_server(data, url, api_workers=1) as server:
+            base = f"http://127.0.0.1:{server.port}"
+            token = scene_seed.admin_token
+            say(f"scene export: {scene_defects} defects, {points} points → 500 000 in the scene")
+            scene = _scene_part(base, token, scene_seed.inspection_id, storage, work)
+            defects = httpx.get(
+                f"{base}/api/v1/sync",
+                params={"inspection": scene_seed.inspection_id},
+                headers={"Authorization": f"Bearer {token}"},
+                timeout=60,
+            ).json()["defects"]
+            peer_s = _trimesh_scene(work / "cloud.ply", defects, 500_000, work / "peer.glb")
+            scene["peer_trimesh"] = {
+                "seconds": round(peer_s, 3),
+                "bytes": (work / "peer.glb").stat().st_size,
+                "validator": _validate(work / "peer.glb"),
+            }
+            say(f"sync: {sync_defects} defects")
+            ids = list(range(scene_defects + 1, scene_defects + sync_defects + 1))
+            sync = _sync_part(base, token, sync_inspection, ids)
+            say("dashboard in headless Chromium")
+            paint = _paint_part(base, token, scene_seed.inspection_id, out.parent / "dashboard.png")
+    verdict = {
+        f"scene export < {TARGETS['scene_s']} s": scene["seconds"] < TARGETS["scene_s"],
+        "validator: 0 errors": scene["validator"]["numErrors"] == 0,
+        f"sync from 0 < {TARGETS['sync_s']} s": sync["seconds"] < TARGETS["sync_s"],
+        f"sync from 0 < {TARGETS['sync_mb']} MB": sync["bytes"] < TARGETS["sync_mb"] * 1e6,
+        "incremental sync returns only the change": sync["incremental"]
+        == {**sync["incremental"], "defects": 0, "judgments": 1, "consensus": 1},
+        f"first meaningful paint < {TARGETS['paint_s']} s": paint["first_meaningful_paint_s"]
+        < TARGETS["paint_s"],
+    }
+    _print(scene, sync, paint, points)
+    document = write_document(
+        out, bench="clients", targets=TARGETS, scene=scene, sync=sync, dashboard=paint
+    )
+    print_verdict(verdict, out)
+    return document
+
+
+def _print(scene: dict, sync: dict, paint: dict, points: int) -> None:
+    peer = scene["peer_trimesh"]
+    print("\n## Scene export (scene.glb, 500 000 of", points, "points, defects as markers)\n")
+    print("| exporter | s (median of 3) | MB | validator errors / warnings / infos |")
+    print("|---|---|---|---|")
+    for name, part in (("vista", scene), ("trimesh (peer)", peer)):
+        v = part["validator"]
+        print(
+            f"| {name} | {part['seconds']:.3f} | {part['bytes'] / 1e6:.1f} | "
+            f"{v['numErrors']} / {v['numWarnings']} / {v['numInfos']} |"
+        )
+    print(
+        f"\ncached GET {scene['cached_seconds']:.4f} s; If-None-Match → {scene['not_modified_status']}"
+    )
+    print(f"\n## Sync ({sync['defects']} defects from cursor 0)\n")
+    print("| way | s | MB |")
+    print("|---|---|---|")
+    print(f"| GET /sync | {sync['seconds']:.3f} | {sync['bytes'] / 1e6:.2f} |")
+    print(f"| GET /sync, gzip | {sync['gzip_seconds']:.3f} | {sync['gzip_wire_bytes'] / 1e6:.2f} |")
+    peer_sync = sync["peer_paged_defects"]
+    print(
+        f"| GET /defects, 500 a page (peer) | {peer_sync['seconds']:.3f} | "
+        f"{peer_sync['bytes'] / 1e6:.2f} |"
+    )
+    inc = sync["incremental"]
+    print(
+        f"\nincremental after one judgment: {inc['seconds'] * 1000:.1f} ms, {inc['defects']} "
+        f"defects, {inc['judgments']} judgment, {inc['consensus']} consensus"
+    )
+    print("\n## Dashboard (headless Chromium, 1 000 defects, 500 000-point scene)\n")
+    print("| load | list drawn s | scene drawn s | rows |")
+    print("|---|---|---|---|")
+    for i, load in enumerate(paint["loads"]):
+        label = "cold cache" if load["cold_cache"] else f"warm {i}"
+        print(f"| {label} | {load['list_s']:.3f} | {load['scene_s']:.3f} | {load['rows']} |")
+    print(f"\nfirst meaningful paint (median): {paint['first_meaningful_paint_s']:.3f} s")
