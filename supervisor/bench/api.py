@@ -307,7 +307,8 @@ def seed_database(url: str, *, clients: int, defects: int, rng: random.Random) -
             session.add(inspection)
             session.flush()
             inspection_id = inspection.id
-            session.execute(insert(Defect), defect_rows(inspection_id, defects, rng))
+            if defects:
+                session.execute(insert(Defect), defect_rows(inspection_id, defects, rng))
         with db.read() as session:
             defect_ids = list(
                 session.scalars(
