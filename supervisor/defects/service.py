@@ -53,14 +53,31 @@ def tally(votes: Iterable[tuple[str, str | None, int]]) -> Consensus:
     return consensus_from(counts, retyped)
 
 
+Votes = list[tuple[str, str | None, int]]
+
+
+def votes_for(session: Session, defect_ids: Iterable[int]) -> dict[int, Votes]:
+    """The (verdict, new type, how many) votes of each of these defects that has any."""
+    ids = list(defect_ids)
+    votes: dict[int, Votes] = {}
+    if ids:
+        for defect_id, verdict, new_type, count in session.execute(_VOTES, {"defect_ids": ids}):
+            votes.setdefault(defect_id, []).append((verdict, new_type, count))
+    return votes
+
+
 def consensus_for(session: Session, defect_ids: list[int]) -> dict[int, Consensus]:
-    votes: dict[int, list[tuple[str, str | None, int]]] = {d: [] for d in defect_ids}
-    if defect_ids:
-        for defect_id, verdict, new_type, count in session.execute(
-            _VOTES, {"defect_ids": list(defect_ids)}
-        ):
-            votes[defect_id].append((verdict, new_type, count))
-    return {d: tally(v) for d, v in votes.items()}
+    votes = votes_for(session, defect_ids)
+    return {d: tally(votes.get(d, [])) for d in defect_ids}
+
+
+def consensus_docs(session: Session, defect_ids: Iterable[int]) -> list[dict]:
+    """The consensus of each of these defects that has judgments."""
+    votes = votes_for(session, defect_ids)
+    return [
+        {"defect_id": defect_id, **tally(v).model_dump(mode="json")}
+        for defect_id, v in sorted(votes.items())
+    ]
 
 
 def defects_out(session: Session, defects: list[Defect]) -> list[DefectOut]:

@@ -22,6 +22,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from services.pointcloud.ply import PLY_MEDIA_TYPE
+from supervisor.defects.service import consensus_docs
 from supervisor.exports.gltf import (
     GLTF_T_BASE,
     Material,
@@ -68,23 +69,9 @@ class SceneSource:
 
 
 def gather(session: Session, storage: Storage, *, inspection: Inspection) -> SceneSource:
-    from supervisor.sync.service import consensus_docs
-
     defects = [
-        {
-            "id": d.id,
-            "type": d.type,
-            "status": d.status,
-            "severity": d.severity,
-            "value_mm": d.value_mm,
-            "tolerance_mm": d.tolerance_mm,
-            "measurements": d.measurements or {},
-            "location_mm": d.location_mm,
-            "normal": d.normal,
-            "extent_mm": d.extent_mm,
-            "confidence": d.confidence,
-        }
-        for d in session.execute(
+        row._asdict()
+        for row in session.execute(
             select(
                 Defect.id,
                 Defect.type,
@@ -137,7 +124,7 @@ def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray
 
 
 def _defect_extras(defect: dict, consensus: dict | None) -> dict:
-    measurements = defect["measurements"]
+    measurements = defect["measurements"] or {}
     return {
         "defect_id": defect["id"],
         "type": defect["type"],

@@ -23,12 +23,12 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass
 
-from sqlalchemy import bindparam, func, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from supervisor.defects.service import tally
+from supervisor.defects.service import tally, votes_for
 from supervisor.feedback.schemas import FeedbackOut, Suggestion, ToleranceFeedback
-from supervisor.models import Defect, Inspection, Judgment
+from supervisor.models import Defect, Inspection
 
 RESOLUTION = {"mm": 0.01, "delta_e": 0.1}
 TOLERANCE_FIELDS = {
@@ -201,17 +201,10 @@ def feedback(session: Session, *, inspection_id: int | None, min_reviews: int) -
     if inspection_id is not None:
         query = query.where(Defect.inspection_id == inspection_id)
     defects = session.execute(query).all()
-    votes: dict[int, list] = defaultdict(list)
-    for defect_id, verdict, new_type, count in session.execute(
-        select(Judgment.defect_id, Judgment.verdict, Judgment.new_type, func.count())
-        .where(Judgment.defect_id.in_(bindparam("ids", expanding=True)))
-        .group_by(Judgment.defect_id, Judgment.verdict, Judgment.new_type),
-        {"ids": [d.id for d in defects]},
-    ):
-        votes[defect_id].append((verdict, new_type, count))
+    votes = votes_for(session, (d.id for d in defects))
     grouped: dict[tuple, list[Row]] = defaultdict(list)
     for defect in defects:
-        row = _row(defect, votes[defect.id])
+        row = _row(defect, votes.get(defect.id, []))
         if row is not None:
             grouped[(row.type, row.bound, row.tolerance, row.unit)].append(row)
     groups = [_group(key, rows, min_reviews) for key, rows in sorted(grouped.items())]

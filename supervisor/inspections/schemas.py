@@ -77,16 +77,13 @@ class ImageMarker(_Strict):
         return value
 
 
-Markers = Field(default_factory=list, max_length=16)
-
-
 class InspectionCreate(_Strict):
     title: str = Field(min_length=1, max_length=200)
     aircraft: str = Field("", max_length=100)
     serial: str = Field("", max_length=100)
     area: Area
     tolerances: Tolerances = Field(default_factory=Tolerances)
-    markers: list[ImageMarker] = Markers
+    markers: list[ImageMarker] = Field(default_factory=list, max_length=16)
     status: InspectionStatus = "planned"
 
 

@@ -22,13 +22,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
-from sqlalchemy import bindparam, func, select, text
+from sqlalchemy import bindparam, select, text
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from supervisor.changes import record_change
 from supervisor.db import Database
-from supervisor.defects.service import tally
+from supervisor.defects.service import consensus_docs
 from supervisor.exports.etag import scene_etag
 from supervisor.inspections.schemas import InspectionOut
 from supervisor.models import (
@@ -177,24 +177,6 @@ def _judgments_of(session: Session, defect_ids: list[int]) -> list:
     ).all()
 
 
-def consensus_docs(session: Session, defect_ids: Sequence[int]) -> list[dict]:
-    """The consensus of each of these defects that has judgments."""
-    if not defect_ids:
-        return []
-    votes: dict[int, list] = {}
-    for defect_id, verdict, new_type, count in session.execute(
-        select(Judgment.defect_id, Judgment.verdict, Judgment.new_type, func.count())
-        .where(Judgment.defect_id.in_(bindparam("ids", expanding=True)))
-        .group_by(Judgment.defect_id, Judgment.verdict, Judgment.new_type),
-        {"ids": list(defect_ids)},
-    ):
-        votes.setdefault(defect_id, []).append((verdict, new_type, count))
-    return [
-        {"defect_id": defect_id, **tally(v).model_dump(mode="json")}
-        for defect_id, v in sorted(votes.items())
-    ]
-
-
 def _inspection_doc(inspection: Inspection) -> dict:
     return InspectionOut.model_validate(inspection).model_dump(mode="json")
 
@@ -325,14 +307,18 @@ def apply_batch(db: Database, *, user_id: int, username: str, items: list[Offlin
                     session.execute(
                         text("SELECT pg_advisory_xact_lock(7413, :user_id)"), {"user_id": user_id}
                     )
-                return _apply(session, user_id=user_id, username=username, items=items)
+                return _apply(
+                    session, user_id=user_id, username=username, items=items, lock=not db.is_sqlite
+                )
         except IntegrityError:
             if attempt == 2:
                 raise
     raise AssertionError("unreachable")
 
 
-def _apply(session: Session, *, user_id: int, username: str, items: list[OfflineJudgment]):
+def _apply(
+    session: Session, *, user_id: int, username: str, items: list[OfflineJudgment], lock: bool
+):
     now = utcnow()
     client_ids = list({item.client_id for item in items})
     defect_ids = list({item.defect_id for item in items})
@@ -358,7 +344,7 @@ def _apply(session: Session, *, user_id: int, username: str, items: list[Offline
     current_query = select(Judgment).where(
         Judgment.user_id == user_id, Judgment.defect_id.in_(bindparam("ids", expanding=True))
     )
-    if session.bind.dialect.name != "sqlite":
+    if lock:
         current_query = current_query.with_for_update()
     current = {j.defect_id: j for j in session.scalars(current_query, {"ids": defect_ids})}
     results = []

@@ -65,7 +65,6 @@ export class SceneView {
     this.camera.near = size / 1000;
     this.camera.far = size * 20;
     this.camera.updateProjectionMatrix();
-    this.extent = size;
     if (this.selected !== null) this.select(this.selected, false);
     return { markers: this.markers.size };
   }
