@@ -370,6 +370,11 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     assert "needs exactly one `handeye` artifact" in failed["error"]
 
 
+def _seen_depth_mm(scratch: dict, *, spacing_mm: float) -> float:
+    """A scratch's depth as a scan of that spacing sees it (see the test below)."""
+    return scratch["depth_mm"] * min(1.0, scratch["width_mm"] / spacing_mm)
+
+
 def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path):
     from typer.testing import CliRunner
 
@@ -407,7 +412,11 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     big_steps = [s for s in truth["seams"] if abs(s["step_mm"]) > 1.2]
     assert len([d for d in found if d["type"] == "step"]) == len(big_steps)
     # A defect of its type lies within the true one's reach (on a 0.25 mm scan a shallow
-    # scratch may be found in pieces, or a piece within tolerance: the cells' phase).
+    # scratch may be found in pieces, or a piece within tolerance: the cells' phase). A
+    # groove narrower than the scan's spacing is hit by a fraction width/spacing of the
+    # samples across it, so what the scan sees of its depth shrinks by that fraction; a
+    # scratch is required only where that is still 1.5 × the 0.1 mm tolerance (one found at
+    # 0.177 × 0.176 mm came and went with the CPU's vector width, AVX2 against AVX-512).
     for true in truth["defects"]:
         reach = max(true.get("length_mm", 0.0), true.get("diameter_mm", 0.0))
         near = [
@@ -416,7 +425,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
             if d["type"] == true["type"]
             and math.dist(d["location_mm"], true["location"]) <= reach / 2 + 3.0
         ]
-        if true["type"] != "scratch" or true["depth_mm"] >= 1.5 * 0.1:
+        if true["type"] != "scratch" or _seen_depth_mm(true, spacing_mm=0.25) >= 1.5 * 0.1:
             assert near, true
     for kind in ("dent", "bump", "scratch", "color"):
         expected = [d for d in truth["defects"] if d["type"] == kind]
