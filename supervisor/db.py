@@ -8,11 +8,14 @@ transaction so they never wait for a writer.
 
 from __future__ import annotations
 
+import json
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import lru_cache
+from typing import Any
 
+import orjson
 from sqlalchemy import MetaData, create_engine, event
 from sqlalchemy.engine import Connection, Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
@@ -67,14 +70,30 @@ def _configure_sqlite(engine: Engine) -> None:
     event.listen(engine, "rollback", _release)
 
 
+def json_loads(text: str | bytes) -> Any:
+    """JSON columns read with orjson (several times faster than the standard library on a
+    sync's 30 000 small documents); text orjson refuses (a NaN literal that json.dumps once
+    wrote) falls back to the standard library."""
+    try:
+        return orjson.loads(text)
+    except orjson.JSONDecodeError:
+        return json.loads(text)
+
+
 def make_engine(url: str) -> Engine:
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        engine = create_engine(
+            url,
+            connect_args={"check_same_thread": False, "timeout": 30},
+            json_deserializer=json_loads,
+        )
         _configure_sqlite(engine)
         return engine
     # No ping per checkout (it doubles the round trips of a short request); a connection
     # the server dropped is invalidated on first use and the pool reconnects.
-    return create_engine(url, pool_size=20, max_overflow=20, pool_recycle=1800)
+    return create_engine(
+        url, pool_size=20, max_overflow=20, pool_recycle=1800, json_deserializer=json_loads
+    )
 
 
 class Database:

@@ -60,6 +60,9 @@ def test_review_an_inspection_in_the_browser(demo_server):
         page.click("#sort-direction")  # largest excess first
         page.click(f"#defect-list .row[data-id='{target}']")
         page.wait_for_selector(f"#detail-title:has-text('#{target} ')")
+        facts = page.text_content("#detail-facts")
+        measured = out_of_tolerance[0]["measurements"]
+        assert f"value{measured['value']:.3f} " in facts, facts
         page.wait_for_selector("#scene[data-drawn=true]")
         page.wait_for_selector("#scene-status:has-text('markers')", timeout=30_000)
         assert page.text_content("#consensus") == "Consensus: 1/1 rejected"

@@ -7,7 +7,9 @@ from datetime import UTC, datetime, timedelta
 from types import SimpleNamespace
 
 import pytest
+from sqlalchemy import update
 
+from supervisor.models import Defect
 from supervisor.sync.service import GAP_SETTLE_S, _settled
 from tests.conftest import auth
 from tests.seeding import seed_defects
@@ -85,6 +87,28 @@ def test_full_then_incremental_sync_returns_only_what_changed(client, tokens, in
     status = _sync(client, device, inspection, one["next_cursor"])
     assert [(d["id"], d["status"]) for d in status["defects"]] == [(ids[1], "resolved")]
     assert status["judgments"] == [] and status["inspection"] is None
+
+
+def test_defects_carry_value_unit_and_tolerance_once(client, tokens, inspection, runtime):
+    seam, patch = seed_defects(runtime, inspection, 2)
+    colour = {"value": 7.5, "unit": "delta_e", "tolerance": 5.0, "area_mm2": 42.0}
+    with runtime.db.write() as session:
+        session.execute(
+            update(Defect)
+            .where(Defect.id == patch)
+            .values(type="color", value_mm=None, tolerance_mm=None, measurements=colour)
+        )
+    defects = {d["id"]: d for d in _sync(client, tokens["device"], inspection)["defects"]}
+    assert {k: defects[seam][k] for k in ("value", "unit", "tolerance")} == {
+        "value": 1.0,
+        "unit": "mm",
+        "tolerance": 1.0,
+    }
+    assert defects[patch]["value"] == 7.5 and defects[patch]["unit"] == "delta_e"
+    assert defects[patch]["tolerance"] == 5.0
+    assert defects[patch]["measurements"] == {"area_mm2": 42.0}
+    assert not {"value_mm", "tolerance_mm"} & defects[seam].keys()
+    assert datetime.fromisoformat(defects[seam]["created_at"]).microsecond == 0
 
 
 def test_full_sync_in_pages_replays_what_changed_meanwhile(client, tokens, inspection, runtime):

@@ -80,6 +80,20 @@ def consensus_docs(session: Session, defect_ids: Iterable[int]) -> list[dict]:
     ]
 
 
+READING_KEYS = ("value", "unit", "tolerance")
+
+
+def reading(value_mm: float | None, tolerance_mm: float | None, measurements: dict | None) -> dict:
+    """A defect's value, unit and tolerance: from its measurements (where a non-millimetre
+    value such as a colour ΔE lives), else its millimetre columns."""
+    measurements = measurements or {}
+    return {
+        "value": measurements.get("value", value_mm),
+        "unit": measurements.get("unit", "mm"),
+        "tolerance": measurements.get("tolerance", tolerance_mm),
+    }
+
+
 def defects_out(session: Session, defects: list[Defect]) -> list[DefectOut]:
     consensus = consensus_for(session, [d.id for d in defects])
     out = []

@@ -22,7 +22,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from services.pointcloud.ply import PLY_MEDIA_TYPE
-from supervisor.defects.service import consensus_docs
+from supervisor.defects.service import consensus_docs, reading
 from supervisor.exports.gltf import (
     GLTF_T_BASE,
     Material,
@@ -124,13 +124,10 @@ def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray
 
 
 def _defect_extras(defect: dict, consensus: dict | None) -> dict:
-    measurements = defect["measurements"] or {}
     return {
         "defect_id": defect["id"],
         "type": defect["type"],
-        "value": measurements.get("value", defect["value_mm"]),
-        "unit": measurements.get("unit", "mm"),
-        "tolerance": measurements.get("tolerance", defect["tolerance_mm"]),
+        **reading(defect["value_mm"], defect["tolerance_mm"], defect["measurements"]),
         "status": defect["status"],
         "severity": defect["severity"],
         "confidence": defect["confidence"],

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from supervisor.defects.service import tally, votes_for
+from supervisor.defects.service import reading, tally, votes_for
 from supervisor.feedback.schemas import FeedbackOut, Suggestion, ToleranceFeedback
 from supervisor.models import Defect, Inspection
 
@@ -68,12 +68,10 @@ def _outcome(votes: list[tuple[str, str | None, int]]) -> str | None:
 
 
 def _row(defect, votes) -> Row | None:  # noqa: ANN001 - a result row
-    measurements = defect.measurements or {}
-    value = measurements.get("value", defect.value_mm)
-    tolerance = measurements.get("tolerance", defect.tolerance_mm)
+    read = reading(defect.value_mm, defect.tolerance_mm, defect.measurements)
+    value, unit, tolerance = read["value"], read["unit"], read["tolerance"]
     if value is None or tolerance is None:
         return None
-    unit = measurements.get("unit", "mm")
     flagged = defect.severity != "info"
     # A gap flagged below its limit is too narrow; rows within tolerance carry the upper
     # limit (the measuring job stores that one for them).

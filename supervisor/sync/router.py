@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import gzip
-import json
 
+import orjson
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
@@ -22,7 +22,7 @@ GZIP_MIN_BYTES = 1400
 
 def _json(document: dict, request: Request) -> Response:
     """JSON, gzip-compressed when the client accepts it and it is worth it."""
-    body = json.dumps(document, separators=(",", ":"), allow_nan=False).encode()
+    body = orjson.dumps(document)
     headers = {"Vary": "Accept-Encoding"}
     if len(body) >= GZIP_MIN_BYTES and "gzip" in request.headers.get("accept-encoding", ""):
         body = gzip.compress(body, compresslevel=5, mtime=0)

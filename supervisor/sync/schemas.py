@@ -15,15 +15,17 @@ ItemStatus = Literal["applied", "unchanged", "stale", "rejected"]
 
 
 class SyncDefect(BaseModel):
-    """A defect as a client keeps it (the measurement details in ``measurements``)."""
+    """A defect as a client keeps it: its value and tolerance in ``unit`` (``mm``, or
+    ``delta_e`` for a colour patch), the other measurement details in ``measurements``."""
 
     id: int
     run_id: int | None
     type: DefectType
     status: str
     severity: str
-    value_mm: float | None
-    tolerance_mm: float | None
+    value: float | None
+    unit: str
+    tolerance: float | None
     location_mm: list[float]
     normal: list[float]
     extent_mm: float

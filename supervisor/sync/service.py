@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.changes import record_change
 from supervisor.db import Database
-from supervisor.defects.service import consensus_docs
+from supervisor.defects.service import READING_KEYS, consensus_docs, reading
 from supervisor.exports.etag import scene_etag
 from supervisor.inspections.schemas import InspectionOut
 from supervisor.models import (
@@ -146,9 +146,17 @@ def _time(value: datetime | None) -> str | None:
 
 
 def _defect_doc(row) -> dict:  # noqa: ANN001 - a result row
+    """A defect as a headset keeps it: its value, unit and tolerance once (not again in
+    `measurements`), its creation time to the second."""
     doc = row._asdict()
-    doc["created_at"] = _time(doc["created_at"])
-    return doc
+    measurements = doc.pop("measurements") or {}
+    read = reading(doc.pop("value_mm"), doc.pop("tolerance_mm"), measurements)
+    return {
+        **doc,
+        **read,
+        "measurements": {k: v for k, v in measurements.items() if k not in READING_KEYS},
+        "created_at": doc["created_at"].isoformat(timespec="seconds"),
+    }
 
 
 def judgment_doc(row, username: str) -> dict:  # noqa: ANN001 - a result row or a Judgment

@@ -342,7 +342,7 @@ namespace Vista.Client.Smoke
             list.StatusFilter = null;
             list.SortBy = DefectSortKey.Value;
             list.Descending = true;
-            List<double> values = list.Rows().Where(d => d.ValueMm.HasValue).Select(d => d.ValueMm.Value).ToList();
+            List<double> values = list.Rows().Where(d => d.Value.HasValue && d.Unit == "mm").Select(d => d.Value.Value).ToList();
             Check(values.Zip(values.Skip(1), (a, b) => a >= b).All(ok => ok), "sorting by value, descending, is out of order");
             list.Descending = false;
             list.SortBy = DefectSortKey.Agreement;

@@ -52,7 +52,7 @@ export const api = {
   judge: (defectId, body) => request("PUT", `/defects/${defectId}/judgments/me`, { body }),
   judgments: (defectId) => request("GET", `/defects/${defectId}/judgments`),
   feedback: (id) => request("GET", "/feedback", { params: { inspection: id } }),
-  scene: (id) => request("GET", `/inspections/${id}/scene.glb`, { raw: true }),
+  scene: (id, points) => request("GET", `/inspections/${id}/scene.glb`, { raw: true, params: { points } }),
 };
 
 // Server-sent events of one job through fetch (EventSource cannot send the token).

@@ -10,6 +10,7 @@ const TYPE_COLORS = {
 };
 const SEVERITY_RANK = { critical: 3, major: 2, minor: 1, info: 0 };
 const LIVE_POLL_MS = 3000;
+const PREVIEW_POINTS = 100_000; // the scene's first cloud: every marker, fewer points
 const $ = (selector) => document.querySelector(selector);
 
 const state = {
@@ -24,7 +25,6 @@ const state = {
   poll: null,
   jobStreams: new AbortController(),
   scene: null,
-  sceneEtag: null,
 };
 
 // ---- small helpers ------------------------------------------------------------------
@@ -50,8 +50,7 @@ function number(value, digits = 3) {
 }
 
 function valueOf(defect) {
-  const m = defect.measurements || {};
-  return { value: m.value ?? defect.value_mm, tolerance: m.tolerance ?? defect.tolerance_mm, unit: m.unit || "mm" };
+  return { value: defect.value, tolerance: defect.tolerance, unit: defect.unit || "mm" };
 }
 
 function beyondLimit(defect) {
@@ -127,7 +126,6 @@ function resetInspection() {
   state.consensus.clear();
   state.cursor = null;
   state.selected = null;
-  state.sceneEtag = null;
   $("#detail").hidden = true;
 }
 
@@ -154,12 +152,19 @@ async function showInspection(id, defectId) {
     resetInspection();
     state.inspection = { id };
     show("inspection");
-    const page = await guarded(pull);
+    // A light preview of the scene downloads while the defects sync: the two are the first
+    // paint. The full cloud follows.
+    const preview = api.scene(id, PREVIEW_POINTS);
+    preview.catch(() => {}); // its failure is shown by loadScene, not as an unhandled rejection
+    const syncing = guarded(pull);
+    // WebGL starts up (a few hundred ms on a software renderer) while both are on their way.
+    if (!state.scene) state.scene = new SceneView($("#scene"), (defectId) => { location.hash = `#/inspections/${state.inspection.id}/defects/${defectId}`; });
+    const page = await syncing;
     if (!page) return;
     $("#crumbs").replaceChildren(el("a", { href: "#/inspections" }, "inspections"), ` / ${state.inspection.title}`);
     renderList();
     performance.mark("vista:list-drawn");
-    loadScene(page.scene_etag);
+    loadScene(id, preview);
     loadTimeline();
     loadFeedback();
     state.poll = setInterval(live, LIVE_POLL_MS);
@@ -325,18 +330,35 @@ for (const button of document.querySelectorAll(".verdicts button")) {
 
 // ---- scene --------------------------------------------------------------------------------
 
-async function loadScene(etag) {
-  if (!state.scene) state.scene = new SceneView($("#scene"), (id) => { location.hash = `#/inspections/${state.inspection.id}/defects/${id}`; });
-  $("#scene-status").textContent = "loading the scene…";
+async function loadScene(id, preview) {
+  const status = $("#scene-status");
+  status.textContent = "loading the scene…";
+  const hint = "drag to orbit, click a marker to select it";
   try {
-    const response = await api.scene(state.inspection.id);
-    const loaded = await state.scene.load(await response.arrayBuffer());
-    state.sceneEtag = response.headers.get("etag") || etag;
-    $("#scene-status").textContent = `${loaded.markers} markers · drag to orbit, click a marker to select it`;
+    const first = await showScene(id, preview, { frame: true, mark: "vista:scene-drawn" });
+    if (!first) return;
     if (state.selected) state.scene.select(state.selected, true);
+    if (first.points < PREVIEW_POINTS) {
+      status.textContent = `${first.markers} markers · ${hint}`;
+      return;
+    }
+    status.textContent = `${first.markers} markers · loading the full cloud… · ${hint}`;
+    const full = await showScene(id, api.scene(id), { frame: false, mark: "vista:scene-full-drawn" });
+    if (full) status.textContent = `${full.markers} markers · ${hint}`;
   } catch (error) {
-    $("#scene-status").textContent = `the scene could not be shown: ${error.message}`;
+    status.textContent = `the scene could not be shown: ${error.message}`;
   }
+}
+
+// The scene's GLB drawn in place of the last one, unless the user has moved on meanwhile.
+async function showScene(id, pending, { frame, mark }) {
+  const bytes = await (await pending).arrayBuffer();
+  const isCurrent = () => state.inspection?.id === id;
+  if (!isCurrent()) return null;
+  performance.mark(`${mark}:fetched`);
+  const loaded = await state.scene.load(bytes, { frame, mark, isCurrent });
+  performance.mark(`${mark}:parsed`);
+  return loaded;
 }
 
 // ---- run timeline ----------------------------------------------------------------------

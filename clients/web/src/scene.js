@@ -12,7 +12,7 @@ export class SceneView {
   constructor(canvas, onPick) {
     this.canvas = canvas;
     this.onPick = onPick;
-    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
     this.renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
     this.scene = new THREE.Scene();
     this.scene.background = new THREE.Color(0x0f1722);
@@ -24,6 +24,10 @@ export class SceneView {
     this.camera.position.set(0, 1, 2);
     this.controls = new OrbitControls(this.camera, canvas);
     this.controls.enableDamping = true;
+    // Frames are drawn only when something changed: an idle render loop would keep a
+    // software-rendered (SwiftShader) browser's cores busy while the scene downloads.
+    this.controls.addEventListener("change", () => this.invalidate());
+    this.dirty = true;
     this.markers = new Map();
     this.selected = null;
     this.flight = null;
@@ -41,22 +45,41 @@ export class SceneView {
     this.renderer.setSize(width, height, false);
     this.camera.aspect = width / height;
     this.camera.updateProjectionMatrix();
+    this.invalidate();
   }
 
-  async load(arrayBuffer) {
+  invalidate() {
+    this.dirty = true;
+  }
+
+  // Shows a GLB in place of the last one. `frame`: point the camera at the whole scene (not
+  // for a more detailed copy of the scene on show); `mark`: a performance mark set when it is
+  // first drawn. Nothing changes when `isCurrent()` turns false while parsing.
+  async load(arrayBuffer, { frame, mark, isCurrent = () => true }) {
     const gltf = await new GLTFLoader().parseAsync(arrayBuffer, "");
+    if (!isCurrent()) return null;
     if (this.root) this.scene.remove(this.root);
     this.root = gltf.scene;
     this.scene.add(this.root);
     this.markers.clear();
+    let points = 0;
     this.root.traverse((node) => {
       const id = node.userData?.defect_id;
       if (id !== undefined && node.isMesh) this.markers.set(id, { node, material: node.material, scale: node.scale.clone() });
       if (node.isPoints) {
         node.material.size = 2.0;
         node.material.sizeAttenuation = false;
+        points += node.geometry.attributes.position.count;
       }
     });
+    if (frame) this.frameAll();
+    if (this.selected !== null) this.select(this.selected, false);
+    this.pendingMark = mark;
+    this.invalidate();
+    return { markers: this.markers.size, points };
+  }
+
+  frameAll() {
     const box = new THREE.Box3().setFromObject(this.root);
     const size = box.getSize(new THREE.Vector3()).length() || 1;
     const centre = box.getCenter(new THREE.Vector3());
@@ -65,8 +88,6 @@ export class SceneView {
     this.camera.near = size / 1000;
     this.camera.far = size * 20;
     this.camera.updateProjectionMatrix();
-    if (this.selected !== null) this.select(this.selected, false);
-    return { markers: this.markers.size };
   }
 
   select(defectId, fly = true) {
@@ -76,6 +97,7 @@ export class SceneView {
       previous.node.scale.copy(previous.scale);
     }
     this.selected = defectId;
+    this.invalidate();
     const marker = this.markers.get(defectId);
     if (!marker) return;
     marker.node.material = HIGHLIGHT;
@@ -115,12 +137,15 @@ export class SceneView {
       this.controls.target.lerpVectors(this.flight.fromTarget, this.flight.toTarget, ease);
       this.camera.position.lerpVectors(this.flight.fromPosition, this.flight.toPosition, ease);
       if (t >= 1) this.flight = null;
+      this.dirty = true;
     }
-    this.controls.update();
+    this.controls.update(); // while damping, it fires "change"
+    if (!this.dirty) return;
+    this.dirty = false;
     this.renderer.render(this.scene, this.camera);
-    if (!this.firstFrame && this.root) {
-      this.firstFrame = true;
-      performance.mark("vista:scene-drawn");
+    if (this.pendingMark && this.root) {
+      performance.mark(this.pendingMark);
+      this.pendingMark = null;
       this.canvas.dataset.drawn = "true";
     }
   }

@@ -124,23 +124,24 @@ namespace Vista.Client
 
         static string Measurement(Defect defect)
         {
-            if (!defect.ValueMm.HasValue)
+            if (!defect.Value.HasValue)
             {
                 return defect.Type;
             }
-            string text = defect.Type + " " + Millimetres(defect.ValueMm.Value);
-            if (defect.ToleranceMm.HasValue)
+            string text = defect.Type + " " + Quantity(defect.Value.Value, defect.Unit);
+            if (defect.Tolerance.HasValue)
             {
-                int side = defect.ValueMm.Value.CompareTo(defect.ToleranceMm.Value);
+                int side = defect.Value.Value.CompareTo(defect.Tolerance.Value);
                 string relation = side > 0 ? ">" : side < 0 ? "<" : "=";
-                text += " " + relation + " " + Millimetres(defect.ToleranceMm.Value);
+                text += " " + relation + " " + Quantity(defect.Tolerance.Value, defect.Unit);
             }
             return text;
         }
 
-        static string Millimetres(double value)
+        static string Quantity(double value, string unit)
         {
-            return value.ToString("0.00", CultureInfo.InvariantCulture) + " mm";
+            string number = value.ToString("0.00", CultureInfo.InvariantCulture);
+            return unit == "delta_e" ? "ΔE " + number : number + " " + unit;
         }
 
         static string Opinion(Consensus consensus)
@@ -164,7 +165,9 @@ namespace Vista.Client
                 case DefectSortKey.Type:
                     return string.CompareOrdinal(a.Type, b.Type);
                 case DefectSortKey.Value:
-                    return CompareValues(a.ValueMm, b.ValueMm);
+                    // Values in different units do not compare: grouped by unit, then by value.
+                    int units = string.CompareOrdinal(a.Unit, b.Unit);
+                    return units != 0 ? units : CompareValues(a.Value, b.Value);
                 case DefectSortKey.Status:
                     return string.CompareOrdinal(a.Status, b.Status);
                 case DefectSortKey.Agreement:

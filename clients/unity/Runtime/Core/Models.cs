@@ -92,10 +92,12 @@ namespace Vista.Client
         public string Status;
         /// <summary>info, minor, major, critical.</summary>
         public string Severity;
-        /// <summary>The measured value, mm, if the type has one.</summary>
-        public double? ValueMm;
-        /// <summary>The tolerance the value broke, mm, if any.</summary>
-        public double? ToleranceMm;
+        /// <summary>The measured value, in <see cref="Unit"/>, if the type has one.</summary>
+        public double? Value;
+        /// <summary>mm, or delta_e for a colour patch.</summary>
+        public string Unit;
+        /// <summary>The tolerance the value is judged against, in <see cref="Unit"/>, if any.</summary>
+        public double? Tolerance;
         /// <summary>Where it is: (x, y, z) in the base frame, mm, +Z up.</summary>
         public double[] LocationMm;
         /// <summary>The surface normal there (unit vector, base frame).</summary>
@@ -121,8 +123,9 @@ namespace Vista.Client
                 Type = json.GetRequiredString("type"),
                 Status = json.GetRequiredString("status"),
                 Severity = json.GetString("severity"),
-                ValueMm = json.GetNullableDouble("value_mm"),
-                ToleranceMm = json.GetNullableDouble("tolerance_mm"),
+                Value = json.GetNullableDouble("value"),
+                Unit = json.GetString("unit") ?? "mm",
+                Tolerance = json.GetNullableDouble("tolerance"),
                 LocationMm = json.GetDoubles("location_mm"),
                 Normal = json.GetDoubles("normal"),
                 ExtentMm = json.GetNullableDouble("extent_mm") ?? 0,
@@ -139,7 +142,7 @@ namespace Vista.Client
             return new Dictionary<string, object>
             {
                 { "id", Id }, { "run_id", RunId }, { "type", Type }, { "status", Status },
-                { "severity", Severity }, { "value_mm", ValueMm }, { "tolerance_mm", ToleranceMm },
+                { "severity", Severity }, { "value", Value }, { "unit", Unit }, { "tolerance", Tolerance },
                 { "location_mm", LocationMm }, { "normal", Normal }, { "extent_mm", ExtentMm },
                 { "confidence", Confidence }, { "source", Source }, { "measurements", Measurements },
                 { "created_at", CreatedAt },
