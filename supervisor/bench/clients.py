@@ -77,10 +77,16 @@ def _on_sidewall(rng: random.Random) -> tuple[list[float], list[float]]:
 
 
 def _job_defects(inspection_id: int, count: int, rng: random.Random) -> list[dict]:
-    """Defect rows as the measuring job writes them, on the cloud's sidewall."""
+    """Defect rows as the measuring job writes them, on the cloud's sidewall: an `info` row
+    within its tolerance, a colour patch in ΔE (no millimetre value)."""
     rows = defect_rows(inspection_id, count, rng)
     for row in rows:
+        if row["severity"] == "info":
+            row["value_mm"] = round(row["tolerance_mm"] * rng.uniform(0.3, 0.95), 3)
         row["measurements"] = _measurements(rng, row["value_mm"], row["tolerance_mm"])
+        if row["type"] == "color":
+            row["measurements"]["unit"] = "delta_e"
+            row["value_mm"] = row["tolerance_mm"] = None
         row["location_mm"], row["normal"] = _on_sidewall(rng)
         row["source"] = "job"
     return rows

@@ -50,7 +50,8 @@ function number(value, digits = 3) {
 }
 
 function valueOf(defect) {
-  return { value: defect.value, tolerance: defect.tolerance, unit: defect.unit || "mm" };
+  const unit = defect.unit === "delta_e" ? "ΔE" : defect.unit || "mm";
+  return { value: defect.value, tolerance: defect.tolerance, unit };
 }
 
 function beyondLimit(defect) {
