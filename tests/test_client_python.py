@@ -70,7 +70,8 @@ def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):
     headset.judge(ids[0], "confirmed", at=now - timedelta(minutes=10))
     headset.judge(ids[1], "rejected", comment="reflection", at=now - timedelta(minutes=9))
     headset.judge(ids[2], "reclassified", new_type="dent", at=now - timedelta(minutes=8))
-    assert headset.judgments[(ids[1], ines_id)]["comment"] == "reflection"
+    assert headset.judgment_of(ids[1], ines_id)["comment"] == "reflection"
+    assert (ids[1], ines_id) not in headset.judgments  # the server has not answered yet
     with pytest.raises(HeadsetOffline):
         headset.push()
     headset.save(tmp_path / "headset.json")  # the headset restarts while offline
@@ -96,7 +97,7 @@ def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):
         ("applied", True),
     ]
     assert headset.outbox == []
-    assert headset.judgments[(ids[0], ines_id)]["verdict"] == "rejected"  # the web's, later
+    assert headset.judgment_of(ids[0], ines_id)["verdict"] == "rejected"  # the web's, later
     history = web.judgments(ids[1])
     mine = next(j for j in history["judgments"] if j["username"] == "ines")
     assert mine["revision"] == 1 and mine["comment"] == "reflection"
@@ -119,7 +120,17 @@ def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):
     late = headset.push().results[0]
     assert late["status"] == "stale" and late["judgment"]["verdict"] == "uncertain"
     assert web.judgments(ids[3])["judgments"][0]["verdict"] == "uncertain"
-    assert headset.sync().scene_changed  # the markers' consensus changed
+    etag = headset.scene_etag
+    headset.sync()
+    assert headset.scene_etag != etag  # the markers carry the consensus, which changed
+
+    # A judgment the server refuses stops showing once it has answered.
+    shown = headset.judgment_of(ids[4], ines_id)
+    headset.judge(ids[4], "reclassified", new_type="gap")  # defect 4 already is a gap
+    assert headset.judgment_of(ids[4], ines_id)["verdict"] == "reclassified"
+    refused = headset.push().results[0]
+    assert refused["status"] == "rejected" and "already is a gap" in refused["detail"]
+    assert headset.judgment_of(ids[4], ines_id) == shown
 
 
 def test_sdk_covers_inspections_defects_feedback_and_errors(live):

@@ -122,9 +122,17 @@ FROM d LEFT JOIN mine ON true
 ).columns(updated_at=UTCDateTime(), client_time=UTCDateTime())
 
 
+def same_type_refusal(verdict: str, new_type: str | None, defect_type: str) -> str | None:
+    """Why a reclassification to the defect's own type is refused, or None when it isn't one."""
+    if verdict == "reclassified" and new_type == defect_type:
+        return f"new_type: the defect already is a {defect_type}; pick another type."
+    return None
+
+
 def _refuse_same_type(data: JudgmentIn, defect_type: str) -> None:
-    if data.verdict == "reclassified" and data.new_type == defect_type:
-        raise Problem(422, f"new_type: the defect already is a {defect_type}; pick another type.")
+    refusal = same_type_refusal(data.verdict, data.new_type, defect_type)
+    if refusal:
+        raise Problem(422, refusal)
 
 
 def put_mine(

@@ -31,6 +31,7 @@ from supervisor.db import Database
 from supervisor.defects.service import READING_KEYS, consensus_docs, reading
 from supervisor.exports.etag import scene_etag
 from supervisor.inspections.schemas import InspectionOut
+from supervisor.judgments.service import judgment_out, same_type_refusal
 from supervisor.models import (
     Change,
     Defect,
@@ -141,10 +142,6 @@ _JUDGMENT_COLUMNS = (
 )
 
 
-def _time(value: datetime | None) -> str | None:
-    return value.isoformat() if value is not None else None
-
-
 def _defect_doc(row) -> dict:  # noqa: ANN001 - a result row
     """A defect as a headset keeps it: its value, unit and tolerance once (not again in
     `measurements`), its creation time to the second."""
@@ -159,18 +156,8 @@ def _defect_doc(row) -> dict:  # noqa: ANN001 - a result row
     }
 
 
-def judgment_doc(row, username: str) -> dict:  # noqa: ANN001 - a result row or a Judgment
-    return {
-        "defect_id": row.defect_id,
-        "user_id": row.user_id,
-        "username": username,
-        "verdict": row.verdict,
-        "new_type": row.new_type,
-        "comment": row.comment,
-        "revision": row.revision,
-        "updated_at": _time(row.updated_at),
-        "client_time": _time(row.client_time),
-    }
+def _judgment_doc(row, username: str) -> dict:  # noqa: ANN001 - a result row or a Judgment
+    return judgment_out(row, username).model_dump(mode="json")
 
 
 def _judgments_of(session: Session, defect_ids: list[int]) -> list:
@@ -232,7 +219,7 @@ def _snapshot_page(session: Session, inspection: Inspection, cursor: Cursor, lim
     return {
         "inspection": _inspection_doc(inspection) if cursor.snapshot_after == 0 else None,
         "defects": [_defect_doc(r) for r in rows],
-        "judgments": [judgment_doc(j, j.username) for j in judgments],
+        "judgments": [_judgment_doc(j, j.username) for j in judgments],
         "consensus": consensus_docs(session, judged),
         "next_cursor": encode_cursor(after),
         "more": more,
@@ -277,7 +264,7 @@ def _change_page(
     return {
         "inspection": _inspection_doc(inspection) if inspection_changed else None,
         "defects": [_defect_doc(r) for r in defects],
-        "judgments": [judgment_doc(j, j.username) for j in judgments],
+        "judgments": [_judgment_doc(j, j.username) for j in judgments],
         "consensus": consensus_docs(session, judged_defects),
         "next_cursor": encode_cursor(Cursor(last)),
         "more": more,
@@ -383,7 +370,7 @@ def _apply(
                 receipts[item.client_id] = receipt
         judgment = current.get(item.defect_id) if status != "rejected" else None
         result["status"], result["detail"] = status, detail
-        result["judgment"] = judgment_doc(judgment, username) if judgment is not None else None
+        result["judgment"] = _judgment_doc(judgment, username) if judgment is not None else None
         results.append(result)
     session.flush()
     touched = sorted({r["defect_id"] for r in results if r["status"] == "applied"})
@@ -401,8 +388,9 @@ def _apply_one(
     defect = defects.get(item.defect_id)
     if defect is None:
         return "rejected", f"There is no defect with id {item.defect_id}."
-    if item.verdict == "reclassified" and item.new_type == defect.type:
-        return "rejected", f"new_type: the defect already is a {defect.type}; pick another type."
+    refusal = same_type_refusal(item.verdict, item.new_type, defect.type)
+    if refusal:
+        return "rejected", refusal
     ahead_s = (item.client_time - now).total_seconds()
     if ahead_s > MAX_CLOCK_AHEAD_S:
         return "rejected", (

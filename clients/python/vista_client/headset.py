@@ -116,14 +116,27 @@ class Headset:
         return report
 
     def _keep_judgment(self, judgment: dict) -> None:
-        key = (judgment["defect_id"], judgment["user_id"])
-        pending = (
-            self.user is not None
-            and judgment["user_id"] == self.user["id"]
-            and any(item["defect_id"] == judgment["defect_id"] for item in self.outbox)
-        )
-        if not pending:  # the queued edit shows until the server has answered it
-            self.judgments[key] = judgment
+        self.judgments[(judgment["defect_id"], judgment["user_id"])] = judgment
+
+    def judgment_of(self, defect_id: int, user_id: int) -> dict | None:
+        """A user's judgment of a defect as the headset shows it: this user's latest queued
+        edit while it waits in the outbox, else the server's copy."""
+        if self.user is not None and user_id == self.user["id"]:
+            queued = [item for item in self.outbox if item["defect_id"] == defect_id]
+            if queued:
+                item = queued[-1]
+                return {
+                    "defect_id": defect_id,
+                    "user_id": user_id,
+                    "username": self.user["username"],
+                    "verdict": item["verdict"],
+                    "new_type": item.get("new_type"),
+                    "comment": item["comment"],
+                    "revision": None,
+                    "updated_at": None,
+                    "client_time": item["client_time"],
+                }
+        return self.judgments.get((defect_id, user_id))
 
     def load_scene(self) -> bytes | None:
         """Download scene.glb if it changed since the last download (None if not)."""
@@ -155,18 +168,6 @@ class Headset:
         if new_type is not None:
             item["new_type"] = new_type
         self.outbox.append(item)
-        if self.user is not None:
-            self.judgments[(defect_id, self.user["id"])] = {
-                "defect_id": defect_id,
-                "user_id": self.user["id"],
-                "username": self.user["username"],
-                "verdict": verdict,
-                "new_type": new_type,
-                "comment": comment,
-                "revision": None,
-                "updated_at": None,
-                "client_time": item["client_time"],
-            }
         return item
 
     def push(self) -> PushReport:
