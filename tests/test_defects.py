@@ -16,7 +16,7 @@ from services.defects.measure import MeasureError, measure, severity
 from services.defects.report import result_document
 from services.defects.simulate import (
     AssemblySpec,
-    edge_drop_mm,
+    EdgeProfile,
     layout_to_part,
     part_to_layout,
     random_assembly,
@@ -61,9 +61,23 @@ def test_simulated_layout_is_exact() -> None:
         gaps = seam_gap_mm(assembly, seam, np.array([0.0, 1.0]))
         assert np.all((gaps > 0.29) & (gaps < 6.01))
     # the rounded edge falls by the radius at the edge and not at all a radius inside
-    panel = assembly.panels[0]
-    drops = edge_drop_mm(panel, np.array([0.0, panel.edge_radius_mm, 5.0]))
-    assert np.allclose(drops, [panel.edge_radius_mm, 0.0, 0.0])
+    edge = assembly.panels[0].edge
+    heights = edge.height_mm(np.array([0.0, edge.size_mm, 5.0]))
+    assert edge.kind == "round" and np.allclose(heights, [-edge.size_mm, 0.0, 0.0])
+
+
+def test_edge_profiles_fall_to_the_side_face() -> None:
+    """Square, chamfer and round profiles, and a burr standing on a square edge."""
+    distance = np.array([0.0, 0.25, 0.5, 1.0, 2.0])
+    chamfer = EdgeProfile("chamfer", 1.0, 45.0)
+    assert np.allclose(chamfer.height_mm(distance), [-1.0, -0.75, -0.5, 0.0, 0.0])
+    assert chamfer.depth_mm == pytest.approx(1.0) and chamfer.width_mm == 1.0
+    square = EdgeProfile("square", 0.0, burr_mm=0.1, burr_width_mm=0.2)
+    assert np.allclose(square.height_mm(distance), [0.1, 0.0, 0.0, 0.0, 0.0])
+    assert square.depth_mm == 0.0 and 0.2 in square.samples_mm()
+    assert len(EdgeProfile("round", 2.0).samples_mm()) >= 20
+    with pytest.raises(ValueError, match="edge kind"):
+        EdgeProfile("bevel")
 
 
 def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) -> None:
@@ -81,10 +95,12 @@ def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) 
     assert summary["mismatch_error_max_mm"] < 0.05
     for kind, counts in summary["geometric"].items():
         assert counts["fp"] == 0 and counts["fn"] == 0, (kind, counts)
-    # the fitted edge radii are the panels'
-    radii = {round(p["edge_radius_mm"], 2) for p in truth["panels"]}
-    measured = [r for s in result.seams for r in s.edge_radius_mm]
+    # the edges are found rounded, with the panels' radii
+    radii = {round(p["edge"]["size_mm"], 2) for p in truth["panels"]}
+    measured = [e.radius_mm for s in result.seams for e in s.edges]
+    assert all(e.model == "round" for s in result.seams for e in s.edges)
     assert all(min(abs(r - t) for t in radii) < 0.15 for r in measured)
+    assert all(s.measured.all() for s in result.seams)
 
 
 def test_finds_every_surface_defect_without_false_alarms(flat_example) -> None:
@@ -122,7 +138,10 @@ def test_result_document_follows_the_contract(flat_example) -> None:
         "sections",
     } <= set(seam)
     assert set(seam["gap_mm"]) == {"min", "mean", "max"} and len(seam["start"]) == 3
-    assert {"at", "gap_mm", "step_mm"} == set(seam["sections"][0])
+    assert {"at", "gap_mm", "gap_sigma_mm", "step_mm", "edges", "residual_mm"} == set(
+        seam["sections"][0]
+    )
+    assert seam["edges"][0]["model"] == "round" and seam["unmeasured"] is None
     assert {"at", "seams", "mismatch_mm"} <= set(document["junctions"][0])
     for defect in document["defects"]:
         assert {
@@ -218,10 +237,53 @@ def test_bench_compares_with_the_gauge_against_truth(tmp_path) -> None:
     from services.defects.bench import SweepCase, run_defects_bench
 
     case = SweepCase("small", AssemblySpec(panel_mm=(110.0, 80.0)), spacing_mm=0.25)
-    document = run_defects_bench(tmp_path / "defects.json", seeds=1, cases=(case,))
+    document = run_defects_bench(
+        tmp_path / "defects.json", seeds=1, cases=(case,), sweeps=("assemblies",)
+    )
     row = document["cases"][0]
     vista, gauge = row["vista"], row["gauge"]
     assert vista["sections"] > 100 and vista["gap_error_p95_mm"] < 0.05
     # the gauge's last-point edges sit on the rounded edge: its gaps are too wide
     assert gauge["gap_error_mean_mm"] > 5 * abs(vista["gap_error_mean_mm"]) + 0.05
     assert json.loads((tmp_path / "defects.json").read_text())["verdict"] == document["verdict"]
+
+
+def test_edge_sweep_reports_unmeasured_sections_and_the_gauge(tmp_path) -> None:
+    """The edge sweep at a small scale: square corners seen straight on are measured
+    against truth; corners hidden in a step's shadow from a 30° view are left unmeasured,
+    where the gauge reports a number."""
+    from services.defects.bench import SweepCase, run_defects_bench
+
+    spec = dict(panel_mm=(110.0, 80.0), edge_kinds=("square",), surface_defects=0)
+    square = SweepCase(
+        "square", AssemblySpec(**_spec(spec, gap_mm=(1.0, 3.0))), spacing_mm=0.2, yaw_deg=5.0
+    )
+    shadowed = SweepCase(
+        "shadowed",
+        AssemblySpec(**_spec(spec, gap_mm=(0.3, 0.5), step_mm=(-3.0, 3.0))),
+        spacing_mm=0.2,
+        yaw_deg=5.0,
+        tilt_deg=30.0,
+    )
+    document = run_defects_bench(  # seeds 100 and 101: two seams of the first are hidden
+        tmp_path / "defects.json", seeds=1, sweeps=("edges",), edge_cases=(shadowed, square)
+    )
+    rows = {r["case"]: r for r in document["edge_cases"]}
+    vista, gauge = rows["square"]["vista"], rows["square"]["gauge"]
+    assert vista["edge_models"] == {"square": 8}
+    # a 1 mm slab holds 5 rows at 0.2 mm spacing: a corner is placed within about a
+    # quarter spacing (the 0.05 mm target is for 0.1 mm spacing, `vista bench defects`)
+    assert vista["gap_error_p95_mm"] < 0.15 < gauge["gap_error_p95_mm"]
+    assert vista["negative_gaps"] == 0 and vista["unmeasured_share"] < 0.05
+    hidden = rows["shadowed"]["vista"]
+    assert hidden["unmeasurable_sections"] > 20 and hidden["unmeasurable_flagged_share"] == 1.0
+    assert rows["shadowed"]["gauge"]["gap_error_max_mm"] > 0.2  # the gauge reports them
+    assert "edge sweep: no negative gap" in document["verdict"]
+
+
+def _spec(base: dict, **override: object) -> dict:
+    """An AssemblySpec's fields: ``base`` (``surface_defects=0``: none) and overrides."""
+    fields = {k: v for k, v in {**base, **override}.items() if k != "surface_defects"}
+    if base.get("surface_defects") == 0:
+        fields.update(dents=0, bumps=0, scratches=0, patches=0)
+    return fields

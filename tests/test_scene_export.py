@@ -35,6 +35,23 @@ MARKERS = [
 ]
 
 
+PANELS = [
+    {
+        "id": i,
+        "centroid": [75.0 + 150 * i, 100.0, 102.5],
+        "normal": [0.0, 0.0, 1.0],
+        "area_mm2": 29_000.0,
+        "outline": [
+            [5.0 + 150 * i, 5.0, 102.5],
+            [145.0 + 150 * i, 5.0, 102.5],
+            [145.0 + 150 * i, 195.0, 102.5],
+            [5.0 + 150 * i, 195.0, 102.5],
+        ],
+    }
+    for i in range(2)
+]
+
+
 def validate(path: Path) -> dict:
     """The glTF-Validator's report of one file (npm package gltf-validator)."""
     if not (WEB / "node_modules" / "gltf-validator").exists():
@@ -78,6 +95,13 @@ def scene_inspection(client, tokens, runtime, tmp_path) -> dict:
     faces = np.array([f for a, b, c, d in quads for f in ((a, b, d), (a, d, c))])
     write_ply(tmp_path / "panels.ply", PointCloud(points=vertices), faces=faces)
     _upload_ply(client, token, inspection, tmp_path / "panels.ply", "mesh")
+    answer = client.post(  # a measurement's RESULT.json: its panels are outlined
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "report", "name": "defects.json"},
+        content=json.dumps({"panels": PANELS}).encode(),
+        headers={**auth(token), "Content-Type": "application/json"},
+    )
+    assert answer.status_code == 201, answer.text
     ids = seed_defects(runtime, inspection, 40)
     client.put(
         f"/api/v1/defects/{ids[5]}/judgments/me",
@@ -143,6 +167,19 @@ def test_scene_is_valid_gltf_with_markers_on_the_defects(
     ).all()
     panels = next(m for m in gltf.meshes if m.name.startswith("panels-"))
     assert gltf.accessors[panels.primitives[0].indices].count == 12 * 3
+    # the measured panels: a closed line around each, labelled with the id seams refer to
+    for panel in PANELS:
+        node = nodes[f"panel-{panel['id']}"]
+        assert (
+            node.extras["panel"] == panel["id"] and node.extras["centroid_mm"] == panel["centroid"]
+        )
+        loop = gltf.meshes[node.mesh].primitives[0]
+        assert loop.mode == 2  # LINE_LOOP
+        accessor = gltf.accessors[loop.attributes.POSITION]
+        view = gltf.bufferViews[accessor.bufferView]
+        xyz = np.frombuffer(blob, np.float32, 3 * accessor.count, view.byteOffset).reshape(-1, 3)
+        back = np.column_stack([xyz[:, 0], -xyz[:, 2], xyz[:, 1]]) * 1000
+        assert np.abs(back - panel["outline"]).max() < 1e-3
 
 
 def test_scene_etag_conditional_get_and_changes(client, tokens, scene_inspection):

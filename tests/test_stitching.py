@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.pointcloud.grid import grid_normals, smooth_grid_normals
+from services.pointcloud.grid import grid_normals, smooth_grid_normals, surrounded
 from services.pointcloud.ply import PointCloud, read_ply
 from services.stitching import scan_sim
 from services.stitching.calibration import calibrate
@@ -30,9 +30,24 @@ def test_grid_normals_face_the_sensor() -> None:
     grid = _plane_grid(noise_mm=0.0)
     normals = grid_normals(grid)
     expected = np.array([0.2, 0.0, -1.0]) / np.linalg.norm([0.2, 0.0, -1.0])
-    inner = normals[1:-1, 1:-1].reshape(-1, 3)
-    assert np.allclose(inner, expected, atol=1e-4)
-    assert np.isnan(normals[0]).all()  # no neighbour above the first row
+    assert np.allclose(normals.reshape(-1, 3), expected, atol=1e-4)  # borders: one-sided
+
+
+def test_grid_normals_keep_their_surface_at_edges_and_holes() -> None:
+    """A pixel beside one without a return (a panel's last pixel before its unseen side
+    face) takes its normal from its own surface: a NaN normal would drop it from the
+    stitch and move the edge by a spacing."""
+    grid = _plane_grid(noise_mm=0.0)
+    grid[:, 40:] = np.nan  # a side face the sensor does not see
+    grid[:, 43:, 2] = 220.0
+    grid[:, 43:, :2] = _plane_grid(noise_mm=0.0)[:, 43:, :2]  # the floor beyond, 20 mm down
+    normals = grid_normals(grid)
+    expected = np.array([0.2, 0.0, -1.0]) / np.linalg.norm([0.2, 0.0, -1.0])
+    assert np.allclose(normals[:, 39], expected, atol=1e-4)  # beside the missing pixels
+    assert np.allclose(normals[:, 43], [0.0, 0.0, -1.0], atol=1e-4)  # the floor's own
+    assert np.isnan(normals[:, 40:43]).all()
+    inner = surrounded(grid)
+    assert inner[1:-1, 1:39].all() and not inner[:, 39].any() and not inner[0].any()
 
 
 def test_smooth_normals_are_closer_to_the_true_plane_and_reach_the_edges() -> None:

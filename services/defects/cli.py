@@ -64,17 +64,17 @@ def measure(
     out.write_text(json.dumps(document, indent=1) + "\n")
     typer.echo(
         f"{result.point_count} points (spacing {result.spacing_mm:.3f} mm), "
-        f"{len(result.panel_areas_mm2)} panels ({result.panel_area_m2:.4f} m²), "
+        f"{len(result.panels)} panels ({result.panel_area_m2:.4f} m²), "
         f"{len(result.seams)} seams, {len(result.junctions)} junctions, "
         f"{sum(result.seconds.values()):.2f} s"
     )
-    for seam in document["seams"]:
-        g, s = seam["gap_mm"], seam["step_mm"]
+    for panel in document["panels"]:
         typer.echo(
-            f"  seam {seam['id']} panels {seam['panels']}: {seam['length_mm']:.1f} mm, "
-            f"gap {g['min']:.3f}/{g['mean']:.3f}/{g['max']:.3f}, step {s['min']:+.3f}…"
-            f"{s['max']:+.3f}, parallelism {seam['parallelism_mm']:.3f} (min/mean/max, mm)"
+            f"  panel {panel['id']}: centre {[round(v, 1) for v in panel['centroid']]}, "
+            f"{panel['area_mm2'] / 100:.0f} cm²"
         )
+    for seam in document["seams"]:
+        typer.echo("  " + _seam_line(seam))
     for junction in document["junctions"]:
         typer.echo(
             f"  junction {junction['id']} seams {junction['seams']}: mismatch {junction['mismatch_mm']:.3f} mm"
@@ -98,6 +98,29 @@ def measure(
         typer.echo(json.dumps(summary, indent=1))
 
 
+def _seam_line(seam: dict) -> str:
+    """One seam of RESULT.json as a line: its edges, gap, step and unmeasured sections."""
+    edges = " | ".join(
+        e["model"]
+        + (f" r {e['radius_mm']:.2f}" if "radius_mm" in e else "")
+        + (f" {e['angle_deg']:.0f}°" if "angle_deg" in e else "")
+        + (f" burr {e['burr_mm']:.2f}" if "burr_mm" in e else "")
+        for e in seam["edges"]
+    )
+    s = seam["step_mm"]
+    head = f"seam {seam['id']} panels {seam['panels']} ({edges}): {seam['length_mm']:.1f} mm, "
+    missing = seam["sections_unmeasured"]
+    total = missing + seam["sections_measured"]
+    tail = f", {missing} of {total} sections unmeasured" if missing else ""
+    if seam["unmeasured"]:
+        return head + f"UNMEASURED — {seam['unmeasured']}"
+    g = seam["gap_mm"]
+    return (
+        head + f"gap {g['min']:.3f}/{g['mean']:.3f}/{g['max']:.3f}, step {s['min']:+.3f}…"
+        f"{s['max']:+.3f}, parallelism {seam['parallelism_mm']:.3f} (min/mean/max, mm){tail}"
+    )
+
+
 def simulate_defects(
     out_dir: Path = typer.Argument(..., help="Folder to write the example into."),
     rows: int = typer.Option(2, min=1, max=4, help="Panel rows."),
@@ -109,18 +132,32 @@ def simulate_defects(
     spacing_mm: float = typer.Option(
         0.1, min=0.05, max=1.0, help="Sensor sampling on the part (0.1 mm ≈ a Gocator 3210)."
     ),
+    edge: list[str] = typer.Option(
+        ["round"],
+        help="Edge profiles the panels are drawn from (repeat the option for a mix): "
+        "round (r 0.5–2 mm), chamfer (0.3–1 mm × 45°), square.",
+    ),
     seed: int = typer.Option(0, help="Random seed."),
 ) -> None:
-    """Write a simulated panel assembly with seams (gap, taper, step, rounded edges),
-    dents, bumps, scratches and colour patches: calibration pairs, coloured scans, the
-    merged cloud, default tolerances and the ground truth."""
+    """Write a simulated panel assembly with seams (gap, taper, step; rounded, chamfered or
+    square edges), dents, bumps, scratches and colour patches: calibration pairs, coloured
+    scans, the merged cloud, default tolerances and the ground truth."""
     from services.defects.example import write_defects_example
-    from services.defects.simulate import AssemblySpec
+    from services.defects.simulate import EDGE_KINDS, AssemblySpec
 
     if not 2 <= rows * cols <= 12:
         fail(f"an assembly has 2 to 12 panels; --rows {rows} × --cols {cols} = {rows * cols}")
+    unknown = sorted(set(edge) - set(EDGE_KINDS))
+    if unknown:
+        fail(f"--edge: unknown {unknown}; known: {list(EDGE_KINDS)}")
     grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
-    spec = AssemblySpec(rows=rows, cols=cols, panel_mm=panel_mm, radius_mm=radius_mm or None)
+    spec = AssemblySpec(
+        rows=rows,
+        cols=cols,
+        panel_mm=panel_mm,
+        radius_mm=radius_mm or None,
+        edge_kinds=tuple(dict.fromkeys(edge)),
+    )
     example = write_defects_example(out_dir, spec, grid=grid, seed=seed, progress=typer.echo)
     typer.echo(
         f"wrote {out_dir}: {example.scans} scans, cloud.ply ({example.cloud_points} points), "
@@ -137,14 +174,24 @@ def bench_defects(
     out: Path = typer.Option(Path("bench-results/defects.json"), help="Where to write the JSON."),
     seeds: int = typer.Option(2, min=1, help="Simulated assemblies per case."),
     seed: int = typer.Option(0, help="Random seed."),
+    sweep: list[str] = typer.Option(
+        ["assemblies", "edges"],
+        help="Which sweeps: `assemblies` (gap, step, taper, noise, curvature, density; "
+        "detection) and/or `edges` (edge types, tilted views and sensor artefacts).",
+    ),
 ) -> None:
     """Gap, step, parallelism and mismatch accuracy against ground truth over a sweep (gap,
     step, taper, edge radius, noise, curvature, density) with a single-profile gauge as the
-    peer; detection precision/recall per defect type; seconds per m². Prints tables,
-    writes JSON."""
-    from services.defects.bench import run_defects_bench
+    peer; detection precision/recall per defect type; seconds per m²; and an edge sweep
+    (square, chamfered, rounded and mixed edges, tilted views, dropout, burrs, narrow gaps,
+    mixed pixels, dark patches, misregistration, shadowed corners) with the share of
+    sections left unmeasured. Prints tables, writes JSON."""
+    from services.defects.bench import SWEEPS, run_defects_bench
 
-    run_defects_bench(out, seeds=seeds, seed=seed)
+    unknown = sorted(set(sweep) - set(SWEEPS))
+    if unknown:
+        fail(f"--sweep: unknown {unknown}; known: {sorted(SWEEPS)}")
+    run_defects_bench(out, seeds=seeds, seed=seed, sweeps=tuple(sweep))
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:

@@ -6,7 +6,8 @@ CONFIG.json — the inspection's tolerances, in the same shape as an inspection'
     {"gap_mm": {"min": 0.5, "max": 3.0}, "step_mm": {"max": 0.5},
      "parallelism_mm": {"max": 0.5}, "mismatch_mm": {"max": 0.5},
      "surface": {"dent_depth_mm": 0.2, "scratch_depth_mm": 0.1, "color_delta_e": 3.0},
-     "measurement": {"pitch_mm": 2.0, "cell_mm": 0.2}}
+     "measurement": {"pitch_mm": 2.0, "cell_mm": 0.2, "edge_model": "auto",
+                     "gap_mode": "walls"}}
 
 Every key is optional: what is missing takes the default below.
 """
@@ -16,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from services.defects.sections import SectionConfig
+from services.defects.sections import EDGE_MODELS, GAP_MODES, SectionConfig
 from services.defects.surface import SurfaceConfig
 
 
@@ -47,6 +48,9 @@ class MeasureConfig:
     background_drop_mm: float = 8.0
     max_gap_mm: float = 10.0
     min_seam_length_mm: float = 20.0
+    min_measured_share: float = 0.5
+    """A seam with fewer measured sections than this share (or than three) yields no gap,
+    parallelism or mismatch: it says it is unmeasured instead."""
     sections: SectionConfig = field(default_factory=SectionConfig)
     surface: SurfaceConfig | None = field(default_factory=SurfaceConfig)
     """None: seams and junctions only."""
@@ -71,7 +75,10 @@ _MEASUREMENT_KEYS = {
     "slab_mm": ("sections", "slab_mm"),
     "edge_band_mm": ("sections", "edge_band_mm"),
     "top_band_mm": ("sections", "top_band_mm"),
+    "max_view_deg": ("sections", "max_view_deg"),
 }
+_CHOICE_KEYS = {"edge_model": EDGE_MODELS, "gap_mode": GAP_MODES}
+"""Settings that name a choice (``sections.py`` says what each means)."""
 
 
 def _positive(value: Any, where: str, *, zero: bool = False) -> float:
@@ -117,10 +124,17 @@ def parse_config(document: Any, where: str = "config") -> MeasureConfig:
     if not isinstance(settings, dict):
         raise ConfigError(f"{where}.measurement must be an object")
     for key, value in settings.items():
+        if key in _CHOICE_KEYS:
+            if value not in _CHOICE_KEYS[key]:
+                raise ConfigError(
+                    f"{where}.measurement.{key} must be one of {list(_CHOICE_KEYS[key])}, "
+                    f"got {value!r}"
+                )
+            config = replace(config, sections=replace(config.sections, **{key: value}))
+            continue
         if key not in _MEASUREMENT_KEYS:
-            raise ConfigError(
-                f"{where}.measurement: unknown key {key!r}; known: {sorted(_MEASUREMENT_KEYS)}"
-            )
+            known = sorted([*_MEASUREMENT_KEYS, *_CHOICE_KEYS])
+            raise ConfigError(f"{where}.measurement: unknown key {key!r}; known: {known}")
         part, name = _MEASUREMENT_KEYS[key]
         number = _positive(value, f"{where}.measurement.{key}")
         if part:
@@ -148,7 +162,7 @@ def config_document(config: MeasureConfig) -> dict:
             **{
                 f.name: getattr(config.sections, f.name)
                 for f in fields(config.sections)
-                if f.name in _MEASUREMENT_KEYS
+                if f.name in _MEASUREMENT_KEYS or f.name in _CHOICE_KEYS
             },
         },
     }

@@ -52,10 +52,20 @@ class Counts:
 @dataclass
 class Evaluation:
     gap_errors_mm: list[float] = field(default_factory=list)
-    """Per section: measured − true."""
+    """Per measured section: measured − true."""
     step_errors_mm: list[float] = field(default_factory=list)
     parallelism_errors_mm: list[float] = field(default_factory=list)
     mismatch_errors_mm: list[float] = field(default_factory=list)
+    sections_total: int = 0
+    sections_unmeasured: int = 0
+    negative_gaps: int = 0
+    """Measured sections with a gap below zero (the panels never overlap here)."""
+    unmeasurable_true: int = 0
+    """Sections whose truth cannot be seen (a corner in the higher panel's shadow)…"""
+    unmeasurable_flagged: int = 0
+    """…of which the measurement left unmeasured."""
+    edge_models: dict[str, int] = field(default_factory=dict)
+    """How often each edge model was chosen for a side of a matched seam."""
     seams_true: int = 0
     seams_found: int = 0
     seams_spurious: int = 0
@@ -80,6 +90,11 @@ class Evaluation:
         ):
             getattr(self, name).extend(getattr(other, name))
         for name in (
+            "sections_total",
+            "sections_unmeasured",
+            "negative_gaps",
+            "unmeasurable_true",
+            "unmeasurable_flagged",
             "seams_true",
             "seams_found",
             "seams_spurious",
@@ -93,6 +108,8 @@ class Evaluation:
         for table in ("geometric", "surface"):
             for key, counts in getattr(other, table).items():
                 getattr(self, table)[key].add(counts)
+        for model, n in other.edge_models.items():
+            self.edge_models[model] = self.edge_models.get(model, 0) + n
 
     def summary(self) -> dict:
         def p95(values: list[float]) -> float | None:
@@ -104,8 +121,21 @@ class Evaluation:
         false_positives = sum(c.false_positive for c in self.surface.values())
         return {
             "sections": len(self.gap_errors_mm),
+            "sections_total": self.sections_total,
+            "unmeasured_share": (
+                self.sections_unmeasured / self.sections_total if self.sections_total else None
+            ),
+            "negative_gaps": self.negative_gaps,
+            "unmeasurable_flagged_share": (
+                self.unmeasurable_flagged / self.unmeasurable_true
+                if self.unmeasurable_true
+                else None
+            ),
+            "unmeasurable_sections": self.unmeasurable_true,
+            "edge_models": dict(self.edge_models),
             "gap_error_mean_mm": mean(self.gap_errors_mm),
             "gap_error_p95_mm": p95(self.gap_errors_mm),
+            "gap_error_max_mm": max(np.abs(self.gap_errors_mm), default=None),
             "step_error_mean_mm": mean(self.step_errors_mm),
             "step_error_p95_mm": p95(self.step_errors_mm),
             "parallelism_error_max_mm": max(np.abs(self.parallelism_errors_mm), default=None),
@@ -176,8 +206,31 @@ def _out(kind: str, value: float, t: Tolerances) -> bool:
     return abs(value) > limit[kind]
 
 
-def evaluate(result: MeasureResult, truth: dict, tolerances: Tolerances) -> Evaluation:
-    """Compare ``result`` with a truth document (``simulate.truth_document``)."""
+def shadowed(
+    truth: dict, true_seam: dict, true_gap: np.ndarray, view_tilt_deg: float
+) -> np.ndarray:
+    """Which sections of a true seam cannot be measured: views tilted by ``view_tilt_deg``
+    about the base x axis (``scan_assembly``) descend towards +y, so on a flat assembly a
+    seam running along x whose panel a (lower y) stands higher hides panel b's corner —
+    and its side face — over step × tan(tilt); where that is wider than the gap and b's
+    edge has a corner (square or chamfer: not pinned by an arc's shape), the truth is out
+    of sight."""
+    if not view_tilt_deg or truth.get("radius_mm"):
+        return np.zeros(len(true_gap), bool)
+    start, end = np.array(true_seam["start"]), np.array(true_seam["end"])
+    along_x = abs(end[0] - start[0]) > abs(end[1] - start[1])
+    lower = {p["id"]: p for p in truth["panels"]}[true_seam["panels"][1]]
+    if not along_x or lower["edge"]["kind"] == "round" or true_seam["step_mm"] >= 0:
+        return np.zeros(len(true_gap), bool)
+    shadow = -true_seam["step_mm"] * np.tan(np.radians(view_tilt_deg))
+    return shadow > true_gap
+
+
+def evaluate(
+    result: MeasureResult, truth: dict, tolerances: Tolerances, *, view_tilt_deg: float = 0.0
+) -> Evaluation:
+    """Compare ``result`` with a truth document (``simulate.truth_document``); the scans'
+    view tilt tells which sections could not be seen (``shadowed``)."""
     e = Evaluation(panel_area_m2=result.panel_area_m2, seconds=sum(result.seconds.values()))
     flagged = {(f.type, f.source.get("seam", f.source.get("junction"))) for f in result.defects}
     matched_seams: dict[int, SeamResult] = {}
@@ -201,9 +254,20 @@ def evaluate(result: MeasureResult, truth: dict, tolerances: Tolerances) -> Eval
         segment = end - start
         fraction = (seam.sections_at - start) @ segment / (segment @ segment)
         true_gap = g0 + (g1 - g0) * np.clip(fraction, 0, 1)
-        e.gap_errors_mm += (seam.sections_gap_mm - true_gap).tolist()
-        e.step_errors_mm += (seam.sections_step_mm - sign * true_seam["step_mm"]).tolist()
-        e.parallelism_errors_mm.append(seam.parallelism_mm - true_seam["parallelism_mm"])
+        measured = seam.measured
+        for edge in seam.edges:
+            e.edge_models[edge.model] = e.edge_models.get(edge.model, 0) + 1
+        e.sections_total += len(measured)
+        e.sections_unmeasured += int((~measured).sum())
+        e.negative_gaps += int((seam.sections_gap_mm[measured] < 0).sum())
+        hidden = shadowed(truth, true_seam, true_gap, view_tilt_deg)
+        e.unmeasurable_true += int(hidden.sum())
+        e.unmeasurable_flagged += int((hidden & ~measured).sum())
+        e.gap_errors_mm += (seam.sections_gap_mm[measured] - true_gap[measured]).tolist()
+        has_step = np.isfinite(seam.sections_step_mm)
+        e.step_errors_mm += (seam.sections_step_mm[has_step] - sign * true_seam["step_mm"]).tolist()
+        if seam.parallelism_mm is not None:
+            e.parallelism_errors_mm.append(seam.parallelism_mm - true_seam["parallelism_mm"])
         for kind, out in true_out.items():
             found = (kind, seam.id) in flagged
             counts = e.geometric[kind]

@@ -44,16 +44,19 @@ class DefectsExample:
     cloud_points: int
 
 
-def merged_cloud(scans: AssemblyScans, voxel_mm: float) -> PointCloud:
+def merged_cloud(
+    scans: AssemblyScans, voxel_mm: float, *, misregistration_mm: float = 0.0
+) -> PointCloud:
     """The scans merged at their true poses (cleaned, closest-vertex merge): a perfect
-    stitch."""
+    stitch — or, with ``misregistration_mm``, every other scan shifted that far along the
+    base x axis (across the seams that run along the layout's s)."""
     clouds = [
         PointCloud(points=g.reshape(-1, 3), colors=c.reshape(-1, 3), grid_shape=g.shape[:2])
         for g, c in zip(scans.scans, scans.colors, strict=True)
     ]
-    return stitch(
-        clouds, scans.base_T_sensor, np.eye(4), config=StitchConfig(voxel_mm=voxel_mm)
-    ).cloud
+    poses = scans.base_T_sensor.copy()
+    poses[1::2, 0, 3] += misregistration_mm
+    return stitch(clouds, poses, np.eye(4), config=StitchConfig(voxel_mm=voxel_mm)).cloud
 
 
 def write_defects_example(

@@ -95,9 +95,11 @@ def measure_job(ctx: JobContext) -> dict:
         1.0, f"{len(result.defects)} defects out of tolerance in {len(result.seams)} seams"
     )
     return {
-        "panels": len(result.panel_areas_mm2),
+        "panels": len(result.panels),
         "panel_area_m2": round(result.panel_area_m2, 5),
         "seams": len(result.seams),
+        "unmeasured_seams": sum(s.unmeasured is not None for s in result.seams),
+        "unmeasured_sections": sum(int((~s.measured).sum()) for s in result.seams),
         "junctions": len(result.junctions),
         "defects": len(result.defects),
         "defects_by_type": by_type,

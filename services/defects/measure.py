@@ -8,6 +8,7 @@ defects. All lengths in mm; points in the cloud's frame.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -23,10 +24,16 @@ from threadpoolctl import ThreadpoolController
 from services.defects import binning
 from services.defects.config import MeasureConfig
 from services.defects.heap import keep_work_arrays_in_heap
-from services.defects.panels import segment_panels
+from services.defects.panels import PanelShape, describe_panels, segment_panels
 from services.defects.raster import Raster, SurfaceFrame, fit_frame, point_spacing_mm, rasterize
 from services.defects.seams import Junction, SeamLine, find_junctions, find_seams
-from services.defects.sections import SeamProfile, profile_seam, reach_mm, section_range
+from services.defects.sections import (
+    EdgeShape,
+    SeamProfile,
+    profile_seam,
+    reach_mm,
+    section_range,
+)
 from services.defects.surface import SurfaceFinding, find_surface_defects
 from services.pointcloud.ply import PointCloud
 
@@ -51,26 +58,42 @@ class Stats:
 class SeamResult:
     id: int
     panels: tuple[int, int]
-    """0-based panel ids; the step is panels[1]'s top over panels[0]'s."""
+    """(a, b) panel ids: b lies on the side of the cloud axis the seam's across direction
+    is closest to (``_oriented``); the step is b's top over a's."""
     start: np.ndarray
     end: np.ndarray
     length_mm: float
-    gap_mm: Stats
-    step_mm: Stats
-    gap_at_ends_mm: tuple[float, float]
+    gap_mm: Stats | None
+    """Over the measured sections; None if the seam is unmeasured."""
+    step_mm: Stats | None
+    gap_at_ends_mm: tuple[float, float] | None
     """The gap line fitted along the seam, at its start and end."""
-    parallelism_mm: float
+    parallelism_mm: float | None
     gap_sigma_mm: float
-    """Scatter of the section gaps about that line."""
+    """Scatter of the section gaps about that line (or their own σ, if larger)."""
     step_sigma_mm: float
-    edge_radius_mm: tuple[float, float]
-    edge_fit_rms_mm: float
-    """Mean RMS distance of the edge points to the fitted rounded edges."""
+    edges: tuple[EdgeShape, EdgeShape]
+    """Each side's edge model and shape."""
+    noise_mm: float
+    """σ of the points about the panel tops along the seam (from the data)."""
     normal: np.ndarray
     sections_at: np.ndarray
-    """(K, 3) section centres."""
+    """(K, 3) section centres, every section."""
     sections_gap_mm: np.ndarray
+    """(K,) NaN where unmeasured."""
     sections_step_mm: np.ndarray
+    sections_gap_sigma_mm: np.ndarray
+    sections_models: np.ndarray
+    """(K, 2) edge model index (``edges.MODELS``) of side a and b."""
+    sections_residual_mm: np.ndarray
+    sections_unmeasured: tuple[str | None, ...]
+    unmeasured: str | None
+    """Why the seam as a whole yields no gap or parallelism (too few measured sections)."""
+
+    @property
+    def measured(self) -> np.ndarray:
+        """(K,) bool: sections whose gap is measured."""
+        return np.isfinite(self.sections_gap_mm)
 
 
 @dataclass(frozen=True)
@@ -108,11 +131,26 @@ class Finding:
 
 
 @dataclass(frozen=True)
+class PanelResult:
+    """A panel a reader can find: in the cloud's frame, mm."""
+
+    id: int
+    centroid: np.ndarray
+    bounds_min: np.ndarray
+    bounds_max: np.ndarray
+    normal: np.ndarray
+    """Unit normal of its top, towards the sensor (the cloud's normals, or +z)."""
+    area_mm2: float
+    outline: np.ndarray
+    """(P, 3) closed polygon around its top."""
+
+
+@dataclass(frozen=True)
 class MeasureResult:
     seams: list[SeamResult]
     junctions: list[JunctionResult]
     findings: list[Finding]
-    panel_areas_mm2: np.ndarray
+    panels: list[PanelResult]
     point_count: int
     spacing_mm: float
     cell_mm: float
@@ -124,7 +162,7 @@ class MeasureResult:
 
     @property
     def panel_area_m2(self) -> float:
-        return float(self.panel_areas_mm2.sum()) / 1e6
+        return sum(p.area_mm2 for p in self.panels) / 1e6
 
 
 def severity(value: float, limit: float, *, above: bool) -> str:
@@ -205,6 +243,7 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
         raise MeasureError(
             f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
         )
+    located, panel_id = _locate_panels(describe_panels(raster, panels), frame)
     lap("panels_s")
     report(0.3, f"{panels.count} panels: seams, sections and surface")
     # The panels' surfaces and the seams are measured independently, on as many threads
@@ -215,29 +254,84 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
         surface_parts = []
         if config.surface is not None:
             surface_parts = find_surface_defects(raster, panels, config.surface, map_fn)
-        max_half_band = config.max_gap_mm / 2 + config.sections.edge_band_mm
+        # A seam's band: half the widest gap, the widest edge, and the edge band.
+        sections = config.sections
+        max_half_band = (
+            config.max_gap_mm / 2 + sections.max_edge_depth_mm / 2 + sections.edge_band_mm
+        )
         lines = find_seams(
             raster,
             panels,
             max_half_band_mm=max_half_band,
             min_length_mm=config.min_seam_length_mm,
         )
+        lines = [_oriented(line, frame) for line in lines]
         lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
-        profiles = _profile_seams(points, raster, lines, config, map_fn)
+        profiles = _profile_seams(points, raster, lines, config, spacing, map_fn)
         surface = [finding for part in surface_parts for finding in part]
     seam_of_line: dict[int, SeamResult] = {}
     for i, profile in enumerate(profiles):
-        if profile is not None and len(profile.gap_mm):
-            seam_of_line[i] = _seam_result(len(seam_of_line), profile, frame)
+        if profile is not None and np.isfinite(profile.step_mm).any():
+            seam_of_line[i] = _seam_result(len(seam_of_line), profile, frame, config, panel_id)
     seams = list(seam_of_line.values())
-    junctions = _junction_results(junction_lines, profiles, seam_of_line, frame)
+    junctions = _junction_results(junction_lines, seam_of_line, frame)
     lap("seams_and_surface_s")
     findings = _seam_findings(seams, junctions, config)
-    findings += [_surface_finding(f, raster, frame, config) for f in surface]
+    findings += [_surface_finding(f, raster, frame, config, panel_id) for f in surface]
     report(1.0, f"{len(seams)} seams, {len(junctions)} junctions, {len(findings)} findings")
     return MeasureResult(
-        seams, junctions, findings, panels.area_mm2, int(len(points)), spacing, cell, seconds
+        seams, junctions, findings, located, int(len(points)), spacing, cell, seconds
     )
+
+
+PANEL_COLUMN_MM = 10.0
+
+
+def _locate_panels(
+    shapes: list[PanelShape], frame: SurfaceFrame
+) -> tuple[list[PanelResult], dict[int, int]]:
+    """The panels in the cloud's frame, numbered by the rule the README states: by their
+    centroid's x (centroids within ``PANEL_COLUMN_MM`` of the first of a run count as one
+    column), then y, then z — the same geometry gets the same numbers, whatever order the
+    height map found them in. Also the map from height-map label to that number."""
+    centroids = np.array([frame.to_cloud(s.centroid) for s in shapes]).reshape(-1, 3)
+    order = list(np.argsort(centroids[:, 0], kind="stable"))
+    columns, column_start = [], None
+    for i in order:
+        if column_start is None or centroids[i, 0] - column_start > PANEL_COLUMN_MM:
+            columns.append([])
+            column_start = centroids[i, 0]
+        columns[-1].append(i)
+    ordered = [
+        i for column in columns for i in sorted(column, key=lambda i: tuple(centroids[i, 1:]))
+    ]
+    located, panel_id = [], {}
+    for number, i in enumerate(ordered):
+        shape = shapes[i]
+        outline = frame.to_cloud(shape.outline)
+        normal = frame.direction_to_cloud(shape.normal)
+        located.append(
+            PanelResult(
+                number,
+                centroids[i],
+                outline.min(axis=0),
+                outline.max(axis=0),
+                normal / np.linalg.norm(normal),
+                shape.area_mm2,
+                outline,
+            )
+        )
+        panel_id[shape.label] = number
+    return located, panel_id
+
+
+def _oriented(seam: SeamLine, frame: SurfaceFrame) -> SeamLine:
+    """The seam with its panels in the order the README states: b is the panel on the
+    side of the cloud axis (x, y or z) that the seam's across direction is closest to —
+    so the step (b's top over a's) has the same sign for the same geometry."""
+    across = frame.direction_to_cloud(np.array([*seam.across_uv, 0.0]))
+    axis = int(np.argmax(np.abs(across)))
+    return seam if across[axis] > 0 else seam.reversed()
 
 
 def warm_up() -> None:
@@ -255,6 +349,7 @@ def _profile_seams(
     raster: Raster,
     lines: list[SeamLine],
     config: MeasureConfig,
+    spacing_mm: float,
     map_fn: Callable = map,
 ) -> list[SeamProfile | None]:
     """Each seam's sections, from one pass over the points near any seam; ``map_fn``
@@ -287,48 +382,85 @@ def _profile_seams(
     )
 
     def profile(seam: SeamLine, pieces: list, at: tuple[float, int]) -> SeamProfile | None:
-        return profile_seam(np.concatenate(pieces, 1), seam, sections, *at) if at[1] else None
+        if at[1] <= 0:  # a seam too short for a section clear of its ends
+            return None
+        return profile_seam(np.concatenate(pieces, 1), seam, sections, *at, spacing_mm)
 
     return list(map_fn(profile, lines, slabs, ranges))
 
 
-def _seam_result(index: int, profile: SeamProfile, frame: SurfaceFrame) -> SeamResult:
+def _seam_result(
+    index: int,
+    profile: SeamProfile,
+    frame: SurfaceFrame,
+    config: MeasureConfig,
+    panel_id: dict[int, int],
+) -> SeamResult:
     seam = profile.seam
-    along, gap, step = profile.along_mm, profile.gap_mm, profile.step_mm
-    if len(gap) >= 2:
-        slope, offset = np.polyfit(along, gap, 1)
-        gap_sigma = float(np.std(gap - (slope * along + offset), ddof=min(2, len(gap) - 1)))
-    else:
-        slope, offset, gap_sigma = 0.0, float(gap.mean()), MIN_SIGMA_MM
-    ends = (float(slope * seam.start_mm + offset), float(slope * seam.end_mm + offset))
-    height = float(np.mean(profile.at_local[:, 2]))
+    measured = np.isfinite(profile.gap_mm)
+    along, gap = profile.along_mm[measured], profile.gap_mm[measured]
+    steps = profile.step_mm[np.isfinite(profile.step_mm)]
+    unmeasured = _seam_unmeasured(profile, config)
+    gap_stats = ends = parallelism = None
+    gap_sigma = MIN_SIGMA_MM
+    if unmeasured is None:
+        own = float(np.median(profile.gap_sigma_mm[measured]))
+        if len(gap) >= 3:
+            slope, offset = np.polyfit(along, gap, 1)
+            scatter = float(np.std(gap - (slope * along + offset), ddof=2))
+        else:
+            slope, offset, scatter = 0.0, float(gap.mean()), 0.0
+        ends = (float(slope * seam.start_mm + offset), float(slope * seam.end_mm + offset))
+        gap_stats = Stats(float(gap.min()), float(gap.mean()), float(gap.max()))
+        parallelism = abs(ends[1] - ends[0])
+        gap_sigma = max(scatter, own, MIN_SIGMA_MM)
+    height = float(np.nanmean(profile.at_local[:, 2]))
+    at_local = profile.at_local.copy()
+    at_local[:, 2] = np.where(np.isfinite(at_local[:, 2]), at_local[:, 2], height)
     start_end = seam.point_uv(np.array([seam.start_mm, seam.end_mm]))
     start_end = frame.to_cloud(np.column_stack([start_end, [height, height]]))
-    normal = frame.direction_to_cloud(profile.normal_local.mean(0))
+    normal = frame.direction_to_cloud(np.nanmean(profile.normal_local, axis=0))
     return SeamResult(
         id=index,
-        panels=(seam.panels[0] - 1, seam.panels[1] - 1),
+        panels=(panel_id[seam.panels[0]], panel_id[seam.panels[1]]),
         start=start_end[0],
         end=start_end[1],
         length_mm=seam.length_mm,
-        gap_mm=Stats(float(gap.min()), float(gap.mean()), float(gap.max())),
-        step_mm=Stats(float(step.min()), float(step.mean()), float(step.max())),
+        gap_mm=gap_stats,
+        step_mm=Stats(float(steps.min()), float(steps.mean()), float(steps.max())),
         gap_at_ends_mm=ends,
-        parallelism_mm=abs(ends[1] - ends[0]),
-        gap_sigma_mm=max(gap_sigma, MIN_SIGMA_MM),
-        step_sigma_mm=max(float(np.std(step)), MIN_SIGMA_MM),
-        edge_radius_mm=profile.edge_radius_mm,
-        edge_fit_rms_mm=float(np.nanmean(profile.fit_rms_mm)) if len(profile.fit_rms_mm) else 0.0,
+        parallelism_mm=parallelism,
+        gap_sigma_mm=gap_sigma,
+        step_sigma_mm=max(float(np.std(steps)), MIN_SIGMA_MM),
+        edges=profile.edges,
+        noise_mm=profile.noise_mm,
         normal=normal / np.linalg.norm(normal),
-        sections_at=frame.to_cloud(profile.at_local),
-        sections_gap_mm=gap,
-        sections_step_mm=step,
+        sections_at=frame.to_cloud(at_local),
+        sections_gap_mm=profile.gap_mm,
+        sections_step_mm=profile.step_mm,
+        sections_gap_sigma_mm=profile.gap_sigma_mm,
+        sections_models=profile.models,
+        sections_residual_mm=profile.residual_mm,
+        sections_unmeasured=profile.unmeasured,
+        unmeasured=unmeasured,
     )
+
+
+def _seam_unmeasured(profile: SeamProfile, config: MeasureConfig) -> str | None:
+    """Why a seam yields no gap, parallelism or mismatch: fewer measured sections than
+    ``min_measured_share`` of them (or than three)."""
+    total = len(profile.gap_mm)
+    measured = int(np.isfinite(profile.gap_mm).sum())
+    if measured >= max(3, config.min_measured_share * total):
+        return None
+    reasons = [r for r in profile.unmeasured if r is not None]
+    kinds = [re.sub(r"[−-]?\d[\d.]*", "#", r) for r in reasons]
+    common = reasons[kinds.index(max(set(kinds), key=kinds.count))] if reasons else "no gap"
+    return f"only {measured} of {total} sections measured (most often: {common})"
 
 
 def _junction_results(
     junctions: list[Junction],
-    profiles: list[SeamProfile | None],
     seam_of_line: dict[int, SeamResult],
     frame: SurfaceFrame,
 ) -> list[JunctionResult]:
@@ -337,13 +469,13 @@ def _junction_results(
     for junction in junctions:
         ids, gaps, heights, sigmas = [], [], [], []
         for line_index, end in zip(junction.seams, junction.ends, strict=True):
-            seam, profile = seam_of_line.get(line_index), profiles[line_index]
-            if seam is None or profile is None:
+            seam = seam_of_line.get(line_index)
+            if seam is None or seam.gap_at_ends_mm is None:
                 continue
             ids.append(seam.id)
             gaps.append(seam.gap_at_ends_mm[end])
             sigmas.append(seam.gap_sigma_mm)
-            heights.append(profile.at_local[0 if end == 0 else -1, 2])
+            heights.append(frame.to_local(seam.start if end == 0 else seam.end)[2])
         if len(ids) < 3:
             continue
         at = frame.to_cloud(np.append(junction.at_uv, np.mean(heights)))
@@ -360,6 +492,55 @@ def _junction_results(
     return results
 
 
+def _gap_findings(
+    seam: SeamResult, config: MeasureConfig, source: dict, profile: dict
+) -> list[Finding]:
+    """The gap (worst running median of the measured sections, or the gap line at the
+    seam's ends) and the parallelism of a measured seam."""
+    t = config.tolerances
+    measured = seam.measured
+    # The gap line at the seam's ends counts too: sections stop short of them.
+    medians = running_median(seam.sections_gap_mm[measured], config.sections.decision_sections)
+    gaps = np.concatenate([medians, seam.gap_at_ends_mm])
+    places = np.concatenate([seam.sections_at[measured], [seam.start, seam.end]])
+    sigmas = np.concatenate([seam.sections_gap_sigma_mm[measured], [0.0, 0.0]])
+    low, high = gaps < t.gap_min_mm, gaps > t.gap_max_mm
+    if high.any() or not low.any():
+        worst = int(np.argmax(gaps))
+        value, limit, above, outside = float(gaps[worst]), t.gap_max_mm, True, high
+    else:
+        worst = int(np.argmin(gaps))
+        value, limit, above, outside = float(gaps[worst]), t.gap_min_mm, False, low
+    sigma = max(seam.gap_sigma_mm, float(sigmas[worst]))
+    gap = Finding(
+        "gap",
+        value,
+        "mm",
+        limit,
+        places[worst],
+        seam.normal,
+        float(max(outside[:-2].sum(), 1) * config.sections.pitch_mm),
+        severity(value, limit, above=above),
+        confidence(value, limit, sigma),
+        source,
+        profile,
+    )
+    parallelism = Finding(
+        "parallelism",
+        seam.parallelism_mm,
+        "mm",
+        t.parallelism_max_mm,
+        (seam.start + seam.end) / 2,
+        seam.normal,
+        seam.length_mm,
+        severity(seam.parallelism_mm, t.parallelism_max_mm, above=True),
+        confidence(seam.parallelism_mm, t.parallelism_max_mm, np.sqrt(2) * seam.gap_sigma_mm),
+        source,
+        profile,
+    )
+    return [gap, parallelism]
+
+
 def running_median(values: np.ndarray, window: int) -> np.ndarray:
     """Median over ``window`` neighbouring sections: what a seam is judged on, so that one
     section's noise cannot tip it over a limit (a deviation longer than the window stays)."""
@@ -371,77 +552,42 @@ def running_median(values: np.ndarray, window: int) -> np.ndarray:
 def _seam_findings(
     seams: list[SeamResult], junctions: list[JunctionResult], config: MeasureConfig
 ) -> list[Finding]:
+    """Gap, step and parallelism of every seam and mismatch of every junction, judged on
+    measured sections only: an unmeasured section or seam yields no finding."""
     t = config.tolerances
     findings = []
-    window = config.sections.decision_sections
+    window, pitch = config.sections.decision_sections, config.sections.pitch_mm
     for seam in seams:
-        steps, pitch = running_median(seam.sections_step_mm, window), config.sections.pitch_mm
-        # The gap line at the seam's ends counts too: sections stop short of them.
-        gaps = np.concatenate([running_median(seam.sections_gap_mm, window), seam.gap_at_ends_mm])
-        places = np.concatenate([seam.sections_at, [seam.start, seam.end]])
-        low, high = gaps < t.gap_min_mm, gaps > t.gap_max_mm
-        if high.any() or not low.any():
-            worst = int(np.argmax(gaps))
-            value, limit, above, outside = float(gaps[worst]), t.gap_max_mm, True, high
-        else:
-            worst = int(np.argmin(gaps))
-            value, limit, above, outside = float(gaps[worst]), t.gap_min_mm, False, low
         source = {"seam": seam.id, "panels": list(seam.panels)}
         profile = {
-            "gap_mm": vars(seam.gap_mm),
+            "gap_mm": None if seam.gap_mm is None else vars(seam.gap_mm),
             "step_mm": vars(seam.step_mm),
             "parallelism_mm": seam.parallelism_mm,
             "length_mm": seam.length_mm,
+            "unmeasured_sections": int((~seam.measured).sum()),
         }
-        findings.append(
-            Finding(
-                "gap",
-                value,
-                "mm",
-                limit,
-                places[worst],
-                seam.normal,
-                float(max(outside[:-2].sum(), 1) * pitch),
-                severity(value, limit, above=above),
-                confidence(value, limit, seam.gap_sigma_mm),
-                source,
-                profile,
+        if seam.unmeasured is None:
+            findings += _gap_findings(seam, config, source, profile)
+        has_step = np.isfinite(seam.sections_step_mm)
+        if has_step.sum() >= 3:
+            steps = running_median(seam.sections_step_mm[has_step], window)
+            worst = int(np.argmax(np.abs(steps)))
+            value = float(steps[worst])
+            findings.append(
+                Finding(
+                    "step",
+                    value,
+                    "mm",
+                    t.step_max_mm,
+                    seam.sections_at[has_step][worst],
+                    seam.normal,
+                    float(max((np.abs(steps) > t.step_max_mm).sum(), 1) * pitch),
+                    severity(abs(value), t.step_max_mm, above=True),
+                    confidence(abs(value), t.step_max_mm, seam.step_sigma_mm),
+                    source,
+                    profile,
+                )
             )
-        )
-        worst = int(np.argmax(np.abs(steps)))
-        value = float(steps[worst])
-        findings.append(
-            Finding(
-                "step",
-                value,
-                "mm",
-                t.step_max_mm,
-                seam.sections_at[worst],
-                seam.normal,
-                float(max((np.abs(steps) > t.step_max_mm).sum(), 1) * pitch),
-                severity(abs(value), t.step_max_mm, above=True),
-                confidence(abs(value), t.step_max_mm, seam.step_sigma_mm),
-                source,
-                profile,
-            )
-        )
-        middle = (seam.start + seam.end) / 2
-        sigma = np.sqrt(2) * seam.gap_sigma_mm
-        findings.append(
-            Finding(
-                "parallelism",
-                seam.parallelism_mm,
-                "mm",
-                t.parallelism_max_mm,
-                middle,
-                seam.normal,
-                seam.length_mm,
-                severity(seam.parallelism_mm, t.parallelism_max_mm, above=True),
-                confidence(seam.parallelism_mm, t.parallelism_max_mm, sigma),
-                source,
-                profile,
-            )
-        )
     normal_of = {s.id: s.normal for s in seams}
     for junction in junctions:
         normal = np.mean([normal_of[i] for i in junction.seams], axis=0)
@@ -464,7 +610,11 @@ def _seam_findings(
 
 
 def _surface_finding(
-    finding: SurfaceFinding, raster: Raster, frame: SurfaceFrame, config: MeasureConfig
+    finding: SurfaceFinding,
+    raster: Raster,
+    frame: SurfaceFrame,
+    config: MeasureConfig,
+    panel_id: dict[int, int],
 ) -> Finding:
     t = config.tolerances
     limit, unit = {
@@ -484,7 +634,7 @@ def _surface_finding(
         finding.extent_mm,
         severity(finding.value, limit, above=True),
         finding.confidence,
-        {"panel": finding.panel - 1},
+        {"panel": panel_id[finding.panel]},
         finding.measurements,
     )
 

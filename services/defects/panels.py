@@ -137,3 +137,56 @@ def _below_surface(
     counts = np.bincount(part, minlength=labels.max() + 1)
     mean = sums[candidates] / np.maximum(counts[candidates], 1)
     return mean < -drop_mm
+
+
+@dataclass(frozen=True)
+class PanelShape:
+    """Where a panel is, in the surface frame (u, v, w; mm)."""
+
+    label: int
+    centroid: np.ndarray
+    """(3,) the centre of its top."""
+    normal: np.ndarray
+    """(3,) unit normal of the plane fitted to its top, towards +w."""
+    outline: np.ndarray
+    """(P, 3) its top's outline, a closed polygon (first point not repeated)."""
+    area_mm2: float
+
+
+def describe_panels(
+    raster: Raster, panels: Panels, *, tolerance_mm: float = 0.5
+) -> list[PanelShape]:
+    """Centroid, plane normal and outline (simplified to ``tolerance_mm``) of every panel's
+    top on the height map."""
+    import cv2
+
+    shapes = []
+    for label, (rows, cols) in enumerate(panels.boxes, start=1):
+        mask = panels.labels[rows, cols] == label
+        r, c = np.nonzero(mask)
+        stride = max(1, len(r) // 20_000)
+        r, c = r[::stride], c[::stride]
+        heights = raster.height[rows, cols][r, c].astype(np.float64)
+        uv = raster.centres_uv(r + rows.start, c + cols.start)
+        known = np.isfinite(heights)
+        centre_uv = uv.mean(axis=0)
+        design = np.column_stack([np.ones(known.sum()), uv[known] - centre_uv])
+        (w0, du, dv), *_ = np.linalg.lstsq(design, heights[known], rcond=None)
+        normal = np.array([-du, -dv, 1.0]) / np.linalg.norm([-du, -dv, 1.0])
+        contours, _ = cv2.findContours(
+            mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
+        )
+        outer = max(contours, key=cv2.contourArea)
+        polygon = cv2.approxPolyDP(outer, tolerance_mm / raster.cell_mm, True)[:, 0, :]
+        outline_uv = raster.centres_uv(polygon[:, 1] + rows.start, polygon[:, 0] + cols.start)
+        outline_w = w0 + (outline_uv - centre_uv) @ np.array([du, dv])
+        shapes.append(
+            PanelShape(
+                label,
+                np.array([*centre_uv, w0]),
+                normal,
+                np.column_stack([outline_uv, outline_w]),
+                float(panels.area_mm2[label - 1]),
+            )
+        )
+    return shapes

@@ -59,6 +59,10 @@ class SurfaceFrame:
     def direction_to_cloud(self, local: np.ndarray) -> np.ndarray:
         return np.asarray(local, dtype=np.float64) @ self.axes
 
+    def to_local(self, points: np.ndarray) -> np.ndarray:
+        """(…, 3) cloud-frame points → (…, 3) (u, v, w), float64."""
+        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.axes.T
+
 
 def fit_frame(points: np.ndarray, normals: np.ndarray | None) -> SurfaceFrame:
     """Principal axes of an even sample of the finite points (every k-th: the scans'

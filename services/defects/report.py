@@ -7,17 +7,19 @@ from pathlib import Path
 import numpy as np
 
 from services.defects.config import MeasureConfig, config_document
-from services.defects.measure import Finding, MeasureResult
+from services.defects.edges import MODELS
+from services.defects.measure import Finding, MeasureResult, PanelResult, SeamResult, Stats
+from services.defects.sections import EdgeShape
 
 RESULT_FORMAT = "vista.defects/1"
 
 
-def _point(p: np.ndarray) -> list[float]:
-    return [round(float(v), 4) for v in p]
+def _point(p: np.ndarray) -> list[float | None]:
+    return [_number(v) for v in p]
 
 
-def _number(value: float, digits: int = 4) -> float | None:
-    return round(float(value), digits) if np.isfinite(value) else None
+def _number(value: float | None, digits: int = 4) -> float | None:
+    return round(float(value), digits) if value is not None and np.isfinite(value) else None
 
 
 def finding_document(f: Finding) -> dict:
@@ -40,32 +42,72 @@ def finding_document(f: Finding) -> dict:
     }
 
 
-def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
-    """RESULT.json: seams, junctions, defects (out of tolerance) and every finding."""
-    seams = [
-        {
-            "id": s.id,
-            "panels": list(s.panels),
-            "start": _point(s.start),
-            "end": _point(s.end),
-            "length_mm": _number(s.length_mm, 3),
-            "gap_mm": {k: _number(v) for k, v in vars(s.gap_mm).items()},
-            "step_mm": {k: _number(v) for k, v in vars(s.step_mm).items()},
-            "parallelism_mm": _number(s.parallelism_mm),
-            "gap_at_ends_mm": [_number(g) for g in s.gap_at_ends_mm],
-            "gap_sigma_mm": _number(s.gap_sigma_mm),
-            "edge_radius_mm": [_number(r, 3) for r in s.edge_radius_mm],
-            "edge_fit_rms_mm": _number(s.edge_fit_rms_mm),
-            "normal": _point(s.normal),
-            "sections": [
-                {"at": _point(at), "gap_mm": _number(g), "step_mm": _number(st)}
-                for at, g, st in zip(
-                    s.sections_at, s.sections_gap_mm, s.sections_step_mm, strict=True
-                )
-            ],
+def _stats(stats: Stats | None) -> dict | None:
+    return None if stats is None else {k: _number(v) for k, v in vars(stats).items()}
+
+
+def _edge(edge: EdgeShape) -> dict:
+    document: dict = {"model": edge.model}
+    if edge.radius_mm is not None:
+        document["radius_mm"] = _number(edge.radius_mm, 3)
+    if edge.angle_deg is not None:
+        document["angle_deg"] = _number(edge.angle_deg, 2)
+    if edge.burr_mm:
+        document["burr_mm"] = _number(edge.burr_mm, 3)
+    return document
+
+
+def seam_document(s: SeamResult) -> dict:
+    """A seam in RESULT.json: its summary, its edges and every section."""
+    sections = []
+    for i, at in enumerate(s.sections_at):
+        section = {
+            "at": _point(at),
+            "gap_mm": _number(s.sections_gap_mm[i]),
+            "gap_sigma_mm": _number(s.sections_gap_sigma_mm[i]),
+            "step_mm": _number(s.sections_step_mm[i]),
+            "edges": [MODELS[m] for m in s.sections_models[i]],
+            "residual_mm": [_number(r) for r in s.sections_residual_mm[i]],
         }
-        for s in result.seams
-    ]
+        if s.sections_unmeasured[i] is not None:
+            section["unmeasured"] = s.sections_unmeasured[i]
+        sections.append(section)
+    return {
+        "id": s.id,
+        "panels": list(s.panels),
+        "start": _point(s.start),
+        "end": _point(s.end),
+        "length_mm": _number(s.length_mm, 3),
+        "unmeasured": s.unmeasured,
+        "sections_measured": int(s.measured.sum()),
+        "sections_unmeasured": int((~s.measured).sum()),
+        "gap_mm": _stats(s.gap_mm),
+        "step_mm": _stats(s.step_mm),
+        "parallelism_mm": None if s.parallelism_mm is None else _number(s.parallelism_mm),
+        "gap_at_ends_mm": None
+        if s.gap_at_ends_mm is None
+        else [_number(g) for g in s.gap_at_ends_mm],
+        "gap_sigma_mm": _number(s.gap_sigma_mm),
+        "edges": [_edge(e) for e in s.edges],
+        "noise_mm": _number(s.noise_mm),
+        "normal": _point(s.normal),
+        "sections": sections,
+    }
+
+
+def panel_document(p: PanelResult) -> dict:
+    return {
+        "id": p.id,
+        "centroid": _point(p.centroid),
+        "bounds_mm": {"min": _point(p.bounds_min), "max": _point(p.bounds_max)},
+        "normal": _point(p.normal),
+        "area_mm2": _number(p.area_mm2, 1),
+        "outline": [_point(q) for q in p.outline],
+    }
+
+
+def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
+    """RESULT.json: panels, seams, junctions, defects (out of tolerance) and every finding."""
     junctions = [
         {
             "id": j.id,
@@ -80,14 +122,19 @@ def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
     return {
         "format": RESULT_FORMAT,
         "units": "mm; points [x, y, z] in the cloud's frame; colour differences in CIE76 ΔE",
+        "rules": {
+            "panels": "numbered by centroid: x (centroids within 10 mm count as one column), "
+            "then y, then z",
+            "seam panels": "[a, b]: b lies on the + side of the cloud axis (x, y or z) that "
+            "the seam's across direction is closest to",
+            "step": "b's top over a's, along the mean top normal (towards the sensor)",
+        },
         "points": result.point_count,
         "point_spacing_mm": _number(result.spacing_mm),
         "cell_mm": _number(result.cell_mm),
-        "panels": [
-            {"id": i, "area_mm2": _number(a, 1)} for i, a in enumerate(result.panel_areas_mm2)
-        ],
+        "panels": [panel_document(p) for p in result.panels],
         "panel_area_m2": _number(result.panel_area_m2, 5),
-        "seams": seams,
+        "seams": [seam_document(s) for s in result.seams],
         "junctions": junctions,
         "defects": [
             d for d, f in zip(findings, result.findings, strict=True) if f.out_of_tolerance
@@ -107,11 +154,23 @@ def profile_png(result: MeasureResult, config: MeasureConfig, path: Path) -> Non
 
     t = config.tolerances
     fig, (gap_ax, step_ax) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
+    unmeasured_label = "unmeasured section"
     for seam in result.seams:
         along = np.linalg.norm(seam.sections_at - seam.start, axis=1)
         label = f"seam {seam.id} (panels {seam.panels[0]}–{seam.panels[1]})"
-        gap_ax.plot(along, seam.sections_gap_mm, ".-", ms=3, lw=0.8, label=label)
-        step_ax.plot(along, seam.sections_step_mm, ".-", ms=3, lw=0.8)
+        line = gap_ax.plot(along, seam.sections_gap_mm, ".-", ms=3, lw=0.8, label=label)[0]
+        step_ax.plot(along, seam.sections_step_mm, ".-", ms=3, lw=0.8, color=line.get_color())
+        missing = ~seam.measured
+        if missing.any():  # drawn on the lower limit, where no gap line runs
+            gap_ax.plot(
+                along[missing],
+                np.full(missing.sum(), t.gap_min_mm),
+                "x",
+                ms=4,
+                color=line.get_color(),
+                label=unmeasured_label,
+            )
+            unmeasured_label = None
     for limit in (t.gap_min_mm, t.gap_max_mm):
         gap_ax.axhline(limit, color="crimson", ls="--", lw=0.8)
     for limit in (-t.step_max_mm, t.step_max_mm):

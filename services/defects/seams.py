@@ -41,6 +41,16 @@ class SeamLine:
     def length_mm(self) -> float:
         return self.end_mm - self.start_mm
 
+    def reversed(self) -> SeamLine:
+        """The same line run the other way: its panels swap sides."""
+        return replace(
+            self,
+            panels=(self.panels[1], self.panels[0]),
+            direction_uv=-self.direction_uv,
+            start_mm=-self.end_mm,
+            end_mm=-self.start_mm,
+        )
+
 
 @dataclass(frozen=True)
 class Junction:

@@ -3,19 +3,25 @@
 A section is the slab of points within ``slab_mm / 2`` of a plane across the seam. In it,
 with x the across coordinate and w the height (the surface frame's normal):
 
-1. The gap shows as the widest empty stretch of x near the seam's centre line (points of
-   the backing structure, far below, are left out first); its two ends are where each
-   panel's last measured point lies.
-2. Each panel's top is a plane w = α + β·x + γ·y (y along the seam) fitted to its points
-   between ``edge_band_mm`` and ``edge_band_mm + top_band_mm`` from that end.
-3. In the frame of that top (x' along it, δ the depth below it) the rounded edge is a
-   quarter circle of radius ρ tangent to the top at x' = x_c, ending in the vertical side
-   face x' = x_c + ρ. The sensor sees the arc up to its incidence limit (and, from
-   oblique views, part of the side face); x_c and ρ are fitted to those points (least
-   squares on the distance to the arc or the face). ρ is a property of the edge, so a
-   second pass fixes it at its median over the seam and fits x_c alone.
-4. Gap = distance between the two side faces along the mean top direction; step = the
-   offset of panel b's top over panel a's, along the mean top normal, at the seam centre.
+1. Each panel's top is fitted as a plane w = α + β·x + γ·y (y along the seam), robustly,
+   well away from the seam; the cloud's noise σ is estimated from its residuals.
+2. The gap is split at the middle of the widest empty stretch near the seam's centre line
+   (points of the backing structure, far below, left out). Each panel's *top end* is its
+   last point within 3σ of its top, reached from the far band without a jump (so a spike
+   at top height in the gap is not taken for the panel).
+3. The top is refitted 2.5 to 8.5 mm inside the top end (ISO 5436-1's rule: fit the
+   surfaces, not the edge zones; Gocator's "surface offset").
+4. The edge zone — from 2 mm inside the top end to the gap's middle — is explained by one
+   of the edge models of ``edges.py`` (square, chamfer, round, or the free fallback),
+   chosen for each side of the seam by an information criterion summed over its
+   sections; the shape (radius or angle) is then fixed at its median along the seam and
+   each section refitted. X, where each side face stands, and its uncertainty come out.
+5. Gap and step (see ``SectionConfig.gap_mode``); each section's gap uncertainty from its
+   two edges.
+6. Self-checks: a section whose gap cannot be trusted is *unmeasured* and says why (no
+   gap seen, too few top points, a poor edge fit with no model for the profile, a hole at
+   the edge, a negative gap with no overlap, a gap narrower than two point spacings
+   between square corners, an edge that may lie in the other panel's shadow).
 """
 
 from __future__ import annotations
@@ -25,9 +31,18 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from services.defects import edges
 from services.defects.seams import SeamLine
 
 MIN_POINTS = 8
+GAP_MODES = ("walls", "surface", "distance", "sharp")
+EDGE_MODELS = ("auto", "square", "chamfer", "round", "free", "void")
+TOP_JUMP_MM = 0.3
+"""A panel's top points are followed towards the gap until a jump this wide."""
+START_WINDOW_MM = 2.0
+"""A top is first fitted to its points within this of its median height."""
+SELECTION_SECTIONS = 12
+"""Sections per seam (evenly spread) on which each side's edge model is chosen."""
 
 
 @dataclass(frozen=True)
@@ -35,36 +50,75 @@ class SectionConfig:
     pitch_mm: float = 2.0
     slab_mm: float = 1.0
     edge_band_mm: float = 2.5
-    """Points closer than this to a panel's end belong to its rounded edge; more than the
-    largest edge radius expected."""
+    """The top is fitted from this far inside its end (where it leaves the top by 3σ;
+    a 10 mm arc leaves it 1.1 mm after its tangent point)."""
     top_band_mm: float = 6.0
     end_margin_mm: float = 3.0
     """Sections stop this far (plus the half band of the seams around) from a seam's ends,
-    clear of crossing seams and the rounded corners."""
+    clear of crossing seams and the corners."""
     decision_sections: int = 5
     """Gap and step are judged against the tolerances on their running median over this
     many sections (10 mm at the default pitch)."""
-    edge_model: str = "arc"
-    """``arc``: the side faces from the fitted rounded edges (vista). ``void``: the last
-    measured point of each panel, what a single-profile gap gauge reports (the peer in
-    ``vista bench defects``)."""
+    edge_model: str = "auto"
+    """``auto``: each side's edge model chosen by the information criterion. ``square``,
+    ``chamfer``, ``round``, ``free``: that model on every side (the user's choice, as in
+    profile gap/flush tools). ``void``: the last measured point of each panel, what a
+    single-profile gap gauge reports (the peer in ``vista bench defects``)."""
+    gap_mode: str = "walls"
+    """``walls``: between the two side faces along the mean direction of the tops (the
+    default). ``surface``: between the edge points along panel a's top (Gocator's
+    "Surface" axis; its "Edge" axis is the same here, side faces being square to their
+    tops). ``distance``: the straight distance between the two edge points — where each
+    edge profile meets its side face (Gocator's "Distance"). ``sharp``: the straight
+    distance between the virtual sharp edges, where each top meets its side face."""
+    max_edge_depth_mm: float = 10.0
+    """Points deeper than this below both tops are the backing, not an edge."""
+    fit_gate: float = 1.5
+    """A model whose truncated RMS residual exceeds this many σ does not explain the edge
+    (with residuals truncated at 3σ, a sixth of the points off it already does that)."""
+    max_edge_sigma_mm: float = 0.05
+    """An edge placed with a larger 1σ uncertainty (the free fallback over an unexplained
+    profile) is not measured."""
+    max_view_deg: float = 30.0
+    """How far off the normal a view may have been: a square corner on the lower panel
+    closer to the higher panel's edge than step × tan(this) may be in its shadow."""
+
+
+@dataclass(frozen=True)
+class EdgeShape:
+    """One side of a seam: its edge model and its shape, along the whole seam."""
+
+    model: str
+    radius_mm: float | None = None
+    angle_deg: float | None = None
+    burr_mm: float = 0.0
+    """Median height of a lip standing above the top at the edge (0: none)."""
 
 
 @dataclass(frozen=True)
 class SeamProfile:
     seam: SeamLine
     along_mm: np.ndarray
-    """(K,) section positions along the seam line."""
+    """(K,) positions of all sections along the seam line."""
     gap_mm: np.ndarray
+    """(K,) NaN where the section's gap is unmeasured."""
     step_mm: np.ndarray
+    """(K,) NaN where a top could not be fitted."""
+    gap_sigma_mm: np.ndarray
+    """(K,) 1σ of each gap, from its two edges."""
     at_local: np.ndarray
     """(K, 3) (u, v, w) of each section's centre on the mean top."""
     normal_local: np.ndarray
     """(K, 3) mean top normal of each section in the surface frame."""
-    edge_radius_mm: tuple[float, float]
-    """Fitted radius of the rounded edge of panel a and b."""
-    fit_rms_mm: np.ndarray
-    """(K,) RMS distance of the edge points to the fitted edges."""
+    models: np.ndarray
+    """(K, 2) int: the edge model (``edges.MODELS``) used on side a and b."""
+    residual_mm: np.ndarray
+    """(K, 2) truncated RMS residual of each side's edge fit."""
+    unmeasured: tuple[str | None, ...]
+    """(K,) why a section's gap is not measured, or None."""
+    edges: tuple[EdgeShape, EdgeShape]
+    noise_mm: float
+    """σ of the points about the panel tops, estimated along this seam."""
 
 
 def reach_mm(seam: SeamLine, config: SectionConfig) -> float:
@@ -81,218 +135,423 @@ def section_range(
     return first, int(np.floor((seam.end_mm - end_margin_mm - first) / config.pitch_mm)) + 1
 
 
+@dataclass(frozen=True)
+class _Tops:
+    """Per group (2k + side, side b mirrored so its edge faces +xm): the top end in x,
+    the plane α + β·xm + γ·y, and its noise."""
+
+    end_x: np.ndarray
+    plane: np.ndarray
+    sigma: np.ndarray
+
+
 def profile_seam(
-    slab: np.ndarray, seam: SeamLine, config: SectionConfig, first: float, count: int
+    slab: np.ndarray,
+    seam: SeamLine,
+    config: SectionConfig,
+    first: float,
+    count: int,
+    spacing_mm: float,
 ) -> SeamProfile | None:
     """Measure the ``count`` sections of ``seam`` from ``first`` on, given the points in
     their slabs as (4, M) rows (section k, y along from its plane, x across, height w;
-    ``binning.seam_slabs``)."""
+    ``binning.seam_slabs``) and the cloud's point spacing."""
     k, y, x, w = slab[0].astype(np.int64), slab[1], slab[2], slab[3]
-    ends = _gap_ends(k, x, w, seam, config, count)
-    if ends is None:
-        return None
-    end_a, end_b, valid, floor = ends
-    keep = w >= floor[k]
-    k, y, x, w = k[keep], y[keep], x[keep], w[keep]
-    # Both sides as "side a": side b mirrored so its edge also faces +x.
-    side = (x > (end_a[k] + end_b[k]) / 2).astype(np.int64)
-    xm = np.where(side == 0, x - end_a[k], end_b[k] - x)
-    group = 2 * k + side
-    tops = _fit_tops(group, xm, w, y, config, 2 * count)
+    groups = 2 * count
+    outer = seam.half_band_mm + config.edge_band_mm
+    rough, rough_sigma = _robust_plane(
+        2 * k + (x > 0), x, w, y, -np.inf, np.inf, groups, min_abs=outer
+    )
+    end_a, end_b, width = _widest_gaps(
+        k, x, w, y, rough, seam.half_band_mm + 1.5, config.max_edge_depth_mm, count
+    )
+    found = (width > 0) & np.isfinite(rough).all(axis=1).reshape(count, 2).all(axis=1)
+    middle = (end_a + end_b) / 2
     if config.edge_model == "void":
-        edge_x, radius, rms = np.zeros(2 * count), np.full(2, np.nan), np.zeros(2 * count)
+        end_x = np.stack([end_a, end_b], 1).ravel()
     else:
-        edge_x, radius, rms = _fit_edges(group, xm, w, y, tops, config, 2 * count)
-    alpha, beta = tops[:, 0], tops[:, 1]
-    # Back to the section's (x, w): the side faces at top level, and the top directions.
-    norm = np.sqrt(1 + beta**2)
-    face_x = edge_x / norm
-    face_w = alpha + beta * face_x
-    ea = np.stack([end_a + face_x[0::2], face_w[0::2]], 1)
-    eb = np.stack([end_b - face_x[1::2], face_w[1::2]], 1)
-    tau = np.stack(
-        [1 / norm[0::2] + 1 / norm[1::2], beta[0::2] / norm[0::2] - beta[1::2] / norm[1::2]], 1
-    )
-    tau /= np.linalg.norm(tau, axis=1, keepdims=True)
-    gap = np.sum((eb - ea) * tau, axis=1)
-    mid = (ea[:, 0] + eb[:, 0]) / 2
-    wa = alpha[0::2] + beta[0::2] * (mid - end_a)
-    wb = alpha[1::2] + beta[1::2] * (end_b - mid)
-    step = (wb - wa) * tau[:, 0]
-    valid &= np.isfinite(gap) & np.isfinite(step) & np.isfinite(edge_x[0::2] + edge_x[1::2])
-    positions = first + np.arange(count) * config.pitch_mm
-    at_uv = seam.point_uv(positions) + np.multiply.outer(mid, seam.across_uv)
-    at = np.column_stack([at_uv, (wa + wb) / 2])
-    normal_2d = np.stack([-tau[:, 1], tau[:, 0]], 1)
-    normal = np.column_stack([np.multiply.outer(normal_2d[:, 0], seam.across_uv), normal_2d[:, 1]])
-    return SeamProfile(
-        seam,
-        positions[valid],
-        gap[valid],
-        step[valid],
-        at[valid],
-        normal[valid],
-        (float(radius[0]), float(radius[1])),
-        np.maximum(rms[0::2], rms[1::2])[valid],
-    )
-
-
-def _gap_ends(
-    k: np.ndarray,
-    x: np.ndarray,
-    w: np.ndarray,
-    seam: SeamLine,
-    config: SectionConfig,
-    count: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """Per section: the last point of panel a and the first of panel b around the widest
-    empty stretch near the centre line, whether one was found, and the height below which
-    points belong to the backing, not the panels."""
-    outer = np.abs(x) > seam.half_band_mm + config.edge_band_mm
-    tops = np.full((count, 2), np.nan)
-    for side in (0, 1):
-        on = outer & ((x > 0) == bool(side))
-        total = np.bincount(k[on], weights=w[on], minlength=count)
-        tops[:, side] = total / np.maximum(np.bincount(k[on], minlength=count), 1)
-    floor = np.nanmin(tops, axis=1) - (config.edge_band_mm + 1.5)
-    floor = np.where(np.isfinite(floor), floor, np.inf)
-    near = (np.abs(x) < seam.half_band_mm + 1.5) & (w >= floor[k])
-    if near.sum() < 2:
-        return None
-    end_a, end_b, width = _widest_gaps(k, x, near, count)
-    valid = (width > 0) & np.isfinite(tops).all(axis=1)
-    end_a = np.where(valid, end_a, 0.0)
-    end_b = np.where(valid, end_b, 0.0)
-    return end_a, end_b, valid, floor
-
-
-def _fit_tops(
-    group: np.ndarray,
-    xm: np.ndarray,
-    w: np.ndarray,
-    y: np.ndarray,
-    config: SectionConfig,
-    groups: int,
-) -> np.ndarray:
-    """(groups, 3) α, β, γ of each side's top plane w = α + β·xm + γ·y."""
-    sums = _top_sums(
+        end_x = _follow_tops(k, x, w, y, rough, rough_sigma, middle, outer)
+    group, xm = _mirror(k, x, middle, end_x)
+    plane, sigma = _robust_plane(
         group, xm, w, y, -config.edge_band_mm - config.top_band_mm, -config.edge_band_mm, groups
     )
+    tops = _Tops(end_x, plane, sigma)
+    noise = float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else np.nan
+    edge_x, edge_depth, edge_sigma, models, residual, shapes, flags = _edges(
+        group, xm, w, y, middle, tops, noise, spacing_mm, config, groups
+    )
+    return _sections(
+        seam,
+        config,
+        first,
+        count,
+        spacing_mm,
+        tops,
+        found,
+        noise,
+        (edge_x, edge_depth, edge_sigma, models, residual, shapes, flags),
+    )
+
+
+def _robust_plane(
+    group: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    low: float,
+    high: float,
+    groups: int,
+    *,
+    min_abs: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Planes w = α + β·x + γ·y per group over the points with low ≤ x ≤ high and |x| ≥
+    ``min_abs``: a least-squares fit to the points within ``START_WINDOW_MM`` of the
+    group's median height (not the backing seen through a wide gap, nor spikes), then again
+    without the points beyond 3σ of it (dents, strays). Returns ((groups, 3) planes,
+    (groups,) σ), NaN where too few points."""
+    plane = np.zeros((groups, 3))
+    plane[:, 0] = _median_heights(group, x, w, low, high, min_abs, groups)
+    clip = np.full(groups, START_WINDOW_MM)
+    for _ in range(2):
+        sums = _top_sums(group, x, w, y, low, high, min_abs, plane, clip, groups)
+        plane = _solve_planes(sums)
+        with np.errstate(invalid="ignore"):
+            sigma = np.sqrt(np.fmax(sums[9] / np.maximum(sums[0], 1) - _explained(sums, plane), 0))
+        clip = np.where(np.isfinite(sigma), np.maximum(3.0 * sigma, 0.01), np.inf)
+        plane = np.where(np.isfinite(plane), plane, 0.0)
+    valid = sums[0] >= MIN_POINTS
+    plane[~valid] = np.nan
+    sigma[~valid] = np.nan
+    return plane, sigma
+
+
+def _explained(sums: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Σw²/n − (mean squared residual) from the normal-equation sums: the part of Σw²/n
+    the plane explains, so that σ² = Σw²/n − this."""
+    n = np.maximum(sums[0], 1)
+    with np.errstate(invalid="ignore"):
+        fitted = plane[:, 0] * sums[6] + plane[:, 1] * sums[7] + plane[:, 2] * sums[8]
+    return np.where(np.isfinite(fitted), fitted / n, np.nan)
+
+
+def _solve_planes(sums: np.ndarray) -> np.ndarray:
     basis_products = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    groups = sums.shape[1]
     normal = np.zeros((groups, 3, 3))
     for row, (i, j) in enumerate(basis_products):
         normal[:, i, j] = normal[:, j, i] = sums[row]
     rhs = sums[6:9].T
     enough = sums[0] >= MIN_POINTS
     normal[~enough] = np.eye(3)
+    normal[enough] += np.eye(3) * 1e-9 * sums[0][enough, None, None]
     solution = np.linalg.solve(normal, rhs[..., None])[..., 0]
     solution[~enough] = np.nan
     return solution
 
 
-def _fit_edges(
+def _edges(
     group: np.ndarray,
     xm: np.ndarray,
     w: np.ndarray,
     y: np.ndarray,
-    tops: np.ndarray,
+    middle: np.ndarray,
+    tops: _Tops,
+    noise: float,
+    spacing_mm: float,
     config: SectionConfig,
     groups: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per group: the side face's position along the top (x' of the face), the edge radius
-    used, and the RMS residual; see the module docstring, step 3."""
-    near = xm > -config.edge_band_mm
-    g, xm, w, y = group[near], xm[near], w[near], y[near]
-    alpha, beta, gamma = (tops[g, i] for i in range(3))
-    norm = np.sqrt(1 + beta**2)
-    flat_w = w - gamma * y
-    xp = (xm + beta * (flat_w - alpha)) / norm
-    depth = (alpha + beta * xm - flat_w) / norm
-    last = np.full(groups, -np.inf)
-    np.maximum.at(last, g, np.where(np.isfinite(xp), xp, -np.inf))
-    radius = np.full(groups, 1.0)
-    centre = last - 0.97 * radius
-    centre, radius, _ = _fit_arc(g, xp, depth, centre, radius, groups, fit_radius=True)
-    # The radius belongs to the whole edge: its median over the seam, side by side.
-    fitted = [radius[s::2][np.isfinite(centre[s::2])] for s in (0, 1)]
-    side_radius = np.array([np.median(r) if len(r) else np.nan for r in fitted])
-    radius = np.tile(side_radius, groups // 2)
-    centre = last - 0.97 * radius
-    centre, radius, rms = _fit_arc(g, xp, depth, centre, radius, groups, fit_radius=False)
-    return centre + radius, side_radius, rms
+) -> tuple:
+    """Edge model per side and section: X (u of the side face), the edge point's depth,
+    σ_X, model, truncated RMS residual, the two sides' shapes and per-group flags
+    (holes at the edge, side-face points seen)."""
+    models = np.full(groups, edges.FREE)
+    residual = np.full(groups, np.nan)
+    flags = np.zeros((groups, 2), bool)
+    if config.edge_model == "void":
+        zero = np.zeros(groups)
+        return zero, zero, zero, models, residual, (EdgeShape("void"), EdgeShape("void")), flags
+    gap_end = np.abs(np.repeat(middle, 2) - tops.end_x)
+    starts, zu, zd = _edge_zones(
+        group, xm, w, y, tops.plane, gap_end, config.max_edge_depth_mm, groups
+    )
+    sigma = np.full(groups, max(noise, 0.005) if np.isfinite(noise) else 0.02)
+    wanted = np.zeros(4, bool)
+    if config.edge_model == "auto":
+        wanted[:] = True
+    else:
+        wanted[edges.MODELS.index(config.edge_model)] = True
+    # Choosing the model and its shape needs a dozen sections per side, not all of them.
+    sections = groups // 2
+    stride = max(1, sections // SELECTION_SECTIONS)
+    trial_sections = (np.arange(groups) // 2) % stride == 0
+
+    def fit(models: np.ndarray, shape: np.ndarray, active: np.ndarray) -> tuple:
+        return edges.fit_sides(
+            starts, zu, zd, sigma, spacing_mm, config.max_edge_depth_mm, models, shape, active
+        )
+
+    free, _ = fit(wanted, np.full(groups, np.nan), trial_sections)
+    # The shape (radius, angle) belongs to the edge: its median over the trial sections,
+    # with which they are fitted again and the models compared.
+    fixed = np.full((4, groups), np.nan)
+    for model in (edges.CHAMFER, edges.ROUND):
+        for s in (0, 1):
+            values = free[s::2, model, 1][trial_sections[s::2]]
+            values = values[np.isfinite(values)]
+            if len(values):
+                fixed[model, s::2] = np.median(values)
+    trial = free.copy()
+    for model in (edges.CHAMFER, edges.ROUND):
+        if wanted[model]:
+            only = np.zeros(4, bool)
+            only[model] = True
+            trial[:, model] = fit(only, fixed[model], trial_sections)[0][:, model]
+    n = np.maximum(np.diff(starts), 1)[trial_sections]
+    chosen = _choose(trial[trial_sections], n, wanted)
+    shape_sigma = [0.0, 0.0]
+    for s in (0, 1):
+        if chosen[s] == edges.ROUND:  # X = u_c + ρ: ρ's error moves X
+            radii = free[s::2, edges.ROUND, 1][trial_sections[s::2]]
+            shape_sigma[s] = _median_sigma(radii[np.isfinite(radii)])
+    fixed = np.where(np.arange(groups) % 2 == 0, fixed[chosen[0]], fixed[chosen[1]])
+    final_wanted = np.zeros(4, bool)
+    final_wanted[chosen] = True
+    final_wanted[[edges.SQUARE, edges.FREE]] = True
+    fits, extra = fit(final_wanted, fixed, np.ones(groups, bool))
+    side_model = np.tile(chosen, sections)
+    index = np.arange(groups)
+    best = fits[index, side_model]
+    poor = ~np.isfinite(best[:, 2]) | ~(best[:, 5] <= config.fit_gate**2)
+    models = np.where(poor, edges.FREE, side_model)
+    final = fits[index, models]
+    edge_x = final[:, 2]
+    edge_sigma = np.hypot(
+        final[:, 3], np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0)
+    )
+    depth = np.where(
+        models == edges.ROUND,
+        final[:, 1],
+        np.where(models == edges.CHAMFER, (edge_x - final[:, 0]) * np.tan(final[:, 1]), 0.0),
+    )
+    residual = np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma
+    flags[:, 0] = _top_beyond(starts, zu, zd, sigma, edge_x)
+    flags[:, 1] = extra[:, 2] > 0
+    shapes = tuple(
+        EdgeShape(
+            edges.MODELS[chosen[s]],
+            radius_mm=float(fixed[s])
+            if chosen[s] == edges.ROUND and np.isfinite(fixed[s])
+            else None,
+            angle_deg=float(np.degrees(fixed[s]))
+            if chosen[s] == edges.CHAMFER and np.isfinite(fixed[s])
+            else None,
+            burr_mm=float(np.median(extra[s::2, 0])) if sections else 0.0,
+        )
+        for s in (0, 1)
+    )
+    return edge_x, depth, edge_sigma, models, residual, shapes, flags
 
 
-def _fit_arc(
-    g: np.ndarray,
-    xp: np.ndarray,
-    depth: np.ndarray,
-    centre: np.ndarray,
-    radius: np.ndarray,
-    groups: int,
-    *,
-    fit_radius: bool,
-    tolerance_mm: float = 1e-5,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Damped Gauss–Newton steps of the edge model (arc, then vertical face): 12 with the
-    radius free, 6 with it fixed, or until no edge moves by more than ``tolerance_mm``
-    (lost ones aside). Groups with too few points are lost (NaN)."""
-    for _ in range(12 if fit_radius else 6):
-        n, sq, a, b_c, b, d, b_r = _edge_sums(g, xp, depth, centre, radius, groups)
-        rms = np.sqrt(sq / np.maximum(n, 1))
-        a += 1e-6
-        if fit_radius:
-            d += 1e-6
-            damp = 1e-3 * (a + d)
-            det = (a + damp) * (d + damp) - b * b
-            step_c = -((d + damp) * b_c - b * b_r) / det
-            step_r = -((a + damp) * b_r - b * b_c) / det
-        else:
-            step_c, step_r = -b_c / a, np.zeros(groups)
-        enough = n >= MIN_POINTS
-        before = centre
-        centre = np.where(enough, centre + np.clip(step_c, -0.5, 0.5), np.nan)
-        radius = np.where(enough, np.clip(radius + np.clip(step_r, -0.5, 0.5), 0.05, 10.0), np.nan)
-        rms = np.where(enough, rms, np.nan)
-        moved = np.abs(centre - before)
-        if not np.any(moved[np.isfinite(moved)] > tolerance_mm):
-            break
-    return centre, radius, rms
+def _median_sigma(values: np.ndarray) -> float:
+    """1σ of the median of ``values`` (robust: from their MAD)."""
+    if len(values) < 2:
+        return 0.0
+    mad = 1.4826 * np.median(np.abs(values - np.median(values)))
+    return float(1.25 * mad / np.sqrt(len(values)))
+
+
+def _choose(fits: np.ndarray, n: np.ndarray, wanted: np.ndarray) -> list[int]:
+    """Each side's model: the least information criterion over its (trial) sections — the
+    truncated costs summed, plus ln n̄ for each parameter: per section (square: X; round:
+    u_c; chamfer: u_c and its foot) and once per edge (the shared radius or angle). Where a
+    chamfer or an arc could not be fitted (no points below the top) it costs what the
+    square corner costs: it would fit no better."""
+    chosen = []
+    for s in (0, 1):
+        side = fits[s::2]
+        log_n = float(np.log(np.mean(n[s::2]))) if len(n[s::2]) else 0.0
+        square = side[:, edges.SQUARE, 4]
+        usable = np.isfinite(square) if wanted[edges.SQUARE] else np.ones(len(side), bool)
+        totals = []
+        for model in (edges.SQUARE, edges.CHAMFER, edges.ROUND):
+            if not wanted[model] or not usable.any():
+                totals.append(np.inf)
+                continue
+            cost = side[:, model, 4]
+            if model != edges.SQUARE and wanted[edges.SQUARE]:
+                cost = np.where(np.isfinite(cost), cost, square)
+            parameters = (
+                edges.LOCAL_PARAMETERS[model] * usable.sum() + edges.SHARED_PARAMETERS[model]
+            )
+            totals.append(float(np.nansum(cost[usable])) + parameters * log_n)
+        chosen.append(int(np.argmin(totals)) if np.isfinite(min(totals)) else edges.FREE)
+    return chosen
 
 
 @njit(cache=True, nogil=True)
-def _edge_sums(
-    g: np.ndarray,
-    xp: np.ndarray,
-    depth: np.ndarray,
-    centre: np.ndarray,
-    radius: np.ndarray,
-    groups: int,
+def _top_beyond(
+    starts: np.ndarray, u: np.ndarray, d: np.ndarray, sigma: np.ndarray, edge_x: np.ndarray
 ) -> np.ndarray:
-    """Per group, the normal equations of one Gauss–Newton step: (7, groups) rows n, Σr²,
-    Σj_c², Σj_c·r, Σj_c·j_r, Σj_r², Σj_r·r over the points on the arc (x' ≥ x_c, δ < ρ;
-    residual = distance to the centre − ρ) or on the face (δ ≥ ρ; residual x' − x_c − ρ)."""
-    sums = np.zeros((7, groups))
-    for i in range(g.shape[0]):
-        k = g[i]
-        c, r = centre[k], radius[k]
-        dx, dz = xp[i] - c, depth[i] - r
-        if depth[i] >= r:
-            residual, j_c, j_r = dx - r, -1.0, -1.0
-        elif xp[i] >= c:
-            distance = max(np.hypot(dx, dz), 1e-9)
-            residual, j_c, j_r = distance - r, -dx / distance, -dz / distance - 1.0
-        else:
+    """Per side: whether its top continues past the edge placed (≥ 3 points at top height
+    more than 0.15 mm beyond X): the top's end was cut short by a hole."""
+    out = np.zeros(starts.shape[0] - 1, np.bool_)
+    for g in range(starts.shape[0] - 1):
+        if not np.isfinite(edge_x[g]):
             continue
-        if not np.isfinite(residual):
-            continue
-        sums[0, k] += 1.0
-        sums[1, k] += residual * residual
-        sums[2, k] += j_c * j_c
-        sums[3, k] += j_c * residual
-        sums[4, k] += j_c * j_r
-        sums[5, k] += j_r * j_r
-        sums[6, k] += j_r * residual
-    return sums
+        beyond = 0
+        for i in range(starts[g], starts[g + 1]):
+            if abs(d[i]) < 3.0 * sigma[g] and u[i] > edge_x[g] + 0.15:
+                beyond += 1
+        out[g] = beyond >= 3
+    return out
+
+
+def _sections(
+    seam: SeamLine,
+    config: SectionConfig,
+    first: float,
+    count: int,
+    spacing_mm: float,
+    tops: _Tops,
+    found: np.ndarray,
+    noise: float,
+    edge_parts: tuple,
+) -> SeamProfile:
+    """Gap, step, uncertainty and self-checks of every section, from its tops and edges."""
+    edge_x, edge_depth, edge_sigma, models, residual, shapes, flags = edge_parts
+    alpha, beta = tops.plane[:, 0], tops.plane[:, 1]
+    norm = np.sqrt(1 + beta**2)
+    side = np.arange(2 * count) % 2
+
+    def point(depth: np.ndarray) -> np.ndarray:
+        """(groups, 2) section (x, w) of each side's edge point ``depth`` below its top."""
+        xm = (edge_x + beta * depth) / norm
+        return np.stack(
+            [
+                np.where(side == 0, tops.end_x + xm, tops.end_x - xm),
+                alpha + beta * xm - depth * norm,
+            ],
+            1,
+        )
+
+    sharp, deep = point(np.zeros_like(edge_x)), point(edge_depth)
+    na, nb, ba, bb = norm[0::2], norm[1::2], beta[0::2], beta[1::2]
+    tau = np.stack([1 / na + 1 / nb, ba / na - bb / nb], 1)
+    tau /= np.linalg.norm(tau, axis=1, keepdims=True)
+    if config.gap_mode == "walls":
+        gap = np.sum((sharp[1::2] - sharp[0::2]) * tau, axis=1)
+    elif config.gap_mode == "surface":
+        gap = np.sum((deep[1::2] - deep[0::2]) * np.stack([1 / na, ba / na], 1), axis=1)
+    elif config.gap_mode == "distance":
+        gap = np.linalg.norm(deep[1::2] - deep[0::2], axis=1)
+    else:
+        gap = np.linalg.norm(sharp[1::2] - sharp[0::2], axis=1)
+    end_a, end_b = tops.end_x[0::2], tops.end_x[1::2]
+    mid = (sharp[0::2, 0] + sharp[1::2, 0]) / 2
+    mid = np.where(np.isfinite(mid), mid, (end_a + end_b) / 2)
+    wa = alpha[0::2] + ba * (mid - end_a)
+    wb = alpha[1::2] + bb * (end_b - mid)
+    step = np.where(found, (wb - wa) * tau[:, 0], np.nan)
+    gap_sigma = np.hypot(edge_sigma[0::2], edge_sigma[1::2])
+    reasons = _unmeasured(
+        gap,
+        step,
+        found,
+        tops,
+        edge_x,
+        edge_sigma,
+        models,
+        residual,
+        flags,
+        noise,
+        spacing_mm,
+        config,
+    )
+    gap = np.where([r is None for r in reasons], gap, np.nan)
+    positions = first + np.arange(count) * config.pitch_mm
+    across = np.where(np.isfinite(mid), mid, 0.0)
+    at_uv = seam.point_uv(positions) + np.multiply.outer(across, seam.across_uv)
+    at = np.column_stack([at_uv, (wa + wb) / 2])
+    tau = np.where(np.isfinite(tau), tau, [[1.0, 0.0]])
+    normal_2d = np.stack([-tau[:, 1], tau[:, 0]], 1)
+    normal = np.column_stack([np.multiply.outer(normal_2d[:, 0], seam.across_uv), normal_2d[:, 1]])
+    return SeamProfile(
+        seam,
+        positions,
+        gap,
+        step,
+        gap_sigma,
+        at,
+        normal,
+        models.reshape(count, 2),
+        residual.reshape(count, 2),
+        tuple(reasons),
+        shapes,
+        noise,
+    )
+
+
+def _unmeasured(
+    gap: np.ndarray,
+    step: np.ndarray,
+    found: np.ndarray,
+    tops: _Tops,
+    edge_x: np.ndarray,
+    edge_sigma: np.ndarray,
+    models: np.ndarray,
+    residual: np.ndarray,
+    flags: np.ndarray,
+    noise: float,
+    spacing_mm: float,
+    config: SectionConfig,
+) -> list[str | None]:
+    """Why each section's gap cannot be trusted (None: it can)."""
+    reasons: list[str | None] = []
+    extent_based = (models == edges.SQUARE) | (models == edges.CHAMFER) | (models == edges.FREE)
+    extent_based &= ~flags[:, 1]
+    shadow_mm = np.abs(step) * np.tan(np.radians(config.max_view_deg))
+    for i in range(len(gap)):
+        reason = None
+        for s, name in ((0, "a"), (1, "b")):
+            g = 2 * i + s
+            if reason is not None:
+                break
+            if not np.isfinite(tops.plane[g, 0]):
+                reason = (
+                    f"too few points on panel {name}'s top {config.edge_band_mm:g}–"
+                    f"{config.edge_band_mm + config.top_band_mm:g} mm from its edge"
+                )
+            elif not np.isfinite(edge_x[g]):
+                reason = f"too few points at panel {name}'s edge to place it"
+            elif flags[g, 0]:
+                reason = (
+                    f"panel {name}'s top continues past a hole at its edge (dark or shiny surface?)"
+                )
+            elif models[g] == edges.FREE and not edge_sigma[g] <= config.max_edge_sigma_mm:
+                reason = (
+                    f"panel {name}'s edge fits no model: residual {residual[g]:.3f} mm > "
+                    f"{config.fit_gate:g}σ ({config.fit_gate * noise:.3f} mm)"
+                )
+        if not found[i]:
+            reason = "no gap seen between the panels"
+        elif reason is None and gap[i] < 0:
+            reason = f"the edges cross (gap {gap[i]:.3f} mm) and no overlap of the panels is seen"
+        elif reason is None and gap[i] < 2 * spacing_mm and extent_based[2 * i : 2 * i + 2].any():
+            reason = (
+                f"gap {gap[i]:.3f} mm is under two point spacings ({2 * spacing_mm:.2f} mm) "
+                "at a corner: not resolved"
+            )
+        elif reason is None and abs(step[i]) > 3 * noise and not flags[2 * i : 2 * i + 2, 1].any():
+            lower = 0 if step[i] > 0 else 1
+            if extent_based[2 * i + lower] and gap[i] < shadow_mm[i] + spacing_mm:
+                names = ("a", "b")
+                reason = (
+                    f"panel {names[lower]}'s edge may lie in panel {names[1 - lower]}'s shadow "
+                    f"(step {abs(step[i]):.2f} mm: a view {config.max_view_deg:g}° off the "
+                    f"normal hides {shadow_mm[i]:.2f} mm beyond its edge)"
+                )
+        reasons.append(reason)
+    return reasons
 
 
 @njit(cache=True, nogil=True)
@@ -303,17 +562,22 @@ def _top_sums(
     y: np.ndarray,
     low: float,
     high: float,
+    min_abs: float,
+    plane: np.ndarray,
+    clip: np.ndarray,
     groups: int,
 ) -> np.ndarray:
     """Per group, the normal equations of the plane w = α + β·xm + γ·y through the points
-    with ``low`` ≤ xm ≤ ``high``: (9, groups) rows Σ1, Σxm, Σy, Σxm², Σxm·y, Σy², Σw,
-    Σxm·w, Σy·w."""
-    sums = np.zeros((9, groups))
+    with ``low`` ≤ xm ≤ ``high``, |xm| ≥ ``min_abs``, within ``clip`` of ``plane``:
+    (10, groups) rows Σ1, Σxm, Σy, Σxm², Σxm·y, Σy², Σw, Σxm·w, Σy·w, Σw²."""
+    sums = np.zeros((10, groups))
     for i in range(group.shape[0]):
         x = xm[i]
-        if not low <= x <= high:
+        if not low <= x <= high or abs(x) < min_abs:
             continue
         k, b, h = group[i], y[i], w[i]
+        if k < 0 or abs(h - plane[k, 0] - plane[k, 1] * x - plane[k, 2] * b) >= clip[k]:
+            continue
         sums[0, k] += 1.0
         sums[1, k] += x
         sums[2, k] += b
@@ -323,18 +587,64 @@ def _top_sums(
         sums[6, k] += h
         sums[7, k] += x * h
         sums[8, k] += b * h
+        sums[9, k] += h * h
     return sums
 
 
 @njit(cache=True, nogil=True)
+def _median_heights(
+    group: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    low: float,
+    high: float,
+    min_abs: float,
+    groups: int,
+) -> np.ndarray:
+    """Per group, the median w of the points with low ≤ x ≤ high and |x| ≥ ``min_abs``
+    (0 where none)."""
+    counts = np.zeros(groups + 1, np.int64)
+    for i in range(group.shape[0]):
+        if group[i] >= 0 and low <= x[i] <= high and abs(x[i]) >= min_abs:
+            counts[group[i] + 1] += 1
+    starts = np.cumsum(counts)
+    values = np.empty(starts[-1])
+    fill = starts[:-1].copy()
+    for i in range(group.shape[0]):
+        if group[i] >= 0 and low <= x[i] <= high and abs(x[i]) >= min_abs:
+            values[fill[group[i]]] = w[i]
+            fill[group[i]] += 1
+    medians = np.zeros(groups)
+    for g in range(groups):
+        if starts[g + 1] > starts[g]:
+            medians[g] = np.median(values[starts[g] : starts[g + 1]])
+    return medians
+
+
+@njit(cache=True, nogil=True)
 def _widest_gaps(
-    k: np.ndarray, x: np.ndarray, near: np.ndarray, count: int
+    k: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    rough: np.ndarray,
+    reach: float,
+    max_depth: float,
+    count: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per section k, the widest stretch between consecutive ``near`` points along x:
-    its two ends and its width (−1 with fewer than two points)."""
+    """Per section k, the widest stretch between consecutive points along x among those
+    within ``reach`` of the centre line and less than ``max_depth`` below the lower of the
+    two provisional tops (``rough``, unmirrored planes of groups 2k, 2k + 1): its two ends
+    and its width (−1 with fewer than two points)."""
+    near = np.zeros(k.shape[0], np.bool_)
     starts = np.zeros(count + 1, np.int64)
     for i in range(k.shape[0]):
-        if near[i]:
+        if abs(x[i]) >= reach:
+            continue
+        a, b = rough[2 * k[i]], rough[2 * k[i] + 1]
+        top = min(a[0] + a[1] * x[i] + a[2] * y[i], b[0] + b[1] * x[i] + b[2] * y[i])
+        if w[i] >= top - max_depth:
+            near[i] = True
             starts[k[i] + 1] += 1
     starts = np.cumsum(starts)
     xs = np.empty(starts[-1])
@@ -352,3 +662,132 @@ def _widest_gaps(
                 width[s] = section[j + 1] - section[j]
                 end_a[s], end_b[s] = section[j], section[j + 1]
     return end_a, end_b, width
+
+
+FOLLOW_BIN_MM = 0.025
+
+
+@njit(cache=True, nogil=True)
+def _follow_tops(
+    k: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    rough: np.ndarray,
+    rough_sigma: np.ndarray,
+    middle: np.ndarray,
+    start: float,
+) -> np.ndarray:
+    """Per group (2k + side), the x where its top ends: its points within 3σ of the
+    provisional top (``rough``, unmirrored), followed from the one nearest the far band's
+    edge (|x| = ``start`` from the seam line; the farthest if the top ends before it)
+    towards the gap, up to a jump wider than ``TOP_JUMP_MM`` or the gap's middle.
+    Distances run outwards from each section's gap middle (the seam line, from the height
+    map, can lie off it where one side's edge is not seen), binned every
+    ``FOLLOW_BIN_MM`` (the end is exact: the nearest point of the last bin reached)."""
+    groups = 2 * middle.shape[0]
+    reach = start + 1.0 + np.abs(middle)  # the band's edge, from the middle
+    bins = int(np.max(reach) / FOLLOW_BIN_MM) + 1 if groups else 1
+    nearest = np.full((groups, bins), np.inf)  # per bin, the smallest distance seen
+    beyond = np.full(groups, np.inf)  # a wide edge's top ends beyond the band: its end
+    for i in range(k.shape[0]):
+        side = 1 if x[i] > middle[k[i]] else 0
+        g = 2 * k[i] + side
+        p = rough[g]
+        limit = 3.0 * max(rough_sigma[g], 0.005)
+        if not abs(w[i] - p[0] - p[1] * x[i] - p[2] * y[i]) < limit:
+            continue
+        distance = x[i] - middle[k[i]] if side else middle[k[i]] - x[i]
+        edge = start + 1.0 - middle[k[i]] if side else start + 1.0 + middle[k[i]]
+        if distance > edge:
+            beyond[g] = min(beyond[g], distance)
+            continue
+        nearest[g, int(distance / FOLLOW_BIN_MM)] = min(
+            nearest[g, int(distance / FOLLOW_BIN_MM)], distance
+        )
+    ends = np.full(groups, np.nan)
+    jump = int(TOP_JUMP_MM / FOLLOW_BIN_MM)
+    for g in range(groups):
+        row = nearest[g]
+        top = bins - 1
+        while top >= 0 and not np.isfinite(row[top]):
+            top -= 1
+        centre = middle[g // 2]
+        if top < 0:
+            if np.isfinite(beyond[g]):  # only beyond the band: a wide edge
+                ends[g] = centre - beyond[g] if g % 2 == 0 else centre + beyond[g]
+            continue
+        end, empty = row[top], 0
+        for b in range(top - 1, -1, -1):
+            if np.isfinite(row[b]):
+                end, empty = row[b], 0
+            else:
+                empty += 1
+                if empty > jump:
+                    break
+        ends[g] = centre - end if g % 2 == 0 else centre + end
+    return ends
+
+
+@njit(cache=True, nogil=True)
+def _mirror(
+    k: np.ndarray, x: np.ndarray, middle: np.ndarray, end_x: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's group (2k + side; −1 where its top end is unknown) and its xm: the
+    distance past its side's top end towards the gap (side b mirrored)."""
+    group = np.empty(k.shape[0], np.int64)
+    xm = np.empty(k.shape[0])
+    for i in range(k.shape[0]):
+        side = 1 if x[i] > middle[k[i]] else 0
+        g = 2 * k[i] + side
+        end = end_x[g]
+        if not np.isfinite(end):
+            group[i], xm[i] = -1, np.nan
+            continue
+        group[i] = g
+        xm[i] = end - x[i] if side else x[i] - end
+    return group, xm
+
+
+@njit(cache=True, nogil=True)
+def _edge_zones(
+    group: np.ndarray,
+    xm: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    plane: np.ndarray,
+    gap_end: np.ndarray,
+    max_depth: float,
+    groups: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points of each side's edge zone in its top's frame, in CSR order: (starts,
+    u along the top towards the gap, δ below it). The zone runs from
+    ``edges.ZONE_BACK_MM`` inside the top end to the gap's middle (``gap_end`` past the
+    top end), above ``max_depth``."""
+    back = edges.ZONE_BACK_MM
+    u = np.empty(group.shape[0])
+    d = np.empty(group.shape[0])
+    counts = np.zeros(groups + 1, np.int64)
+    for i in range(group.shape[0]):
+        g = group[i]
+        u[i] = np.nan
+        if g < 0 or not -back - 0.5 < xm[i] <= gap_end[g]:
+            continue
+        alpha, beta, gamma = plane[g, 0], plane[g, 1], plane[g, 2]
+        norm = np.sqrt(1.0 + beta * beta)
+        flat = w[i] - gamma * y[i]
+        ui = (xm[i] + beta * (flat - alpha)) / norm
+        di = (alpha + beta * xm[i] - flat) / norm
+        if ui > -back and di < max_depth:
+            u[i], d[i] = ui, di
+            counts[g + 1] += 1
+    starts = np.cumsum(counts)
+    zu = np.empty(starts[-1])
+    zd = np.empty(starts[-1])
+    fill = starts[:-1].copy()
+    for i in range(group.shape[0]):
+        if np.isfinite(u[i]):
+            g = group[i]
+            zu[fill[g]], zd[fill[g]] = u[i], d[i]
+            fill[g] += 1
+    return starts, zu, zd

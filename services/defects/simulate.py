@@ -11,8 +11,10 @@ normal, towards the viewer) maps to the part frame {P} as
 
 Each panel is a quadrilateral whose four edges come from its seams, so a seam's two
 edges need not be parallel (taper); its top is offset by the panel's height (steps) and
-its edges are rounded with ``edge_radius_mm`` down to a vertical side face. A backing
-structure lies ``backing_depth_mm`` below, visible through wide gaps.
+its edges fall to a vertical side face along their ``EdgeProfile``: rounded (an arc of any
+radius), chamfered (a straight face at an angle) or square, optionally with a burr (a lip
+standing above the top at the edge). A backing structure lies ``backing_depth_mm`` below,
+visible through wide gaps.
 
 Surface defects are analytic displacements along the normal (dents, bumps, scratches)
 and colour changes (patches) of the panel top; they are applied to the ray hits, so they
@@ -30,7 +32,8 @@ from services.pointcloud.color import lab_to_srgb, srgb_to_lab
 from services.pointcloud.transforms import apply, invert
 from services.stitching.scan_sim import Mesh, Scanner, SensorModel
 
-FILLET_SAMPLES = 14
+ARC_SAMPLES = 24
+"""Vertices on a rounded edge's quarter circle (chord sag ≤ 0.0012 × the radius)."""
 INTERIOR_STEP_MM = 2.0
 PANEL_LAB = (86.0, 0.5, 6.0)
 """Cabin lining off-white."""
@@ -77,13 +80,84 @@ class ColorPatch:
         return float(np.linalg.norm(self.delta_lab))
 
 
+EDGE_KINDS = ("round", "chamfer", "square")
+
+
+@dataclass(frozen=True)
+class EdgeProfile:
+    """How a panel's top falls to its vertical side face, which stands on the panel's
+    outline (so the profile never changes a gap): ``round`` — a quarter circle of radius
+    ``size_mm`` tangent to the top; ``chamfer`` — a straight face ``size_mm`` wide across,
+    sloping down at ``angle_deg``; ``square`` — the top runs to the side face. A burr is a
+    lip ``burr_mm`` high on the top at the outline, falling to the top over
+    ``burr_width_mm``."""
+
+    kind: str = "round"
+    size_mm: float = 1.0
+    angle_deg: float = 45.0
+    burr_mm: float = 0.0
+    burr_width_mm: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.kind not in EDGE_KINDS:
+            raise ValueError(f"edge kind: one of {EDGE_KINDS}, not {self.kind!r}")
+
+    @property
+    def depth_mm(self) -> float:
+        """How far below the top the profile meets the side face."""
+        if self.kind == "round":
+            return self.size_mm
+        if self.kind == "chamfer":
+            return self.size_mm * float(np.tan(np.radians(self.angle_deg)))
+        return 0.0
+
+    @property
+    def width_mm(self) -> float:
+        """How far from the outline the profile leaves the top (0 for a square edge)."""
+        return 0.0 if self.kind == "square" else self.size_mm
+
+    def height_mm(self, distance_mm: np.ndarray) -> np.ndarray:
+        """(…,) height relative to the top at ``distance_mm`` ≥ 0 inside the outline."""
+        d = np.asarray(distance_mm, dtype=np.float64)
+        inside = np.clip(self.width_mm - d, 0.0, self.width_mm)
+        if self.kind == "round":
+            r = self.size_mm
+            drop = r - np.sqrt(r * r - inside * inside)
+        else:
+            drop = inside * np.tan(np.radians(self.angle_deg)) if self.kind == "chamfer" else 0 * d
+        lip = self.burr_mm * np.clip(1 - d / self.burr_width_mm, 0.0, 1.0) if self.burr_mm else 0
+        return lip - drop
+
+    def samples_mm(self) -> np.ndarray:
+        """Distances from the outline where a mesh needs vertices to follow the profile."""
+        if self.kind == "round":
+            phi = np.linspace(np.pi / 2, 0.0, ARC_SAMPLES)
+            profile = self.size_mm * (1 - np.sin(phi))
+        else:
+            profile = np.array([0.0, self.width_mm])
+        burr = [0.0, self.burr_width_mm] if self.burr_mm else []
+        return np.unique(np.concatenate([profile, burr]))
+
+
+@dataclass(frozen=True)
+class DarkPatch:
+    """A dark or shiny spot (tape, a glossy label) the sensor sees badly: inside
+    ``radius_mm`` of ``centre_mm`` (layout), a pixel returns nothing with probability
+    ``hole_fraction`` and a spike (a glint) with probability ``spike_fraction``."""
+
+    centre_mm: tuple[float, float]
+    radius_mm: float
+    hole_fraction: float = 0.6
+    spike_fraction: float = 0.05
+
+
 @dataclass(frozen=True)
 class Panel:
     id: int
     corners_mm: np.ndarray
     """(4, 2) layout (x, s) corners, counter-clockwise from the lowest x, s."""
     height_mm: float
-    edge_radius_mm: float
+    edge: EdgeProfile
     dents: tuple[Dent, ...] = ()
     scratches: tuple[Scratch, ...] = ()
     patches: tuple[ColorPatch, ...] = ()
@@ -114,6 +188,7 @@ class Assembly:
     backing_depth_mm: float = 20.0
     texture_delta_e: float = 0.6
     """1σ per-point colour noise of the lining's texture."""
+    dark_patches: tuple[DarkPatch, ...] = ()
 
 
 # --- layout ------------------------------------------------------------------------------
@@ -136,6 +211,14 @@ class AssemblySpec:
     step_mm: tuple[float, float] = (-3.0, 3.0)
     taper_mm: tuple[float, float] = (0.0, 1.0)
     edge_radius_mm: tuple[float, float] = (0.5, 2.0)
+    edge_kinds: tuple[str, ...] = ("round",)
+    """Each panel's edge is one of these kinds, drawn uniformly."""
+    chamfer_mm: tuple[float, float] = (0.3, 1.0)
+    chamfer_angle_deg: float = 45.0
+    burr_mm: tuple[float, float] = (0.0, 0.0)
+    """Height of the burr on square edges (cut edges)."""
+    dark_patches: int = 0
+    """Dark or shiny patches (holes and glints), each centred on a random seam."""
     dents: int = 1
     bumps: int = 1
     scratches: int = 1
@@ -210,16 +293,42 @@ def random_assembly(spec: AssemblySpec, rng: np.random.Generator) -> Assembly:
                 _intersect(*top, *left),
             ]
         )
-        radius = float(rng.uniform(*spec.edge_radius_mm))
-        defects = _random_defects(spec, corners, margin_mm=radius + 8.0, rng=rng)
-        panels.append(Panel(index[i, j], corners, float(heights[i, j]), radius, *defects))
+        edge = _random_edge(spec, rng)
+        defects = _random_defects(spec, corners, margin_mm=edge.width_mm + 8.0, rng=rng)
+        panels.append(Panel(index[i, j], corners, float(heights[i, j]), edge, *defects))
     junctions = []
     for i in range(1, spec.rows):
         for j in range(1, spec.cols):
             point = (float(xs[j]), float(ss[i]))
             meeting = tuple(s.id for s in seams if point in (s.start_mm, s.end_mm))
             junctions.append((point, meeting))
-    return Assembly(tuple(panels), tuple(seams), tuple(junctions), radius_mm=spec.radius_mm)
+    dark = []
+    for _ in range(spec.dark_patches):
+        seam = seams[int(rng.integers(len(seams)))]
+        start, end = np.array(seam.start_mm), np.array(seam.end_mm)
+        centre = start + rng.uniform(0.25, 0.75) * (end - start)
+        dark.append(DarkPatch(tuple(float(c) for c in centre), float(rng.uniform(5.0, 12.0))))
+    return Assembly(
+        tuple(panels),
+        tuple(seams),
+        tuple(junctions),
+        radius_mm=spec.radius_mm,
+        dark_patches=tuple(dark),
+    )
+
+
+def _random_edge(spec: AssemblySpec, rng: np.random.Generator) -> EdgeProfile:
+    """One panel's edge profile (the same draws as ever for the default round edges)."""
+    kinds = spec.edge_kinds
+    kind = kinds[int(rng.integers(len(kinds)))] if len(kinds) > 1 else kinds[0]
+    size = {
+        "round": lambda: rng.uniform(*spec.edge_radius_mm),
+        "chamfer": lambda: rng.uniform(*spec.chamfer_mm),
+        "square": lambda: 0.0,
+    }[kind]()
+    burr = float(rng.uniform(*spec.burr_mm)) if spec.burr_mm[1] > 0 else 0.0
+    # A burr is what cutting leaves on a square edge; a chamfer or a radius takes it off.
+    return EdgeProfile(kind, float(size), spec.chamfer_angle_deg, burr if kind == "square" else 0.0)
 
 
 def _random_defects(
@@ -332,19 +441,11 @@ def edge_distance_mm(panel: Panel, xs: np.ndarray) -> np.ndarray:
     return np.min(distances, axis=0)
 
 
-def edge_drop_mm(panel: Panel, distance_mm: np.ndarray) -> np.ndarray:
-    """How far the rounded edge falls below the panel top at ``distance_mm`` from the edge."""
-    r = panel.edge_radius_mm
-    inside = np.clip(r - distance_mm, 0.0, r)
-    return r - np.sqrt(r * r - inside * inside)
-
-
-def _fillet_fractions(span_mm: float, radius_mm: float) -> np.ndarray:
-    """Sample positions (fractions of ``span_mm``) dense on the rounded edges at both ends."""
-    phi = np.linspace(np.pi / 2, 0.0, FILLET_SAMPLES)
-    fillet = radius_mm * (1 - np.sin(phi))
-    inner = np.arange(radius_mm + INTERIOR_STEP_MM, span_mm / 2, INTERIOR_STEP_MM)
-    half = np.concatenate([fillet, inner]) / span_mm
+def _edge_fractions(span_mm: float, edge: EdgeProfile) -> np.ndarray:
+    """Sample positions (fractions of ``span_mm``) along the edge profile at both ends."""
+    profile = edge.samples_mm()
+    inner = np.arange(profile.max() + INTERIOR_STEP_MM, span_mm / 2, INTERIOR_STEP_MM)
+    half = np.concatenate([profile, inner]) / span_mm
     return np.unique(np.concatenate([half, 1 - half, [0.5]]))
 
 
@@ -356,12 +457,12 @@ def _grid_faces(rows: int, cols: int, offset: int) -> np.ndarray:
 
 
 def panel_mesh(assembly: Assembly, panel: Panel) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (V, 3) part frame, faces (F, 3)) of the panel top, rounded edges and a
+    """(vertices (V, 3) part frame, faces (F, 3)) of the panel top, its edge profile and a
     vertical side face down to the panel's thickness (the defects are not in the mesh)."""
     corners = panel.corners_mm
     span = np.linalg.norm(corners[1] - corners[0]), np.linalg.norm(corners[3] - corners[0])
-    p = _fillet_fractions(span[0], panel.edge_radius_mm)
-    q = _fillet_fractions(span[1], panel.edge_radius_mm)
+    p = _edge_fractions(span[0], panel.edge)
+    q = _edge_fractions(span[1], panel.edge)
     p, q = np.concatenate([[0.0], p, [1.0]]), np.concatenate([[0.0], q, [1.0]])
     pp, qq = np.meshgrid(p, q, indexing="ij")
     layout = (
@@ -370,7 +471,7 @@ def panel_mesh(assembly: Assembly, panel: Panel) -> tuple[np.ndarray, np.ndarray
         + pp[..., None] * qq[..., None] * corners[2]
         + (1 - pp)[..., None] * qq[..., None] * corners[3]
     )
-    h = panel.height_mm - edge_drop_mm(panel, np.maximum(edge_distance_mm(panel, layout), 0.0))
+    h = panel.height_mm + panel.edge.height_mm(np.maximum(edge_distance_mm(panel, layout), 0.0))
     skirt = np.zeros(pp.shape, dtype=bool)
     skirt[[0, -1], :] = True
     skirt[:, [0, -1]] = True
@@ -470,8 +571,27 @@ class AssemblyScanner:
             distance[on] -= displacement_mm(panel, layout) / hits.incidence_cos[on]
             lab[on] = lab_at(panel, layout)
         lab += rng.normal(0.0, self.assembly.texture_delta_e / np.sqrt(3), lab.shape)
+        if self.assembly.dark_patches:
+            distance = self._dark_patches(distance, points_base, rng)
         grid = self.scanner.measure(distance, rng)
         return grid, lab_to_srgb(lab).reshape(grid.shape)
+
+    def _dark_patches(
+        self, distance: np.ndarray, points_base: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Holes and glints where the rays meet the dark patches."""
+        hit = np.flatnonzero(np.isfinite(distance))
+        layout, _ = part_to_layout(self.assembly, apply(self.part_T_base, points_base[hit]))
+        out = distance.copy()
+        for patch in self.assembly.dark_patches:
+            inside = hit[np.linalg.norm(layout - patch.centre_mm, axis=1) < patch.radius_mm]
+            draw = rng.random(len(inside))
+            out[inside[draw < patch.hole_fraction]] = np.nan
+            glint = inside[
+                (draw >= patch.hole_fraction) & (draw < patch.hole_fraction + patch.spike_fraction)
+            ]
+            out[glint] += rng.uniform(0.5, 5.0, len(glint)) * rng.choice([-1.0, 1.0], len(glint))
+        return out
 
 
 @dataclass(frozen=True)
@@ -490,15 +610,34 @@ def scan_assembly(
     sensor: SensorModel,
     *,
     overlap: float = 0.3,
+    tilt_deg: float = 0.0,
     rng: np.random.Generator,
 ) -> AssemblyScans:
-    """Snapshots over the assembly along the stitching workplan (true poses)."""
+    """Snapshots over the assembly along the stitching workplan (true poses), each view
+    tilted by ``tilt_deg`` about the base x axis through the point it looks at (seams
+    running along x are then seen from the side: one side face in view, the other and
+    part of the floor in shadow)."""
     from services.stitching.scan_sim import workplan
 
     scanner = AssemblyScanner(assembly, base_T_part, sensor)
     base_T_sensor = workplan(scanner.scanner.mesh, base_T_part, sensor, overlap=overlap)
+    if tilt_deg:
+        base_T_sensor = np.stack([_tilted(p, tilt_deg, sensor.standoff_mm) for p in base_T_sensor])
     grids, colors = zip(*(scanner.scan(pose, rng) for pose in base_T_sensor), strict=True)
     return AssemblyScans(list(grids), list(colors), base_T_sensor)
+
+
+def _tilted(base_T_sensor: np.ndarray, tilt_deg: float, standoff_mm: float) -> np.ndarray:
+    """The view turned by ``tilt_deg`` about the base x axis through its aim point."""
+    aim = base_T_sensor[:3, 3] + standoff_mm * base_T_sensor[:3, 2]
+    angle = np.radians(tilt_deg)
+    turn = np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(angle), -np.sin(angle)], [0.0, np.sin(angle), np.cos(angle)]]
+    )
+    tilted = base_T_sensor.copy()
+    tilted[:3, :3] = turn @ base_T_sensor[:3, :3]
+    tilted[:3, 3] = aim + turn @ (base_T_sensor[:3, 3] - aim)
+    return tilted
 
 
 # --- ground truth ------------------------------------------------------------------------
@@ -607,7 +746,12 @@ def truth_document(assembly: Assembly, base_T_part: np.ndarray) -> dict:
             "id": p.id,
             "corners": to_base(p.corners_mm, np.full(4, p.height_mm)),
             "height_mm": p.height_mm,
-            "edge_radius_mm": p.edge_radius_mm,
+            "edge": {
+                "kind": p.edge.kind,
+                "size_mm": p.edge.size_mm,
+                "angle_deg": p.edge.angle_deg if p.edge.kind == "chamfer" else None,
+                "burr_mm": p.edge.burr_mm,
+            },
             "area_mm2": float(_polygon_area(p.corners_mm)),
         }
         for p in assembly.panels

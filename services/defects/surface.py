@@ -327,7 +327,7 @@ def _relief(
 
 
 def _join_collinear(
-    scratches: list[SurfaceFinding], gap_mm: float = 6.0, offset_mm: float = 1.0
+    scratches: list[SurfaceFinding], gap_mm: float = 10.0, offset_mm: float = 1.0
 ) -> list[SurfaceFinding]:
     """Pieces of one scratch (a narrow groove breaks up where the sampling misses it) into
     one: pieces in line (≤ 10°, ≤ ``offset_mm`` apart across) with ≤ ``gap_mm`` between."""

@@ -16,19 +16,42 @@ KEY_BITS = 21
 """Voxel index bits per axis: 2²¹ voxels of 0.1 mm span 210 m, far beyond any cell."""
 
 
-def loop_probability(pdist: np.ndarray, expected: np.ndarray, lam: float) -> np.ndarray:
+def loop_probability(
+    pdist: np.ndarray, expected: np.ndarray, lam: float, *, scale: np.ndarray | None = None
+) -> np.ndarray:
     """LoOP from each point's probabilistic distance and its context's mean one:
-    ``PLOF = pdist / expected − 1``; ``LoOP = max(0, erf(PLOF / (λ·sqrt(mean PLOF²)·√2)))``.
+    ``PLOF = pdist / expected − 1``; ``LoOP = max(0, erf(PLOF / (λ·sqrt(mean PLOF²)·√2)))``,
+    the mean over ``scale`` (PLOFs from which to take it) if given, else over these.
     NaN in, NaN out (the normalisation uses the finite values only)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         plof = pdist / expected - 1.0
-    finite = np.isfinite(plof)
-    nplof = lam * np.sqrt(np.mean(plof[finite] ** 2)) if finite.any() else 0.0
+    reference = plof if scale is None else scale
+    finite = np.isfinite(reference)
+    nplof = lam * np.sqrt(np.mean(reference[finite] ** 2)) if finite.any() else 0.0
     probability = np.full(plof.shape, np.nan, dtype=np.float32)
-    probability[finite] = (
-        np.maximum(0.0, erf(plof[finite] / (nplof * np.sqrt(2)))) if nplof > 0 else 0.0
+    known = np.isfinite(plof)
+    probability[known] = (
+        np.maximum(0.0, erf(plof[known] / (nplof * np.sqrt(2)))) if nplof > 0 else 0.0
     )
     return probability
+
+
+JUMP_SPACINGS = 3.0
+"""A grid neighbour farther than this many typical neighbour distances lies across a depth
+jump (an edge over a gap, a step): it is not part of the pixel's own context."""
+
+
+def _grid_plof(
+    squared: np.ndarray, present: np.ndarray, offsets: list, lam: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pdist, mean pdist of the context, support) over the ``present`` neighbours."""
+    support = present.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pdist = lam * np.sqrt(np.where(present, squared, 0.0).sum(axis=0) / support)
+        neighbour_pdist = np.stack([shifted(pdist[..., None], r, c)[..., 0] for r, c in offsets])
+        usable = present & np.isfinite(neighbour_pdist)
+        expected = np.where(usable, neighbour_pdist, 0.0).sum(axis=0) / usable.sum(axis=0)
+    return pdist, expected, support
 
 
 def loop_grid(grid: np.ndarray, *, radius_px: int = 1, lam: float = 3.0) -> np.ndarray:
@@ -38,20 +61,32 @@ def loop_grid(grid: np.ndarray, *, radius_px: int = 1, lam: float = 3.0) -> np.n
     ``pdist = λ·sqrt(mean d²)``; ``PLOF = pdist / mean(neighbours' pdist) − 1``;
     ``LoOP = max(0, erf(PLOF / (λ·sqrt(mean PLOF²)·√2)))``.
 
+    A pixel's own PLOF leaves out the neighbours across a depth jump (farther than
+    ``JUMP_SPACINGS`` × the scan's median distance to a nearest neighbour), as a 3-D
+    nearest-neighbour context would: with them, the last pixel of a panel's top before a
+    gap was judged by the floor far below, looked like an outlier and was removed, which
+    moved the edge by a point spacing. The normalisation (mean PLOF²) is still taken over
+    the whole windows, so how sure LoOP is elsewhere — a scratch's groove is not an
+    outlier — is unchanged.
+
     grid : (rows, columns, 3) float32, mm, NaN = not measured.
     Returns (rows, columns) float32 in [0, 1]; NaN where unmeasured; 1 where a pixel has
-    fewer than two measured neighbours (nothing supports it).
+    fewer than two measured neighbours on its side of any jump (nothing supports it).
     """
     offsets = window_offsets(radius_px)
     squared = np.stack([np.sum((shifted(grid, r, c) - grid) ** 2, axis=-1) for r, c in offsets])
-    present = np.isfinite(squared)
-    support = present.sum(axis=0)
+    measured_pairs = np.isfinite(squared)
     with np.errstate(invalid="ignore", divide="ignore"):
-        pdist = lam * np.sqrt(np.where(present, squared, 0.0).sum(axis=0) / support)
-        neighbour_pdist = np.stack([shifted(pdist[..., None], r, c)[..., 0] for r, c in offsets])
-        usable = present & np.isfinite(neighbour_pdist)
-        expected = np.where(usable, neighbour_pdist, 0.0).sum(axis=0) / usable.sum(axis=0)
-    probability = loop_probability(pdist, expected, lam)
+        nearest = np.min(np.where(measured_pairs, squared, np.inf), axis=0)
+        finite = np.isfinite(nearest)
+        typical = np.median(nearest[finite]) if finite.any() else 0.0
+        whole = _grid_plof(squared, measured_pairs, offsets, lam)
+        scale = whole[0] / whole[1] - 1.0
+    present = (
+        measured_pairs & (squared <= JUMP_SPACINGS**2 * typical) if typical > 0 else measured_pairs
+    )
+    pdist, expected, support = _grid_plof(squared, present, offsets, lam)
+    probability = loop_probability(pdist, expected, lam, scale=scale)
     measured = np.isfinite(grid).all(axis=-1)
     probability[measured & (support < 2)] = 1.0
     return probability

@@ -46,6 +46,14 @@ class SensorModel:
     outlier_mm: tuple[float, float] = (0.5, 5.0)
     """Stray returns (multipath, specular glints): that share of pixels off along the ray by
     a random distance in this range, either way."""
+    mixed_pixel_fraction: float = 0.0
+    """Share of the pixels at a depth jump (a neighbour's return more than ``jump_mm``
+    nearer or farther: an edge over a gap) that return a mix of the two surfaces — a point
+    anywhere between them along the ray (the footprint straddles the edge)."""
+    edge_spike_fraction: float = 0.0
+    """Share of the pixels at a depth jump that return a spike (off along the ray by a
+    distance in ``outlier_mm``, either way)."""
+    jump_mm: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -218,6 +226,8 @@ class Scanner:
         sensor = self.sensor
         distance = distance_mm + rng.normal(0.0, sensor.noise_mm, distance_mm.shape)
         stray = rng.random(distance.shape) < sensor.outlier_fraction
+        if sensor.mixed_pixel_fraction or sensor.edge_spike_fraction:
+            distance = _edge_artefacts(distance, distance_mm.reshape(sensor.grid), sensor, rng)
         distance[stray] += rng.uniform(*sensor.outlier_mm, stray.sum()) * rng.choice(
             [-1.0, 1.0], stray.sum()
         )
@@ -234,6 +244,32 @@ class Scanner:
 
         query = o3d.core.Tensor(np.ascontiguousarray(points_base, dtype=np.float32))
         return self.scene.compute_distance(query).numpy()
+
+
+def _edge_artefacts(
+    distance: np.ndarray, true_grid: np.ndarray, sensor: SensorModel, rng: np.random.Generator
+) -> np.ndarray:
+    """Mixed pixels and spikes where the true depth jumps between neighbouring pixels."""
+    farther = np.full(true_grid.shape, np.nan)  # the other surface of the jump, if any
+    for axis in (0, 1):
+        for shift in (1, -1):
+            neighbour = np.roll(true_grid, shift, axis)
+            edge = [slice(None), slice(None)]
+            edge[axis] = 0 if shift == 1 else -1
+            neighbour[tuple(edge)] = np.nan
+            jump = np.abs(neighbour - true_grid) > sensor.jump_mm
+            farther = np.where(jump & ~np.isfinite(farther), neighbour, farther)
+    at_jump = np.isfinite(farther).ravel() & np.isfinite(distance)
+    draw = rng.random(distance.shape)
+    mixed = at_jump & (draw < sensor.mixed_pixel_fraction)
+    spike = at_jump & ~mixed & (draw < sensor.mixed_pixel_fraction + sensor.edge_spike_fraction)
+    out = distance.copy()
+    other = farther.ravel()
+    out[mixed] += rng.uniform(0.0, 1.0, mixed.sum()) * (other[mixed] - distance[mixed])
+    out[spike] += rng.uniform(*sensor.outlier_mm, spike.sum()) * rng.choice(
+        [-1.0, 1.0], spike.sum()
+    )
+    return out
 
 
 def simulate_scans(

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from services.pointcloud.grid import smooth_grid_normals
+from services.pointcloud.grid import smooth_grid_normals, surrounded
 from services.pointcloud.ply import PointCloud
 from services.pointcloud.transforms import apply
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
@@ -60,6 +60,10 @@ class CleanScan:
     colors: np.ndarray | None
     measured: int
     outliers: int
+    surrounded: np.ndarray | None = None
+    """(N,) bool: points with a full neighbourhood on their own surface, the ones ICP
+    aligns (edges and borders are kept in the cloud but their one-sided normals are
+    less sure); None: all."""
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,7 @@ def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig)
         grid = cloud.points.reshape(*cloud.grid_shape, 3)
         probability = loop_grid(grid, radius_px=config.loop_radius_px).ravel()
         normals = smooth_grid_normals(grid, config.normal_span_mm).reshape(-1, 3)
+        inner = surrounded(grid).ravel()
     else:
         finite = np.isfinite(cloud.points).all(axis=1)
         probability = np.full(len(cloud.points), np.nan)
@@ -86,6 +91,7 @@ def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig)
             cloud.points[finite], neighbours=config.loop_neighbours
         )
         normals = cloud.normals
+        inner = None
     measured = np.isfinite(probability)
     keep = measured & (probability <= config.loop_threshold)
     if normals is not None:
@@ -100,6 +106,7 @@ def clean_scan(cloud: PointCloud, base_T_scan: np.ndarray, config: StitchConfig)
         colors=None if cloud.colors is None else cloud.colors[keep],
         measured=int(measured.sum()),
         outliers=int((measured & (probability > config.loop_threshold)).sum()),
+        surrounded=None if inner is None else inner[keep],
     )
 
 
@@ -131,9 +138,13 @@ def stitch(
     alignments = None
     if config.icp is not None:
         started = time.perf_counter()
+        inner = [slice(None) if s.surrounded is None else s.surrounded for s in cleaned]
         alignments = refine_poses(
-            [s.points for s in cleaned],
-            [s.normals for s in cleaned],
+            [s.points[i] for s, i in zip(cleaned, inner, strict=True)],
+            [
+                None if s.normals is None else s.normals[i]
+                for s, i in zip(cleaned, inner, strict=True)
+            ],
             base_T_scan,
             flange_T_sensor,
             config.icp,

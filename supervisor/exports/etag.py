@@ -7,7 +7,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.models import Change
 
-SCENE_FORMAT = 1
+SCENE_FORMAT = 2
 """Bumped whenever the export itself changes, so caches do not serve the old layout."""
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 FLOAT, UNSIGNED_BYTE, UNSIGNED_INT = 5126, 5121, 5125
-POINTS, TRIANGLES = 0, 4
+POINTS, LINE_LOOP, TRIANGLES = 0, 2, 4
 
 GLTF_R_BASE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """Rotation of vista's Z-up base frame into glTF's Y-up frame: (x, y, z) → (x, z, −y)."""
@@ -69,7 +69,8 @@ class Material:
 
 @dataclass(frozen=True)
 class Mesh:
-    """Triangles (``indices`` (M, 3)) or points (``indices`` None), in glTF metres."""
+    """Triangles (``indices`` (M, 3)), points (``indices`` None) or, with ``loop``, a
+    closed line through the positions in order; in glTF metres."""
 
     name: str
     positions: np.ndarray
@@ -80,6 +81,7 @@ class Mesh:
     """(N, 3) float32 unit vectors, or None."""
     indices: np.ndarray | None = None
     material: int | None = None
+    loop: bool = False
 
 
 @dataclass(frozen=True)
@@ -151,7 +153,7 @@ def _primitive(buffer: _Buffer, mesh: Mesh) -> dict:
             kind="VEC4",
             normalized=True,
         )
-    primitive: dict = {"attributes": attributes, "mode": POINTS}
+    primitive: dict = {"attributes": attributes, "mode": LINE_LOOP if mesh.loop else POINTS}
     if mesh.indices is not None:
         indices = np.asarray(mesh.indices, dtype=np.uint32).reshape(-1)
         primitive["indices"] = buffer.add(

@@ -6,6 +6,9 @@ Node layout (names are stable; clients find things by them)::
     inspection-<id>
     ├── cloud                 POINTS with COLOR_0 (the newest `cloud` artifact)
     ├── panels-<artifact id>  triangles (each `mesh` artifact), if any
+    ├── outlines              the measured panels (the newest measurement's defects.json)
+    │   └── panel-<id>        a closed line around the panel's top; extras: panel id,
+    │                         centroid, normal, area (the ids seams and steps refer to)
     ├── defects
     │   └── defect-<id>       a sphere of the defect's extent; extras: id, type, value, …
     └── anchors
@@ -14,6 +17,7 @@ Node layout (names are stable; clients find things by them)::
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,6 +57,9 @@ TYPE_COLORS = {
     "color": (0.95, 0.35, 0.75, 1.0),
 }
 PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)
+OUTLINE_COLOR = (0.35, 0.85, 1.0, 1.0)
+MEASURE_REPORT = "defects.json"
+"""The measuring job's RESULT.json, whose panels the scene outlines."""
 
 
 @dataclass(frozen=True)
@@ -66,6 +73,8 @@ class SceneSource:
     cloud_path: Path | None
     cloud_artifact_id: int | None
     meshes: list[tuple[int, Path]]
+    report_path: Path | None = None
+    """The newest measurement's RESULT.json, if any."""
 
 
 def gather(session: Session, storage: Storage, *, inspection: Inspection) -> SceneSource:
@@ -99,6 +108,16 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
         )
         .order_by(Artifact.id)
     ).all()
+    report = session.scalar(
+        select(Artifact.storage_uri)
+        .where(
+            Artifact.inspection_id == inspection.id,
+            Artifact.kind == "report",
+            Artifact.name == MEASURE_REPORT,
+        )
+        .order_by(Artifact.id.desc())
+        .limit(1)
+    )
     clouds = [a for a in artifacts if a.kind == "cloud"]
     return SceneSource(
         inspection_id=inspection.id,
@@ -108,6 +127,7 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
         cloud_path=storage.path(clouds[-1].storage_uri) if clouds else None,
         cloud_artifact_id=clouds[-1].id if clouds else None,
         meshes=[(a.id, storage.path(a.storage_uri)) for a in artifacts if a.kind == "mesh"],
+        report_path=storage.path(report) if report else None,
     )
 
 
@@ -140,6 +160,49 @@ def _defect_extras(defect: dict, consensus: dict | None) -> dict:
             else None
         ),
     }
+
+
+def _add_outlines(
+    report_path: Path | None,
+    meshes: list[Mesh],
+    materials: list[Material],
+    nodes: list[Node],
+    top: list[int],
+) -> None:
+    """A ``panel-<id>`` line loop per measured panel, under an ``outlines`` node."""
+    if report_path is None:
+        return
+    panels = [
+        p for p in json.loads(report_path.read_text()).get("panels", []) if len(p["outline"]) >= 3
+    ]
+    if not panels:
+        return
+    materials.append(Material("panel-outline", OUTLINE_COLOR))
+    group = Node("outlines", children=[])
+    nodes.append(group)
+    top.append(len(nodes) - 1)
+    for panel in panels:
+        meshes.append(
+            Mesh(
+                f"outline-{panel['id']}",
+                base_to_gltf(panel["outline"]),
+                material=len(materials) - 1,
+                loop=True,
+            )
+        )
+        group.children.append(len(nodes))
+        nodes.append(
+            Node(
+                f"panel-{panel['id']}",
+                mesh=len(meshes) - 1,
+                extras={
+                    "panel": panel["id"],
+                    "centroid_mm": panel["centroid"],
+                    "normal": panel["normal"],
+                    "area_mm2": panel["area_mm2"],
+                },
+            )
+        )
 
 
 def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
@@ -181,6 +244,7 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         )
         nodes.append(Node(f"panels-{artifact_id}", mesh=len(meshes) - 1))
         top.append(len(nodes) - 1)
+    _add_outlines(source.report_path, meshes, materials, nodes, top)
     sphere, sphere_faces = icosphere(MARKER_SPHERE_SUBDIVISIONS)
     marker_mesh = {}
     for defect_type in sorted({d["type"] for d in source.defects}, key=list(TYPE_COLORS).index):

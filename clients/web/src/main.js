@@ -270,6 +270,18 @@ function select(defectId, fly) {
   refreshJudgments(defectId);
 }
 
+// Which panels a finding belongs to, by the ids the scene labels (P0, P1, …): a seam's
+// step is its second panel's top over its first's.
+function placeOf(measurements) {
+  const { seam, panels, panel, junction } = measurements;
+  if (Array.isArray(panels) && panels.length === 2) {
+    return ["panels", `seam ${seam}: P${panels[0]} → P${panels[1]} (step = P${panels[1]}'s top over P${panels[0]}'s)`];
+  }
+  if (panel !== undefined && panel !== null) return ["panel", `P${panel}`];
+  if (junction !== undefined && junction !== null) return ["junction", `${junction}`];
+  return null;
+}
+
 function renderDetail() {
   const defect = state.defects.get(state.selected);
   if (!defect) return;
@@ -281,6 +293,8 @@ function renderDetail() {
     ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
     ["location", defect.location_mm.map((c) => number(c, 1)).join(", ") + " mm"],
   ];
+  const where = placeOf(defect.measurements || {});
+  if (where) facts.splice(4, 0, where);
   $("#detail-facts").replaceChildren(...facts.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
   const consensus = state.consensus.get(defect.id);
   $("#consensus").textContent = `Consensus: ${consensusText(consensus)}`;

@@ -7,6 +7,31 @@ const HIGHLIGHT = new THREE.MeshStandardMaterial({
   color: 0xffcc00, emissive: 0x664400, roughness: 0.5,
 });
 const FLIGHT_MS = 600;
+const LABEL_M = 0.024; // a panel label's width in the scene, metres
+
+// A panel's id drawn where its top's centre is: the numbers a seam's "panels a → b" and
+// its step's sign refer to.
+function panelLabel(id, centroidMm) {
+  const canvas = document.createElement("canvas");
+  canvas.width = 128;
+  canvas.height = 64;
+  const context = canvas.getContext("2d");
+  context.fillStyle = "rgba(15, 23, 34, 0.75)";
+  context.fillRect(0, 0, 128, 64);
+  context.fillStyle = "#59d9ff";
+  context.font = "bold 40px sans-serif";
+  context.textAlign = "center";
+  context.textBaseline = "middle";
+  context.fillText(`P${id}`, 64, 34);
+  const material = new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false });
+  const label = new THREE.Sprite(material);
+  const [x, y, z] = centroidMm;
+  label.position.set(x / 1000, z / 1000, -y / 1000); // base frame (mm, +Z up) → glTF (m, +Y up)
+  label.scale.set(LABEL_M, LABEL_M / 2, 1);
+  label.name = `label-panel-${id}`;
+  label.userData.panelLabel = id;
+  return label;
+}
 
 export class SceneView {
   constructor(canvas, onPick) {
@@ -63,7 +88,11 @@ export class SceneView {
     this.scene.add(this.root);
     this.markers.clear();
     let points = 0;
+    const labels = [];
     this.root.traverse((node) => {
+      if (node.userData?.panel !== undefined && node.userData.centroid_mm) {
+        labels.push(panelLabel(node.userData.panel, node.userData.centroid_mm));
+      }
       const id = node.userData?.defect_id;
       if (id !== undefined && node.isMesh) this.markers.set(id, { node, material: node.material, scale: node.scale.clone() });
       if (node.isPoints) {
@@ -72,11 +101,12 @@ export class SceneView {
         points += node.geometry.attributes.position.count;
       }
     });
+    for (const label of labels) this.root.add(label);
     if (frame) this.frameAll();
     if (this.selected !== null) this.select(this.selected, false);
     this.pendingMark = mark;
     this.invalidate();
-    return { markers: this.markers.size, points };
+    return { markers: this.markers.size, points, panels: labels.length };
   }
 
   frameAll() {

@@ -1,0 +1,466 @@
+"""Edge models: where a panel's top ends and its side face stands, in one side of a section.
+
+Each side is seen in its own frame: u along its top towards the gap (mm, 0 at the top's
+last point), δ the depth below the top (mm, down is positive). The points of its edge zone
+(from 2 mm inside the top's end to the middle of the gap) are explained by one of:
+
+    square   the top runs to the corner (X, 0); the side face u = X below it
+    chamfer  the top to (u_c, 0), a straight face down at angle α to (X, (X − u_c)·tan α),
+             then the side face
+    round    the top to (u_c, 0), a quarter circle of radius ρ (0.1–10 mm) down to
+             (u_c + ρ, ρ), then the side face u = X = u_c + ρ
+    free     no model: the edge is where the top ends (the fallback, see below)
+
+X, where the side face stands, is what the gap is measured from. A rounded edge pins X by
+its shape (the arc's tangent construction) even where the side face is not seen. A square
+corner or a chamfer's foot is a place where the visible points stop, so X comes from their
+*extent*: the last point plus the mean distance from a last sample to an edge, from the
+sampling's own gaps (right whatever the sampling phase, unlike "the last point" or "half
+the spacing"), or from the side face's points where a view sees them.
+
+The model is chosen by an information criterion (BIC with a known noise σ and a truncated
+quadratic loss — Gaussian inliers, outliers at a fixed cost): cost = Σ min(r²/σ², c²) +
+k·ln n with k the model's parameters — per section (square 1, round 1, chamfer 2) and per
+edge (the radius or the angle, shared along the seam). ``free`` is not in
+the criterion: it is the fallback where the best model's fit is poor (truncated RMS >
+``gate``·σ), and its X's uncertainty covers the unexplained points beyond the top's end.
+
+All passes are compiled (numba) over the sides' points in CSR order (``starts``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+MODELS = ("square", "chamfer", "round", "free")
+SQUARE, CHAMFER, ROUND, FREE = range(4)
+LOCAL_PARAMETERS = np.array([1.0, 2.0, 1.0, 0.0])
+"""Parameters each section fits: square X; chamfer u_c and its foot; round u_c."""
+SHARED_PARAMETERS = np.array([0.0, 1.0, 1.0, 0.0])
+"""Parameters an edge shares along its seam: the chamfer's angle, the arc's radius."""
+TRUNCATION = 3.0
+"""Residuals beyond this many σ are outliers (spikes, mixed pixels) at a fixed cost."""
+ZONE_BACK_MM = 1.5
+"""The edge zone starts this far inside the top's last point (a 10 mm arc leaves the top
+within 1.1 mm of it at σ 0.02 mm)."""
+EXTENT_BAND_MM = (1.5, 0.2)
+"""The extent rule learns the sampling from the top's points 1.5 to 0.2 mm inside its last
+point."""
+MIN_RADIUS_MM, MAX_RADIUS_MM = 0.1, 10.0
+MIN_ANGLE, MAX_ANGLE = np.radians(10.0), np.radians(80.0)
+MIN_EDGE_POINTS = (6, 2)
+"""A chamfer or an arc needs this many points below the top to be fitted: with its shape
+free, and with its shape fixed (one point on a known arc places it)."""
+RADIUS_STARTS = np.array([0.15, 0.4, 1.0, 2.5, 6.0])
+LIP_MM = 0.3
+"""Points up to this far above a chamfer near its foot are a lip (a burr), part of it."""
+
+
+@njit(cache=True, nogil=True)
+def _truncated(r: float, sigma: float) -> float:
+    z = r / sigma
+    return min(z * z, TRUNCATION * TRUNCATION)
+
+
+@njit(cache=True, nogil=True)
+def sampling(u: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, float]:
+    """(mean residual gap, largest gap) of the top's sampling along u, from the sorted u
+    of its points between −1.5 and −0.2 mm. The mean distance from the last sample to an
+    edge that falls anywhere between samples is Σg² / 2Σg over the gaps g (the renewal
+    residual): s/2 for a grid whose lines all share one phase, 1/density for lines at
+    random phases — unlike "half the mean spacing" it is right for both."""
+    far, near = EXTENT_BAND_MM
+    band = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        if abs(d[i]) < TRUNCATION * sigma and -far <= u[i] < -near:
+            band[n] = u[i]
+            n += 1
+    if n < 8:
+        return np.nan, np.nan
+    band = np.sort(band[:n])
+    gaps = band[1:] - band[:-1]
+    total = gaps.sum()
+    if total <= 0:
+        return np.nan, np.nan
+    return (gaps * gaps).sum() / (2.0 * total), gaps.max()
+
+
+@njit(cache=True, nogil=True)
+def last_point(values: np.ndarray, start: float, largest_gap: float) -> float:
+    """The last of the sorted ``values`` reached from ``start`` without a jump wider than
+    three of the sampling's largest gaps (0.05 mm at least): a stray beyond is ignored."""
+    reach = start
+    limit = max(3.0 * largest_gap, 0.05)
+    for value in np.sort(values):
+        if value < reach:
+            continue
+        if value - reach > limit:
+            break
+        reach = value
+    return reach
+
+
+@njit(cache=True, nogil=True)
+def extent(u: np.ndarray, d: np.ndarray, sigma: float, spacing: float) -> tuple[float, float]:
+    """(X, σ_X) of a top that ends where its points stop: its last point plus the
+    sampling's mean residual gap; σ_X = largest gap / √12. Points above the top (a burr)
+    count, and so do points less than 3σ + one point ``spacing`` below it: where a
+    stitch merged the corner's last top point with a side-face point seen in the same
+    voxel, their mean lies just below the top (a pixel mixed with the floor lies far
+    deeper)."""
+    residual, largest = sampling(u, d, sigma)
+    if not np.isfinite(residual):
+        return np.nan, np.nan
+    top = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        if d[i] < TRUNCATION * sigma + spacing and u[i] >= -EXTENT_BAND_MM[1]:
+            top[n] = u[i]
+            n += 1
+    last = last_point(top[:n], -EXTENT_BAND_MM[1], largest)
+    return last + residual, largest / np.sqrt(12.0)
+
+
+@njit(cache=True, nogil=True)
+def _square_residual(u: float, d: float, x: float) -> float:
+    """Distance to the boundary of the quadrant u ≤ X, δ ≥ 0 (the panel's body)."""
+    if d <= 0.0:
+        return -d if u <= x else np.hypot(u - x, d)
+    if u >= x:
+        return u - x
+    return min(d, x - u)
+
+
+@njit(cache=True, nogil=True)
+def _square(
+    u: np.ndarray, d: np.ndarray, sigma: float, spacing: float, max_depth: float
+) -> tuple[float, float, float, float, bool]:
+    """(X, σ_X, cost, mean truncated r²/σ², side face seen): X from the side face's
+    points when at least five are seen tightly, else from the top's extent."""
+    x, sigma_x = extent(u, d, sigma, spacing)
+    if not np.isfinite(x):
+        return np.nan, np.nan, np.nan, np.nan, False
+    reach = max(sigma_x * np.sqrt(12.0), spacing)
+    wall, seen = _side_face(u, d, x, TRUNCATION * sigma, max_depth, reach)
+    if seen:
+        x, sigma_x = wall
+    cost = 0.0
+    for i in range(u.shape[0]):
+        cost += _truncated(_square_residual(u[i], d[i], x), sigma)
+    return x, sigma_x, cost, cost / max(u.shape[0], 1), seen
+
+
+@njit(cache=True, nogil=True)
+def _damped_step(
+    a: float, b: float, dd: float, g1: float, g2: float, both: bool
+) -> tuple[float, float]:
+    """One Levenberg-damped Gauss–Newton step from the normal equations [[a, b], [b, dd]]
+    and the gradient (g1, g2); the first parameter alone when not ``both``."""
+    if not both:
+        return -g1 / a, 0.0
+    damp = 1e-3 * (a + dd)
+    det = (a + damp) * (dd + damp) - b * b
+    return -((dd + damp) * g1 - b * g2) / det, -((a + damp) * g2 - b * g1) / det
+
+
+@njit(cache=True, nogil=True)
+def _round_residual(u: float, d: float, centre: float, radius: float) -> tuple[float, float, float]:
+    """(r, ∂r/∂u_c, ∂r/∂ρ) to the top ray (u < u_c), the arc, or the side face (δ ≥ ρ)."""
+    if d >= radius:
+        return u - centre - radius, -1.0, -1.0
+    if u < centre:
+        return -d if d < 0 else min(d, np.hypot(u - centre - radius, d - radius)), 0.0, 0.0
+    du, dz = u - centre, d - radius
+    distance = max(np.hypot(du, dz), 1e-9)
+    return distance - radius, -du / distance, -dz / distance - 1.0
+
+
+@njit(cache=True, nogil=True)
+def _round(
+    u: np.ndarray, d: np.ndarray, sigma: float, fixed_radius: float
+) -> tuple[float, float, float, float, float, float]:
+    """(u_c, ρ, X, σ_X, cost, mean truncated r²/σ²) of the arc model; ρ fixed when
+    ``fixed_radius`` is finite. Started from several radii (the fit has local minima),
+    then ``_gauss_newton``."""
+    fit_radius = not np.isfinite(fixed_radius)
+    below = 0
+    for i in range(u.shape[0]):
+        below += d[i] > TRUNCATION * sigma
+    if below < MIN_EDGE_POINTS[0 if fit_radius else 1]:
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    best_cost, centre, radius = np.inf, 0.0, 1.0
+    starts = RADIUS_STARTS if fit_radius else np.array([fixed_radius])
+    for start in starts:
+        # Tangent where the top's points leave the top by about 3σ.
+        c0 = -np.sqrt(2.0 * start * TRUNCATION * sigma)
+        for shift in np.array([0.0, 0.5 * c0, -0.5 * c0])[: 3 if fit_radius else 1]:
+            cost = _cost(ROUND, u, d, c0 + shift, start, sigma)
+            if cost < best_cost:
+                best_cost, centre, radius = cost, c0 + shift, start
+    centre, radius, best_cost, a, b, dd = _gauss_newton(
+        ROUND, u, d, sigma, centre, radius, best_cost, fit_radius
+    )
+    # X = u_c + ρ: its variance from the normal equations (ρ's own, when fixed, is the
+    # seam's and is added by the caller).
+    if fit_radius:
+        det = a * dd - b * b
+        variance = (dd - 2 * b + a) / det if det > 0 else np.inf
+    else:
+        variance = 1.0 / a
+    sigma_x = sigma * np.sqrt(max(variance, 0.0))
+    return centre, radius, centre + radius, sigma_x, best_cost, best_cost / u.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def _chamfer_residual(
+    u: float, d: float, corner: float, angle: float
+) -> tuple[float, float, float]:
+    """(r, ∂r/∂u_c, ∂r/∂α) to the top ray (u < u_c) or the chamfer's ray from (u_c, 0)."""
+    sin, cos = np.sin(angle), np.cos(angle)
+    along = (u - corner) * cos + d * sin
+    across = (u - corner) * sin - d * cos
+    to_top = abs(d) if u <= corner else np.hypot(u - corner, d)
+    if along < 0 or to_top < abs(across):
+        return to_top, 0.0, 0.0
+    return across, -sin, (u - corner) * cos + d * sin
+
+
+@njit(cache=True, nogil=True)
+def _residual(model: int, u: float, d: float, p1: float, p2: float) -> tuple[float, float, float]:
+    """(r, ∂r/∂p1, ∂r/∂p2) of the arc (p1 = u_c, p2 = ρ) or the chamfer (u_c, α)."""
+    if model == ROUND:
+        return _round_residual(u, d, p1, p2)
+    return _chamfer_residual(u, d, p1, p2)
+
+
+@njit(cache=True, nogil=True)
+def _cost(model: int, u: np.ndarray, d: np.ndarray, p1: float, p2: float, sigma: float) -> float:
+    cost = 0.0
+    for i in range(u.shape[0]):
+        cost += _truncated(_residual(model, u[i], d[i], p1, p2)[0], sigma)
+    return cost
+
+
+@njit(cache=True, nogil=True)
+def _gauss_newton(
+    model: int,
+    u: np.ndarray,
+    d: np.ndarray,
+    sigma: float,
+    p1: float,
+    p2: float,
+    cost: float,
+    fit_second: bool,
+) -> tuple[float, float, float, float, float, float]:
+    """Damped Gauss–Newton on the inliers (|r| < 3σ) from (p1, p2) of cost ``cost``, the
+    shape p2 only if ``fit_second``; steps bounded (u_c by 0.5 mm for an arc, 0.3 for a
+    chamfer; ρ by half itself within 0.1–10 mm, α by 0.2 rad within 10–80°), stopping
+    when the cost would rise or nothing moves by 0.1 µm. Returns (p1, p2, cost, and the
+    normal equations a, b, dd at the end)."""
+    limit = TRUNCATION * sigma
+    a = b = dd = 1.0
+    for _ in range(15):
+        a, b, dd, g1, g2 = 1e-9, 0.0, 1e-9, 0.0, 0.0
+        for i in range(u.shape[0]):
+            r, j1, j2 = _residual(model, u[i], d[i], p1, p2)
+            if abs(r) < limit:
+                a += j1 * j1
+                b += j1 * j2
+                dd += j2 * j2
+                g1 += j1 * r
+                g2 += j2 * r
+        step1, step2 = _damped_step(a, b, dd, g1, g2, fit_second)
+        if model == ROUND:
+            new1 = p1 + min(max(step1, -0.5), 0.5)
+            new2 = p2 + min(max(step2, -0.5 * p2), 0.5 * p2)
+            new2 = min(max(new2, MIN_RADIUS_MM), MAX_RADIUS_MM)
+        else:
+            new1 = p1 + min(max(step1, -0.3), 0.3)
+            new2 = min(max(p2 + min(max(step2, -0.2), 0.2), MIN_ANGLE), MAX_ANGLE)
+        new_cost = _cost(model, u, d, new1, new2, sigma)
+        if new_cost > cost:
+            break
+        moved = abs(new1 - p1) + abs(new2 - p2)
+        p1, p2, cost = new1, new2, new_cost
+        if moved < 1e-4:
+            break
+    return p1, p2, cost, a, b, dd
+
+
+@njit(cache=True, nogil=True)
+def _chamfer(
+    u: np.ndarray,
+    d: np.ndarray,
+    sigma: float,
+    spacing: float,
+    fixed_angle: float,
+    max_depth: float,
+) -> tuple[float, float, float, float, float, float]:
+    """(u_c, α, X, σ_X, cost, mean truncated r²/σ²) of the chamfer model; α fixed when
+    ``fixed_angle`` is finite; X from the extent of the chamfer's points."""
+    limit = TRUNCATION * sigma
+    fit_angle = not np.isfinite(fixed_angle)
+    count = 0
+    for i in range(u.shape[0]):
+        count += limit < d[i] < max_depth
+    if count < MIN_EDGE_POINTS[0 if fit_angle else 1]:
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    best_cost, corner, angle = np.inf, 0.0, np.radians(45.0)
+    starts = (
+        np.radians(np.array([20.0, 35.0, 50.0, 65.0])) if fit_angle else np.array([fixed_angle])
+    )
+    for start in starts:
+        for c0 in np.array([0.0, -0.1, 0.1])[: 3 if fit_angle else 1]:
+            cost = _cost(CHAMFER, u, d, c0, start, sigma)
+            if cost < best_cost:
+                best_cost, corner, angle = cost, c0, start
+    corner, angle, best_cost, _, _, _ = _gauss_newton(
+        CHAMFER, u, d, sigma, corner, angle, best_cost, fit_angle
+    )
+    # The foot: the chamfer's last point (in u, sampled like the top) plus the residual
+    # gap — or the side face below it, where a view sees it.
+    residual, largest = sampling(u, d, sigma)
+    if not np.isfinite(residual):
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    on_face = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        r, _, _ = _chamfer_residual(u[i], d[i], corner, angle)
+        # On the face, above it (a lip), or just below it (merged with the side face).
+        if -(limit + spacing) < r < LIP_MM and d[i] > limit:
+            on_face[n] = u[i]
+            n += 1
+    if n < MIN_EDGE_POINTS[1]:
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+    # Face points start where the chamfer is 3σ below the top.
+    x = last_point(on_face[:n], corner + limit / np.tan(angle), largest) + residual
+    sigma_x = largest / np.sqrt(12.0)
+    foot = (x - corner) * np.tan(angle)
+    wall, seen = _side_face(u, d, x, foot + limit, max_depth, max(largest, spacing))
+    if seen:
+        x, sigma_x = wall
+    cost = 0.0
+    for i in range(u.shape[0]):
+        cost += _truncated(_chamfer_polyline(u[i], d[i], corner, angle, x), sigma)
+    return corner, angle, x, sigma_x, cost, cost / u.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def _chamfer_polyline(u: float, d: float, corner: float, angle: float, x: float) -> float:
+    """Distance to the whole chamfered edge: the top up to u_c, the face down to its foot
+    at u = X, and the side face below."""
+    foot = (x - corner) * np.tan(angle)
+    to_top = abs(d) if u <= corner else np.hypot(u - corner, d)
+    length = np.hypot(x - corner, foot)
+    t = ((u - corner) * (x - corner) + d * foot) / max(length * length, 1e-12)
+    t = min(max(t, 0.0), 1.0)
+    to_face = np.hypot(u - corner - t * (x - corner), d - t * foot)
+    to_wall = abs(u - x) if d >= foot else np.hypot(u - x, d - foot)
+    return min(to_top, to_face, to_wall)
+
+
+@njit(cache=True, nogil=True)
+def _side_face(
+    u: np.ndarray, d: np.ndarray, x: float, below: float, max_depth: float, reach: float
+) -> tuple[tuple[float, float], bool]:
+    """((X, σ_X), seen) from the points of a side face standing near u = ``x`` deeper than
+    ``below``: their median u, when at least five lie within a third of ``reach`` of it."""
+    wall = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        if below < d[i] < max_depth and abs(u[i] - x) < 1.5 * reach:
+            wall[n] = u[i]
+            n += 1
+    if n < 5:
+        return (x, np.nan), False
+    face = np.sort(wall[:n])
+    median = face[n // 2]
+    spread = 1.4826 * np.median(np.abs(face - median))
+    if spread >= reach / 3:
+        return (x, np.nan), False
+    return (median, max(1.25 * spread / np.sqrt(n), 0.002)), True
+
+
+@njit(cache=True, nogil=True)
+def _free(
+    u: np.ndarray, d: np.ndarray, sigma: float, spacing: float, max_depth: float
+) -> tuple[float, float, float]:
+    """(X, σ_X, unexplained width): the top's extent; σ_X covers the contiguous run of
+    points below the top beyond it, which no model explains."""
+    x, sigma_x = extent(u, d, sigma, spacing)
+    if not np.isfinite(x):
+        return np.nan, np.nan, np.nan
+    largest = sigma_x * np.sqrt(12.0)
+    beyond = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        if u[i] > x and TRUNCATION * sigma < d[i] < max_depth:
+            beyond[n] = u[i]
+            n += 1
+    width, reach = 0.0, x
+    for value in np.sort(beyond[:n]):
+        if value - reach > max(2.0 * largest, spacing):
+            break
+        reach = value
+    width = reach - x
+    return x, np.sqrt((largest**2 + width**2) / 12.0), width
+
+
+@njit(cache=True, nogil=True)
+def burr_height(u: np.ndarray, d: np.ndarray, sigma: float) -> float:
+    """How far points stand above the top in its last 0.5 mm (a lip at the edge): the
+    third highest, so a spike alone is not a burr; 0 with fewer than three."""
+    heights = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        if u[i] > -0.5 and d[i] < -TRUNCATION * sigma:
+            heights[n] = -d[i]
+            n += 1
+    return np.sort(heights[:n])[-3] if n >= 3 else 0.0
+
+
+FIELDS = 6
+"""Per side and model: u_c, shape (ρ or α), X, σ_X, cost, mean truncated r²/σ²."""
+
+
+@njit(cache=True, nogil=True)
+def fit_sides(
+    starts: np.ndarray,
+    u: np.ndarray,
+    d: np.ndarray,
+    sigma: np.ndarray,
+    spacing: float,
+    max_depth: float,
+    models: np.ndarray,
+    fixed_shape: np.ndarray,
+    active: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the ``models`` (bool per model) to every ``active`` side g (points
+    starts[g]:starts[g+1]), with noise ``sigma[g]``; ``fixed_shape[g]`` fixes ρ or α where
+    finite. Returns
+    ((sides, 4, FIELDS) fits, NaN where not fitted; (sides, 3) burr height, unexplained
+    width of the free model, 1 where the square model saw the side face)."""
+    sides = starts.shape[0] - 1
+    out = np.full((sides, 4, FIELDS), np.nan)
+    extra = np.zeros((sides, 3))
+    for g in range(sides):
+        lo, hi = starts[g], starts[g + 1]
+        if hi - lo < 10 or not active[g]:
+            continue
+        ug, dg, s = u[lo:hi], d[lo:hi], sigma[g]
+        if models[SQUARE]:
+            x, sx, cost, q, seen = _square(ug, dg, s, spacing, max_depth)
+            out[g, SQUARE, 2:] = x, sx, cost, q
+            extra[g, 2] = seen
+        if models[CHAMFER]:
+            out[g, CHAMFER] = _chamfer(ug, dg, s, spacing, fixed_shape[g], max_depth)
+        if models[ROUND]:
+            out[g, ROUND] = _round(ug, dg, s, fixed_shape[g])
+        if models[FREE]:
+            x, sx, width = _free(ug, dg, s, spacing, max_depth)
+            out[g, FREE, 2], out[g, FREE, 3] = x, sx
+            extra[g, 1] = width
+        extra[g, 0] = burr_height(ug, dg, s)
+    return out, extra
