@@ -52,7 +52,10 @@ MIN_ANGLE, MAX_ANGLE = np.radians(10.0), np.radians(80.0)
 MIN_EDGE_POINTS = (6, 2)
 """A chamfer or an arc needs this many points below the top to be fitted: with its shape
 free, and with its shape fixed (one point on a known arc places it)."""
-RADIUS_STARTS = np.array([0.15, 0.4, 1.0, 2.5, 6.0])
+RADIUS_STARTS = np.array([0.2, 0.6, 1.8, 5.5])
+ANGLE_STARTS = np.radians(np.array([25.0, 45.0, 65.0]))
+START_STRIDE = 2
+"""Starting points are tried on every second point: a start only needs the right basin."""
 LIP_MM = 0.3
 """Points up to this far above a chamfer near its foot are a lip (a burr), part of it."""
 
@@ -195,8 +198,8 @@ def _round(
     for start in starts:
         # Tangent where the top's points leave the top by about 3σ.
         c0 = -np.sqrt(2.0 * start * TRUNCATION * sigma)
-        for shift in np.array([0.0, 0.5 * c0, -0.5 * c0])[: 3 if fit_radius else 1]:
-            cost = _cost(ROUND, u, d, c0 + shift, start, sigma)
+        for shift in np.array([0.0, 0.5 * c0])[: 2 if fit_radius else 1]:
+            cost = _cost(ROUND, u[::START_STRIDE], d[::START_STRIDE], c0 + shift, start, sigma)
             if cost < best_cost:
                 best_cost, centre, radius = cost, c0 + shift, start
     centre, radius, best_cost, a, b, dd = _gauss_newton(
@@ -257,20 +260,26 @@ def _gauss_newton(
     """Damped Gauss–Newton on the inliers (|r| < 3σ) from (p1, p2) of cost ``cost``, the
     shape p2 only if ``fit_second``; steps bounded (u_c by 0.5 mm for an arc, 0.3 for a
     chamfer; ρ by half itself within 0.1–10 mm, α by 0.2 rad within 10–80°), stopping
-    when the cost would rise or nothing moves by 0.1 µm. Returns (p1, p2, cost, and the
-    normal equations a, b, dd at the end)."""
+    when the cost rises (the step is undone) or nothing moves by 0.1 µm. One pass over the
+    points per step: it gives the cost where the last step landed and the next step's
+    normal equations. Returns (p1, p2, cost, and the normal equations a, b, dd there)."""
     limit = TRUNCATION * sigma
+    back1, back2, back = p1, p2, (1.0, 0.0, 1.0)
     a = b = dd = 1.0
-    for _ in range(15):
-        a, b, dd, g1, g2 = 1e-9, 0.0, 1e-9, 0.0, 0.0
+    for iteration in range(16):
+        a, b, dd, g1, g2, here = 1e-9, 0.0, 1e-9, 0.0, 0.0, 0.0
         for i in range(u.shape[0]):
             r, j1, j2 = _residual(model, u[i], d[i], p1, p2)
+            here += _truncated(r, sigma)
             if abs(r) < limit:
                 a += j1 * j1
                 b += j1 * j2
                 dd += j2 * j2
                 g1 += j1 * r
                 g2 += j2 * r
+        if iteration and here > cost:  # the last step made it worse: undo it
+            return back1, back2, cost, back[0], back[1], back[2]
+        cost, back1, back2, back = here, p1, p2, (a, b, dd)
         step1, step2 = _damped_step(a, b, dd, g1, g2, fit_second)
         if model == ROUND:
             new1 = p1 + min(max(step1, -0.5), 0.5)
@@ -279,14 +288,10 @@ def _gauss_newton(
         else:
             new1 = p1 + min(max(step1, -0.3), 0.3)
             new2 = min(max(p2 + min(max(step2, -0.2), 0.2), MIN_ANGLE), MAX_ANGLE)
-        new_cost = _cost(model, u, d, new1, new2, sigma)
-        if new_cost > cost:
+        if abs(new1 - p1) + abs(new2 - p2) < 1e-4:
             break
-        moved = abs(new1 - p1) + abs(new2 - p2)
-        p1, p2, cost = new1, new2, new_cost
-        if moved < 1e-4:
-            break
-    return p1, p2, cost, a, b, dd
+        p1, p2 = new1, new2
+    return back1, back2, cost, back[0], back[1], back[2]
 
 
 @njit(cache=True, nogil=True)
@@ -297,23 +302,22 @@ def _chamfer(
     spacing: float,
     fixed_angle: float,
     max_depth: float,
-) -> tuple[float, float, float, float, float, float]:
-    """(u_c, α, X, σ_X, cost, mean truncated r²/σ²) of the chamfer model; α fixed when
-    ``fixed_angle`` is finite; X from the extent of the chamfer's points."""
+) -> tuple[float, float, float, float, float, float, bool]:
+    """(u_c, α, X, σ_X, cost, mean truncated r²/σ², side face seen) of the chamfer model;
+    α fixed when ``fixed_angle`` is finite; X from the extent of the chamfer's points or
+    the side face below its foot."""
     limit = TRUNCATION * sigma
     fit_angle = not np.isfinite(fixed_angle)
     count = 0
     for i in range(u.shape[0]):
         count += limit < d[i] < max_depth
     if count < MIN_EDGE_POINTS[0 if fit_angle else 1]:
-        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, False
     best_cost, corner, angle = np.inf, 0.0, np.radians(45.0)
-    starts = (
-        np.radians(np.array([20.0, 35.0, 50.0, 65.0])) if fit_angle else np.array([fixed_angle])
-    )
+    starts = ANGLE_STARTS if fit_angle else np.array([fixed_angle])
     for start in starts:
-        for c0 in np.array([0.0, -0.1, 0.1])[: 3 if fit_angle else 1]:
-            cost = _cost(CHAMFER, u, d, c0, start, sigma)
+        for c0 in np.array([0.0, -0.1])[: 2 if fit_angle else 1]:
+            cost = _cost(CHAMFER, u[::START_STRIDE], d[::START_STRIDE], c0, start, sigma)
             if cost < best_cost:
                 best_cost, corner, angle = cost, c0, start
     corner, angle, best_cost, _, _, _ = _gauss_newton(
@@ -323,7 +327,7 @@ def _chamfer(
     # gap — or the side face below it, where a view sees it.
     residual, largest = sampling(u, d, sigma)
     if not np.isfinite(residual):
-        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, False
     on_face = np.empty(u.shape[0])
     n = 0
     for i in range(u.shape[0]):
@@ -333,7 +337,7 @@ def _chamfer(
             on_face[n] = u[i]
             n += 1
     if n < MIN_EDGE_POINTS[1]:
-        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, False
     # Face points start where the chamfer is 3σ below the top.
     x = last_point(on_face[:n], corner + limit / np.tan(angle), largest) + residual
     sigma_x = largest / np.sqrt(12.0)
@@ -344,7 +348,7 @@ def _chamfer(
     cost = 0.0
     for i in range(u.shape[0]):
         cost += _truncated(_chamfer_polyline(u[i], d[i], corner, angle, x), sigma)
-    return corner, angle, x, sigma_x, cost, cost / u.shape[0]
+    return corner, angle, x, sigma_x, cost, cost / u.shape[0], seen
 
 
 @njit(cache=True, nogil=True)
@@ -440,11 +444,12 @@ def fit_sides(
     """Fit the ``models`` (bool per model) to every ``active`` side g (points
     starts[g]:starts[g+1]), with noise ``sigma[g]``; ``fixed_shape[g]`` fixes ρ or α where
     finite. Returns
-    ((sides, 4, FIELDS) fits, NaN where not fitted; (sides, 3) burr height, unexplained
-    width of the free model, 1 where the square model saw the side face)."""
+    ((sides, 4, FIELDS) fits, NaN where not fitted; (sides, 4) burr height, unexplained
+    width of the free model, 1 where the square model, and where the chamfer model, placed
+    X on a side face it saw)."""
     sides = starts.shape[0] - 1
     out = np.full((sides, 4, FIELDS), np.nan)
-    extra = np.zeros((sides, 3))
+    extra = np.zeros((sides, 4))
     for g in range(sides):
         lo, hi = starts[g], starts[g + 1]
         if hi - lo < 10 or not active[g]:
@@ -455,7 +460,9 @@ def fit_sides(
             out[g, SQUARE, 2:] = x, sx, cost, q
             extra[g, 2] = seen
         if models[CHAMFER]:
-            out[g, CHAMFER] = _chamfer(ug, dg, s, spacing, fixed_shape[g], max_depth)
+            c, a, x, sx, cost, q, seen = _chamfer(ug, dg, s, spacing, fixed_shape[g], max_depth)
+            out[g, CHAMFER] = c, a, x, sx, cost, q
+            extra[g, 3] = seen
         if models[ROUND]:
             out[g, ROUND] = _round(ug, dg, s, fixed_shape[g])
         if models[FREE]:

@@ -243,7 +243,6 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
         raise MeasureError(
             f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
         )
-    located, panel_id = _locate_panels(describe_panels(raster, panels), frame)
     lap("panels_s")
     report(0.3, f"{panels.count} panels: seams, sections and surface")
     # The panels' surfaces and the seams are measured independently, on as many threads
@@ -254,6 +253,7 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
         surface_parts = []
         if config.surface is not None:
             surface_parts = find_surface_defects(raster, panels, config.surface, map_fn)
+        described = map_fn(describe_panels, [raster], [panels])  # a pool task, collected below
         # A seam's band: half the widest gap, the widest edge, and the edge band.
         sections = config.sections
         max_half_band = (
@@ -269,6 +269,8 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
         lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
         profiles = _profile_seams(points, raster, lines, config, spacing, map_fn)
         surface = [finding for part in surface_parts for finding in part]
+        shapes = next(iter(described))
+    located, panel_id = _locate_panels(shapes, frame)
     seam_of_line: dict[int, SeamResult] = {}
     for i, profile in enumerate(profiles):
         if profile is not None and np.isfinite(profile.step_mm).any():

@@ -157,17 +157,18 @@ def describe_panels(
     raster: Raster, panels: Panels, *, tolerance_mm: float = 0.5
 ) -> list[PanelShape]:
     """Centroid, plane normal and outline (simplified to ``tolerance_mm``) of every panel's
-    top on the height map."""
+    top, from the height map's cells every ``tolerance_mm`` or so."""
     import cv2
 
+    step = max(1, int(tolerance_mm / raster.cell_mm))
     shapes = []
     for label, (rows, cols) in enumerate(panels.boxes, start=1):
-        mask = panels.labels[rows, cols] == label
+        mask = panels.labels[rows, cols][::step, ::step] == label
         r, c = np.nonzero(mask)
-        stride = max(1, len(r) // 20_000)
-        r, c = r[::stride], c[::stride]
-        heights = raster.height[rows, cols][r, c].astype(np.float64)
-        uv = raster.centres_uv(r + rows.start, c + cols.start)
+        thin = max(1, len(r) // 4_000)  # enough cells for a plane
+        r, c = r[::thin] * step + rows.start, c[::thin] * step + cols.start
+        heights = raster.height[r, c].astype(np.float64)
+        uv = raster.centres_uv(r, c)
         known = np.isfinite(heights)
         centre_uv = uv.mean(axis=0)
         design = np.column_stack([np.ones(known.sum()), uv[known] - centre_uv])
@@ -177,8 +178,10 @@ def describe_panels(
             mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE
         )
         outer = max(contours, key=cv2.contourArea)
-        polygon = cv2.approxPolyDP(outer, tolerance_mm / raster.cell_mm, True)[:, 0, :]
-        outline_uv = raster.centres_uv(polygon[:, 1] + rows.start, polygon[:, 0] + cols.start)
+        polygon = cv2.approxPolyDP(outer, tolerance_mm / (step * raster.cell_mm), True)[:, 0, :]
+        outline_uv = raster.centres_uv(
+            polygon[:, 1] * step + rows.start, polygon[:, 0] * step + cols.start
+        )
         outline_w = w0 + (outline_uv - centre_uv) @ np.array([du, dv])
         shapes.append(
             PanelShape(

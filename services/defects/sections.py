@@ -40,6 +40,7 @@ EDGE_MODELS = ("auto", "square", "chamfer", "round", "free", "void")
 TOP_JUMP_MM = 0.3
 """A panel's top points are followed towards the gap until a jump this wide."""
 START_WINDOW_MM = 2.0
+MEDIAN_STRIDE = 8
 """A top is first fitted to its points within this of its median height."""
 SELECTION_SECTIONS = 12
 """Sections per seam (evenly spread) on which each side's edge model is chosen."""
@@ -316,12 +317,17 @@ def _edges(
     fixed = np.where(np.arange(groups) % 2 == 0, fixed[chosen[0]], fixed[chosen[1]])
     final_wanted = np.zeros(4, bool)
     final_wanted[chosen] = True
-    final_wanted[[edges.SQUARE, edges.FREE]] = True
     fits, extra = fit(final_wanted, fixed, np.ones(groups, bool))
     side_model = np.tile(chosen, sections)
     index = np.arange(groups)
     best = fits[index, side_model]
     poor = ~np.isfinite(best[:, 2]) | ~(best[:, 5] <= config.fit_gate**2)
+    if poor.any():  # the fallback, where the side's model does not explain the edge
+        only_free = np.zeros(4, bool)
+        only_free[edges.FREE] = True
+        fallback, spare = fit(only_free, fixed, poor)
+        fits[poor, edges.FREE] = fallback[poor, edges.FREE]
+        extra[poor, 1] = spare[poor, 1]
     models = np.where(poor, edges.FREE, side_model)
     final = fits[index, models]
     edge_x = final[:, 2]
@@ -335,7 +341,8 @@ def _edges(
     )
     residual = np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma
     flags[:, 0] = _top_beyond(starts, zu, zd, sigma, edge_x)
-    flags[:, 1] = extra[:, 2] > 0
+    seen_by = np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2])
+    flags[:, 1] = (seen_by > 0) & ~poor
     shapes = tuple(
         EdgeShape(
             edges.MODELS[chosen[s]],
@@ -601,16 +608,16 @@ def _median_heights(
     min_abs: float,
     groups: int,
 ) -> np.ndarray:
-    """Per group, the median w of the points with low ≤ x ≤ high and |x| ≥ ``min_abs``
-    (0 where none)."""
+    """Per group, the median w of the points with low ≤ x ≤ high and |x| ≥ ``min_abs``,
+    of every ``MEDIAN_STRIDE``-th point (a start for the fit needs no more; 0 where none)."""
     counts = np.zeros(groups + 1, np.int64)
-    for i in range(group.shape[0]):
+    for i in range(0, group.shape[0], MEDIAN_STRIDE):
         if group[i] >= 0 and low <= x[i] <= high and abs(x[i]) >= min_abs:
             counts[group[i] + 1] += 1
     starts = np.cumsum(counts)
     values = np.empty(starts[-1])
     fill = starts[:-1].copy()
-    for i in range(group.shape[0]):
+    for i in range(0, group.shape[0], MEDIAN_STRIDE):
         if group[i] >= 0 and low <= x[i] <= high and abs(x[i]) >= min_abs:
             values[fill[group[i]]] = w[i]
             fill[group[i]] += 1
