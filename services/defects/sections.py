@@ -11,11 +11,12 @@ with x the across coordinate and w the height (the surface frame's normal):
    at top height in the gap is not taken for the panel).
 3. The top is refitted 2.5 to 8.5 mm inside the top end (ISO 5436-1's rule: fit the
    surfaces, not the edge zones; Gocator's "surface offset").
-4. The edge zone — from 2 mm inside the top end to the gap's middle — is explained by one
-   of the edge models of ``edges.py`` (square, chamfer, round, or the free fallback),
-   chosen for each side of the seam by an information criterion summed over its
-   sections; the shape (radius or angle) is then fixed at its median along the seam and
-   each section refitted. X, where each side face stands, and its uncertainty come out.
+4. The edge zone — from 1.5 mm inside the top end to the gap's middle — is explained by
+   one of the edge models of ``edges.py`` (square, chamfer, round, or the free fallback):
+   each side of the seam gets the model with the least information criterion over a
+   dozen of its sections, with the shape (radius or angle) shared along the seam (its
+   median there); every section is then fitted with it. X, where each side face stands,
+   and its uncertainty come out.
 5. Gap and step (see ``SectionConfig.gap_mode``); each section's gap uncertainty from its
    two edges.
 6. Self-checks: a section whose gap cannot be trusted is *unmeasured* and says why (no
@@ -26,6 +27,7 @@ with x the across coordinate and w the height (the surface frame's normal):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,8 +42,9 @@ EDGE_MODELS = ("auto", "square", "chamfer", "round", "free", "void")
 TOP_JUMP_MM = 0.3
 """A panel's top points are followed towards the gap until a jump this wide."""
 START_WINDOW_MM = 2.0
+"""A top is first fitted to its points within this of its median height…"""
 MEDIAN_STRIDE = 8
-"""A top is first fitted to its points within this of its median height."""
+"""…taken over every 8th point."""
 SELECTION_SECTIONS = 12
 """Sections per seam (evenly spread) on which each side's edge model is chosen."""
 
@@ -137,6 +140,23 @@ def section_range(
 
 
 @dataclass(frozen=True)
+class _Edges:
+    """Per group: where the side face stands (u, along the top from its end), the depth of
+    the edge point below the top, the 1σ of X, the model used and its truncated RMS
+    residual; whether the top continues past a hole, and whether X was placed on a side
+    face a view saw; and the two sides' shapes."""
+
+    x: np.ndarray
+    depth: np.ndarray
+    sigma: np.ndarray
+    models: np.ndarray
+    residual: np.ndarray
+    past_hole: np.ndarray
+    face_seen: np.ndarray
+    shapes: tuple[EdgeShape, EdgeShape]
+
+
+@dataclass(frozen=True)
 class _Tops:
     """Per group (2k + side, side b mirrored so its edge faces +xm): the top end in x,
     the plane α + β·xm + γ·y, and its noise."""
@@ -178,20 +198,8 @@ def profile_seam(
     )
     tops = _Tops(end_x, plane, sigma)
     noise = float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else np.nan
-    edge_x, edge_depth, edge_sigma, models, residual, shapes, flags = _edges(
-        group, xm, w, y, middle, tops, noise, spacing_mm, config, groups
-    )
-    return _sections(
-        seam,
-        config,
-        first,
-        count,
-        spacing_mm,
-        tops,
-        found,
-        noise,
-        (edge_x, edge_depth, edge_sigma, models, residual, shapes, flags),
-    )
+    fitted = _edges(group, xm, w, y, middle, tops, noise, spacing_mm, config, groups)
+    return _sections(seam, config, first, count, spacing_mm, tops, found, noise, fitted)
 
 
 def _robust_plane(
@@ -261,102 +269,108 @@ def _edges(
     spacing_mm: float,
     config: SectionConfig,
     groups: int,
-) -> tuple:
-    """Edge model per side and section: X (u of the side face), the edge point's depth,
-    σ_X, model, truncated RMS residual, the two sides' shapes and per-group flags
-    (holes at the edge, side-face points seen)."""
-    models = np.full(groups, edges.FREE)
-    residual = np.full(groups, np.nan)
-    flags = np.zeros((groups, 2), bool)
+) -> _Edges:
+    """Every side of every section: its edge model and where its side face stands."""
+    sections = groups // 2
     if config.edge_model == "void":
-        zero = np.zeros(groups)
-        return zero, zero, zero, models, residual, (EdgeShape("void"), EdgeShape("void")), flags
+        zero, no = np.zeros(groups), np.zeros(groups, bool)
+        free = np.full(groups, edges.FREE)
+        void = (EdgeShape("void"), EdgeShape("void"))
+        return _Edges(zero, zero, zero, free, np.full(groups, np.nan), no, no, void)
     gap_end = np.abs(np.repeat(middle, 2) - tops.end_x)
     starts, zu, zd = _edge_zones(
         group, xm, w, y, tops.plane, gap_end, config.max_edge_depth_mm, groups
     )
     sigma = np.full(groups, max(noise, 0.005) if np.isfinite(noise) else 0.02)
-    wanted = np.zeros(4, bool)
-    if config.edge_model == "auto":
-        wanted[:] = True
-    else:
-        wanted[edges.MODELS.index(config.edge_model)] = True
-    # Choosing the model and its shape needs a dozen sections per side, not all of them.
-    sections = groups // 2
-    stride = max(1, sections // SELECTION_SECTIONS)
-    trial_sections = (np.arange(groups) // 2) % stride == 0
 
-    def fit(models: np.ndarray, shape: np.ndarray, active: np.ndarray) -> tuple:
+    def fit(models: list[int], shape: np.ndarray, active: np.ndarray) -> tuple:
+        wanted = np.zeros(4, bool)
+        wanted[models] = True
         return edges.fit_sides(
-            starts, zu, zd, sigma, spacing_mm, config.max_edge_depth_mm, models, shape, active
+            starts, zu, zd, sigma, spacing_mm, config.max_edge_depth_mm, wanted, shape, active
         )
 
-    free, _ = fit(wanted, np.full(groups, np.nan), trial_sections)
-    # The shape (radius, angle) belongs to the edge: its median over the trial sections,
-    # with which they are fitted again and the models compared.
-    fixed = np.full((4, groups), np.nan)
-    for model in (edges.CHAMFER, edges.ROUND):
-        for s in (0, 1):
-            values = free[s::2, model, 1][trial_sections[s::2]]
-            values = values[np.isfinite(values)]
-            if len(values):
-                fixed[model, s::2] = np.median(values)
-    trial = free.copy()
-    for model in (edges.CHAMFER, edges.ROUND):
-        if wanted[model]:
-            only = np.zeros(4, bool)
-            only[model] = True
-            trial[:, model] = fit(only, fixed[model], trial_sections)[0][:, model]
-    n = np.maximum(np.diff(starts), 1)[trial_sections]
-    chosen = _choose(trial[trial_sections], n, wanted)
-    shape_sigma = [0.0, 0.0]
-    for s in (0, 1):
-        if chosen[s] == edges.ROUND:  # X = u_c + ρ: ρ's error moves X
-            radii = free[s::2, edges.ROUND, 1][trial_sections[s::2]]
-            shape_sigma[s] = _median_sigma(radii[np.isfinite(radii)])
-    fixed = np.where(np.arange(groups) % 2 == 0, fixed[chosen[0]], fixed[chosen[1]])
-    final_wanted = np.zeros(4, bool)
-    final_wanted[chosen] = True
-    fits, extra = fit(final_wanted, fixed, np.ones(groups, bool))
+    chosen, shape, shape_sigma = _choose_models(fit, np.diff(starts), config, groups)
+    fits, extra = fit(list(chosen), shape, np.ones(groups, bool))
     side_model = np.tile(chosen, sections)
     index = np.arange(groups)
     best = fits[index, side_model]
     poor = ~np.isfinite(best[:, 2]) | ~(best[:, 5] <= config.fit_gate**2)
     if poor.any():  # the fallback, where the side's model does not explain the edge
-        only_free = np.zeros(4, bool)
-        only_free[edges.FREE] = True
-        fallback, spare = fit(only_free, fixed, poor)
+        fallback, spare = fit([edges.FREE], shape, poor)
         fits[poor, edges.FREE] = fallback[poor, edges.FREE]
         extra[poor, 1] = spare[poor, 1]
     models = np.where(poor, edges.FREE, side_model)
     final = fits[index, models]
-    edge_x = final[:, 2]
-    edge_sigma = np.hypot(
-        final[:, 3], np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0)
-    )
+    x = final[:, 2]
     depth = np.where(
         models == edges.ROUND,
         final[:, 1],
-        np.where(models == edges.CHAMFER, (edge_x - final[:, 0]) * np.tan(final[:, 1]), 0.0),
+        np.where(models == edges.CHAMFER, (x - final[:, 0]) * np.tan(final[:, 1]), 0.0),
     )
-    residual = np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma
-    flags[:, 0] = _top_beyond(starts, zu, zd, sigma, edge_x)
-    seen_by = np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2])
-    flags[:, 1] = (seen_by > 0) & ~poor
     shapes = tuple(
         EdgeShape(
             edges.MODELS[chosen[s]],
-            radius_mm=float(fixed[s])
-            if chosen[s] == edges.ROUND and np.isfinite(fixed[s])
+            radius_mm=float(shape[s])
+            if chosen[s] == edges.ROUND and np.isfinite(shape[s])
             else None,
-            angle_deg=float(np.degrees(fixed[s]))
-            if chosen[s] == edges.CHAMFER and np.isfinite(fixed[s])
+            angle_deg=float(np.degrees(shape[s]))
+            if chosen[s] == edges.CHAMFER and np.isfinite(shape[s])
             else None,
             burr_mm=float(np.median(extra[s::2, 0])) if sections else 0.0,
         )
         for s in (0, 1)
     )
-    return edge_x, depth, edge_sigma, models, residual, shapes, flags
+    return _Edges(
+        x=x,
+        depth=depth,
+        sigma=np.hypot(
+            final[:, 3], np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0)
+        ),
+        models=models,
+        residual=np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma,
+        past_hole=_top_beyond(starts, zu, zd, sigma, x),
+        face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0) & ~poor,
+        shapes=shapes,
+    )
+
+
+def _choose_models(
+    fit: Callable, points: np.ndarray, config: SectionConfig, groups: int
+) -> tuple[tuple[int, int], np.ndarray, list[float]]:
+    """Each side's model and shape, from ``SELECTION_SECTIONS`` sections spread along the
+    seam: every model fitted freely there; the shape (radius, angle) taken as the median,
+    since it belongs to the edge; the models fitted again with it and compared
+    (``_choose``). Returns the two models, the shape per group, and each side's 1σ of the
+    radius (a wrong ρ moves X = u_c + ρ)."""
+    if config.edge_model == "auto":
+        candidates = [edges.SQUARE, edges.CHAMFER, edges.ROUND, edges.FREE]
+    else:
+        candidates = [edges.MODELS.index(config.edge_model)]
+    stride = max(1, (groups // 2) // SELECTION_SECTIONS)
+    trial_sections = (np.arange(groups) // 2) % stride == 0
+    free, _ = fit(candidates, np.full(groups, np.nan), trial_sections)
+    shapes = np.full((4, groups), np.nan)
+    for model in (edges.CHAMFER, edges.ROUND):
+        for s in (0, 1):
+            values = free[s::2, model, 1][trial_sections[s::2]]
+            values = values[np.isfinite(values)]
+            if len(values):
+                shapes[model, s::2] = np.median(values)
+    trial = free.copy()
+    for model in (edges.CHAMFER, edges.ROUND):
+        if model in candidates:
+            trial[:, model] = fit([model], shapes[model], trial_sections)[0][:, model]
+    wanted = np.zeros(4, bool)
+    wanted[candidates] = True
+    chosen = _choose(trial[trial_sections], np.maximum(points, 1)[trial_sections], wanted)
+    radius_sigma = [0.0, 0.0]
+    for s in (0, 1):
+        if chosen[s] == edges.ROUND:
+            radii = free[s::2, edges.ROUND, 1][trial_sections[s::2]]
+            radius_sigma[s] = _median_sigma(radii[np.isfinite(radii)])
+    shape = np.where(np.arange(groups) % 2 == 0, shapes[chosen[0]], shapes[chosen[1]])
+    return (chosen[0], chosen[1]), shape, radius_sigma
 
 
 def _median_sigma(values: np.ndarray) -> float:
@@ -422,10 +436,10 @@ def _sections(
     tops: _Tops,
     found: np.ndarray,
     noise: float,
-    edge_parts: tuple,
+    fitted: _Edges,
 ) -> SeamProfile:
     """Gap, step, uncertainty and self-checks of every section, from its tops and edges."""
-    edge_x, edge_depth, edge_sigma, models, residual, shapes, flags = edge_parts
+    edge_x = fitted.x
     alpha, beta = tops.plane[:, 0], tops.plane[:, 1]
     norm = np.sqrt(1 + beta**2)
     side = np.arange(2 * count) % 2
@@ -441,7 +455,7 @@ def _sections(
             1,
         )
 
-    sharp, deep = point(np.zeros_like(edge_x)), point(edge_depth)
+    sharp, deep = point(np.zeros_like(edge_x)), point(fitted.depth)
     na, nb, ba, bb = norm[0::2], norm[1::2], beta[0::2], beta[1::2]
     tau = np.stack([1 / na + 1 / nb, ba / na - bb / nb], 1)
     tau /= np.linalg.norm(tau, axis=1, keepdims=True)
@@ -459,21 +473,11 @@ def _sections(
     wa = alpha[0::2] + ba * (mid - end_a)
     wb = alpha[1::2] + bb * (end_b - mid)
     step = np.where(found, (wb - wa) * tau[:, 0], np.nan)
-    gap_sigma = np.hypot(edge_sigma[0::2], edge_sigma[1::2])
-    reasons = _unmeasured(
-        gap,
-        step,
-        found,
-        tops,
-        edge_x,
-        edge_sigma,
-        models,
-        residual,
-        flags,
-        noise,
-        spacing_mm,
-        config,
-    )
+    gap_sigma = np.hypot(fitted.sigma[0::2], fitted.sigma[1::2])
+    if config.edge_model == "void":  # the gauge: a number wherever it sees a gap
+        reasons = [None if f else "no gap seen between the panels" for f in found]
+    else:
+        reasons = _unmeasured(gap, step, found, tops, fitted, noise, spacing_mm, config)
     gap = np.where([r is None for r in reasons], gap, np.nan)
     positions = first + np.arange(count) * config.pitch_mm
     across = np.where(np.isfinite(mid), mid, 0.0)
@@ -490,10 +494,10 @@ def _sections(
         gap_sigma,
         at,
         normal,
-        models.reshape(count, 2),
-        residual.reshape(count, 2),
+        fitted.models.reshape(count, 2),
+        fitted.residual.reshape(count, 2),
         tuple(reasons),
-        shapes,
+        fitted.shapes,
         noise,
     )
 
@@ -503,19 +507,16 @@ def _unmeasured(
     step: np.ndarray,
     found: np.ndarray,
     tops: _Tops,
-    edge_x: np.ndarray,
-    edge_sigma: np.ndarray,
-    models: np.ndarray,
-    residual: np.ndarray,
-    flags: np.ndarray,
+    fitted: _Edges,
     noise: float,
     spacing_mm: float,
     config: SectionConfig,
 ) -> list[str | None]:
     """Why each section's gap cannot be trusted (None: it can)."""
     reasons: list[str | None] = []
-    extent_based = (models == edges.SQUARE) | (models == edges.CHAMFER) | (models == edges.FREE)
-    extent_based &= ~flags[:, 1]
+    models = fitted.models
+    # Edges placed where their points stop (not pinned by an arc's shape or a side face).
+    extent_based = np.isin(models, (edges.SQUARE, edges.CHAMFER, edges.FREE)) & ~fitted.face_seen
     shadow_mm = np.abs(step) * np.tan(np.radians(config.max_view_deg))
     for i in range(len(gap)):
         reason = None
@@ -528,15 +529,15 @@ def _unmeasured(
                     f"too few points on panel {name}'s top {config.edge_band_mm:g}–"
                     f"{config.edge_band_mm + config.top_band_mm:g} mm from its edge"
                 )
-            elif not np.isfinite(edge_x[g]):
+            elif not np.isfinite(fitted.x[g]):
                 reason = f"too few points at panel {name}'s edge to place it"
-            elif flags[g, 0]:
+            elif fitted.past_hole[g]:
                 reason = (
                     f"panel {name}'s top continues past a hole at its edge (dark or shiny surface?)"
                 )
-            elif models[g] == edges.FREE and not edge_sigma[g] <= config.max_edge_sigma_mm:
+            elif models[g] == edges.FREE and not fitted.sigma[g] <= config.max_edge_sigma_mm:
                 reason = (
-                    f"panel {name}'s edge fits no model: residual {residual[g]:.3f} mm > "
+                    f"panel {name}'s edge fits no model: residual {fitted.residual[g]:.3f} mm > "
                     f"{config.fit_gate:g}σ ({config.fit_gate * noise:.3f} mm)"
                 )
         if not found[i]:
@@ -548,7 +549,11 @@ def _unmeasured(
                 f"gap {gap[i]:.3f} mm is under two point spacings ({2 * spacing_mm:.2f} mm) "
                 "at a corner: not resolved"
             )
-        elif reason is None and abs(step[i]) > 3 * noise and not flags[2 * i : 2 * i + 2, 1].any():
+        elif (
+            reason is None
+            and abs(step[i]) > 3 * noise
+            and not fitted.face_seen[2 * i : 2 * i + 2].any()
+        ):
             lower = 0 if step[i] > 0 else 1
             if extent_based[2 * i + lower] and gap[i] < shadow_mm[i] + spacing_mm:
                 names = ("a", "b")
