@@ -65,6 +65,11 @@ def test_review_an_inspection_in_the_browser(demo_server):
         assert f"value{measured['value']:.3f} " in facts, facts
         page.wait_for_selector("#scene[data-drawn=true]")
         page.wait_for_selector("#scene-status:has-text('markers')", timeout=30_000)
+        # the measured panels are outlined and labelled, and the finding says which they are
+        assert "4 panels (P0…)" in page.text_content("#scene-status")  # labels drawn
+        if "seam" in measured:
+            panels = measured["panels"]
+            assert f"seam {measured['seam']}: P{panels[0]} → P{panels[1]}" in facts, facts
         assert page.text_content("#consensus") == "Consensus: 1/1 rejected"
         assert "looks like a reflection" in page.text_content("#judgments li[data-user=olga]")
 

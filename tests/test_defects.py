@@ -287,3 +287,34 @@ def _spec(base: dict, **override: object) -> dict:
     if base.get("surface_defects") == 0:
         fields.update(dents=0, bumps=0, scratches=0, patches=0)
     return fields
+
+
+def test_sensor_artefacts_at_depth_jumps_and_tilted_views() -> None:
+    """Mixed pixels fall between the two surfaces of a jump, spikes off it; elsewhere the
+    returns are untouched. A tilted view still looks at the same point."""
+    from services.defects.simulate import _tilted
+    from services.stitching.scan_sim import SensorModel, _edge_artefacts
+
+    true = np.full((20, 30), 220.0)
+    true[:, 15:] = 240.0  # a panel's edge over the backing, 20 mm farther
+    rng = np.random.default_rng(0)
+    mixed = SensorModel(grid=(20, 30), mixed_pixel_fraction=1.0)
+    out = _edge_artefacts(true.ravel().copy(), true, mixed, rng).reshape(true.shape)
+    at_jump = np.zeros(true.shape, bool)
+    at_jump[:, 14:16] = True
+    assert np.array_equal(out[~at_jump], true[~at_jump])
+    assert ((out[at_jump] >= 220.0) & (out[at_jump] <= 240.0)).all()
+    assert np.ptp(out[:, 14]) > 5  # anywhere between the surfaces
+    spiky = SensorModel(grid=(20, 30), edge_spike_fraction=1.0)
+    out = _edge_artefacts(true.ravel().copy(), true, spiky, rng).reshape(true.shape)
+    offset = np.abs(out - true)[at_jump]
+    assert ((offset >= 0.5) & (offset <= 5.0)).all()
+
+    pose = np.eye(4)
+    pose[:3, 3] = [100.0, 50.0, 220.0]
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0])  # looking down −z
+    tilted = _tilted(pose, 30.0, 220.0)
+    aim = pose[:3, 3] + 220.0 * pose[:3, 2]
+    assert np.allclose(tilted[:3, 3] + 220.0 * tilted[:3, 2], aim)
+    assert np.degrees(np.arccos(tilted[:3, 2] @ pose[:3, 2])) == pytest.approx(30.0)
+    assert tilted[1, 2] > 0  # the view now runs towards +y as it descends

@@ -65,7 +65,8 @@ class SeamResult:
     length_mm: float
     gap_mm: Stats | None
     """Over the measured sections; None if the seam is unmeasured."""
-    step_mm: Stats | None
+    step_mm: Stats
+    """Over the sections whose two tops were fitted."""
     gap_at_ends_mm: tuple[float, float] | None
     """The gap line fitted along the seam, at its start and end."""
     parallelism_mm: float | None

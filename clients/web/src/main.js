@@ -349,17 +349,19 @@ async function loadScene(id, preview) {
   const status = $("#scene-status");
   status.textContent = "loading the scene…";
   const hint = "drag to orbit, click a marker to select it";
+  // The measured panels are outlined and labelled P0, P1, …: the ids findings refer to.
+  const shown = (scene) => `${scene.markers} markers · ${scene.panels} panels (P0…)`;
   try {
     const first = await showScene(id, preview, { frame: true, mark: "vista:scene-drawn" });
     if (!first) return;
     if (state.selected) state.scene.select(state.selected, true);
     if (first.points < PREVIEW_POINTS) {
-      status.textContent = `${first.markers} markers · ${hint}`;
+      status.textContent = `${shown(first)} · ${hint}`;
       return;
     }
-    status.textContent = `${first.markers} markers · loading the full cloud… · ${hint}`;
+    status.textContent = `${shown(first)} · loading the full cloud… · ${hint}`;
     const full = await showScene(id, api.scene(id), { frame: false, mark: "vista:scene-full-drawn" });
-    if (full) status.textContent = `${full.markers} markers · ${hint}`;
+    if (full) status.textContent = `${shown(full)} · ${hint}`;
   } catch (error) {
     status.textContent = `the scene could not be shown: ${error.message}`;
   }
