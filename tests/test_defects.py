@@ -18,6 +18,7 @@ from services.defects.simulate import (
     AssemblySpec,
     EdgeProfile,
     layout_to_part,
+    panel_mesh,
     part_to_layout,
     random_assembly,
     seam_gap_mm,
@@ -78,6 +79,20 @@ def test_edge_profiles_fall_to_the_side_face() -> None:
     assert len(EdgeProfile("round", 2.0).samples_mm()) >= 20
     with pytest.raises(ValueError, match="edge kind"):
         EdgeProfile("bevel")
+
+
+def test_a_deep_edge_side_face_runs_down_below_its_foot() -> None:
+    """A 5 mm arc on a 3 mm sheet: the side face starts at the arc's foot and runs down
+    (a face folding back up into the edge would be seen from behind in a tilted view)."""
+    from dataclasses import replace
+
+    assembly = random_assembly(AssemblySpec(), np.random.default_rng(0))
+    panel = replace(assembly.panels[0], edge=EdgeProfile("round", 5.0))
+    vertices, _ = panel_mesh(assembly, panel)
+    _, h = part_to_layout(assembly, vertices)
+    assert assembly.thickness_mm < 5.0
+    assert h.min() == pytest.approx(panel.height_mm - 6.0)
+    assert np.isclose(h, panel.height_mm - 5.0).any()  # the arc's foot
 
 
 def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) -> None:

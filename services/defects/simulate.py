@@ -475,7 +475,10 @@ def panel_mesh(assembly: Assembly, panel: Panel) -> tuple[np.ndarray, np.ndarray
     skirt = np.zeros(pp.shape, dtype=bool)
     skirt[[0, -1], :] = True
     skirt[:, [0, -1]] = True
-    h = np.where(skirt, panel.height_mm - assembly.thickness_mm, h)
+    # The side face runs down to the panel's thickness, or 1 mm below the edge's foot where
+    # the edge drops deeper (a 5 mm arc on a 3 mm sheet): never back up into the edge.
+    depth = max(assembly.thickness_mm, panel.edge.depth_mm + 1.0)
+    h = np.where(skirt, panel.height_mm - depth, h)
     vertices = layout_to_part(assembly, layout, h).reshape(-1, 3)
     return vertices, _grid_faces(len(p), len(q), 0)
 
