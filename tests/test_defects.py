@@ -279,6 +279,7 @@ def test_edge_sweep_reports_unmeasured_sections_and_the_gauge(tmp_path) -> None:
         spacing_mm=0.2,
         yaw_deg=5.0,
         tilt_deg=30.0,
+        field_mm=(154.0, 40.0),  # a line scanner: every point seen from 25–35°
     )
     document = run_defects_bench(  # seeds 100 and 101: two seams of the first are hidden
         tmp_path / "defects.json", seeds=1, sweeps=("edges",), edge_cases=(shadowed, square)
@@ -333,3 +334,30 @@ def test_sensor_artefacts_at_depth_jumps_and_tilted_views() -> None:
     assert np.allclose(tilted[:3, 3] + 220.0 * tilted[:3, 2], aim)
     assert np.degrees(np.arccos(tilted[:3, 2] @ pose[:3, 2])) == pytest.approx(30.0)
     assert tilted[1, 2] > 0  # the view now runs towards +y as it descends
+
+
+def test_which_edges_the_views_saw() -> None:
+    """The truth of what can be measured: a corner 0.3 mm beyond a 3 mm step is out of
+    sight of views tilted 30° across the step, its higher neighbour's is not; straight
+    down, both are seen."""
+    from dataclasses import replace
+
+    from services.defects.example import BASE_T_PART
+    from services.defects.simulate import AssemblyScanner, _tilted
+    from services.stitching.scan_sim import SensorModel, workplan
+
+    spec = dict(rows=2, cols=1, panel_mm=(60.0, 40.0), edge_kinds=("square",), surface_defects=0)
+    spec = AssemblySpec(**_spec(spec, gap_mm=(0.3, 0.3), taper_mm=(0.0, 0.0)))
+    assembly = random_assembly(spec, np.random.default_rng(0))
+    (seam,) = assembly.seams
+    heights = {seam.panels[0]: 3.0, seam.panels[1]: 0.0}  # a (lower s) stands 3 mm higher
+    panels = tuple(replace(p, height_mm=heights[p.id]) for p in assembly.panels)
+    assembly = replace(assembly, panels=panels)
+    sensor = SensorModel(grid=(40, 154), field_mm=(154.0, 40.0))
+    scanner = AssemblyScanner(assembly, BASE_T_PART, sensor)
+    straight = workplan(scanner.scanner.mesh, BASE_T_PART, sensor)
+    tilted = np.stack([_tilted(p, 30.0, sensor.standoff_mm) for p in straight])
+    along = np.linspace(0.1, 0.9, 9)
+    assert scanner.edges_seen(straight, seam, along).all()
+    seen = scanner.edges_seen(tilted, seam, along)
+    assert seen[:, 0].all() and not seen[:, 1].any()

@@ -4,6 +4,7 @@ errors, out-of-tolerance precision/recall, surface detection recall and false po
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -206,31 +207,16 @@ def _out(kind: str, value: float, t: Tolerances) -> bool:
     return abs(value) > limit[kind]
 
 
-def shadowed(
-    truth: dict, true_seam: dict, true_gap: np.ndarray, view_tilt_deg: float
-) -> np.ndarray:
-    """Which sections of a true seam cannot be measured: views tilted by ``view_tilt_deg``
-    about the base x axis (``scan_assembly``) descend towards +y, so on a flat assembly a
-    seam running along x whose panel a (lower y) stands higher hides panel b's corner —
-    and its side face — over step × tan(tilt); where that is wider than the gap and b's
-    edge has a corner (square or chamfer: not pinned by an arc's shape), the truth is out
-    of sight."""
-    if not view_tilt_deg or truth.get("radius_mm"):
-        return np.zeros(len(true_gap), bool)
-    start, end = np.array(true_seam["start"]), np.array(true_seam["end"])
-    along_x = abs(end[0] - start[0]) > abs(end[1] - start[1])
-    lower = {p["id"]: p for p in truth["panels"]}[true_seam["panels"][1]]
-    if not along_x or lower["edge"]["kind"] == "round" or true_seam["step_mm"] >= 0:
-        return np.zeros(len(true_gap), bool)
-    shadow = -true_seam["step_mm"] * np.tan(np.radians(view_tilt_deg))
-    return shadow > true_gap
+EdgesSeen = Callable[[int, np.ndarray], np.ndarray]
+"""(true seam id, (K,) fractions along it) → (K, 2) whether any view saw each side's edge
+there (``AssemblyScanner.edges_seen``)."""
 
 
 def evaluate(
-    result: MeasureResult, truth: dict, tolerances: Tolerances, *, view_tilt_deg: float = 0.0
+    result: MeasureResult, truth: dict, tolerances: Tolerances, *, seen: EdgesSeen | None = None
 ) -> Evaluation:
-    """Compare ``result`` with a truth document (``simulate.truth_document``); the scans'
-    view tilt tells which sections could not be seen (``shadowed``)."""
+    """Compare ``result`` with a truth document (``simulate.truth_document``); ``seen``
+    tells which sections' edges no view saw (their truth cannot be measured)."""
     e = Evaluation(panel_area_m2=result.panel_area_m2, seconds=sum(result.seconds.values()))
     flagged = {(f.type, f.source.get("seam", f.source.get("junction"))) for f in result.defects}
     matched_seams: dict[int, SeamResult] = {}
@@ -260,7 +246,9 @@ def evaluate(
         e.sections_total += len(measured)
         e.sections_unmeasured += int((~measured).sum())
         e.negative_gaps += int((seam.sections_gap_mm[measured] < 0).sum())
-        hidden = shadowed(truth, true_seam, true_gap, view_tilt_deg)
+        hidden = np.zeros(len(fraction), bool)
+        if seen is not None:
+            hidden = ~seen(true_seam["id"], np.clip(fraction, 0, 1)).all(axis=1)
         e.unmeasurable_true += int(hidden.sum())
         e.unmeasurable_flagged += int((hidden & ~measured).sum())
         e.gap_errors_mm += (seam.sections_gap_mm[measured] - true_gap[measured]).tolist()

@@ -35,6 +35,9 @@ from services.stitching.scan_sim import Mesh, Scanner, SensorModel
 ARC_SAMPLES = 24
 """Vertices on a rounded edge's quarter circle (chord sag ≤ 0.0012 × the radius)."""
 INTERIOR_STEP_MM = 2.0
+EDGE_SEEN_MM = 0.05
+"""A corner (or a chamfer's foot) counts as seen where a view returns a point this close
+to it: the extent rule then places it within about that."""
 PANEL_LAB = (86.0, 0.5, 6.0)
 """Cabin lining off-white."""
 BACKING_LAB = (35.0, 0.0, 0.0)
@@ -595,6 +598,45 @@ class AssemblyScanner:
             ]
             out[glint] += rng.uniform(0.5, 5.0, len(glint)) * rng.choice([-1.0, 1.0], len(glint))
         return out
+
+    def edges_seen(self, poses: np.ndarray, seam: SeamTruth, fraction: np.ndarray) -> np.ndarray:
+        """(K, 2) whether any of the views ``poses`` saw each side's edge where a gap is
+        measured from, at ``fraction`` (K,) along the seam: a square edge's top and a
+        chamfer's face ``EDGE_SEEN_MM`` from where its side face stands (its corner or
+        foot: an edge placed by where its points stop), an arc a third of the way down
+        (its shape places the rest). A side not seen there cannot be measured."""
+        start, end = np.array(seam.start_mm), np.array(seam.end_mm)
+        centre = start + np.asarray(fraction)[:, None] * (end - start)
+        seen = np.zeros((len(centre), 2), bool)
+        for side, panel_id in enumerate(seam.panels):
+            panel = self.panels[panel_id]
+            outline, inward = _closest_on_outline(panel.corners_mm, centre)
+            edge = panel.edge
+            inset = edge.size_mm / 2 if edge.kind == "round" else EDGE_SEEN_MM
+            layout = outline + inset * inward
+            height = panel.height_mm + edge.height_mm(np.full(len(layout), inset))
+            points = apply(self.base_T_part, layout_to_part(self.assembly, layout, height))
+            for pose in poses:
+                seen[:, side] |= self.scanner.sees(pose, points)
+        return seen
+
+
+def _closest_on_outline(corners: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((N, 2) closest point on the polygon ``corners`` (counter-clockwise) to each of the
+    layout points, (N, 2) the unit inward normal of the side it lies on)."""
+    best = np.full(len(points), np.inf)
+    closest, inward = np.zeros_like(points), np.zeros_like(points)
+    for k in range(len(corners)):
+        a, b = corners[k], corners[(k + 1) % len(corners)]
+        direction = (b - a) / np.linalg.norm(b - a)
+        along = np.clip((points - a) @ direction, 0.0, np.linalg.norm(b - a))
+        foot = a + along[:, None] * direction
+        distance = np.linalg.norm(points - foot, axis=1)
+        nearer = distance < best
+        best[nearer] = distance[nearer]
+        closest[nearer] = foot[nearer]
+        inward[nearer] = [-direction[1], direction[0]]
+    return closest, inward
 
 
 @dataclass(frozen=True)

@@ -203,7 +203,6 @@ class Scanner:
         """Where each pixel's ray first meets the mesh, before noise."""
         import open3d as o3d
 
-        sensor = self.sensor
         directions_base = self.directions.reshape(-1, 3) @ base_T_sensor[:3, :3].T
         origins = np.broadcast_to(base_T_sensor[:3, 3], directions_base.shape)
         rays = np.hstack([origins, directions_base]).astype(np.float32)
@@ -212,13 +211,45 @@ class Scanner:
         normals = hits["primitive_normals"].numpy()
         incidence = np.abs(np.sum(normals * directions_base, axis=1))
         depth = distance * self.directions.reshape(-1, 3)[:, 2]
-        measured = (
-            np.isfinite(distance)
-            & (np.abs(depth - sensor.standoff_mm) <= sensor.range_mm / 2)
-            & (incidence >= np.cos(np.radians(sensor.max_incidence_deg)))
-        )
+        measured = np.isfinite(distance) & self._returns(depth, incidence)
         face = np.where(measured, hits["primitive_ids"].numpy().astype(np.int64), -1)
         return Hits(np.where(measured, distance, np.nan), incidence, face, directions_base)
+
+    def _returns(self, depth_mm: np.ndarray, incidence_cos: np.ndarray) -> np.ndarray:
+        """Whether hits at these depths and incidences are returned (in range, not too
+        grazing)."""
+        sensor = self.sensor
+        return (np.abs(depth_mm - sensor.standoff_mm) <= sensor.range_mm / 2) & (
+            incidence_cos >= np.cos(np.radians(sensor.max_incidence_deg))
+        )
+
+    def sees(
+        self, base_T_sensor: np.ndarray, points_base: np.ndarray, tolerance_mm: float = 0.01
+    ) -> np.ndarray:
+        """(P,) whether the sensor at this pose returns each of the points on the mesh:
+        inside its field and range, the first hit along its ray (nothing in front of it
+        by more than ``tolerance_mm``), not too grazing."""
+        import open3d as o3d
+
+        sensor = self.sensor
+        origin = base_T_sensor[:3, 3]
+        offset = points_base - origin
+        distance = np.linalg.norm(offset, axis=1)
+        directions_base = offset / distance[:, None]
+        local = directions_base @ base_T_sensor[:3, :3]  # in the sensor frame
+        half_width, half_height = np.array(sensor.field_mm) / 2 / sensor.standoff_mm
+        forward = np.maximum(local[:, 2], 1e-12)
+        inside = (
+            (local[:, 2] > 0)
+            & (np.abs(local[:, 0]) <= half_width * forward)
+            & (np.abs(local[:, 1]) <= half_height * forward)
+        )
+        rays = np.hstack([np.broadcast_to(origin, offset.shape), directions_base])
+        hits = self.scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+        first = hits["t_hit"].numpy().astype(np.float64)
+        incidence = np.abs(np.sum(hits["primitive_normals"].numpy() * directions_base, axis=1))
+        unblocked = first >= distance - tolerance_mm
+        return inside & unblocked & self._returns(distance * local[:, 2], incidence)
 
     def measure(self, distance_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The organized grid the sensor reports for true ray distances (noise, strays):
