@@ -96,6 +96,28 @@ def test_review_an_inspection_in_the_browser(demo_server):
         ).raise_for_status()
         page.wait_for_selector(f"{row}:has-text('2/2 confirmed')", timeout=10_000)
 
+        # Judging the next defect starts from an empty form: each comment stays with its own.
+        second = out_of_tolerance[1]["id"]
+        page.click(f"#defect-list .row[data-id='{second}']")
+        page.wait_for_selector(f"#detail-title:has-text('#{second} ')")
+        assert page.input_value("#comment") == ""
+        page.fill("#comment", "a reflection off the lamp")
+        page.click(".verdicts button[data-verdict=rejected]")
+        page.wait_for_selector(f"#judgments li[data-user={DEMO_USER}]:has-text('lamp')")
+        page.click(f"#defect-list .row[data-id='{target}']")
+        page.wait_for_selector(f"#detail-title:has-text('#{target} ')")
+        assert page.input_value("#comment") == "confirmed on site"  # my own judgment's
+        stored = {
+            defect: {
+                j["username"]: j["comment"]
+                for j in httpx.get(
+                    f"{server.url}/api/v1/defects/{defect}/judgments", headers=auth(other_token)
+                ).json()["judgments"]
+            }[DEMO_USER]
+            for defect in (target, second)
+        }
+        assert stored == {target: "confirmed on site", second: "a reflection off the lamp"}
+
         page.click("[role=tab][data-tab=timeline]")
         assert page.locator("#timeline .job").count() == 3
         assert page.locator("#timeline .status-succeeded").count() == 3

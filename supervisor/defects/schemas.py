@@ -3,15 +3,16 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.ids import IdField
+from supervisor.requests import MAX_MM, Millimetres, RequestModel
 
 DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
 DefectStatus = Literal["open", "resolved", "dismissed"]
 Severity = Literal["info", "minor", "major", "critical"]
 Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
-Vector3 = tuple[float, float, float]
+Vector3 = tuple[Millimetres, Millimetres, Millimetres]
 
 
 class Consensus(BaseModel):
@@ -28,33 +29,21 @@ class Consensus(BaseModel):
     reclassified_as: dict[str, int] = Field(default_factory=dict)
 
 
-class DefectCreate(BaseModel):
+class DefectCreate(RequestModel):
     """A finding reported by hand (jobs add theirs directly)."""
-
-    model_config = ConfigDict(extra="forbid")
 
     inspection_id: IdField
     type: DefectType
     location_mm: Vector3
     normal: Vector3 = (0.0, 0.0, 1.0)
-    value_mm: float | None = None
-    tolerance_mm: float | None = None
-    extent_mm: float = Field(0.0, ge=0, le=1e6)
+    value_mm: Millimetres | None = None
+    tolerance_mm: Millimetres | None = None
+    extent_mm: float = Field(0.0, ge=0, le=MAX_MM)
     severity: Severity = "minor"
     confidence: float = Field(1.0, ge=0, le=1)
 
-    @field_validator("location_mm", "normal", "value_mm", "tolerance_mm")
-    @classmethod
-    def _finite(cls, value):  # noqa: ANN001, ANN206
-        values = value if isinstance(value, tuple) else (value,)
-        if any(v is not None and (v != v or abs(v) == float("inf")) for v in values):
-            raise ValueError("must be finite")
-        return value
 
-
-class DefectUpdate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class DefectUpdate(RequestModel):
     status: DefectStatus
 
 

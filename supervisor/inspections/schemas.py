@@ -1,34 +1,43 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from supervisor.requests import TOLERANCE_MAX_MM, Millimetres, RequestModel
 
 Area = Literal["cargo", "cabin", "component"]
 InspectionStatus = Literal["planned", "scanning", "processing", "review", "closed"]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+Limit = Annotated[float, Field(gt=0, le=TOLERANCE_MAX_MM)]
 
 
-class RangeMm(_Strict):
-    min: float | None = Field(None, ge=0)
-    max: float | None = Field(None, ge=0)
+class RangeMm(RequestModel):
+    min: float | None = Field(None, ge=0, le=TOLERANCE_MAX_MM)
+    max: Limit | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> RangeMm:
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError(f"min ({self.min:g}) must not exceed max ({self.max:g})")
+        return self
 
 
-class LimitMm(_Strict):
-    max: float = Field(gt=0)
+class LimitMm(RequestModel):
+    max: Limit
 
 
-class SurfaceTolerances(_Strict):
-    dent_depth_mm: float | None = Field(None, gt=0, description="Deepest acceptable dent/bump.")
-    scratch_depth_mm: float | None = Field(None, gt=0, description="Deepest acceptable scratch.")
-    color_delta_e: float | None = Field(None, gt=0, description="Largest acceptable CIE ΔE.")
+class SurfaceTolerances(RequestModel):
+    dent_depth_mm: Limit | None = Field(None, description="Deepest acceptable dent/bump.")
+    scratch_depth_mm: Limit | None = Field(None, description="Deepest acceptable scratch.")
+    color_delta_e: float | None = Field(
+        None, gt=0, le=100, description="Largest acceptable CIE ΔE."
+    )
 
 
-class Tolerances(_Strict):
+class Tolerances(RequestModel):
     """Acceptance limits; a measurement outside them becomes a defect."""
 
     gap_mm: RangeMm | None = None
@@ -38,12 +47,12 @@ class Tolerances(_Strict):
     surface: SurfaceTolerances | None = None
 
 
-class ImageMarker(_Strict):
+class ImageMarker(RequestModel):
     """A printed image marker at a known pose: a headset that sees it aligns the scene."""
 
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
     area: Literal["cargo", "cabin"]
-    base_T_marker: list[list[float]] = Field(
+    base_T_marker: list[list[Millimetres]] = Field(
         description="4 × 4 row-major rigid transform, mm: the marker's frame (x right, y up "
         "the image, z out of it) in the base frame."
     )
@@ -55,9 +64,6 @@ class ImageMarker(_Strict):
     def _rigid(cls, value: list[list[float]]) -> list[list[float]]:
         if len(value) != 4 or any(len(row) != 4 for row in value):
             raise ValueError("must be 4 × 4")
-        flat = [c for row in value for c in row]
-        if any(c != c or abs(c) == float("inf") for c in flat):
-            raise ValueError("must be finite")
         if value[3] != [0.0, 0.0, 0.0, 1.0]:
             raise ValueError("the last row must be 0 0 0 1")
         rotation = [row[:3] for row in value[:3]]
@@ -77,7 +83,7 @@ class ImageMarker(_Strict):
         return value
 
 
-class InspectionCreate(_Strict):
+class InspectionCreate(RequestModel):
     title: str = Field(min_length=1, max_length=200)
     aircraft: str = Field("", max_length=100)
     serial: str = Field("", max_length=100)
@@ -87,7 +93,7 @@ class InspectionCreate(_Strict):
     status: InspectionStatus = "planned"
 
 
-class InspectionUpdate(_Strict):
+class InspectionUpdate(RequestModel):
     title: str | None = Field(None, min_length=1, max_length=200)
     aircraft: str | None = Field(None, max_length=100)
     serial: str | None = Field(None, max_length=100)

@@ -6,14 +6,13 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.ids import IdField
+from supervisor.requests import RequestModel
 
 JobStatus = Literal["waiting", "queued", "running", "succeeded", "failed", "cancelled"]
 STEP_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,63}$"
 
 
-class StepIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class StepIn(RequestModel):
     name: str = Field(pattern=STEP_NAME_PATTERN, description="Unique within the run.")
     kind: str = Field(min_length=1, max_length=64, description="A job kind from GET /job-kinds.")
     params: dict[str, Any] = Field(default_factory=dict)
@@ -27,9 +26,7 @@ class StepIn(BaseModel):
     )
 
 
-class RunCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class RunCreate(RequestModel):
     name: str = Field("", max_length=200)
     steps: list[StepIn] = Field(min_length=1, max_length=100)
 

@@ -5,11 +5,10 @@ from datetime import datetime
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from supervisor.defects.schemas import Consensus, DefectType, Verdict
+from supervisor.requests import RequestModel
 
 
-class JudgmentIn(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class JudgmentIn(RequestModel):
     verdict: Verdict
     new_type: DefectType | None = Field(None, description="Required when reclassified.")
     comment: str = Field("", max_length=4000)

@@ -3,11 +3,12 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 
 from supervisor.defects.schemas import Consensus, DefectType, Verdict
 from supervisor.ids import IdField
 from supervisor.judgments.schemas import JudgmentOut
+from supervisor.requests import RequestModel
 
 MAX_BATCH = 1000
 
@@ -53,9 +54,7 @@ class SyncOut(BaseModel):
     more: bool = Field(description="More is waiting: call again at once with next_cursor.")
 
 
-class OfflineJudgment(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class OfflineJudgment(RequestModel):
     client_id: str = Field(
         min_length=1, max_length=64, description="Made by the client (a UUID); retries reuse it."
     )
@@ -79,9 +78,7 @@ class OfflineJudgment(BaseModel):
         return self
 
 
-class JudgmentBatch(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class JudgmentBatch(RequestModel):
     items: list[OfflineJudgment] = Field(min_length=1, max_length=MAX_BATCH)
 
 

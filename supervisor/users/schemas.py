@@ -5,12 +5,12 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from supervisor.requests import RequestModel
+
 Role = Literal["admin", "inspector", "viewer", "device"]
 
 
-class UserCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class UserCreate(RequestModel):
     username: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
     role: Role
     password: str | None = Field(
@@ -34,9 +34,7 @@ class UserOut(BaseModel):
     created_at: datetime
 
 
-class TokenCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class TokenCreate(RequestModel):
     name: str = Field(min_length=1, max_length=128, description="What the token is for.")
     kind: Literal["device", "cli"] = "device"
     ttl_hours: float | None = Field(

@@ -260,6 +260,7 @@ function renderList() {
 
 function select(defectId, fly) {
   if (!state.defects.has(defectId)) return;
+  if (state.selected !== defectId) resetJudgeForm(defectId);
   state.selected = defectId;
   for (const row of document.querySelectorAll("#defect-list .row")) {
     row.setAttribute("aria-selected", String(Number(row.dataset.id) === defectId));
@@ -268,6 +269,15 @@ function select(defectId, fly) {
   state.scene?.select(defectId, fly);
   renderDetail();
   refreshJudgments(defectId);
+}
+
+// The judging form belongs to the selected defect: on a new selection it shows my own
+// judgment of that defect (its comment and new type), or nothing.
+function resetJudgeForm(defectId) {
+  const mine = state.judgments.get(defectId)?.get(state.me?.id);
+  $("#comment").value = mine?.comment || "";
+  $("#new-type").value = mine?.new_type || state.defects.get(defectId).type;
+  $("#judge-error").textContent = "";
 }
 
 // Which panels a finding belongs to, by the ids the scene labels (P0, P1, …): a seam's
@@ -325,20 +335,21 @@ async function refreshJudgments(defectId) {
 for (const button of document.querySelectorAll(".verdicts button")) {
   button.addEventListener("click", async () => {
     const verdict = button.dataset.verdict;
+    const id = state.selected; // the answer may arrive after another defect is selected
     const body = { verdict, comment: $("#comment").value };
     if (verdict === "reclassified") body.new_type = $("#new-type").value;
     $("#judge-error").textContent = "";
     try {
-      const answer = await guarded(() => api.judge(state.selected, body));
+      const answer = await guarded(() => api.judge(id, body));
       if (!answer) return;
-      const id = state.selected;
       if (!state.judgments.has(id)) state.judgments.set(id, new Map());
       state.judgments.get(id).set(answer.judgment.user_id, answer.judgment);
       state.consensus.set(id, { defect_id: id, ...answer.consensus });
-      renderDetail();
-      document.querySelector(`#defect-list .row[data-id="${id}"] .verdict`).textContent = consensusText(answer.consensus);
+      if (id === state.selected) renderDetail();
+      const cell = document.querySelector(`#defect-list .row[data-id="${id}"] .verdict`);
+      if (cell) cell.textContent = consensusText(answer.consensus); // unless filtered out
     } catch (error) {
-      $("#judge-error").textContent = error.message;
+      if (id === state.selected) $("#judge-error").textContent = error.message;
     }
   });
 }

@@ -1,0 +1,173 @@
+"""Numbers are checked at the door: every number field of every JSON request body the
+OpenAPI schema declares, set to a non-finite or extreme value, is answered with a 422 that
+names the field — never a 5xx, and with nothing stored."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from sqlalchemy import func, select
+
+from supervisor.db import Base
+from tests.conftest import auth
+from tests.plyfiles import ply_bytes
+
+BAD_NUMBERS = (
+    "NaN",
+    "Infinity",
+    "-Infinity",
+    "1e400",  # beyond a double: JSON parsers read it as infinity
+    "-1e400",
+    "1e308",
+    "-1e308",
+    "9223372036854775808",  # 2⁶³: beyond a 64-bit integer column
+    "-1e30",
+)
+NOT_JSON = {("POST", "/api/v1/inspections/{inspection_id}/artifacts")}
+"""Bodies that are files, not JSON documents (their checks are in test_api_artifacts)."""
+MARKER = [[1.0, 0.0, 0.0, 10.0], [0.0, 1.0, 0.0, 20.0], [0.0, 0.0, 1.0, 30.0], [0, 0, 0, 1.0]]
+
+
+def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
+    """A valid body for every JSON operation, holding every number field its schema has."""
+    tolerances = {
+        "gap_mm": {"min": 0.5, "max": 3.0},
+        "step_mm": {"max": 0.5},
+        "parallelism_mm": {"max": 0.5},
+        "mismatch_mm": {"max": 0.5},
+        "surface": {"dent_depth_mm": 0.2, "scratch_depth_mm": 0.1, "color_delta_e": 3.0},
+    }
+    marker = {"name": "m1", "area": "cabin", "base_T_marker": MARKER, "size_mm": 100.0}
+    inspection = {"title": "t", "area": "cabin", "tolerances": tolerances, "markers": [marker]}
+    return {
+        ("POST", "/api/v1/auth/token"): {"username": "ada", "password": "admin-password"},
+        ("POST", "/api/v1/users"): {"username": "new", "role": "viewer", "password": "pw-123456"},
+        ("POST", "/api/v1/users/{user_id}/tokens"): {"name": "t", "ttl_hours": 1.0},
+        ("POST", "/api/v1/inspections"): inspection,
+        ("PATCH", "/api/v1/inspections/{inspection_id}"): inspection,
+        ("POST", "/api/v1/inspections/{inspection_id}/runs"): {
+            "steps": [{"name": "m", "kind": "measure", "inputs": [ids["artifact_id"]]}]
+        },
+        ("POST", "/api/v1/defects"): {
+            "inspection_id": ids["inspection_id"],
+            "type": "dent",
+            "location_mm": [1.0, 2.0, 3.0],
+            "normal": [0.0, 0.0, 1.0],
+            "value_mm": 0.3,
+            "tolerance_mm": 0.2,
+            "extent_mm": 4.0,
+            "confidence": 0.9,
+        },
+        ("PATCH", "/api/v1/defects/{defect_id}"): {"status": "open"},
+        ("PUT", "/api/v1/defects/{defect_id}/judgments/me"): {"verdict": "confirmed"},
+        ("POST", "/api/v1/sync/judgments"): {
+            "items": [
+                {
+                    "client_id": "c-1",
+                    "defect_id": ids["defect_id"],
+                    "verdict": "confirmed",
+                    "client_time": "2026-01-01T00:00:00Z",
+                }
+            ]
+        },
+    }
+
+
+def _resolve(schema: dict, spec: dict) -> dict:
+    while "$ref" in schema:
+        schema = spec["components"]["schemas"][schema["$ref"].rsplit("/", 1)[1]]
+    return schema
+
+
+def _number_paths(schema: dict, spec: dict, path: tuple = ()) -> list[tuple]:
+    """Every place in a body the schema lets hold a number: (key or index, …)."""
+    schema = _resolve(schema, spec)
+    found = []
+    for option in schema.get("anyOf", []) + schema.get("allOf", []):
+        found += _number_paths(option, spec, path)
+    kind = schema.get("type")
+    if kind in ("number", "integer"):
+        found.append(path)
+    for key, sub in schema.get("properties", {}).items():
+        found += _number_paths(sub, spec, (*path, key))
+    for index, sub in enumerate(schema.get("prefixItems", [])):
+        found += _number_paths(sub, spec, (*path, index))
+    if "items" in schema and not schema.get("prefixItems"):
+        found += _number_paths(schema["items"], spec, (*path, 0))
+        found += _number_paths(schema["items"], spec, (*path, -1))
+    return sorted(set(found), key=str)
+
+
+def _with(body: object, path: tuple, raw: str) -> str:
+    """The body as JSON text with the value at ``path`` replaced by the literal ``raw``."""
+    copy = json.loads(json.dumps(body))
+    node = copy
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = "__number__"
+    return json.dumps(copy).replace('"__number__"', raw)
+
+
+def _row_counts(runtime) -> dict[str, int]:  # noqa: ANN001
+    with runtime.db.read() as session:
+        return {
+            t.name: session.scalar(select(func.count()).select_from(t))
+            for t in Base.metadata.sorted_tables
+        }
+
+
+@pytest.fixture
+def seeded(client, tokens, tmp_path):
+    headers = auth(tokens["admin"])
+    inspection = client.post(
+        "/api/v1/inspections", json={"title": "numbers", "area": "cabin"}, headers=headers
+    ).json()
+    cloud = client.post(
+        f"/api/v1/inspections/{inspection['id']}/artifacts",
+        params={"kind": "cloud", "name": "c.ply"},
+        content=ply_bytes(tmp_path),
+        headers={**headers, "content-type": "application/x-ply"},
+    ).json()
+    defect = client.post(
+        "/api/v1/defects",
+        json={"inspection_id": inspection["id"], "type": "dent", "location_mm": [0, 0, 0]},
+        headers=headers,
+    ).json()
+    me = client.get("/api/v1/me", headers=headers).json()
+    return {
+        "inspection_id": inspection["id"],
+        "artifact_id": cloud["id"],
+        "defect_id": defect["id"],
+        "user_id": me["id"],
+    }
+
+
+def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens, runtime, seeded):
+    spec = client.get("/api/v1/openapi.json").json()
+    bodies = _bodies(seeded)
+    headers = {**auth(tokens["admin"]), "content-type": "application/json"}
+    tried = 0
+    for route, operations in spec["paths"].items():
+        for method, operation in operations.items():
+            key = (method.upper(), route)
+            content = operation.get("requestBody", {}).get("content", {})
+            if "application/json" not in content or key in NOT_JSON:
+                continue
+            assert key in bodies, f"{key}: give the test a valid body for this operation"
+            body = bodies[key]
+            url = route.format(**seeded)
+            valid = client.request(method, url, content=json.dumps(body), headers=headers)
+            assert valid.status_code < 300, (key, valid.text)  # the base body is right
+            for path in _number_paths(content["application/json"]["schema"], spec):
+                for raw in BAD_NUMBERS:
+                    before = _row_counts(runtime)
+                    text = _with(body, path, raw)
+                    answer = client.request(method, url, content=text, headers=headers)
+                    where = ".".join(map(str, path))
+                    assert answer.status_code == 422, (key, where, raw, answer.text)
+                    name = next(str(k) for k in reversed(path) if isinstance(k, str))
+                    assert name in answer.json()["detail"], (key, where, answer.json())
+                    assert _row_counts(runtime) == before, (key, where, raw)
+                    tried += 1
+    assert tried > 300
