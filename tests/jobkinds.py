@@ -18,7 +18,9 @@ class SleepParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     seconds: float = Field(0.2, ge=0, le=120)
-    transient_failures: int = Field(0, ge=0, description="Attempts that fail transiently first.")
+    transient_failures: int = Field(
+        0, ge=0, le=10, description="Attempts that fail transiently first."
+    )
     fail_with: str | None = Field(None, description="Fail permanently with this message.")
 
 

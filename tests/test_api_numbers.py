@@ -10,6 +10,7 @@ import pytest
 from sqlalchemy import func, select
 
 from supervisor.db import Base
+from supervisor.demo import TOLERANCES
 from tests.conftest import auth
 from tests.plyfiles import ply_bytes
 
@@ -31,15 +32,8 @@ MARKER = [[1.0, 0.0, 0.0, 10.0], [0.0, 1.0, 0.0, 20.0], [0.0, 0.0, 1.0, 30.0], [
 
 def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
     """A valid body for every JSON operation, holding every number field its schema has."""
-    tolerances = {
-        "gap_mm": {"min": 0.5, "max": 3.0},
-        "step_mm": {"max": 0.5},
-        "parallelism_mm": {"max": 0.5},
-        "mismatch_mm": {"max": 0.5},
-        "surface": {"dent_depth_mm": 0.2, "scratch_depth_mm": 0.1, "color_delta_e": 3.0},
-    }
     marker = {"name": "m1", "area": "cabin", "base_T_marker": MARKER, "size_mm": 100.0}
-    inspection = {"title": "t", "area": "cabin", "tolerances": tolerances, "markers": [marker]}
+    inspection = {"title": "t", "area": "cabin", "tolerances": TOLERANCES, "markers": [marker]}
     return {
         ("POST", "/api/v1/auth/token"): {"username": "ada", "password": "admin-password"},
         ("POST", "/api/v1/users"): {"username": "new", "role": "viewer", "password": "pw-123456"},
@@ -74,9 +68,13 @@ def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
     }
 
 
-def _resolve(schema: dict, spec: dict) -> dict:
+def _resolve(schema: dict, root: dict) -> dict:
+    """``schema`` with its ``$ref`` ("#/components/schemas/X", "#/$defs/X") followed."""
     while "$ref" in schema:
-        schema = spec["components"]["schemas"][schema["$ref"].rsplit("/", 1)[1]]
+        target = root
+        for key in schema["$ref"].removeprefix("#/").split("/"):
+            target = target[key]
+        schema = target
     return schema
 
 
@@ -143,6 +141,26 @@ def seeded(client, tokens, tmp_path):
     }
 
 
+def _refuses_every_bad_number(client, runtime, request: tuple, body: dict, paths) -> int:  # noqa: ANN001
+    """Send ``body`` with each of ``paths`` set to each bad number: a 422 naming the field
+    and nothing stored, every time. Returns how many requests were tried."""
+    method, url, headers = request
+    valid = client.request(method, url, content=json.dumps(body), headers=headers)
+    assert valid.status_code < 300, (url, valid.text)  # the base body is right
+    tried = 0
+    for path in paths:
+        for raw in BAD_NUMBERS:
+            before = _row_counts(runtime)
+            answer = client.request(method, url, content=_with(body, path, raw), headers=headers)
+            where = ".".join(map(str, path))
+            assert answer.status_code == 422, (method, url, where, raw, answer.text)
+            name = next(str(k) for k in reversed(path) if isinstance(k, str))
+            assert name in answer.json()["detail"], (url, where, answer.json())
+            assert _row_counts(runtime) == before, (url, where, raw)
+            tried += 1
+    return tried
+
+
 def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens, runtime, seeded):
     spec = client.get("/api/v1/openapi.json").json()
     bodies = _bodies(seeded)
@@ -155,19 +173,18 @@ def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens
             if "application/json" not in content or key in NOT_JSON:
                 continue
             assert key in bodies, f"{key}: give the test a valid body for this operation"
-            body = bodies[key]
-            url = route.format(**seeded)
-            valid = client.request(method, url, content=json.dumps(body), headers=headers)
-            assert valid.status_code < 300, (key, valid.text)  # the base body is right
-            for path in _number_paths(content["application/json"]["schema"], spec):
-                for raw in BAD_NUMBERS:
-                    before = _row_counts(runtime)
-                    text = _with(body, path, raw)
-                    answer = client.request(method, url, content=text, headers=headers)
-                    where = ".".join(map(str, path))
-                    assert answer.status_code == 422, (key, where, raw, answer.text)
-                    name = next(str(k) for k in reversed(path) if isinstance(k, str))
-                    assert name in answer.json()["detail"], (key, where, answer.json())
-                    assert _row_counts(runtime) == before, (key, where, raw)
-                    tried += 1
+            paths = _number_paths(content["application/json"]["schema"], spec)
+            request = (method, route.format(**seeded), headers)
+            tried += _refuses_every_bad_number(client, runtime, request, bodies[key], paths)
     assert tried > 300
+    # A run's params are free-form in the schema and checked against their job kind's.
+    url = f"/api/v1/inspections/{seeded['inspection_id']}/runs"
+    kinds = client.get("/api/v1/job-kinds", headers=headers).json()
+    checked = 0
+    for kind in kinds:
+        paths = _number_paths(kind["params_schema"], kind["params_schema"])
+        step = {"name": "s", "kind": kind["name"], "inputs": [seeded["artifact_id"]], "params": {}}
+        body = {"steps": [step]}
+        steps = [("steps", 0, "params", *path) for path in paths]
+        checked += _refuses_every_bad_number(client, runtime, ("POST", url, headers), body, steps)
+    assert checked > 100

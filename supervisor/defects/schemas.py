@@ -13,6 +13,7 @@ DefectStatus = Literal["open", "resolved", "dismissed"]
 Severity = Literal["info", "minor", "major", "critical"]
 Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
 Vector3 = tuple[Millimetres, Millimetres, Millimetres]
+"""A location (mm) or a direction (any length: the API normalises it), within ±1 km."""
 
 
 class Consensus(BaseModel):
