@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.engine.context import JobContext
 from supervisor.engine.errors import TransientJobError
-from supervisor.engine.registry import JobKind, register
+from supervisor.engine.registry import ANY_KIND, Inputs, JobKind, Output, register
 
 
 class SleepParams(BaseModel):
@@ -48,5 +48,7 @@ register(
         handler="tests.jobkinds:sleep_job",
         params=SleepParams,
         description="Test only: sleeps with progress, then succeeds or fails as asked.",
+        inputs=(Inputs((ANY_KIND,), "any artifacts", min=0, max=None),),
+        outputs=(Output("echo", "echo.json"),),
     )
 )

@@ -121,12 +121,20 @@ def seeded(client, tokens, tmp_path):
     inspection = client.post(
         "/api/v1/inspections", json={"title": "numbers", "area": "cabin"}, headers=headers
     ).json()
-    cloud = client.post(
-        f"/api/v1/inspections/{inspection['id']}/artifacts",
-        params={"kind": "cloud", "name": "c.ply"},
-        content=ply_bytes(tmp_path),
-        headers={**headers, "content-type": "application/x-ply"},
-    ).json()
+    artifacts = {}
+    for kind, content in (
+        ("cloud", ply_bytes(tmp_path)),
+        ("scan", ply_bytes(tmp_path)),
+        ("pairs", b"{}"),
+        ("scans", b"{}"),
+        ("handeye", b"{}"),
+    ):
+        artifacts[kind] = client.post(
+            f"/api/v1/inspections/{inspection['id']}/artifacts",
+            params={"kind": kind, "name": f"{kind}.file"},
+            content=content,
+            headers={**headers, "content-type": "application/octet-stream"},
+        ).json()["id"]
     defect = client.post(
         "/api/v1/defects",
         json={"inspection_id": inspection["id"], "type": "dent", "location_mm": [0, 0, 0]},
@@ -135,7 +143,8 @@ def seeded(client, tokens, tmp_path):
     me = client.get("/api/v1/me", headers=headers).json()
     return {
         "inspection_id": inspection["id"],
-        "artifact_id": cloud["id"],
+        "artifact_id": artifacts["cloud"],
+        "artifacts": artifacts,
         "defect_id": defect["id"],
         "user_id": me["id"],
     }
@@ -183,7 +192,8 @@ def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens
     checked = 0
     for kind in kinds:
         paths = _number_paths(kind["params_schema"], kind["params_schema"])
-        step = {"name": "s", "kind": kind["name"], "inputs": [seeded["artifact_id"]], "params": {}}
+        inputs = [seeded["artifacts"][spec["kinds"][0]] for spec in kind["inputs"] if spec["min"]]
+        step = {"name": "s", "kind": kind["name"], "inputs": inputs, "params": {}}
         body = {"steps": [step]}
         steps = [("steps", 0, "params", *path) for path in paths]
         checked += _refuses_every_bad_number(client, runtime, ("POST", url, headers), body, steps)

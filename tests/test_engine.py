@@ -363,11 +363,12 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     cloud.write_bytes(engine.http.get(f"{base}/{produced['cloud']['id']}/content").content)
     assert validate_ply(cloud).vertex_count == report["points"]
 
-    # A stitch without a calibration fails at once, naming what is missing.
-    lonely = engine.run([{"name": "stitch", "kind": "stitch", "inputs": [manifest, *scans]}])
-    failed = engine.wait(lonely["jobs"][0]["id"])
-    assert failed["status"] == "failed" and failed["attempts"] == 1
-    assert "needs exactly one `handeye` artifact" in failed["error"]
+    # A stitch without a calibration is refused when the run is created, naming what is missing.
+    lonely = engine.http.post(
+        f"/api/v1/inspections/{engine.inspection}/runs",
+        json={"steps": [{"name": "stitch", "kind": "stitch", "inputs": [manifest, *scans]}]},
+    )
+    assert lonely.status_code == 422 and "exactly 1 `handeye`" in lonely.json()["detail"]
 
 
 def _seen_depth_mm(scratch: dict, *, spacing_mm: float) -> float:

@@ -2,7 +2,7 @@
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.registry import JobKind, register
+from supervisor.engine.registry import Inputs, JobKind, Output, register
 
 
 class MeasureParams(BaseModel):
@@ -28,9 +28,10 @@ MEASURE = register(
             "Gap, step, parallelism and mismatch of every seam and junction, and dents, "
             "bumps, scratches and colour patches, in a stitched `cloud` artifact (from a "
             "`stitch` step or uploaded), judged against the inspection's tolerances. Writes "
-            "RESULT.json (kind `report`), the seam profiles (kind `plot`) and one defect per "
+            "defects.json (kind `report`), seam-profiles.png (kind `plot`) and one defect per "
             "finding out of tolerance (severity `info` for seams within it)."
         ),
-        input_kinds=("cloud",),
+        inputs=(Inputs(("cloud",), "the stitched point cloud"),),
+        outputs=(Output("report", "defects.json"), Output("plot", "seam-profiles.png")),
     )
 )

@@ -12,7 +12,7 @@ from supervisor.engine.errors import JobInputError
 
 
 def inspect_scan(ctx: JobContext) -> dict:
-    clouds = [a for a in ctx.inputs if a.media_type == PLY_MEDIA_TYPE]
+    clouds = ctx.inputs_of_kind("scan", "cloud")
     if not clouds:
         raise JobInputError("scan.inspect needs at least one PLY artifact as input")
     params = ctx.params

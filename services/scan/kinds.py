@@ -2,7 +2,7 @@
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.registry import JobKind, register
+from supervisor.engine.registry import Inputs, JobKind, Output, register
 
 
 class ScanInspectParams(BaseModel):
@@ -26,6 +26,10 @@ SCAN_INSPECT = register(
             "Checks a PLY point cloud and reports point count, bounds, spacing, density and "
             "finiteness (a JSON `report` artifact) and writes a decimated `preview` PLY."
         ),
-        input_kinds=("scan", "cloud"),
+        inputs=(Inputs(("scan", "cloud"), "PLY point clouds", max=None),),
+        outputs=(
+            Output("report", "{stem}-report.json", per_input=True),
+            Output("preview", "{stem}-preview.ply", per_input=True),
+        ),
     )
 )

@@ -4,7 +4,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.registry import JobKind, register
+from supervisor.engine.registry import Inputs, JobKind, Output, register
 
 CalibrationMethod = Literal["vista", "thesis", "tsai", "park", "horaud", "andreff", "daniilidis"]
 IcpMethod = Literal["none", "bounded", "point-to-point", "point-to-plane"]
@@ -36,11 +36,12 @@ CALIBRATE = register(
         handler="services.stitching.jobs:calibrate_job",
         params=CalibrateParams,
         description=(
-            "Robot–sensor (hand-eye) calibration from a PAIRS.json artifact (kind `pairs`): "
-            "writes HANDEYE.json (kind `handeye`) with flange_T_sensor, base_T_target, the "
+            "Robot–sensor (hand-eye) calibration from a pairs JSON artifact (kind `pairs`): "
+            "writes handeye.json (kind `handeye`) with flange_T_sensor, base_T_target, the "
             "residual, dropped pairs and the uncertainty."
         ),
-        input_kinds=("pairs",),
+        inputs=(Inputs(("pairs",), "the robot–plate pose pairs (JSON)"),),
+        outputs=(Output("handeye", "handeye.json"),),
     )
 )
 
@@ -51,11 +52,20 @@ STITCH = register(
         handler="services.stitching.jobs:stitch_job",
         params=StitchParams,
         description=(
-            "Kinematic stitching: a SCANS.json artifact (kind `scans`) naming PLY artifacts "
+            "Kinematic stitching: a scans JSON artifact (kind `scans`) naming PLY artifacts "
             "(kind `scan`) by name, and a `handeye` artifact (uploaded or from a `calibrate` "
-            "step). Writes the cleaned, merged cloud (kind `cloud`), REPORT.json (kind "
-            "`report`) and the overlap histogram (kind `plot`)."
+            "step). Writes the cleaned, merged stitched.ply (kind `cloud`), stitch-report.json "
+            "(kind `report`) and the overlap histogram overlap.png (kind `plot`)."
         ),
-        input_kinds=("scans", "scan", "handeye"),
+        inputs=(
+            Inputs(("scans",), "the scan list with each scan's robot pose (JSON)"),
+            Inputs(("scan",), "the PLY scans it names", max=None),
+            Inputs(("handeye",), "the hand-eye calibration (uploaded or from `calibrate`)"),
+        ),
+        outputs=(
+            Output("cloud", "stitched.ply"),
+            Output("report", "stitch-report.json"),
+            Output("plot", "overlap.png"),
+        ),
     )
 )

@@ -9,6 +9,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from supervisor.artifacts import service
+from supervisor.artifacts.kinds import ARTIFACT_KINDS, ArtifactKindName
 from supervisor.artifacts.schemas import ARTIFACT_KIND_PATTERN, MEDIA_TYPES, ArtifactOut
 from supervisor.artifacts.validation import validate_upload
 from supervisor.changes import record_change
@@ -57,13 +58,18 @@ def _media_type(request: Request) -> str:
 async def upload_artifact(
     inspection_id: IdPath,
     request: Request,
-    kind: str = Query(pattern=ARTIFACT_KIND_PATTERN, description="e.g. scan, poses, handeye"),
+    kind: ArtifactKindName = Query(
+        description="What the file is: "
+        + "; ".join(f"`{k.name}`: {k.description}" for k in ARTIFACT_KINDS.values())
+    ),
     name: str = Query(min_length=1, max_length=255, description="File name, e.g. scan_000.ply"),
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),
 ) -> Response:
-    """Upload a file. PLY is checked (header, element sizes, finite coordinates) before it
-    is kept; anything refused leaves nothing behind."""
+    """Upload a file. Its content is checked against what its kind needs before it is
+    kept, whatever Content-Type was declared (a PLY — recognised by its magic line — for
+    header, element sizes and finite coordinates; JSON parsed; PNG and GLB by signature),
+    and the media type kept is the content's. Anything refused leaves nothing behind."""
     media_type = _media_type(request)
     limit = runtime.settings.max_upload_bytes
     declared_length = request.headers.get("content-length")
@@ -84,7 +90,7 @@ async def upload_artifact(
     try:
         if received.size_bytes == 0:
             raise Problem(422, "The upload is empty.")
-        meta = await run_in_threadpool(
+        media_type, meta = await run_in_threadpool(
             validate_upload, temp_path, media_type=media_type, name=name, kind=kind
         )
         return await run_in_threadpool(

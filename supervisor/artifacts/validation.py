@@ -1,4 +1,5 @@
-"""Checking an uploaded file against its declared media type before it is kept."""
+"""Checking an uploaded file before it is kept: its content must be what its kind needs,
+whatever media type was declared (a PLY is recognised by its magic line)."""
 
 from __future__ import annotations
 
@@ -7,43 +8,78 @@ from dataclasses import asdict
 from pathlib import Path
 
 from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_mesh, validate_ply
+from supervisor.artifacts.kinds import ARTIFACT_KINDS, Format
 from supervisor.problems import Problem
 
 MAX_JSON_BYTES = 256 * 1024 * 1024
+MEDIA_TYPE_OF: dict[Format, str] = {
+    "ply": PLY_MEDIA_TYPE,
+    "ply-mesh": PLY_MEDIA_TYPE,
+    "json": "application/json",
+    "png": "image/png",
+    "glb": "model/gltf-binary",
+}
+_FORMAT_OF_MEDIA_TYPE: dict[str, Format] = {
+    PLY_MEDIA_TYPE: "ply",
+    "application/json": "json",
+    "image/png": "png",
+    "model/gltf-binary": "glb",
+}
+_MAGIC: dict[Format, tuple[bytes, str]] = {
+    "png": (b"\x89PNG\r\n\x1a\n", "the PNG signature"),
+    "glb": (b"glTF", "the GLB magic 'glTF'"),
+}
 
 
-def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> dict:
-    """Returns metadata learned from the file; raises a 422 Problem if it is not valid.
-    A ``mesh`` must be a PLY triangle mesh (panel meshes in the scene export)."""
-    if kind == "mesh" and media_type != PLY_MEDIA_TYPE:
-        raise Problem(422, f"kind=mesh: {name} must be a PLY triangle mesh ({PLY_MEDIA_TYPE}).")
-    if media_type == PLY_MEDIA_TYPE:
-        try:
-            info = validate_ply(path)
-            faces = len(read_mesh(path)[1]) if kind == "mesh" else None
-        except PlyError as exc:
-            what = "triangle mesh" if kind == "mesh" else "point cloud"
-            raise Problem(422, f"{name} is not a valid PLY {what}: {exc}.") from exc
-        meta = asdict(info)
-        meta["grid_shape"] = list(info.grid_shape) if info.grid_shape else None
-        if faces is not None:
-            meta["faces"] = faces
-        return {"ply": meta}
-    if media_type == "application/json":
-        if path.stat().st_size > MAX_JSON_BYTES:
-            raise Problem(413, f"JSON artifacts are limited to {MAX_JSON_BYTES // 2**20} MiB.")
-        try:
-            with open(path, "rb") as handle:
-                json.load(handle)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise Problem(422, f"{name} is not valid JSON: {exc}.") from exc
-        return {}
-    if media_type == "image/png":
+def is_ply(head: bytes) -> bool:
+    return head.startswith((b"ply\n", b"ply\r\n"))
+
+
+def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> tuple[str, dict]:
+    """The media type to keep and the metadata learned from the file; raises a 422
+    Problem naming what is wrong if the content is not what ``kind`` needs."""
+    with open(path, "rb") as handle:
+        head = handle.read(8)
+    required = ARTIFACT_KINDS[kind].format
+    declared = _FORMAT_OF_MEDIA_TYPE.get(media_type)
+    form = required or ("ply" if is_ply(head) else declared)
+    if form in ("ply", "ply-mesh"):
+        return PLY_MEDIA_TYPE, {"ply": _ply_meta(path, name, kind, mesh=form == "ply-mesh")}
+    if form == "json":
+        _check_json(path, name, kind)
+    elif form in _MAGIC:
+        magic, called = _MAGIC[form]
+        if not head.startswith(magic):
+            raise Problem(422, f"{name} (kind={kind}) does not start with {called}.")
+    return (MEDIA_TYPE_OF[form] if form else media_type), {}
+
+
+def _ply_meta(path: Path, name: str, kind: str, *, mesh: bool) -> dict:
+    what = "triangle mesh" if mesh else "point cloud"
+    with open(path, "rb") as handle:
+        if not is_ply(handle.read(5)):
+            raise Problem(
+                422,
+                f"{name} (kind={kind}) must be a PLY {what}, but it does not start with the "
+                "PLY magic line 'ply'.",
+            )
+    try:
+        info = validate_ply(path)
+        faces = len(read_mesh(path)[1]) if mesh else None
+    except PlyError as exc:
+        raise Problem(422, f"{name} is not a valid PLY {what}: {exc}.") from exc
+    meta = asdict(info)
+    meta["grid_shape"] = list(info.grid_shape) if info.grid_shape else None
+    if faces is not None:
+        meta["faces"] = faces
+    return meta
+
+
+def _check_json(path: Path, name: str, kind: str) -> None:
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise Problem(413, f"JSON artifacts are limited to {MAX_JSON_BYTES // 2**20} MiB.")
+    try:
         with open(path, "rb") as handle:
-            if handle.read(8) != b"\x89PNG\r\n\x1a\n":
-                raise Problem(422, f"{name} does not start with the PNG signature.")
-    if media_type == "model/gltf-binary":
-        with open(path, "rb") as handle:
-            if handle.read(4) != b"glTF":
-                raise Problem(422, f"{name} does not start with the GLB magic 'glTF'.")
-    return {}
+            json.load(handle)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise Problem(422, f"{name} (kind={kind}) is not valid JSON: {exc}.") from exc

@@ -16,6 +16,33 @@ from pydantic import BaseModel
 BUILTIN_KIND_MODULES = ("services.scan.kinds", "services.stitching.kinds", "services.defects.kinds")
 
 
+ANY_KIND = "*"
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """How many artifacts of these kinds one step of a job kind reads."""
+
+    kinds: tuple[str, ...]
+    what: str
+    """What they are, for people: "the stitched point cloud"."""
+    min: int = 1
+    max: int | None = 1
+    """``None``: no upper limit."""
+
+    def accepts(self, kind: str) -> bool:
+        return ANY_KIND in self.kinds or kind in self.kinds
+
+
+@dataclass(frozen=True)
+class Output:
+    """An artifact a job kind writes; ``per_input`` ones are written once per input."""
+
+    kind: str
+    name: str
+    per_input: bool = False
+
+
 @dataclass(frozen=True)
 class JobKind:
     name: str
@@ -24,8 +51,14 @@ class JobKind:
     """``module:function`` taking a ``JobContext`` and returning a JSON-able dict."""
     params: type[BaseModel]
     description: str
-    input_kinds: tuple[str, ...] = ()
-    """Artifact kinds the handler reads (documentation and early checks)."""
+    inputs: tuple[Inputs, ...] = ()
+    """What the handler reads: checked when a run is created."""
+    outputs: tuple[Output, ...] = ()
+    """What it writes: a later step's inputs are checked against them."""
+
+    @property
+    def input_kinds(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(k for spec in self.inputs for k in spec.kinds))
 
     def load_handler(self) -> Callable[[Any], dict]:
         module_name, _, function = self.handler.partition(":")
@@ -55,6 +88,10 @@ def load_kinds(extra_modules: list[str] | tuple[str, ...] = ()) -> dict[str, Job
 
 def get_kind(name: str) -> JobKind | None:
     return _KINDS.get(name)
+
+
+def all_kinds() -> list[JobKind]:
+    return list(_KINDS.values())
 
 
 def queues() -> list[str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from dataclasses import asdict
 
 from fastapi import APIRouter, Depends, Request
 from fastapi.concurrency import run_in_threadpool
@@ -19,7 +20,15 @@ from supervisor.idempotency import create_once, digest_model
 from supervisor.ids import IdPath, IdQuery
 from supervisor.inspections.service import get as get_inspection
 from supervisor.jobs import service
-from supervisor.jobs.schemas import JobKindOut, JobOut, JobStatus, RunCreate, RunOut
+from supervisor.jobs.schemas import (
+    InputsOut,
+    JobKindOut,
+    JobOut,
+    JobStatus,
+    OutputOut,
+    RunCreate,
+    RunOut,
+)
 from supervisor.models import Job, Run
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 
@@ -43,6 +52,8 @@ def list_job_kinds(
             queue=k.queue,
             description=k.description,
             input_kinds=list(k.input_kinds),
+            inputs=[InputsOut.model_validate(asdict(spec)) for spec in k.inputs],
+            outputs=[OutputOut.model_validate(asdict(output)) for output in k.outputs],
             params_schema=k.params.model_json_schema(),
         )
         for k in sorted(kinds.values(), key=lambda k: k.name)

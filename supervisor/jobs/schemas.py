@@ -70,9 +70,27 @@ class RunOut(BaseModel):
     jobs: list[JobOut]
 
 
+class InputsOut(BaseModel):
+    kinds: list[str]
+    what: str
+    min: int
+    max: int | None = Field(description="None: no upper limit.")
+
+
+class OutputOut(BaseModel):
+    kind: str
+    name: str = Field(description="File name; `{stem}` is the input's name without suffix.")
+    per_input: bool
+
+
 class JobKindOut(BaseModel):
     name: str
     queue: str
     description: str
     input_kinds: list[str]
+    inputs: list[InputsOut] = Field(
+        description="What a step reads, from its `inputs` and the outputs of its `after` "
+        "steps; checked when the run is created."
+    )
+    outputs: list[OutputOut]
     params_schema: dict

@@ -4,15 +4,16 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch
-from supervisor.engine.registry import get_kind
+from supervisor.engine.registry import JobKind, all_kinds, get_kind
 from supervisor.engine.runner import cancel_dependents
 from supervisor.jobs.schemas import JobOut, RunCreate, RunOut
+from supervisor.jobs.step_inputs import check_step_inputs
 from supervisor.models import Artifact, Job, JobDependency, Run
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem, not_found
@@ -29,14 +30,14 @@ def create_run(
     if duplicates:
         raise Problem(422, f"Step names must be unique within a run; repeated: {duplicates}.")
     wanted_inputs = {i for step in data.steps for i in step.inputs}
-    known_inputs = set(
-        session.scalars(
-            select(Artifact.id).where(
+    artifact_kinds = dict(
+        session.execute(
+            select(Artifact.id, Artifact.kind).where(
                 Artifact.id.in_(wanted_inputs), Artifact.inspection_id == inspection_id
             )
-        )
+        ).all()
     )
-    kinds = {}
+    kinds: dict[str, tuple[JobKind, BaseModel]] = {}
     for index, step in enumerate(data.steps):
         kind = get_kind(step.kind)
         if kind is None:
@@ -47,7 +48,7 @@ def create_run(
             first = exc.errors()[0]
             where = ".".join(str(p) for p in first["loc"])
             raise Problem(422, f"steps[{index}].params.{where}: {first['msg']}.") from exc
-        missing = sorted(set(step.inputs) - known_inputs)
+        missing = sorted(set(step.inputs) - set(artifact_kinds))
         if missing:
             raise Problem(
                 422, f"steps[{index}].inputs: no artifacts {missing} in inspection {inspection_id}."
@@ -58,6 +59,13 @@ def create_run(
                 raise Problem(
                     422, f"steps[{index}].after: {dependency!r} is not an earlier step of this run."
                 )
+        check_step_inputs(
+            f"steps[{index}] ({step.name})",
+            kind,
+            given={i: artifact_kinds[i] for i in sorted(set(step.inputs))},
+            upstream={name: kinds[name][0] for name in dict.fromkeys(step.after)},
+            producers=all_kinds(),
+        )
 
     run = Run(inspection_id=inspection_id, name=data.name, created_by=user_id)
     session.add(run)

@@ -1,0 +1,35 @@
+"""The kinds of artifact an inspection keeps, and the file format each must have."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+Format = Literal["ply", "ply-mesh", "json", "png", "glb"]
+
+
+@dataclass(frozen=True)
+class ArtifactKind:
+    name: str
+    format: Format | None
+    """What the content must be, whatever media type was declared; ``None``: any file."""
+    description: str
+
+
+ARTIFACT_KINDS = {
+    kind.name: kind
+    for kind in (
+        ArtifactKind("scan", "ply", "One scan as the sensor took it, sensor frame, mm."),
+        ArtifactKind("cloud", "ply", "A stitched point cloud in the robot's base frame, mm."),
+        ArtifactKind("preview", "ply", "A decimated copy of a cloud for viewers."),
+        ArtifactKind("mesh", "ply-mesh", "Nominal panel surfaces as a PLY triangle mesh."),
+        ArtifactKind("pairs", "json", "Robot–plate pose pairs for hand-eye calibration."),
+        ArtifactKind("scans", "json", "The list of scans with each scan's robot pose."),
+        ArtifactKind("handeye", "json", "A hand-eye calibration (flange_T_sensor)."),
+        ArtifactKind("report", "json", "A job's or a tool's report."),
+        ArtifactKind("plot", "png", "A figure."),
+        ArtifactKind("scene", "glb", "A 3D scene for viewers (binary glTF)."),
+        ArtifactKind("other", None, "Any file kept with the inspection; no job reads it."),
+    )
+}
+ArtifactKindName = Literal[tuple(ARTIFACT_KINDS)]  # the names above, for the API schema
