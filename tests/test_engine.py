@@ -17,7 +17,7 @@ import pytest
 import redis
 
 from services.pointcloud.ply import validate_ply
-from supervisor.engine.runner import run_job
+from supervisor.engine.runner import run_job, sentence
 from tests.conftest import (
     BROKER_URL,
     NO_BROKER,
@@ -207,6 +207,9 @@ def test_failure_cancels_what_depends_on_it(engine_factory):
     )
     failed = engine.wait(run["jobs"][0]["id"])
     assert failed["status"] == "failed" and "ValueError: the cloud is empty" in failed["error"]
+    # one sentence for people; the traceback went to the worker's log
+    assert "\n" not in failed["error"] and "Traceback" not in failed["error"]
+    assert f"under job {failed['id']}." in failed["error"]
     assert failed["attempts"] == 1  # a permanent error is not retried
     export = engine.wait(run["jobs"][1]["id"])
     assert export["status"] == "cancelled" and "measure" in export["message"]
@@ -457,3 +460,11 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     failed = engine.wait(lonely["jobs"][0]["id"])
     assert failed["status"] == "failed" and "no panel top" in failed["error"]
     assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []
+
+
+def test_a_job_error_is_one_sentence_without_server_paths():
+    assert sentence("reading /srv/vista/data/files/7/ab.ply: bad\n  header") == (
+        "Reading ab.ply: bad header."
+    )
+    assert sentence("see https://example.org/a/b, 3/4 mm") == "See https://example.org/a/b, 3/4 mm."
+    assert len(sentence("x" * 2000)) == 500

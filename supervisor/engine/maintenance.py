@@ -60,7 +60,8 @@ def recover_lost_jobs(rt: Runtime) -> list[int]:
                     guard.values(
                         status="failed",
                         message="failed",
-                        error=f"{silence} in attempt {attempts} of {max_attempts}",
+                        error=f"The {silence} in attempt {attempts} of {max_attempts}; "
+                        "it may have run out of memory or been stopped (see its log).",
                         finished_at=utcnow(),
                     )
                 ).rowcount

@@ -12,9 +12,9 @@
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
-import traceback
 from datetime import timedelta
 from functools import lru_cache
 
@@ -30,7 +30,13 @@ from supervisor.engine.context import (
     StopSignal,
 )
 from supervisor.engine.dispatch import Dispatch, dispatch
-from supervisor.engine.errors import JobCancelled, JobLost, JobTimeLimit, is_transient
+from supervisor.engine.errors import (
+    JobCancelled,
+    JobInputError,
+    JobLost,
+    JobTimeLimit,
+    is_transient,
+)
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
 from supervisor.models import Artifact, Defect, Inspection, Job, JobDependency
@@ -57,8 +63,12 @@ def run_job(job_id: int, *, runtime: Runtime | None = None) -> str:
         if kind is None:
             raise LookupError(f"job kind {claim.kind!r} is not known to this worker")
         params = kind.params.model_validate(claim.params)
-    except (LookupError, ValidationError) as exc:
-        return _end_failed(rt, claim, f"{type(exc).__name__}: {exc}")
+    except LookupError as exc:
+        return _end_failed(rt, claim, sentence(str(exc)))
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        return _end_failed(rt, claim, sentence(f"params.{where}: {first['msg']}"))
     ctx = JobContext(rt, claim, params, stop)
     beat = _Heartbeat(rt, claim, stop)
     beat.start()
@@ -369,17 +379,43 @@ def _end_after_error(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
     if isinstance(exc, JobCancelled):
         return _end(rt, claim, status="cancelled", message=str(exc), error=None)
     if isinstance(exc, JobTimeLimit):
-        return _end_failed(rt, claim, str(exc))
+        return _end_failed(rt, claim, sentence(str(exc)))
     if is_transient(exc) and claim.attempt < claim.max_attempts:
         return _requeue(rt, claim, exc)
     if not isinstance(exc, Exception):
         log.error("job %s interrupted by %s", claim.id, type(exc).__name__)
-        _end_failed(rt, claim, f"interrupted by {type(exc).__name__}")
+        _end_failed(rt, claim, f"Interrupted by {type(exc).__name__}.")
         raise exc
-    log.warning("job %s failed", claim.id, exc_info=exc)
-    summary = f"{type(exc).__name__}: {exc}"
-    detail = "".join(traceback.format_exception(exc)[-6:])
-    return _end_failed(rt, claim, f"{summary}\n\n{detail}")
+    log.error("job %s (%s, step %r) failed", claim.id, claim.kind, claim.step, exc_info=exc)
+    return _end_failed(rt, claim, user_error(exc, claim))
+
+
+def user_error(exc: Exception, claim: JobClaim) -> str:
+    """One sentence a user can act on; the traceback stays in the worker's log."""
+    if isinstance(exc, JobInputError):
+        return sentence(str(exc))
+    text = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    if is_transient(exc):
+        return sentence(
+            f"{claim.kind} failed in all {claim.attempt} attempts on a passing fault ({text}); "
+            "retry the job once it is fixed"
+        )
+    return sentence(
+        f"{claim.kind} stopped on an unexpected error ({text}); the worker's log has the "
+        f"details under job {claim.id}"
+    )
+
+
+def sentence(text: str, *, max_chars: int = 500) -> str:
+    """``text`` on one line, without directories of server paths, capitalised and ended."""
+    line = " ".join(_DIRECTORIES.sub("", text).split())
+    if len(line) > max_chars:
+        line = line[: max_chars - 1].rstrip() + "…"
+    line = line[:1].upper() + line[1:]
+    return line if line.endswith((".", "!", "?", "…")) else line + "."
+
+
+_DIRECTORIES = re.compile(r"(?<![\w.:/])(?:/[\w.-]+)+/")
 
 
 def _requeue(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
