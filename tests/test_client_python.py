@@ -3,6 +3,7 @@ reconnect, conflicting edits from the web and a second headset, a lost response 
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime, timedelta
 
 import httpx
@@ -152,3 +153,64 @@ def test_sdk_covers_inspections_defects_feedback_and_errors(live):
     with pytest.raises(VistaError) as missing:
         web.inspection(10_000)
     assert missing.value.status == 404 and "10000" in missing.value.detail
+
+
+def test_headset_outbox_sets_bad_items_aside_and_errors_are_one_line(live, tmp_path, capsys):
+    from vista_client.headset import main
+
+    server, runtime, admin_token = live
+    admin = VistaClient(server.url, admin_token)
+    inspection = admin.create_inspection("A320 cargo", "cargo")["id"]
+    ids = seed_defects(runtime, inspection, 4)
+    state = tmp_path / "headset.json"
+    base = ["--url", server.url, "--token", admin_token, "--inspection", str(inspection)]
+
+    # A mistyped verdict is refused before it is queued; the valid one after it is queued.
+    assert main([*base, "--state", str(state)]) == 0  # a first sync, online
+    typo = main(
+        [
+            *base,
+            "--state",
+            str(state),
+            "--offline",
+            "--judge",
+            f"{ids[0]}=maybe",
+            "--judge",
+            f"{ids[1]}=confirmed",
+        ]
+    )
+    assert typo == 2
+    err = capsys.readouterr().err
+    assert f"not queued: --judge {ids[0]}=maybe: defect {ids[0]}: verdict 'maybe'" in err
+    saved = json.loads(state.read_text())
+    assert [i["defect_id"] for i in saved["outbox"]] == [ids[1]]
+
+    # An outbox written by an older client holds items the server refuses: they are set
+    # aside with the reason, the others are applied, and nothing is stuck.
+    stale = dict(saved["outbox"][0], client_id="old-1", defect_id=ids[2], verdict="maybe")
+    naive = dict(
+        saved["outbox"][0], client_id="old-2", defect_id=ids[3], client_time="2026-11-01T10:00:00"
+    )  # no time zone: only the server knows
+    saved["outbox"] += [stale, naive]
+    state.write_text(json.dumps(saved))
+    assert main([*base, "--state", str(state), "--judge", f"{ids[0]}=rejected"]) == 0
+    out, err = capsys.readouterr()
+    assert "pushed 2: {'applied': 2" in out
+    assert f"set aside (not sent again): defect {ids[2]} 'maybe'" in err
+    assert f"set aside (not sent again): defect {ids[3]} 'confirmed'" in err
+    assert "time zone" in err
+    saved = json.loads(state.read_text())
+    assert saved["outbox"] == [] and len(saved["refused"]) == 2
+    verdicts = {d: admin.judgments(d)["judgments"] for d in ids}
+    assert [j["verdict"] for j in verdicts[ids[0]]] == ["rejected"]
+    assert [j["verdict"] for j in verdicts[ids[1]]] == ["confirmed"]
+    assert verdicts[ids[2]] == verdicts[ids[3]] == []
+
+    # The server's refusals are one line each, never a traceback.
+    for args, status in (
+        (["--url", server.url, "--token", "vst_wrong", "--inspection", str(inspection)], 401),
+        ([*base[:-1], "999"], 404),
+    ):
+        assert main(args) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: the server answered {status}: ") and err.count("\n") == 1

@@ -5,7 +5,9 @@ scene's ETag and the sync cursor) and an outbox of judgments made offline. Judgi
 with or without a connection: it updates the copy at once and queues the judgment with a
 client-made id and the headset's clock. ``push`` sends the outbox in batches; an item the
 server answered leaves the outbox, anything else (no network, a lost response) stays and
-is sent again with the same id, which the server answers as the first time.
+is sent again with the same id, which the server answers as the first time. A judgment is
+checked before it is queued; an item the server refuses as malformed (an outbox written by
+an older client) is set aside in ``refused`` with the reason and never holds back the rest.
 
     vista-headset --url http://127.0.0.1:8000 --token DEVICE_TOKEN --inspection 1 \\
         --judge 12=confirmed --judge 14=rejected --state headset.json
@@ -24,9 +26,12 @@ from pathlib import Path
 
 import httpx
 
-from vista_client.client import VistaClient
+from vista_client.client import VistaClient, VistaError
 
 BATCH = 1000
+VERDICTS = ("confirmed", "rejected", "reclassified", "uncertain")
+DEFECT_TYPES = ("gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color")
+MAX_COMMENT_CHARS = 4000
 
 
 class HeadsetOffline(ConnectionError):
@@ -45,6 +50,8 @@ class SyncReport:
 class PushReport:
     sent: int = 0
     results: list[dict] = field(default_factory=list)
+    refused: list[dict] = field(default_factory=list)
+    """Items the server refused as malformed: set aside (``Headset.refused``), not sent again."""
 
     def count(self, status: str) -> int:
         return sum(r["status"] == status for r in self.results)
@@ -70,6 +77,8 @@ class Headset:
         self.scene_etag: str | None = None
         self.loaded_scene_etag: str | None = None
         self.outbox: list[dict] = []
+        self.refused: list[dict] = []
+        """Outbox items set aside: each with a ``reason``."""
         self.user: dict | None = None
 
     # -- connection ----------------------------------------------------------------------
@@ -155,7 +164,12 @@ class Headset:
         comment: str = "",
         at: datetime | None = None,
     ) -> dict:
-        """Judge a defect now, online or not: queued, and shown in the local copy."""
+        """Judge a defect now, online or not: queued, and shown in the local copy. Raises
+        ``ValueError`` naming the problem (nothing queued) for a judgment the server would
+        refuse, ``KeyError`` for a defect the local copy does not hold."""
+        problem = judgment_problem(verdict, new_type, comment)
+        if problem:
+            raise ValueError(f"defect {defect_id}: {problem}")
         if defect_id not in self.defects:
             raise KeyError(f"defect {defect_id} is not in this headset's copy; sync first")
         item = {
@@ -171,23 +185,64 @@ class Headset:
         return item
 
     def push(self) -> PushReport:
-        """Send the outbox; answered items leave it. Raises ``HeadsetOffline`` (the outbox
-        kept whole) when the connection fails."""
+        """Send the outbox; answered items leave it, items the server refuses as malformed
+        are set aside with the reason. Raises ``HeadsetOffline`` (the outbox kept whole)
+        when the connection fails, ``VistaError`` when the server refuses the headset
+        itself (401, 403)."""
         report = PushReport()
+        self._set_aside(
+            [
+                (i, p)
+                for i in self.outbox
+                if (
+                    p := judgment_problem(i.get("verdict"), i.get("new_type"), i.get("comment", ""))
+                )
+            ],
+            report,
+        )
         while self.outbox:
             batch = self.outbox[:BATCH]
-            answer = self._call(self.client.push_judgments, batch)
-            answered = {r["client_id"] for r in answer["results"]}
-            self.outbox = [i for i in self.outbox if i["client_id"] not in answered]
-            for result in answer["results"]:
-                if result["judgment"] is not None:
-                    judgment = result["judgment"]
-                    self.judgments[(judgment["defect_id"], judgment["user_id"])] = judgment
-            for consensus in answer["consensus"]:
-                self.consensus[consensus["defect_id"]] = consensus
-            report.sent += len(batch)
-            report.results += answer["results"]
+            try:
+                answer = self._call(self.client.push_judgments, batch)
+            except VistaError as exc:
+                if exc.status != 422:
+                    raise
+                self._push_one_by_one(batch, report)
+                continue
+            self._fold_answer(batch, answer, report)
         return report
+
+    def _push_one_by_one(self, batch: list[dict], report: PushReport) -> None:
+        """A batch refused as a whole: each item alone, so only the bad ones are set aside."""
+        for item in batch:
+            try:
+                answer = self._call(self.client.push_judgments, [item])
+            except VistaError as exc:
+                if exc.status != 422:
+                    raise
+                self._set_aside([(item, exc.detail)], report)
+                continue
+            self._fold_answer([item], answer, report)
+
+    def _fold_answer(self, batch: list[dict], answer: dict, report: PushReport) -> None:
+        answered = {r["client_id"] for r in answer["results"]}
+        self.outbox = [i for i in self.outbox if i["client_id"] not in answered]
+        for result in answer["results"]:
+            if result["judgment"] is not None:
+                judgment = result["judgment"]
+                self.judgments[(judgment["defect_id"], judgment["user_id"])] = judgment
+        for consensus in answer["consensus"]:
+            self.consensus[consensus["defect_id"]] = consensus
+        report.sent += len(batch)
+        report.results += answer["results"]
+
+    def _set_aside(self, items: list[tuple[dict, str]], report: PushReport) -> None:
+        gone = {id(item) for item, _ in items}
+        self.outbox = [i for i in self.outbox if id(i) not in gone]
+        for item, reason in items:
+            refused = {**item, "reason": reason}
+            self.refused.append(refused)
+            report.refused.append(refused)
 
     # -- persistence ---------------------------------------------------------------------
 
@@ -203,6 +258,7 @@ class Headset:
             "scene_etag": self.scene_etag,
             "loaded_scene_etag": self.loaded_scene_etag,
             "outbox": self.outbox,
+            "refused": self.refused,
             "user": self.user,
         }
         temp = Path(path).with_suffix(".tmp")
@@ -221,8 +277,22 @@ class Headset:
         headset.scene_etag = state["scene_etag"]
         headset.loaded_scene_etag = state["loaded_scene_etag"]
         headset.outbox = state["outbox"]
+        headset.refused = state.get("refused", [])
         headset.user = state["user"]
         return headset
+
+
+def judgment_problem(verdict: object, new_type: object, comment: object) -> str | None:
+    """Why the server would refuse this judgment, or None."""
+    if verdict not in VERDICTS:
+        return f"verdict {verdict!r} is not one of {', '.join(VERDICTS)}"
+    if verdict == "reclassified" and new_type not in DEFECT_TYPES:
+        return f"reclassified needs a new type, one of {', '.join(DEFECT_TYPES)} (e.g. 12=reclassified:dent)"
+    if verdict != "reclassified" and new_type is not None:
+        return f"a new type is given only with 'reclassified', not with {verdict!r}"
+    if not isinstance(comment, str) or len(comment) > MAX_COMMENT_CHARS:
+        return f"the comment must be text of at most {MAX_COMMENT_CHARS} characters"
+    return None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -250,32 +320,50 @@ def main(argv: list[str] | None = None) -> int:
         else:
             headset = Headset(client, args.inspection)
         try:
-            if not args.offline:
-                pulled = headset.sync()
-                print(
-                    f"synced {pulled.defects} defects, {pulled.judgments} judgments "
-                    f"in {pulled.pages} page(s); scene changed: {pulled.scene_changed}"
-                )
-            for spec in args.judge:
-                defect, _, verdict = spec.partition("=")
-                verdict, _, new_type = verdict.partition(":")
-                headset.judge(int(defect), verdict, new_type=new_type or None)
-            if not args.offline and headset.outbox:
-                pushed = headset.push()
-                summary = {s: pushed.count(s) for s in ("applied", "unchanged", "stale")}
-                print(f"pushed {pushed.sent}: {summary}, rejected {pushed.count('rejected')}")
-                for result in pushed.results:
-                    if result["status"] == "rejected":
-                        print(f"  defect {result['defect_id']}: {result['detail']}")
+            return _run(headset, args)
         except HeadsetOffline as exc:
             print(f"offline ({exc}); {len(headset.outbox)} judgment(s) wait", file=sys.stderr)
-        except KeyError as exc:
-            print(f"error: {exc.args[0]}", file=sys.stderr)
-            return 2
+            return 0
+        except VistaError as exc:
+            print(f"error: the server answered {exc.status}: {exc.detail}", file=sys.stderr)
+            return 1
         finally:
             if args.state:
                 headset.save(args.state)
-    return 0
+
+
+def _run(headset: Headset, args: argparse.Namespace) -> int:
+    if not args.offline:
+        pulled = headset.sync()
+        print(
+            f"synced {pulled.defects} defects, {pulled.judgments} judgments "
+            f"in {pulled.pages} page(s); scene changed: {pulled.scene_changed}"
+        )
+    refused = 0
+    for spec in args.judge:
+        defect, _, verdict = spec.partition("=")
+        verdict, _, new_type = verdict.partition(":")
+        try:
+            if not defect.strip().isdigit():
+                raise ValueError(f"{defect!r} is not a defect id")
+            headset.judge(int(defect), verdict, new_type=new_type or None)
+        except (ValueError, KeyError) as exc:
+            print(f"not queued: --judge {spec}: {exc.args[0]}", file=sys.stderr)
+            refused += 1
+    if not args.offline and headset.outbox:
+        pushed = headset.push()
+        summary = {s: pushed.count(s) for s in ("applied", "unchanged", "stale")}
+        print(f"pushed {pushed.sent}: {summary}, rejected {pushed.count('rejected')}")
+        for result in pushed.results:
+            if result["status"] == "rejected":
+                print(f"  defect {result['defect_id']}: {result['detail']}")
+        for item in pushed.refused:
+            print(
+                f"  set aside (not sent again): defect {item.get('defect_id')} "
+                f"{item.get('verdict')!r}: {item['reason']}",
+                file=sys.stderr,
+            )
+    return 2 if refused else 0
 
 
 if __name__ == "__main__":
