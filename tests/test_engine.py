@@ -180,7 +180,10 @@ def test_scan_inspect_produces_report_and_preview(engine_factory, tmp_path):
 
 def test_dependencies_run_in_order_and_pass_outputs(engine_factory):
     engine = engine_factory()
+    status = lambda: engine.http.get(f"/api/v1/inspections/{engine.inspection}").json()["status"]  # noqa: E731
+    assert status() == "planned"
     run = engine.run([sleep_step("first", seconds=1.0), sleep_step("second", after=["first"])])
+    assert status() == "processing"  # the inspection's status follows its runs
     first, second = (j["id"] for j in run["jobs"])
     assert engine.job(second)["status"] == "waiting" and engine.job(second)["depends_on"] == [first]
     done = engine.wait(second)
@@ -195,6 +198,7 @@ def test_dependencies_run_in_order_and_pass_outputs(engine_factory):
     assert done["result"]["inputs"] == first_outputs and len(first_outputs) == 1
     assert engine.job(first)["finished_at"] <= done["started_at"]
     assert engine.http.get(f"/api/v1/runs/{run['id']}").json()["status"] == "succeeded"
+    assert status() == "review"
 
 
 def test_failure_cancels_what_depends_on_it(engine_factory):

@@ -16,6 +16,7 @@ from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch, dispatch
 from supervisor.engine.runner import cancel_dependents
 from supervisor.engine.runtime import Runtime
+from supervisor.inspections.service import follow_runs
 from supervisor.models import Job
 from supervisor.models._types import utcnow
 
@@ -67,6 +68,7 @@ def recover_lost_jobs(rt: Runtime) -> list[int]:
                 ).rowcount
                 if changed:
                     cancel_dependents(session, job_id, f"not run: job {job_id} failed")
+                    follow_runs(session, inspection_id=session.get(Job, job_id).inspection_id)
             if changed:
                 inspection_id = session.scalar(select(Job.inspection_id).where(Job.id == job_id))
                 record_change(

@@ -39,6 +39,7 @@ from supervisor.engine.errors import (
 )
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
+from supervisor.inspections.service import follow_runs
 from supervisor.models import Artifact, Defect, Inspection, Job, JobDependency
 from supervisor.models._types import utcnow
 from supervisor.settings import get_settings
@@ -228,6 +229,7 @@ def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: JobContext, result: dict) 
             return "lost"
         _store_outputs(session, claim, ctx)
         ready = _promote_dependents(session, claim.id)
+        follow_runs(session, inspection_id=claim.inspection_id)
         record_change(
             session,
             entity="job",
@@ -359,6 +361,7 @@ def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str 
         cancel_dependents(
             session, claim.id, f"not run: step '{claim.step}' (job {claim.id}) {status}"
         )
+        follow_runs(session, inspection_id=claim.inspection_id)
         record_change(
             session,
             entity="job",

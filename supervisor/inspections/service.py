@@ -5,7 +5,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.changes import record_change
 from supervisor.inspections.schemas import InspectionCreate, InspectionUpdate
-from supervisor.models import Inspection, Job
+from supervisor.models import Defect, Inspection, Job
 from supervisor.problems import Problem, not_found
 
 
@@ -90,3 +90,38 @@ def delete(session: Session, *, inspection_id: int, user_id: int) -> None:
         inspection_id=inspection_id,
         user_id=user_id,
     )
+
+
+UNFINISHED_JOB_STATUSES = ("waiting", "queued", "running")
+
+
+def follow_runs(session: Session, *, inspection_id: int) -> None:
+    """The inspection's status follows its runs: ``processing`` while a job is unfinished,
+    then ``review`` once a job has succeeded or there are findings to judge. A closed
+    inspection stays closed; one whose jobs all failed stays ``processing``."""
+    inspection = session.get(Inspection, inspection_id)
+    if inspection is None or inspection.status == "closed":
+        return
+    busy = session.scalar(
+        select(
+            exists().where(
+                Job.inspection_id == inspection_id, Job.status.in_(UNFINISHED_JOB_STATUSES)
+            )
+        )
+    )
+    done = session.scalar(
+        select(
+            exists().where(Defect.inspection_id == inspection_id)
+            | exists().where(Job.inspection_id == inspection_id, Job.status == "succeeded")
+        )
+    )
+    status = "processing" if busy else "review" if done else inspection.status
+    if status != inspection.status:
+        inspection.status = status
+        record_change(
+            session,
+            entity="inspection",
+            entity_id=inspection_id,
+            op="update",
+            inspection_id=inspection_id,
+        )

@@ -12,6 +12,7 @@ from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch
 from supervisor.engine.registry import JobKind, all_kinds, get_kind
 from supervisor.engine.runner import cancel_dependents
+from supervisor.inspections.service import follow_runs
 from supervisor.jobs.schemas import JobOut, RunCreate, RunOut
 from supervisor.jobs.step_inputs import check_step_inputs
 from supervisor.models import Artifact, Job, JobDependency, Run
@@ -110,6 +111,8 @@ def create_run(
         inspection_id=inspection_id,
         user_id=user_id,
     )
+    session.flush()
+    follow_runs(session, inspection_id=inspection_id)
     ready = [Dispatch(j.id, j.queue) for j in jobs_by_name.values() if j.status == "queued"]
     return run, ready
 
@@ -193,6 +196,8 @@ def cancel_job(session: Session, *, job_id: int, user_id: int) -> Job:
         job.message = "cancelled before it started"
         job.finished_at = utcnow()
         cancel_dependents(session, job.id, f"not run: step '{job.step}' (job {job.id}) cancelled")
+        session.flush()
+        follow_runs(session, inspection_id=job.inspection_id)
     record_change(
         session,
         entity="job",
@@ -251,4 +256,5 @@ def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list
                 )
             )
     session.flush()
+    follow_runs(session, inspection_id=job.inspection_id)
     return job, ready
