@@ -12,6 +12,7 @@ from typing import IO
 from fastapi import APIRouter, FastAPI
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
 from supervisor import health
 from supervisor.artifacts.router import router as artifacts_router
@@ -101,13 +102,16 @@ def create_app(
             if runtime is None:
                 rt.db.dispose()
 
-    app = FastAPI(
+    # /docs and /redoc from assets shipped with the package (no CDN: they work offline)
+    app = FastAPIOffline(
         title="vista supervisor",
         version="1.0",
         summary="Inspections, artifacts, processing runs, defects and reviewers' judgments.",
         lifespan=lifespan,
         openapi_url=f"{API_PREFIX}/openapi.json",
         docs_url="/docs",
+        redoc_url="/redoc",
+        static_url="/docs-assets",
     )
     app.state.token_cache = TokenCache()
     install_problem_handlers(app)

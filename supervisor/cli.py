@@ -11,6 +11,7 @@ import typer
 
 from services.defects import cli as defects_cli
 from services.stitching import cli as stitching_cli
+from services.wording import counted
 from supervisor.cli_errors import fail
 from supervisor.settings import get_settings
 
@@ -244,9 +245,10 @@ def demo(
     found = [d for d in defects if d["severity"] != "info"]
     typer.echo(
         f"\ninspection {inspection['id']} “{inspection['title']}”, run {run['id']}: "
-        f"{measured['panels']} panels, {measured['seams']} seams, {measured['junctions']} "
-        f"junctions; {len(found)} defects out of tolerance, "
-        f"{len(defects) - len(found)} seams within it"
+        f"{counted(measured['panels'], 'panel')}, {counted(measured['seams'], 'seam')}, "
+        f"{counted(measured['junctions'], 'junction')}; "
+        f"{counted(len(found), 'defect')} out of tolerance, "
+        f"{counted(len(defects) - len(found), 'seam')} within it"
     )
     for d in sorted(found, key=lambda d: (d["type"], d["id"])):
         m = d["measurements"]
@@ -255,9 +257,11 @@ def demo(
             f"  #{d['id']:<5} {d['type']:<11} {m['value']:>8.3f} {unit} "
             f"(tolerance {m['tolerance']:g}) {d['severity']:<8} confidence {d['confidence']:.2f}"
         )
+    url = f"http://{settings.host}:{settings.port}"
     typer.echo(
         f"\nsimulated data and its ground truth: {outcome['folder']}\n"
-        f"see it in the API: vista serve, then http://{settings.host}:{settings.port}/docs "
-        f"(sign in as {DEMO_USER} / {DEMO_PASSWORD}); GET /api/v1/defects?inspection="
-        f"{inspection['id']}"
+        f"review it: `vista serve` (or `make run`), then open the dashboard at {url}/ and "
+        f"sign in as {DEMO_USER} / {DEMO_PASSWORD}: inspection {inspection['id']} shows the "
+        f"scene, the defects and the runs.\n"
+        f"the API: {url}/docs (works offline); GET /api/v1/defects?inspection={inspection['id']}"
     )

@@ -10,6 +10,7 @@ findings land in the inspection's defect list, ready for reviewers.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -85,7 +86,9 @@ def run_demo(
     say: Callable[[str], None],
 ) -> dict:
     """Simulate, upload, run and wait; the inspection, its run and its defects."""
-    from fastapi.testclient import TestClient
+    with warnings.catch_warnings():  # starlette's notice about its own test client's httpx
+        warnings.filterwarnings("ignore", message=".*starlette.testclient.*")
+        from fastapi.testclient import TestClient
 
     from services.defects.example import write_defects_example
     from services.defects.simulate import AssemblySpec

@@ -20,12 +20,19 @@ from tests.conftest import add_user, auth, make_settings
 @pytest.fixture
 def demo_server(start_server, tmp_path, sqlite_url):
     settings = make_settings(tmp_path, sqlite_url, embedded_workers=2, extra_job_kinds=[])
-    demo = run_demo(settings, spacing_mm=0.3, seed=0, timeout_s=300, say=lambda line: None)
+    demo = run_demo(settings, spacing_mm=0.2, seed=0, timeout_s=300, say=lambda line: None)
     server = start_server(settings, run_engine=False)
     runtime = Runtime.create(settings)
     other = add_user(runtime, "olga", "inspector", "olga-pw")
     yield server, demo, other
     runtime.db.dispose()
+
+
+def _times_the_limit(defect: dict) -> float:
+    """How far out of tolerance, as the dashboard sorts: a multiple of the limit."""
+    value, limit = abs(defect["measurements"]["value"]), defect["measurements"]["tolerance"]
+    below = defect["type"] == "gap" and defect["measurements"]["value"] < limit
+    return limit / value if below else value / limit
 
 
 def test_review_an_inspection_in_the_browser(demo_server):
@@ -44,6 +51,7 @@ def test_review_an_inspection_in_the_browser(demo_server):
         errors: list[str] = []
         page.on("pageerror", lambda error: errors.append(str(error)))
         page.goto(server.url + "/")
+        assert page.locator("#view-inspection").is_hidden()  # not under the sign-in form
         page.fill("input[name=username]", DEMO_USER)
         page.fill("input[name=password]", "wrong")
         page.click("#sign-in-form button")
@@ -56,8 +64,10 @@ def test_review_an_inspection_in_the_browser(demo_server):
 
         page.select_option("#filter-severity", "out")
         assert page.locator("#defect-list .row").count() == len(out_of_tolerance)
-        page.select_option("#sort", "value")
-        page.click("#sort-direction")  # largest excess first
+        page.select_option("#sort", "value")  # how far out of tolerance: worst first
+        first = int(page.get_attribute("#defect-list .row >> nth=0", "data-id"))
+        assert first == max(out_of_tolerance, key=_times_the_limit)["id"]
+        assert "review" in page.text_content("#inspection-status")  # it followed its runs
         page.click(f"#defect-list .row[data-id='{target}']")
         page.wait_for_selector(f"#detail-title:has-text('#{target} ')")
         facts = page.text_content("#detail-facts")
@@ -67,9 +77,14 @@ def test_review_an_inspection_in_the_browser(demo_server):
         page.wait_for_selector("#scene-status:has-text('markers')", timeout=30_000)
         # the measured panels are outlined and labelled, and the finding says which they are
         assert "4 panels (P0…)" in page.text_content("#scene-status")  # labels drawn
-        if "seam" in measured:
-            panels = measured["panels"]
-            assert f"seam {measured['seam']}: P{panels[0]} → P{panels[1]}" in facts, facts
+        panels = measured["panels"]  # a gap: the first finding of the first seam
+        assert f"seam{measured['seam']}, between P{panels[0]} and P{panels[1]}" in facts
+        assert f"along the seam{measured['along_mm']:.1f} mm from its start" in facts
+        # a legend of every type on show, one colour each, and a scale bar
+        legend = page.locator("#legend li").all_text_contents()
+        types = {d["type"] for d in demo["defects"]}
+        assert types <= set(legend) and "seam" in legend
+        assert int(page.get_attribute("#scale-bar", "data-mm")) > 0
         assert page.text_content("#consensus") == "Consensus: 1/1 rejected"
         assert "looks like a reflection" in page.text_content("#judgments li[data-user=olga]")
 
@@ -118,9 +133,58 @@ def test_review_an_inspection_in_the_browser(demo_server):
         }
         assert stored == {target: "confirmed on site", second: "a reflection off the lamp"}
 
+        # a gap shows both ends of its acceptable range
+        gap = next(d for d in out_of_tolerance if d["type"] == "gap")
+        page.click(f"#defect-list .row[data-id='{gap['id']}']")
+        page.wait_for_selector(f"#detail-title:has-text('#{gap['id']} ')")
+        assert "limits0.50–3.00 mm" in page.text_content("#detail-facts")
+
         page.click("[role=tab][data-tab=timeline]")
         assert page.locator("#timeline .job").count() == 3
-        assert page.locator("#timeline .status-succeeded").count() == 3
+        assert page.locator("#timeline .job .status-succeeded").count() == 3
         page.click("[role=tab][data-tab=feedback]")
         page.wait_for_selector("#feedback-table tbody tr")
+        units = page.text_content("#feedback-table")
+        assert "ΔE" in units and "delta_e" not in units
+
+        # The layout holds at 1024 px: the feedback table and each row's severity fit.
+        page.set_viewport_size({"width": 1024, "height": 768})
+        page.wait_for_timeout(300)
+        table = "document.querySelector('#tab-feedback .table-scroll')"
+        assert page.evaluate(f"{table}.scrollWidth <= {table}.clientWidth")
+        page.click("[role=tab][data-tab=defects]")
+        cut = page.evaluate(
+            """[...document.querySelectorAll('#defect-list .row')].filter((row) => {
+                const chip = row.querySelector('.severity').getBoundingClientRect();
+                return chip.width === 0 || chip.right > row.getBoundingClientRect().right;
+            }).length"""
+        )
+        assert cut == 0
         assert errors == []
+
+
+def test_api_docs_work_offline(start_server, tmp_path, sqlite_url):
+    """/docs and /redoc draw the API from assets the supervisor serves: any request to
+    another host is blocked, as on a plant network without internet."""
+    server = start_server(make_settings(tmp_path, sqlite_url), run_engine=False)
+    elsewhere: list[str] = []
+
+    def only_local(route):  # noqa: ANN001
+        if route.request.url.startswith(server.url):
+            route.continue_()
+        else:
+            elsewhere.append(route.request.url)
+            route.abort()
+
+    with launch_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1024, "height": 768})
+        page.route("**/*", only_local)
+        page.goto(server.url + "/docs")
+        page.wait_for_selector(".swagger-ui .info .title:has-text('vista supervisor')")
+        assert page.locator(".swagger-ui .opblock").count() > 30  # every operation listed
+        page.goto(server.url + "/redoc")
+        page.wait_for_selector("h1:has-text('vista supervisor')", timeout=30_000)
+        assert "/api/v1/inspections" in page.text_content("body")
+    # Redoc's bundle asks a CDN for its own small logo (Redocly/redoc#2108) and shows the
+    # page without it; nothing else leaves the machine.
+    assert set(elsewhere) <= {"https://cdn.redoc.ly/redoc/logo-mini.svg"}

@@ -4,15 +4,18 @@ reader (pygltflib) every marker sits on its defect to 0.1 mm and every anchor on
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 from pygltflib import GLTF2
+from scipy.spatial.transform import Rotation
 
 from services.pointcloud.ply import PointCloud, write_ply
-from supervisor.exports.gltf import pose_to_gltf, quaternion_xyzw
+from supervisor.exports.gltf import pose_to_gltf, quaternion_xyzw, rotation_from_y
+from supervisor.exports.scene import TYPE_COLORS, rgba
 from tests.conftest import auth
 from tests.seeding import seed_defects
 
@@ -50,6 +53,14 @@ PANELS = [
     }
     for i in range(2)
 ]
+SEAM = {
+    "id": 0,
+    "panels": [0, 1],
+    "start": [150.0, 5.0, 102.5],
+    "end": [150.0, 195.0, 102.5],
+    "length_mm": 190.0,
+    "sections": [{"at": [150.0, y, 102.5]} for y in (20.0, 60.0, 100.0, 140.0, 180.0)],
+}
 
 
 def validate(path: Path) -> dict:
@@ -98,7 +109,7 @@ def scene_inspection(client, tokens, runtime, tmp_path) -> dict:
     answer = client.post(  # a measurement's RESULT.json: its panels are outlined
         f"/api/v1/inspections/{inspection}/artifacts",
         params={"kind": "report", "name": "defects.json"},
-        content=json.dumps({"panels": PANELS}).encode(),
+        content=json.dumps({"panels": PANELS, "seams": [SEAM]}).encode(),
         headers={**auth(token), "Content-Type": "application/json"},
     )
     assert answer.status_code == 201, answer.text
@@ -143,6 +154,13 @@ def test_scene_is_valid_gltf_with_markers_on_the_defects(
         assert node.extras["defect_id"] == defect["id"] and node.extras["type"] == defect["type"]
         assert node.extras["status"] == defect["status"]
         assert node.scale[0] == pytest.approx(6.0 / 2000)  # extent 3 mm < the 6 mm minimum
+        # a ring facing along the defect's normal: it circles the defect, it does not hide it
+        x, y, z, w = node.rotation
+        ring_axis = Rotation.from_quat([x, y, z, w]).apply([0.0, 1.0, 0.0])
+        nx, ny, nz = defect["normal"]
+        assert np.allclose(ring_axis, np.array([nx, nz, -ny]) / np.linalg.norm(defect["normal"]))
+        ring = gltf.meshes[node.mesh].primitives[0]
+        assert ring.mode == 4 and gltf.accessors[ring.attributes.POSITION].count == 96
     judged = nodes[f"defect-{scene_inspection['defects'][5]}"].extras["consensus"]
     assert judged["majority"] == "confirmed" and judged["total"] == 1
 
@@ -180,6 +198,12 @@ def test_scene_is_valid_gltf_with_markers_on_the_defects(
         xyz = np.frombuffer(blob, np.float32, 3 * accessor.count, view.byteOffset).reshape(-1, 3)
         back = np.column_stack([xyz[:, 0], -xyz[:, 2], xyz[:, 1]]) * 1000
         assert np.abs(back - panel["outline"]).max() < 1e-3
+
+    # the measured seams: a line through the sections from start to end
+    seam = nodes["seam-0"]
+    assert seam.extras["panels"] == [0, 1] and seam.extras["length_mm"] == 190.0
+    strip = gltf.meshes[seam.mesh].primitives[0]
+    assert strip.mode == 3 and gltf.accessors[strip.attributes.POSITION].count == 7  # LINE_STRIP
 
 
 def test_scene_etag_conditional_get_and_changes(client, tokens, scene_inspection):
@@ -245,3 +269,21 @@ def test_quaternions_match_rotations():
             ]
         )
         assert np.abs(rebuilt - q).max() < 1e-9
+
+
+def test_a_ring_turns_to_face_any_direction():
+    rng = np.random.default_rng(1)
+    for direction in [*rng.normal(size=(50, 3)), [0, -1, 0], [1, 0, 0], [0, 1e-12, 0]]:
+        turned = Rotation.from_quat(rotation_from_y(direction)).apply([0.0, 1.0, 0.0])
+        norm = np.linalg.norm(direction)
+        expected = np.asarray(direction) / norm if norm > 1e-9 else [0.0, 1.0, 0.0]
+        assert np.allclose(turned, expected, atol=1e-9), direction
+
+
+def test_the_dashboard_colours_each_type_as_the_scene_does_and_distinctly():
+    script = (WEB / "src" / "main.js").read_text()
+    block = re.search(r"const TYPE_COLORS = \{(.*?)\};", script, re.S).group(1)
+    assert dict(re.findall(r'(\w+): "(#[0-9a-f]{6})"', block)) == TYPE_COLORS
+    rgb = np.array([rgba(c)[:3] for c in TYPE_COLORS.values()]) * 255
+    closest = min(np.linalg.norm(a - b) for i, a in enumerate(rgb) for b in rgb[i + 1 :])
+    assert closest > 80, "two types look alike"  # dent and bump were 58 apart

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import typer
 
+from services.wording import counted
 from supervisor.cli_errors import fail
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands.
@@ -62,11 +64,17 @@ def measure(
     document = result_document(result, settings)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(document, indent=1) + "\n")
+    waited = _seconds_since_start()
     typer.echo(
         f"{result.point_count} points (spacing {result.spacing_mm:.3f} mm), "
-        f"{len(result.panels)} panels ({result.panel_area_m2:.4f} m²), "
-        f"{len(result.seams)} seams, {len(result.junctions)} junctions, "
-        f"{sum(result.seconds.values()):.2f} s"
+        f"{counted(len(result.panels), 'panel')} ({result.panel_area_m2:.4f} m²), "
+        f"{counted(len(result.seams), 'seam')}, {counted(len(result.junctions), 'junction')}; "
+        f"measured in {sum(result.seconds.values()):.2f} s"
+        + (
+            f" ({waited:.2f} s since the command started, reading the cloud included)"
+            if waited
+            else ""
+        )
     )
     for panel in document["panels"]:
         typer.echo(
@@ -79,7 +87,8 @@ def measure(
         typer.echo(
             f"  junction {junction['id']} seams {junction['seams']}: mismatch {junction['mismatch_mm']:.3f} mm"
         )
-    typer.echo(f"{len(document['defects'])} defects out of tolerance:")
+    found = len(document["defects"])
+    typer.echo(f"{counted(found, 'defect')} out of tolerance" + (":" if found else "."))
     for d in document["defects"]:
         unit = "mm" if d["unit"] == "mm" else "ΔE"
         typer.echo(
@@ -94,8 +103,30 @@ def measure(
         from services.defects.evaluate import evaluate
 
         summary = evaluate(result, truth_document, settings.tolerances).summary()
-        typer.echo("against the truth:")
-        typer.echo(json.dumps(summary, indent=1))
+        typer.echo("against the truth (mm):")
+        typer.echo(json.dumps(_rounded(summary), indent=1))
+
+
+def _rounded(value: object, digits: int = 4) -> object:
+    """Floats in a JSON-able document rounded for reading (a 16-digit float says no more)."""
+    if isinstance(value, float):
+        return round(value, digits)
+    if isinstance(value, dict):
+        return {k: _rounded(v, digits) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_rounded(v, digits) for v in value]
+    return value
+
+
+def _seconds_since_start() -> float | None:
+    """Wall time since this process started (Linux: interpreter start-up and imports
+    included), or None where that cannot be read."""
+    try:
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        uptime_s = float(Path("/proc/uptime").read_text().split()[0])
+        return uptime_s - int(fields[19]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _seam_line(seam: dict) -> str:
@@ -160,9 +191,10 @@ def simulate_defects(
     )
     example = write_defects_example(out_dir, spec, grid=grid, seed=seed, progress=typer.echo)
     typer.echo(
-        f"wrote {out_dir}: {example.scans} scans, cloud.ply ({example.cloud_points} points), "
-        f"{example.panels} panels, {example.seams} seams, {example.junctions} junctions, "
-        f"{example.defects} surface defects in truth.json, config.json"
+        f"wrote {out_dir}: {counted(example.scans, 'scan')}, cloud.ply ({example.cloud_points} "
+        f"points), {counted(example.panels, 'panel')}, {counted(example.seams, 'seam')}, "
+        f"{counted(example.junctions, 'junction')}, {counted(example.defects, 'surface defect')} "
+        "in truth.json, config.json"
     )
     typer.echo(
         f"measure it: vista measure {out_dir}/cloud.ply --config {out_dir}/config.json "

@@ -9,6 +9,7 @@ from services.defects.config import ConfigError, parse_config
 from services.defects.measure import Finding, MeasureError, MeasureResult, measure
 from services.defects.report import finding_document, profile_png, result_document
 from services.pointcloud.ply import PlyError, read_ply
+from services.wording import counted
 from supervisor.engine.context import JobContext, NewDefect
 from supervisor.engine.errors import JobInputError
 
@@ -92,7 +93,9 @@ def measure_job(ctx: JobContext) -> dict:
     for finding in result.defects:
         by_type[finding.type] = by_type.get(finding.type, 0) + 1
     ctx.progress(
-        1.0, f"{len(result.defects)} defects out of tolerance in {len(result.seams)} seams"
+        1.0,
+        f"{counted(len(result.defects), 'defect')} out of tolerance in "
+        f"{counted(len(result.seams), 'seam')}",
     )
     return {
         "panels": len(result.panels),

@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from math import erf, sqrt
 
@@ -36,6 +36,7 @@ from services.defects.sections import (
 )
 from services.defects.surface import SurfaceFinding, find_surface_defects
 from services.pointcloud.ply import PointCloud
+from services.wording import counted
 
 Progress = Callable[[float, str], None]
 MAX_CELLS = 60e6
@@ -245,7 +246,7 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
             f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
         )
     lap("panels_s")
-    report(0.3, f"{panels.count} panels: seams, sections and surface")
+    report(0.3, f"{counted(panels.count, 'panel')}: seams, sections and surface")
     # The panels' surfaces and the seams are measured independently, on as many threads
     # as there are cores (the compiled passes, NumPy and SciPy release the GIL for the
     # heavy part); the surface work starts first, while the seam lines are found.
@@ -281,7 +282,11 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
     lap("seams_and_surface_s")
     findings = _seam_findings(seams, junctions, config)
     findings += [_surface_finding(f, raster, frame, config, panel_id) for f in surface]
-    report(1.0, f"{len(seams)} seams, {len(junctions)} junctions, {len(findings)} findings")
+    report(
+        1.0,
+        f"{counted(len(seams), 'seam')}, {counted(len(junctions), 'junction')}, "
+        f"{counted(len(findings), 'finding')}",
+    )
     return MeasureResult(
         seams, junctions, findings, located, int(len(points)), spacing, cell, seconds
     )
@@ -569,14 +574,15 @@ def _seam_findings(
             "length_mm": seam.length_mm,
             "unmeasured_sections": int((~seam.measured).sum()),
         }
+        on_seam = []
         if seam.unmeasured is None:
-            findings += _gap_findings(seam, config, source, profile)
+            on_seam += _gap_findings(seam, config, source, profile)
         has_step = np.isfinite(seam.sections_step_mm)
         if has_step.sum() >= 3:
             steps = running_median(seam.sections_step_mm[has_step], window)
             worst = int(np.argmax(np.abs(steps)))
             value = float(steps[worst])
-            findings.append(
+            on_seam.append(
                 Finding(
                     "step",
                     value,
@@ -591,6 +597,7 @@ def _seam_findings(
                     profile,
                 )
             )
+        findings += [_along_seam(f, seam) for f in on_seam]
     normal_of = {s.id: s.normal for s in seams}
     for junction in junctions:
         normal = np.mean([normal_of[i] for i in junction.seams], axis=0)
@@ -610,6 +617,13 @@ def _seam_findings(
             )
         )
     return findings
+
+
+def _along_seam(finding: Finding, seam: SeamResult) -> Finding:
+    """The finding with where it lies along its seam: mm from the seam's start."""
+    direction = seam.end - seam.start
+    along_mm = float(np.dot(finding.location - seam.start, direction) / np.linalg.norm(direction))
+    return replace(finding, measurements={**finding.measurements, "along_mm": round(along_mm, 1)})
 
 
 def _surface_finding(

@@ -10,6 +10,7 @@ from services.defects.config import MeasureConfig, config_document
 from services.defects.edges import MODELS
 from services.defects.measure import Finding, MeasureResult, PanelResult, SeamResult, Stats
 from services.defects.sections import EdgeShape
+from services.wording import counted
 
 RESULT_FORMAT = "vista.defects/1"
 
@@ -180,7 +181,12 @@ def profile_png(result: MeasureResult, config: MeasureConfig, path: Path) -> Non
     step_ax.set_xlabel("distance from the seam's start (mm)")
     gap_ax.set_title("Seam profiles (dashed: tolerance)")
     if result.seams:
-        gap_ax.legend(fontsize=7, ncol=2)
+        # beside the axes, where it covers neither a profile nor a tolerance line
+        gap_ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    else:
+        why = f"no seams: the cloud holds {counted(len(result.panels), 'panel')}, no two adjacent"
+        for ax in (gap_ax, step_ax):
+            ax.text(0.5, 0.5, why, transform=ax.transAxes, ha="center", va="center")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

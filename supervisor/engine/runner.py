@@ -389,7 +389,10 @@ def _end_after_error(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
         log.error("job %s interrupted by %s", claim.id, type(exc).__name__)
         _end_failed(rt, claim, f"Interrupted by {type(exc).__name__}.")
         raise exc
-    log.error("job %s (%s, step %r) failed", claim.id, claim.kind, claim.step, exc_info=exc)
+    if isinstance(exc, JobInputError):
+        log.warning("job %s (%s, step %r) failed: %s", claim.id, claim.kind, claim.step, exc)
+    else:
+        log.error("job %s (%s, step %r) failed", claim.id, claim.kind, claim.step, exc_info=exc)
     return _end_failed(rt, claim, user_error(exc, claim))
 
 

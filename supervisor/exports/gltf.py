@@ -10,12 +10,14 @@ from __future__ import annotations
 import json
 import struct
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 FLOAT, UNSIGNED_BYTE, UNSIGNED_INT = 5126, 5121, 5125
-POINTS, LINE_LOOP, TRIANGLES = 0, 2, 4
+POINTS, LINE_LOOP, LINE_STRIP, TRIANGLES = 0, 2, 3, 4
+LINE_MODES = {"loop": LINE_LOOP, "strip": LINE_STRIP}
 
 GLTF_R_BASE = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 """Rotation of vista's Z-up base frame into glTF's Y-up frame: (x, y, z) → (x, z, −y)."""
@@ -69,8 +71,9 @@ class Material:
 
 @dataclass(frozen=True)
 class Mesh:
-    """Triangles (``indices`` (M, 3)), points (``indices`` None) or, with ``loop``, a
-    closed line through the positions in order; in glTF metres."""
+    """Triangles (``indices`` (M, 3)), points (``indices`` None) or, with ``lines``, a
+    line through the positions in order (``loop``: closed, ``strip``: open); in glTF
+    metres."""
 
     name: str
     positions: np.ndarray
@@ -81,7 +84,7 @@ class Mesh:
     """(N, 3) float32 unit vectors, or None."""
     indices: np.ndarray | None = None
     material: int | None = None
-    loop: bool = False
+    lines: Literal["loop", "strip"] | None = None
 
 
 @dataclass(frozen=True)
@@ -153,7 +156,7 @@ def _primitive(buffer: _Buffer, mesh: Mesh) -> dict:
             kind="VEC4",
             normalized=True,
         )
-    primitive: dict = {"attributes": attributes, "mode": LINE_LOOP if mesh.loop else POINTS}
+    primitive: dict = {"attributes": attributes, "mode": LINE_MODES.get(mesh.lines, POINTS)}
     if mesh.indices is not None:
         indices = np.asarray(mesh.indices, dtype=np.uint32).reshape(-1)
         primitive["indices"] = buffer.add(
@@ -224,59 +227,31 @@ def write_glb(
     return struct.pack("<III", 0x46546C67, 2, 12 + len(chunks)) + chunks
 
 
-def icosphere(subdivisions: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """A unit sphere: (V, 3) float32 vertices (= normals) and (F, 3) uint32 faces."""
-    t = (1.0 + 5**0.5) / 2
-    vertices = [
-        (-1, t, 0),
-        (1, t, 0),
-        (-1, -t, 0),
-        (1, -t, 0),
-        (0, -1, t),
-        (0, 1, t),
-        (0, -1, -t),
-        (0, 1, -t),
-        (t, 0, -1),
-        (t, 0, 1),
-        (-t, 0, -1),
-        (-t, 0, 1),
-    ]
-    faces = [
-        (0, 11, 5),
-        (0, 5, 1),
-        (0, 1, 7),
-        (0, 7, 10),
-        (0, 10, 11),
-        (1, 5, 9),
-        (5, 11, 4),
-        (11, 10, 2),
-        (10, 7, 6),
-        (7, 1, 8),
-        (3, 9, 4),
-        (3, 4, 2),
-        (3, 2, 6),
-        (3, 6, 8),
-        (3, 8, 9),
-        (4, 9, 5),
-        (2, 4, 11),
-        (6, 2, 10),
-        (8, 6, 7),
-        (9, 8, 1),
-    ]
-    points = [np.array(v, dtype=np.float64) / np.linalg.norm(v) for v in vertices]
-    for _ in range(subdivisions):
-        midpoints: dict[tuple[int, int], int] = {}
-        refined = []
-        for face in faces:
-            middle = []
-            for a, b in ((face[0], face[1]), (face[1], face[2]), (face[2], face[0])):
-                key = (min(a, b), max(a, b))
-                if key not in midpoints:
-                    point = points[a] + points[b]
-                    points.append(point / np.linalg.norm(point))
-                    midpoints[key] = len(points) - 1
-                middle.append(midpoints[key])
-            (a, b, c), (ab, bc, ca) = face, middle
-            refined += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = refined
-    return np.array(points, dtype=np.float32), np.array(faces, dtype=np.uint32)
+def ring(segments: int = 48, inner: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
+    """A flat unit ring (outer radius 1, ``inner`` radius) in the XZ plane, facing +Y:
+    (2·segments, 3) float32 vertices and (2·segments, 3) uint32 faces. A marker drawn
+    with it circles what it marks instead of covering it."""
+    angle = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    circle = np.column_stack([np.cos(angle), np.zeros(segments), -np.sin(angle)])
+    vertices = np.concatenate([circle, inner * circle]).astype(np.float32)
+    outer = np.arange(segments)
+    following = (outer + 1) % segments
+    faces = np.concatenate(
+        [
+            np.column_stack([outer, following, outer + segments]),
+            np.column_stack([following, following + segments, outer + segments]),
+        ]
+    )
+    return vertices, faces.astype(np.uint32)
+
+
+def rotation_from_y(direction: np.ndarray) -> list[float]:
+    """The quaternion (x, y, z, w) turning +Y onto ``direction`` (glTF frame)."""
+    y = np.asarray(direction, dtype=np.float64)
+    if not np.linalg.norm(y) > 1e-9:
+        return [0.0, 0.0, 0.0, 1.0]
+    y = y / np.linalg.norm(y)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(y[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    x = np.cross(y, helper)
+    x /= np.linalg.norm(x)
+    return quaternion_xyzw(np.column_stack([x, y, np.cross(x, y)]))

@@ -9,8 +9,12 @@ Node layout (names are stable; clients find things by them)::
     ├── outlines              the measured panels (the newest measurement's defects.json)
     │   └── panel-<id>        a closed line around the panel's top; extras: panel id,
     │                         centroid, normal, area (the ids seams and steps refer to)
+    ├── seams                 the measured seams (the same defects.json)
+    │   └── seam-<id>         a line through its sections from start to end; extras: seam
+    │                         id, panels, length, start and end (mm)
     ├── defects
-    │   └── defect-<id>       a sphere of the defect's extent; extras: id, type, value, …
+    │   └── defect-<id>       a ring around the defect at its extent, facing along its
+    │                         normal (it circles what it marks); extras: id, type, value, …
     └── anchors
         └── marker-<name>     the image marker's pose; extras: name, area, size_mm, image
 """
@@ -28,38 +32,52 @@ from sqlalchemy.orm import Session
 from services.pointcloud.ply import PLY_MEDIA_TYPE
 from supervisor.defects.service import consensus_docs, reading
 from supervisor.exports.gltf import (
+    GLTF_R_BASE,
     GLTF_T_BASE,
     Material,
     Mesh,
     Node,
     base_to_gltf,
-    icosphere,
     pose_to_gltf,
+    ring,
+    rotation_from_y,
     write_glb,
 )
 from supervisor.models import Artifact, Defect, Inspection
 from supervisor.storage import Storage
 
 MARKER_MM = (6.0, 40.0)
-"""Marker diameters: the defect's extent within these bounds. The smallest keeps a 0.5 mm
-dent visible and pickable; the largest keeps a gap along a 140 mm stretch of seam from
-hiding its panels (its whole extent is in the node's extras)."""
-MARKER_SPHERE_SUBDIVISIONS = 2
+"""Marker ring diameters: the defect's extent within these bounds. The smallest keeps a
+0.5 mm dent visible and pickable; the largest keeps a 140 mm stretch of seam readable (its
+whole extent is in the node's extras)."""
+RING_SEGMENTS = 48
 
 TYPE_COLORS = {
-    "gap": (0.90, 0.16, 0.16, 1.0),
-    "step": (0.95, 0.55, 0.10, 1.0),
-    "parallelism": (0.85, 0.80, 0.10, 1.0),
-    "mismatch": (0.60, 0.25, 0.80, 1.0),
-    "scratch": (0.10, 0.60, 0.95, 1.0),
-    "dent": (0.10, 0.75, 0.45, 1.0),
-    "bump": (0.05, 0.55, 0.35, 1.0),
-    "color": (0.95, 0.35, 0.75, 1.0),
+    "gap": "#e6194b",
+    "step": "#f58231",
+    "parallelism": "#ffe119",
+    "mismatch": "#911eb4",
+    "scratch": "#4363d8",
+    "dent": "#3cb44b",
+    "bump": "#9a6324",
+    "color": "#f032e6",
 }
+"""One distinct colour per type (the dashboard's legend uses the same ones)."""
 PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)
 OUTLINE_COLOR = (0.35, 0.85, 1.0, 1.0)
+SEAM_COLOR = (1.0, 1.0, 1.0, 1.0)
 MEASURE_REPORT = "defects.json"
-"""The measuring job's RESULT.json, whose panels the scene outlines."""
+"""The measuring job's RESULT.json, whose panels and seams the scene draws."""
+
+
+def rgba(hex_colour: str) -> tuple[float, float, float, float]:
+    value = int(hex_colour.lstrip("#"), 16)
+    return (
+        round((value >> 16) / 255, 4),
+        round((value >> 8 & 255) / 255, 4),
+        round((value & 255) / 255, 4),
+        1.0,
+    )
 
 
 @dataclass(frozen=True)
@@ -162,47 +180,74 @@ def _defect_extras(defect: dict, consensus: dict | None) -> dict:
     }
 
 
-def _add_outlines(
+def _add_measured(
     report_path: Path | None,
     meshes: list[Mesh],
     materials: list[Material],
     nodes: list[Node],
     top: list[int],
 ) -> None:
-    """A ``panel-<id>`` line loop per measured panel, under an ``outlines`` node."""
+    """The measured panels (a ``panel-<id>`` line loop each, under ``outlines``) and seams
+    (a ``seam-<id>`` line strip each, under ``seams``)."""
     if report_path is None:
         return
-    panels = [
-        p for p in json.loads(report_path.read_text()).get("panels", []) if len(p["outline"]) >= 3
+    report = json.loads(report_path.read_text())
+    panels = [p for p in report.get("panels", []) if len(p["outline"]) >= 3]
+    lines = [
+        (
+            f"panel-{p['id']}",
+            p["outline"],
+            "loop",
+            {
+                "panel": p["id"],
+                "centroid_mm": p["centroid"],
+                "normal": p["normal"],
+                "area_mm2": p["area_mm2"],
+            },
+        )
+        for p in panels
     ]
-    if not panels:
+    _add_lines(
+        "outlines", lines, Material("panel-outline", OUTLINE_COLOR), meshes, materials, nodes, top
+    )
+    seams = [
+        (
+            f"seam-{s['id']}",
+            [s["start"], *(section["at"] for section in s.get("sections", [])), s["end"]],
+            "strip",
+            {
+                "seam": s["id"],
+                "panels": s["panels"],
+                "length_mm": s["length_mm"],
+                "start_mm": s["start"],
+                "end_mm": s["end"],
+            },
+        )
+        for s in report.get("seams", [])
+    ]
+    _add_lines("seams", seams, Material("seam", SEAM_COLOR), meshes, materials, nodes, top)
+
+
+def _add_lines(
+    group_name: str,
+    lines: list[tuple[str, list, str, dict]],
+    material: Material,
+    meshes: list[Mesh],
+    materials: list[Material],
+    nodes: list[Node],
+    top: list[int],
+) -> None:
+    """One node per (name, points in mm, ``loop``/``strip``, extras) under ``group_name``."""
+    if not lines:
         return
-    materials.append(Material("panel-outline", OUTLINE_COLOR))
-    group = Node("outlines", children=[])
+    materials.append(material)
+    group = Node(group_name, children=[])
     nodes.append(group)
     top.append(len(nodes) - 1)
-    for panel in panels:
-        meshes.append(
-            Mesh(
-                f"outline-{panel['id']}",
-                base_to_gltf(panel["outline"]),
-                material=len(materials) - 1,
-                loop=True,
-            )
-        )
+    for name, points_mm, mode, extras in lines:
+        meshes.append(Mesh(name, base_to_gltf(points_mm), material=len(materials) - 1, lines=mode))
         group.children.append(len(nodes))
-        nodes.append(
-            Node(
-                f"panel-{panel['id']}",
-                mesh=len(meshes) - 1,
-                extras={
-                    "panel": panel["id"],
-                    "centroid_mm": panel["centroid"],
-                    "normal": panel["normal"],
-                    "area_mm2": panel["area_mm2"],
-                },
-            )
-        )
+        nodes.append(Node(name, mesh=len(meshes) - 1, extras=extras))
 
 
 def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
@@ -211,7 +256,11 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
 
     meshes: list[Mesh] = []
     used = {d["type"] for d in source.defects}
-    materials = [Material(f"defect-{t}", rgba) for t, rgba in TYPE_COLORS.items() if t in used]
+    materials = [
+        Material(f"defect-{t}", rgba(colour), double_sided=True)
+        for t, colour in TYPE_COLORS.items()
+        if t in used
+    ]
     nodes: list[Node] = [Node(f"inspection-{source.inspection_id}")]
     top: list[int] = []
     extras = {
@@ -244,17 +293,18 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         )
         nodes.append(Node(f"panels-{artifact_id}", mesh=len(meshes) - 1))
         top.append(len(nodes) - 1)
-    _add_outlines(source.report_path, meshes, materials, nodes, top)
-    sphere, sphere_faces = icosphere(MARKER_SPHERE_SUBDIVISIONS)
+    _add_measured(source.report_path, meshes, materials, nodes, top)
+    ring_vertices, ring_faces = ring(RING_SEGMENTS)
+    ring_normals = np.tile(np.float32([0, 1, 0]), (len(ring_vertices), 1))
     marker_mesh = {}
     for defect_type in sorted({d["type"] for d in source.defects}, key=list(TYPE_COLORS).index):
         material = [m.name for m in materials].index(f"defect-{defect_type}")
         meshes.append(
             Mesh(
                 f"marker-{defect_type}",
-                sphere,
-                normals=sphere,
-                indices=sphere_faces,
+                ring_vertices,
+                normals=ring_normals,
+                indices=ring_faces,
                 material=material,
             )
         )
@@ -264,7 +314,8 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         nodes.append(group)
         top.append(len(nodes) - 1)
         locations = base_to_gltf([d["location_mm"] for d in source.defects], np.float64)
-        for defect, at in zip(source.defects, locations, strict=True):
+        normals = np.asarray([d["normal"] for d in source.defects], float) @ GLTF_R_BASE.T
+        for defect, at, normal in zip(source.defects, locations, normals, strict=True):
             radius_m = float(np.clip(defect["extent_mm"], *MARKER_MM)) / 2000.0
             group.children.append(len(nodes))
             nodes.append(
@@ -272,6 +323,7 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
                     f"defect-{defect['id']}",
                     mesh=marker_mesh[defect["type"]],
                     translation=[float(c) for c in at],
+                    rotation=rotation_from_y(normal),
                     scale=[radius_m] * 3,
                     extras=_defect_extras(defect, source.consensus.get(defect["id"])),
                 )

@@ -4,10 +4,17 @@ import { api, ApiError, followJob, session } from "./api.js";
 import { SceneView } from "./scene.js";
 
 const TYPES = ["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"];
+// One distinct colour per type: the scene's rings use the same (supervisor/exports/scene.py).
 const TYPE_COLORS = {
-  gap: "#e62929", step: "#f28c1a", parallelism: "#d9cc1a", mismatch: "#9940cc",
-  scratch: "#1a99f2", dent: "#1abf73", bump: "#0d8c59", color: "#f259bf",
+  gap: "#e6194b", step: "#f58231", parallelism: "#ffe119", mismatch: "#911eb4",
+  scratch: "#4363d8", dent: "#3cb44b", bump: "#9a6324", color: "#f032e6",
 };
+// The scene's lines, each shown in the legend when the scene holds it.
+const SCENE_LINES = [
+  ["#59d9ff", "panel outline (P0, P1, …)", (facts) => facts.panels > 0],
+  ["#ffffff", "seam", (facts) => facts.seams > 0],
+  ["#ffee00", "selected", (facts) => facts.markers > 0],
+];
 const SEVERITY_RANK = { critical: 3, major: 2, minor: 1, info: 0 };
 const LIVE_POLL_MS = 3000;
 const PREVIEW_POINTS = 100_000; // the scene's first cloud: every marker, fewer points
@@ -25,6 +32,7 @@ const state = {
   poll: null,
   jobStreams: new AbortController(),
   scene: null,
+  sceneFacts: { markers: 0, panels: 0, seams: 0 }, // what the scene on show holds
 };
 
 // ---- small helpers ------------------------------------------------------------------
@@ -49,16 +57,56 @@ function number(value, digits = 3) {
   return value === null || value === undefined ? "–" : Number(value).toFixed(digits);
 }
 
-function valueOf(defect) {
-  const unit = defect.unit === "delta_e" ? "ΔE" : defect.unit || "mm";
-  return { value: defect.value, tolerance: defect.tolerance, unit };
+function unitText(unit) {
+  return unit === "delta_e" ? "ΔE" : unit || "mm";
 }
 
-function beyondLimit(defect) {
+function valueOf(defect) {
+  return { value: defect.value, tolerance: defect.tolerance, unit: unitText(defect.unit) };
+}
+
+const known = (x) => x !== null && x !== undefined;
+
+// A gap narrower than its minimum is the one finding judged against a lower limit.
+function belowMinimum(defect) {
+  return defect.type === "gap" && defect.severity !== "info" && known(defect.value) && defect.value < defect.tolerance;
+}
+
+// How far out of tolerance, as a multiple of the limit (over 1: out; a gap below its
+// minimum by minimum / value): one scale for millimetres and ΔE alike.
+function exceedance(defect) {
   const { value, tolerance } = valueOf(defect);
-  if (value === null || value === undefined || tolerance === null || tolerance === undefined) return 0;
-  const magnitude = defect.type === "step" ? Math.abs(value) : value;
-  return defect.type === "gap" && value < tolerance && defect.severity !== "info" ? tolerance - value : magnitude - tolerance;
+  if (!known(value) || !tolerance) return 0;
+  const size = Math.abs(value);
+  return belowMinimum(defect) ? tolerance / Math.max(size, 1e-6) : size / tolerance;
+}
+
+// The inspection's acceptance limits for this defect's type: both ends of a gap's range.
+function limitsOf(defect) {
+  const t = state.inspection?.tolerances || {};
+  const surface = t.surface || {};
+  const range = {
+    gap: t.gap_mm, step: t.step_mm, parallelism: t.parallelism_mm, mismatch: t.mismatch_mm,
+    dent: { max: surface.dent_depth_mm }, bump: { max: surface.dent_depth_mm },
+    scratch: { max: surface.scratch_depth_mm }, color: { max: surface.color_delta_e },
+  }[defect.type] || {};
+  let { min = null, max = null } = range;
+  if (belowMinimum(defect)) min = defect.tolerance; // what it was judged by
+  else if (known(defect.tolerance) && !known(max)) max = defect.tolerance;
+  const digits = defect.unit === "delta_e" ? 1 : 2;
+  const unit = unitText(defect.unit);
+  if (known(min) && known(max)) return `${number(min, digits)}–${number(max, digits)} ${unit}`;
+  if (known(min)) return `≥ ${number(min, digits)} ${unit}`;
+  return known(max) ? `≤ ${number(max, digits)} ${unit}` : "–";
+}
+
+// Where the value stands against the limit it was judged by.
+function relationText(defect) {
+  const { value, tolerance, unit } = valueOf(defect);
+  if (!known(value) || !known(tolerance)) return "";
+  if (defect.severity === "info") return "within tolerance";
+  if (belowMinimum(defect)) return `${number(tolerance - value)} ${unit} below the minimum`;
+  return `${number(Math.abs(value) - tolerance)} ${unit} over the limit`;
 }
 
 function consensusText(consensus) {
@@ -127,6 +175,7 @@ function resetInspection() {
   state.consensus.clear();
   state.cursor = null;
   state.selected = null;
+  state.sceneFacts = { markers: 0, panels: 0, seams: 0 };
   $("#detail").hidden = true;
 }
 
@@ -159,10 +208,13 @@ async function showInspection(id, defectId) {
     preview.catch(() => {}); // its failure is shown by loadScene, not as an unhandled rejection
     const syncing = guarded(pull);
     // WebGL starts up (a few hundred ms on a software renderer) while both are on their way.
-    if (!state.scene) state.scene = new SceneView($("#scene"), (defectId) => { location.hash = `#/inspections/${state.inspection.id}/defects/${defectId}`; });
+    if (!state.scene) {
+      const pick = (defectId) => { location.hash = `#/inspections/${state.inspection.id}/defects/${defectId}`; };
+      state.scene = new SceneView($("#scene"), pick, { scaleBar: $("#scale-bar") });
+    }
     const page = await syncing;
     if (!page) return;
-    $("#crumbs").replaceChildren(el("a", { href: "#/inspections" }, "inspections"), ` / ${state.inspection.title}`);
+    renderCrumbs();
     renderList();
     performance.mark("vista:list-drawn");
     loadScene(id, preview);
@@ -174,10 +226,23 @@ async function showInspection(id, defectId) {
   if (defectId) select(defectId, true);
 }
 
+function renderCrumbs() {
+  const { title, status } = state.inspection;
+  $("#crumbs").replaceChildren(
+    el("a", { href: "#/inspections" }, "inspections"), ` / ${title} `,
+    el("span", { class: "inspection-status", id: "inspection-status" }, status),
+  );
+}
+
 async function live() {
   try {
     const before = state.cursor;
+    const status = state.inspection.status;
     const page = await pull();
+    if (state.inspection.status !== status) {
+      renderCrumbs();
+      loadTimeline();
+    }
     if (state.cursor !== before && (page.defects.length || page.judgments.length)) {
       renderList();
       if (state.selected) renderDetail();
@@ -192,12 +257,20 @@ for (const type of TYPES) {
   $("#filter-type").append(el("option", { value: type }, type));
   $("#new-type").append(el("option", { value: type }, type));
 }
-for (const id of ["#filter-type", "#filter-status", "#filter-severity", "#filter-consensus", "#sort"]) {
+for (const id of ["#filter-type", "#filter-status", "#filter-severity", "#filter-consensus"]) {
   $(id).addEventListener("change", renderList);
 }
+function setSortDescending(descending) {
+  state.sortDescending = descending;
+  $("#sort-direction").textContent = descending ? "↑" : "↓";
+}
 $("#sort-direction").addEventListener("click", () => {
-  state.sortDescending = !state.sortDescending;
-  $("#sort-direction").textContent = state.sortDescending ? "↑" : "↓";
+  setSortDescending(!state.sortDescending);
+  renderList();
+});
+// How far out of tolerance reads worst first.
+$("#sort").addEventListener("change", () => {
+  setSortDescending($("#sort").value === "value");
   renderList();
 });
 
@@ -220,7 +293,7 @@ function visibleDefects() {
   const keys = {
     id: (d) => d.id,
     type: (d) => TYPES.indexOf(d.type) * 1e9 + d.id,
-    value: (d) => beyondLimit(d),
+    value: (d) => exceedance(d),
     status: (d) => d.status,
     consensus: (d) => state.consensus.get(d.id)?.agreement ?? -1,
   };
@@ -234,9 +307,9 @@ function visibleDefects() {
 }
 
 function rowFor(defect) {
-  const { value, tolerance, unit } = valueOf(defect);
-  const relation = defect.severity === "info" ? "within" : "beyond";
-  const text = `#${defect.id} ${defect.type} ${number(value)} ${unit} (${relation} ${number(tolerance, 2)}) · ${defect.severity} · ${defect.status}`;
+  const { value, unit } = valueOf(defect);
+  const text = `#${defect.id} ${defect.type} ${number(value)} ${unit}`;
+  const title = `${text} · limits ${limitsOf(defect)} · ${relationText(defect)} · ${defect.severity} · ${defect.status}`;
   return el(
     "div",
     {
@@ -245,7 +318,8 @@ function rowFor(defect) {
       onclick: () => { location.hash = `#/inspections/${state.inspection.id}/defects/${defect.id}`; },
     },
     el("span", { class: "dot", style: `background:${TYPE_COLORS[defect.type]}` }),
-    el("span", { class: "what", title: text }, text),
+    el("span", { class: "what", title }, text),
+    el("span", { class: `severity severity-${defect.severity}` }, defect.severity === "info" ? "within" : defect.severity),
     el("span", { class: "verdict" }, consensusText(state.consensus.get(defect.id))),
   );
 }
@@ -254,6 +328,18 @@ function renderList() {
   const rows = visibleDefects();
   $("#defect-list").replaceChildren(...rows.map(rowFor));
   $("#defect-count").textContent = `${rows.length} of ${state.defects.size} defects`;
+  $("#defects-empty").hidden = state.defects.size > 0;
+  renderLegend();
+}
+
+// The scene's legend: the colour of every type on show, and of the lines.
+function renderLegend() {
+  const types = TYPES.filter((t) => [...state.defects.values()].some((d) => d.type === t));
+  const entry = (colour, text, shape) => el("li", {}, el("span", { class: `swatch ${shape}`, style: `--swatch:${colour}` }), text);
+  $("#legend").replaceChildren(
+    ...types.map((t) => entry(TYPE_COLORS[t], t, "ring")),
+    ...SCENE_LINES.filter(([, , shown]) => shown(state.sceneFacts)).map(([colour, text]) => entry(colour, text, "line")),
+  );
 }
 
 // ---- selection, detail and judging ------------------------------------------------------
@@ -266,9 +352,14 @@ function select(defectId, fly) {
     row.setAttribute("aria-selected", String(Number(row.dataset.id) === defectId));
   }
   document.querySelector(`#defect-list .row[data-id="${defectId}"]`)?.scrollIntoView({ block: "nearest" });
-  state.scene?.select(defectId, fly);
+  state.scene?.select(defectId, fly, seamOf(defectId));
   renderDetail();
   refreshJudgments(defectId);
+}
+
+function seamOf(defectId) {
+  const seam = state.defects.get(defectId)?.measurements?.seam;
+  return known(seam) ? seam : null;
 }
 
 // The judging form belongs to the selected defect: on a new selection it shows my own
@@ -280,31 +371,32 @@ function resetJudgeForm(defectId) {
   $("#judge-error").textContent = "";
 }
 
-// Which panels a finding belongs to, by the ids the scene labels (P0, P1, …): a seam's
-// step is its second panel's top over its first's.
+// Where a finding is, by the ids the scene labels (P0, P1, …): a seam's step is its
+// second panel's top over its first's; a place on a seam is its distance from the start.
 function placeOf(measurements) {
-  const { seam, panels, panel, junction } = measurements;
+  const { seam, panels, panel, junction, seams, along_mm: along, length_mm: length } = measurements;
+  const facts = [];
   if (Array.isArray(panels) && panels.length === 2) {
-    return ["panels", `seam ${seam}: P${panels[0]} → P${panels[1]} (step = P${panels[1]}'s top over P${panels[0]}'s)`];
-  }
-  if (panel !== undefined && panel !== null) return ["panel", `P${panel}`];
-  if (junction !== undefined && junction !== null) return ["junction", `${junction}`];
-  return null;
+    facts.push(["seam", `${seam}, between P${panels[0]} and P${panels[1]} (step = P${panels[1]}'s top over P${panels[0]}'s)`]);
+    if (known(along)) facts.push(["along the seam", `${number(along, 1)} mm from its start${known(length) ? ` (of ${number(length, 1)} mm)` : ""}`]);
+  } else if (known(panel)) facts.push(["panel", `P${panel}`]);
+  else if (known(junction)) facts.push(["junction", `${junction}${Array.isArray(seams) ? ` (seams ${seams.join(", ")})` : ""}`]);
+  return facts;
 }
 
 function renderDetail() {
   const defect = state.defects.get(state.selected);
   if (!defect) return;
-  const { value, tolerance, unit } = valueOf(defect);
+  const { value, unit } = valueOf(defect);
   $("#detail").hidden = false;
-  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${defect.severity}, ${defect.status}`;
+  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${defect.severity === "info" ? "within tolerance" : defect.severity}, ${defect.status}`;
+  const relation = relationText(defect);
   const facts = [
-    ["value", `${number(value)} ${unit}`], ["tolerance", `${number(tolerance, 2)} ${unit}`],
+    ["value", `${number(value)} ${unit}${relation ? ` — ${relation}` : ""}`], ["limits", limitsOf(defect)],
     ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
-    ["location", defect.location_mm.map((c) => number(c, 1)).join(", ") + " mm"],
+    ...placeOf(defect.measurements || {}),
+    ["coordinates", `${defect.location_mm.map((c) => number(c, 1)).join(", ")} mm (base frame)`],
   ];
-  const where = placeOf(defect.measurements || {});
-  if (where) facts.splice(4, 0, where);
   $("#detail-facts").replaceChildren(...facts.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
   const consensus = state.consensus.get(defect.id);
   $("#consensus").textContent = `Consensus: ${consensusText(consensus)}`;
@@ -359,13 +451,21 @@ for (const button of document.querySelectorAll(".verdicts button")) {
 async function loadScene(id, preview) {
   const status = $("#scene-status");
   status.textContent = "loading the scene…";
+  $("#scene-empty").hidden = true;
   const hint = "drag to orbit, click a marker to select it";
   // The measured panels are outlined and labelled P0, P1, …: the ids findings refer to.
-  const shown = (scene) => `${scene.markers} markers · ${scene.panels} panels (P0…)`;
+  const shown = (scene) => `${scene.markers} markers · ${scene.panels ? `${scene.panels} panels (P0…)` : "no measured panels"}`;
   try {
     const first = await showScene(id, preview, { frame: true, mark: "vista:scene-drawn" });
     if (!first) return;
-    if (state.selected) state.scene.select(state.selected, true);
+    state.sceneFacts = first;
+    renderLegend();
+    if (!first.points) {
+      $("#scene-empty").textContent = "No point cloud in this inspection yet. Upload one as an artifact of kind \"cloud\", or run calibrate → stitch → measure on the scans (see the Runs tab); the measured panels, seams and defects are drawn on it.";
+      $("#scene-empty").hidden = false;
+    }
+    $(".scale").hidden = !first.points;
+    if (state.selected) state.scene.select(state.selected, true, seamOf(state.selected));
     if (first.points < PREVIEW_POINTS) {
       status.textContent = `${shown(first)} · ${hint}`;
       return;
@@ -394,8 +494,9 @@ async function showScene(id, pending, { frame, mark }) {
 function jobRow(job) {
   const bar = el("progress", { max: "1", value: String(job.progress) });
   const status = el("span", { class: `status-${job.status}` }, job.status);
-  const message = el("div", { class: "muted" }, job.error || job.message || "");
-  return { node: el("div", { class: "job", dataset: { job: job.id } }, el("span", {}, `${job.step} (${job.kind})`), bar, status, message), bar, status, message };
+  const message = el("div", { class: job.error ? "job-error" : "job-message muted" }, job.error || job.message || "");
+  const name = el("span", { class: "job-step", title: `job ${job.id}` }, `${job.step} `, el("span", { class: "muted" }, job.kind));
+  return { node: el("div", { class: "job", dataset: { job: job.id } }, name, bar, status, message), bar, status, message };
 }
 
 async function loadTimeline() {
@@ -410,13 +511,19 @@ async function loadTimeline() {
           row.bar.value = data.progress;
           row.status.textContent = data.status;
           row.status.className = `status-${data.status}`;
-          row.message.textContent = data.message || "";
+          row.message.textContent = data.error || data.message || "";
+          row.message.className = data.error ? "job-error" : "job-message muted";
         }, state.jobStreams.signal).catch(() => {});
       }
       return row.node;
     });
-    return el("li", {}, el("b", {}, `run ${run.id} ${run.name || ""}`), ` — ${run.status}, ${new Date(run.created_at).toLocaleString()}`, ...rows);
+    return el(
+      "li", {},
+      el("div", { class: "run-head" }, el("b", {}, `run ${run.id} ${run.name || ""}`), el("span", { class: `status-${run.status}` }, run.status), el("span", { class: "muted" }, new Date(run.created_at).toLocaleString())),
+      ...rows,
+    );
   }));
+  $("#runs-empty").hidden = page.items.length > 0;
 }
 
 // ---- feedback ---------------------------------------------------------------------------
@@ -424,11 +531,12 @@ async function loadTimeline() {
 async function loadFeedback() {
   const out = await guarded(() => api.feedback(state.inspection.id));
   if (!out) return;
+  const limit = (bound, value, unit) => `${bound === "min" ? "≥" : "≤"} ${value} ${unitText(unit)}`;
   $("#feedback-table tbody").replaceChildren(...out.groups.map((g) => el(
     "tr", { title: g.suggestion.reason },
-    el("td", {}, g.type), el("td", {}, `${g.bound} ${g.tolerance} ${g.unit}`), el("td", {}, String(g.flagged)),
-    el("td", {}, String(g.reviewed)), el("td", {}, String(g.confirmed)), el("td", {}, String(g.rejected)),
-    el("td", {}, String(g.missed)), el("td", {}, `${g.suggestion.action} ${g.suggestion.tolerance}`),
+    el("td", {}, g.type), el("td", {}, limit(g.bound, g.tolerance, g.unit)), el("td", {}, String(g.flagged)),
+    el("td", {}, `${g.reviewed} (✓${g.confirmed} ✗${g.rejected})`), el("td", {}, String(g.missed)),
+    el("td", {}, g.suggestion.action === "keep" ? "keep" : `${g.suggestion.action} to ${limit(g.bound, g.suggestion.tolerance, g.unit)}`),
   )));
   $("#suggested-tolerances").textContent = JSON.stringify(out.suggested_tolerances, null, 2);
 }

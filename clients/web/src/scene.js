@@ -1,42 +1,81 @@
-// The 3D scene: scene.glb in three.js, the selected defect highlighted, the camera flown to it.
+// The 3D scene: scene.glb in three.js, the selected defect highlighted, the camera flown to
+// it, base-frame axes and a scale bar.
 import * as THREE from "three";
 import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
 
-const HIGHLIGHT = new THREE.MeshStandardMaterial({
-  color: 0xffcc00, emissive: 0x664400, roughness: 0.5,
-});
+// Markers are rings drawn over everything (no depth test): they circle what they mark and a
+// panel never hides them.
+const HIGHLIGHT = new THREE.MeshBasicMaterial({ color: 0xffee00, side: THREE.DoubleSide, depthTest: false });
+const SEAM_HIGHLIGHT = new THREE.LineBasicMaterial({ color: 0xffee00, depthTest: false });
 const FLIGHT_MS = 600;
 const LABEL_M = 0.024; // a panel label's width in the scene, metres
+const PICK_SLACK_PX = 8; // a click this close to a ring picks it
+const NEAREST_VIEW_M = 0.03; // the camera comes no closer than 30 mm when flying to a defect
+const SCALE_BAR_PX = 120; // the scale bar's longest length
+const POINT_PX = [2, 14]; // a point's size on screen: ~1.5 × the cloud's spacing, within these
 
-// A panel's id drawn where its top's centre is: the numbers a seam's "panels a → b" and
-// its step's sign refer to.
-function panelLabel(id, centroidMm) {
+// A round length near `mm` for a scale bar or an axis: 1, 2 or 5 × 10^k mm.
+export function roundLength(mm) {
+  const power = 10 ** Math.floor(Math.log10(mm));
+  return [5, 2, 1].map((m) => m * power).find((length) => length <= mm) ?? power;
+}
+
+function textSprite(text, colour, widthM) {
   const canvas = document.createElement("canvas");
   canvas.width = 128;
   canvas.height = 64;
   const context = canvas.getContext("2d");
   context.fillStyle = "rgba(15, 23, 34, 0.75)";
   context.fillRect(0, 0, 128, 64);
-  context.fillStyle = "#59d9ff";
+  context.fillStyle = colour;
   context.font = "bold 40px sans-serif";
   context.textAlign = "center";
   context.textBaseline = "middle";
-  context.fillText(`P${id}`, 64, 34);
+  context.fillText(text, 64, 34);
   const material = new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false });
-  const label = new THREE.Sprite(material);
+  const sprite = new THREE.Sprite(material);
+  sprite.scale.set(widthM, widthM / 2, 1);
+  sprite.renderOrder = 20;
+  return sprite;
+}
+
+// vista's base frame (X, Y, Z; +Z up) drawn at `origin` in glTF coordinates, `lengthM` long.
+function baseAxes(origin, lengthM) {
+  const group = new THREE.Group();
+  group.name = "axes";
+  const axes = [["X", 0xff5555, [1, 0, 0]], ["Y", 0x55dd55, [0, 0, -1]], ["Z", 0x5599ff, [0, 1, 0]]];
+  for (const [name, colour, direction] of axes) {
+    const end = new THREE.Vector3(...direction).multiplyScalar(lengthM).add(origin);
+    const line = new THREE.Line(
+      new THREE.BufferGeometry().setFromPoints([origin, end]),
+      new THREE.LineBasicMaterial({ color: colour, depthTest: false }),
+    );
+    line.renderOrder = 20;
+    const label = textSprite(name, `#${colour.toString(16).padStart(6, "0")}`, lengthM * 0.3);
+    label.position.copy(end).addScaledVector(new THREE.Vector3(...direction), lengthM * 0.15);
+    group.add(line, label);
+  }
+  return group;
+}
+
+// A panel's id drawn where its top's centre is: the numbers a seam's "panels a → b" and
+// its step's sign refer to.
+function panelLabel(id, centroidMm) {
+  const label = textSprite(`P${id}`, "#59d9ff", LABEL_M);
   const [x, y, z] = centroidMm;
   label.position.set(x / 1000, z / 1000, -y / 1000); // base frame (mm, +Z up) → glTF (m, +Y up)
-  label.scale.set(LABEL_M, LABEL_M / 2, 1);
   label.name = `label-panel-${id}`;
   label.userData.panelLabel = id;
   return label;
 }
 
 export class SceneView {
-  constructor(canvas, onPick) {
+  // `scaleBar`: an element whose width and text show a round length at the orbit centre.
+  constructor(canvas, onPick, { scaleBar = null } = {}) {
     this.canvas = canvas;
     this.onPick = onPick;
+    this.scaleBar = scaleBar;
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
     this.renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
     this.scene = new THREE.Scene();
@@ -54,10 +93,11 @@ export class SceneView {
     this.controls.addEventListener("change", () => this.invalidate());
     this.dirty = true;
     this.markers = new Map();
+    this.seams = new Map();
     this.selected = null;
+    this.selectedSeam = null;
     this.flight = null;
     this.root = null;
-    this.raycaster = new THREE.Raycaster();
     canvas.addEventListener("click", (event) => this.pick(event));
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
@@ -87,26 +127,48 @@ export class SceneView {
     this.root = gltf.scene;
     this.scene.add(this.root);
     this.markers.clear();
+    this.seams.clear();
+    this.clouds = [];
     let points = 0;
     const labels = [];
     this.root.traverse((node) => {
       if (node.userData?.panel !== undefined && node.userData.centroid_mm) {
         labels.push(panelLabel(node.userData.panel, node.userData.centroid_mm));
       }
+      if (node.userData?.seam !== undefined && node.isLine) {
+        node.material.depthTest = false;
+        node.renderOrder = 5;
+        this.seams.set(node.userData.seam, { node, material: node.material });
+      }
       const id = node.userData?.defect_id;
-      if (id !== undefined && node.isMesh) this.markers.set(id, { node, material: node.material, scale: node.scale.clone() });
+      if (id !== undefined && node.isMesh) {
+        node.material.depthTest = false;
+        node.material.transparent = true; // drawn after the cloud, over it
+        node.renderOrder = 10;
+        this.markers.set(id, { node, material: node.material, scale: node.scale.clone() });
+      }
       if (node.isPoints) {
-        node.material.size = 2.0;
+        node.material.size = POINT_PX[0];
         node.material.sizeAttenuation = false;
-        points += node.geometry.attributes.position.count;
+        const count = node.geometry.attributes.position.count;
+        node.geometry.computeBoundingBox();
+        const size = node.geometry.boundingBox.getSize(new THREE.Vector3());
+        // the mean spacing of points spread over the cloud's footprint (+Y up)
+        this.clouds.push({ node, spacingM: Math.sqrt((size.x * size.z) / Math.max(count, 1)) });
+        points += count;
       }
     });
     for (const label of labels) this.root.add(label);
+    const box = new THREE.Box3().setFromObject(this.root);
+    if (!box.isEmpty()) {
+      const sizeMm = box.getSize(new THREE.Vector3()).length() * 1000;
+      this.root.add(baseAxes(box.min.clone(), roundLength(sizeMm / 6) / 1000));
+    }
     if (frame) this.frameAll();
-    if (this.selected !== null) this.select(this.selected, false);
+    if (this.selected !== null) this.select(this.selected, false, this.selectedSeam);
     this.pendingMark = mark;
     this.invalidate();
-    return { markers: this.markers.size, points, panels: labels.length };
+    return { markers: this.markers.size, points, panels: labels.length, seams: this.seams.size };
   }
 
   frameAll() {
@@ -120,27 +182,40 @@ export class SceneView {
     this.camera.updateProjectionMatrix();
   }
 
-  select(defectId, fly = true) {
+  // Highlights a defect's ring (and its seam's line, `seam` being the seam's id or null);
+  // `fly`: the camera flies to it at a distance that fits the ring.
+  select(defectId, fly = true, seam = null) {
     const previous = this.markers.get(this.selected);
     if (previous) {
       previous.node.material = previous.material;
       previous.node.scale.copy(previous.scale);
     }
+    const previousSeam = this.seams.get(this.selectedSeam);
+    if (previousSeam) previousSeam.node.material = previousSeam.material;
     this.selected = defectId;
+    this.selectedSeam = seam;
     this.invalidate();
+    const seamLine = this.seams.get(seam);
+    if (seamLine) seamLine.node.material = SEAM_HIGHLIGHT;
     const marker = this.markers.get(defectId);
     if (!marker) return;
     marker.node.material = HIGHLIGHT;
-    marker.node.scale.copy(marker.scale).multiplyScalar(1.4);
+    marker.node.scale.copy(marker.scale).multiplyScalar(1.25);
     if (fly) this.flyTo(marker.node);
   }
 
+  // The camera looks at the node from along its normal (tilted a little), from where the
+  // ring fills about a third of the view.
   flyTo(node) {
     const target = node.getWorldPosition(new THREE.Vector3());
     const [nx, ny, nz] = node.userData.normal || [0, 0, 1];
     const normal = new THREE.Vector3(nx, nz, -ny).normalize(); // base frame → glTF (+Y up)
-    const distance = Math.max(0.25, node.scale.x * 8);
-    const position = target.clone().add(normal.multiplyScalar(distance)).add(new THREE.Vector3(0, distance * 0.3, 0));
+    const halfView = Math.tan(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    const distance = Math.max(NEAREST_VIEW_M, (3 * node.scale.x) / halfView);
+    const tilt = new THREE.Vector3(0, 0, 1).projectOnPlane(normal).normalize().multiplyScalar(0.35);
+    const position = target.clone().add(normal.add(tilt).normalize().multiplyScalar(distance));
+    this.camera.near = distance / 100;
+    this.camera.updateProjectionMatrix();
     this.flight = {
       start: performance.now(),
       fromTarget: this.controls.target.clone(), toTarget: target,
@@ -148,16 +223,46 @@ export class SceneView {
     };
   }
 
+  // A click picks the ring it is on or nearest to (on screen): the smallest ring wins where
+  // rings nest. Rings are thin, so a click inside one or a few pixels off it counts.
   pick(event) {
     const rect = this.canvas.getBoundingClientRect();
-    const pointer = new THREE.Vector2(
-      ((event.clientX - rect.left) / rect.width) * 2 - 1,
-      -((event.clientY - rect.top) / rect.height) * 2 + 1,
-    );
-    this.raycaster.setFromCamera(pointer, this.camera);
-    const nodes = [...this.markers.values()].map((m) => m.node);
-    const hit = this.raycaster.intersectObjects(nodes, false)[0];
-    if (hit) this.onPick(hit.object.userData.defect_id);
+    const x = event.clientX - rect.left;
+    const y = event.clientY - rect.top;
+    let best = null;
+    for (const [id, { node }] of this.markers) {
+      const centre = node.getWorldPosition(new THREE.Vector3());
+      const edge = centre.clone().addScaledVector(new THREE.Vector3(1, 0, 0).applyQuaternion(this.camera.quaternion), node.scale.x);
+      const [cx, cy] = this.toScreen(centre, rect);
+      const [ex, ey] = this.toScreen(edge, rect);
+      if (cx === null) continue;
+      const radius = Math.hypot(ex - cx, ey - cy);
+      if (Math.hypot(x - cx, y - cy) <= radius + PICK_SLACK_PX && (!best || radius < best.radius)) best = { id, radius };
+    }
+    if (best) this.onPick(best.id);
+  }
+
+  toScreen(point, rect) {
+    const ndc = point.clone().project(this.camera);
+    if (ndc.z > 1) return [null, null]; // behind the camera
+    return [((ndc.x + 1) / 2) * rect.width, ((1 - ndc.y) / 2) * rect.height];
+  }
+
+  // At the orbit centre's depth: the scale bar shows a round length, and points grow to
+  // close the holes between them when the camera comes close.
+  updateScale() {
+    if (!this.canvas.clientHeight) return;
+    const distance = this.camera.position.distanceTo(this.controls.target);
+    const halfView = Math.tan(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    const pxPerMm = this.canvas.clientHeight / (2 * distance * halfView * 1000);
+    for (const { node, spacingM } of this.clouds || []) {
+      node.material.size = THREE.MathUtils.clamp(1.5 * spacingM * 1000 * pxPerMm, ...POINT_PX);
+    }
+    if (!this.scaleBar) return;
+    const lengthMm = roundLength(SCALE_BAR_PX / pxPerMm);
+    this.scaleBar.style.width = `${Math.round(lengthMm * pxPerMm)}px`;
+    this.scaleBar.dataset.mm = String(lengthMm);
+    this.scaleBar.textContent = lengthMm >= 1000 ? `${lengthMm / 1000} m` : `${lengthMm} mm`;
   }
 
   frame(time) {
@@ -172,6 +277,7 @@ export class SceneView {
     this.controls.update(); // while damping, it fires "change"
     if (!this.dirty) return;
     this.dirty = false;
+    this.updateScale();
     this.renderer.render(this.scene, this.camera);
     if (this.pendingMark && this.root) {
       performance.mark(this.pendingMark);

@@ -17,7 +17,7 @@ await build({
   outfile: new URL("app.js", out).pathname,
   logLevel: "warning",
 });
-for (const file of ["index.html", "style.css"]) {
+for (const file of ["index.html", "style.css", "favicon.svg"]) {
   await copyFile(new URL(file, src), new URL(file, out));
 }
 console.log(`dashboard built in ${out.pathname}`);
