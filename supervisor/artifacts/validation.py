@@ -12,7 +12,7 @@ from supervisor.artifacts.kinds import ARTIFACT_KINDS, Format
 from supervisor.problems import Problem
 
 MAX_JSON_BYTES = 256 * 1024 * 1024
-MEDIA_TYPE_OF: dict[Format, str] = {
+_MEDIA_TYPE_OF: dict[Format, str] = {
     "ply": PLY_MEDIA_TYPE,
     "ply-mesh": PLY_MEDIA_TYPE,
     "json": "application/json",
@@ -51,7 +51,7 @@ def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> tup
         magic, called = _MAGIC[form]
         if not head.startswith(magic):
             raise Problem(422, f"{name} (kind={kind}) does not start with {called}.")
-    return (MEDIA_TYPE_OF[form] if form else media_type), {}
+    return (_MEDIA_TYPE_OF[form] if form else media_type), {}
 
 
 def _ply_meta(path: Path, name: str, kind: str, *, mesh: bool) -> dict:
