@@ -250,12 +250,18 @@ def demo(
         f"{counted(len(found), 'defect')} out of tolerance, "
         f"{counted(len(defects) - len(found), 'seam')} within it"
     )
+    gap_range = inspection["tolerances"].get("gap_mm", {})
     for d in sorted(found, key=lambda d: (d["type"], d["id"])):
         m = d["measurements"]
         unit = "ΔE" if m.get("unit") == "delta_e" else "mm"
+        limits = (
+            f"limits {gap_range['min']:g}–{gap_range['max']:g}"
+            if d["type"] == "gap" and {"min", "max"} <= set(gap_range)
+            else f"tolerance {m['tolerance']:g}"
+        )
         typer.echo(
             f"  #{d['id']:<5} {d['type']:<11} {m['value']:>8.3f} {unit} "
-            f"(tolerance {m['tolerance']:g}) {d['severity']:<8} confidence {d['confidence']:.2f}"
+            f"({limits}) {d['severity']:<8} confidence {d['confidence']:.2f}"
         )
     url = f"http://{settings.host}:{settings.port}"
     typer.echo(

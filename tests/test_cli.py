@@ -61,6 +61,9 @@ def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
     assert "“Demo: cabin sidewall lining”" in shown.output
     for kind in ("dent", "bump", "scratch", "color"):
         assert f" {kind} " in shown.output, kind
+    last = shown.output.strip().splitlines()[-2:]
+    assert "open the dashboard at http://" in last[0] and "/docs (works offline)" in last[1]
+    assert "Warning" not in shown.output
     # the findings are the inspection's: a reviewer signing in sees them
     with TestClient(create_app(get_settings(), run_engine=False)) as client:
         signed_in = client.post(
