@@ -25,8 +25,8 @@ test: $(STAMP_TEST)
 	$(PY) -m pytest -q
 
 lint: $(STAMP_TEST)
-	$(VENV)/bin/ruff check supervisor services tests clients/python
-	$(VENV)/bin/ruff format --check supervisor services tests clients/python
+	$(VENV)/bin/ruff check contract supervisor services tests clients/python
+	$(VENV)/bin/ruff format --check contract supervisor services tests clients/python
 
 install: $(STAMP_RUN) $(WEB_BUILT)
 install-test: $(STAMP_TEST)

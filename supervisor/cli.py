@@ -9,10 +9,10 @@ from pathlib import Path
 
 import typer
 
+from contract.cli import fail
 from services.defects import cli as defects_cli
 from services.stitching import cli as stitching_cli
 from services.wording import counted
-from supervisor.cli_errors import fail
 from supervisor.settings import get_settings
 
 app = typer.Typer(

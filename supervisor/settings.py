@@ -54,7 +54,7 @@ class Settings(BaseSettings):
     )
     extra_job_kinds: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
-        description="Extra modules that register job kinds (comma separated).",
+        description="Extra modules declaring job kinds in a KINDS tuple (comma separated).",
     )
 
     @field_validator("extra_job_kinds", mode="before")

@@ -9,9 +9,9 @@ import time
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.context import JobContext
-from supervisor.engine.errors import TransientJobError
-from supervisor.engine.registry import ANY_KIND, Inputs, JobKind, Output, register
+from contract.context import JobContext
+from contract.errors import TransientJobError
+from contract.kinds import ANY_KIND, Inputs, JobKind, Output
 
 
 class SleepParams(BaseModel):
@@ -30,25 +30,23 @@ def sleep_job(ctx: JobContext) -> dict:
     for step in range(steps):
         ctx.progress(step / steps, f"step {step} of {steps}")
         time.sleep(params.seconds / steps)
-    if ctx.claim.attempt <= params.transient_failures:
-        raise TransientJobError(f"simulated outage in attempt {ctx.claim.attempt}")
+    if ctx.attempt <= params.transient_failures:
+        raise TransientJobError(f"simulated outage in attempt {ctx.attempt}")
     if params.fail_with:
         raise ValueError(params.fail_with)
     inputs = sorted(a.id for a in ctx.inputs)
-    ctx.add_artifact_json(
-        {"attempt": ctx.claim.attempt, "inputs": inputs}, kind="echo", name="echo.json"
-    )
-    return {"attempt": ctx.claim.attempt, "inputs": inputs}
+    ctx.add_artifact_json({"attempt": ctx.attempt, "inputs": inputs}, kind="echo", name="echo.json")
+    return {"attempt": ctx.attempt, "inputs": inputs}
 
 
-register(
-    JobKind(
-        name="test.sleep",
-        queue="test",
-        handler="tests.jobkinds:sleep_job",
-        params=SleepParams,
-        description="Test only: sleeps with progress, then succeeds or fails as asked.",
-        inputs=(Inputs((ANY_KIND,), "any artifacts", min=0, max=None),),
-        outputs=(Output("echo", "echo.json"),),
-    )
+SLEEP = JobKind(
+    name="test.sleep",
+    queue="test",
+    handler="tests.jobkinds:sleep_job",
+    params=SleepParams,
+    description="Test only: sleeps with progress, then succeeds or fails as asked.",
+    inputs=(Inputs((ANY_KIND,), "any artifacts", min=0, max=None),),
+    outputs=(Output("echo", "echo.json"),),
 )
+
+KINDS = (SLEEP,)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.bench import print_verdict, say, write_document
 from services.defects.config import MeasureConfig
 from services.defects.evaluate import Evaluation, evaluate
 from services.defects.example import BASE_T_PART, merged_cloud
@@ -37,9 +38,8 @@ from services.defects.simulate import (
     scan_assembly,
     truth_document,
 )
+from services.pointcloud.scan_sim import SensorModel
 from services.pointcloud.transforms import from_rotvec
-from services.stitching.scan_sim import SensorModel
-from supervisor.bench.document import print_verdict, say, write_document
 
 TARGETS = {
     "gap and step error p95 (mm)": 0.05,

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import typer
 
+from contract.cli import fail
 from services.wording import counted
-from supervisor.cli_errors import fail
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands.
 

@@ -24,10 +24,10 @@ from services.defects.simulate import (
     truth_document,
 )
 from services.pointcloud.ply import PointCloud, write_ply
+from services.pointcloud.scan_sim import SensorModel
 from services.pointcloud.transforms import invert, make_transform, perturb, to_json
 from services.stitching.calibration_sim import simulate_calibration
 from services.stitching.example import calibration_truth, write_session
-from services.stitching.scan_sim import SensorModel
 from services.stitching.stitch import StitchConfig, stitch
 
 BASE_T_PART = make_transform(np.eye(3), np.array([550.0, -100.0, -250.0]))

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from contract.context import JobContext, NewDefect, input_error, one_input
+from contract.errors import JobInputError
 from services.defects.config import ConfigError, parse_config
+from services.defects.kinds import PROFILES, RESULT
 from services.defects.measure import Finding, MeasureError, MeasureResult, measure
 from services.defects.report import finding_document, profile_png, result_document
 from services.pointcloud.ply import PlyError, read_ply
 from services.wording import counted
-from supervisor.engine.context import JobContext, NewDefect
-from supervisor.engine.errors import JobInputError
 
 
 def _new_defect(finding: Finding, severity: str | None = None) -> NewDefect:
@@ -49,13 +50,9 @@ def _in_tolerance_seams(result: MeasureResult) -> list[NewDefect]:
 
 def measure_job(ctx: JobContext) -> dict:
     params = ctx.params
-    clouds = ctx.inputs_of_kind("cloud")
-    if len(clouds) != 1:
-        names = ", ".join(a.name for a in clouds) or "none"
-        raise JobInputError(f"measure needs exactly one `cloud` artifact; got {names}")
-    cloud = clouds[0]
+    cloud = one_input(ctx, "cloud", "the stitched point cloud")
     try:
-        config = parse_config(ctx.claim.tolerances, "the inspection's tolerances")
+        config = parse_config(ctx.tolerances, "the inspection's tolerances")
     except ConfigError as exc:
         raise JobInputError(str(exc)) from exc
     config = replace(
@@ -68,9 +65,7 @@ def measure_job(ctx: JobContext) -> dict:
     try:
         points = read_ply(cloud.path)
     except PlyError as exc:
-        raise JobInputError(
-            str(exc).replace(str(cloud.path), f"artifact {cloud.id} ({cloud.name})")
-        ) from exc
+        raise input_error(cloud, exc) from exc
     try:
         result = measure(
             points,
@@ -80,10 +75,12 @@ def measure_job(ctx: JobContext) -> dict:
     except MeasureError as exc:
         raise JobInputError(f"artifact {cloud.id} ({cloud.name}): {exc}") from exc
     ctx.progress(0.92, "storing results")
-    ctx.add_artifact_json(result_document(result, config), kind="report", name="defects.json")
-    plot = ctx.workdir / "seam-profiles.png"
+    ctx.add_artifact_json(
+        result_document(result, config), kind=RESULT.kind, name=RESULT.file_name()
+    )
+    plot = ctx.workdir / PROFILES.file_name()
     profile_png(result, config, plot)
-    ctx.add_artifact_file(plot, kind="plot", name="seam-profiles.png", media_type="image/png")
+    ctx.add_artifact_file(plot, kind=PROFILES.kind, name=plot.name, media_type="image/png")
     defects = [_new_defect(f) for f in result.defects]
     if params.keep_in_tolerance:
         defects += _in_tolerance_seams(result)

@@ -2,7 +2,7 @@
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.registry import Inputs, JobKind, Output, register
+from contract.kinds import Inputs, JobKind, Output
 
 
 class MeasureParams(BaseModel):
@@ -18,20 +18,23 @@ class MeasureParams(BaseModel):
     )
 
 
-MEASURE = register(
-    JobKind(
-        name="measure",
-        queue="defects",
-        handler="services.defects.jobs:measure_job",
-        params=MeasureParams,
-        description=(
-            "Gap, step, parallelism and mismatch of every seam and junction, and dents, "
-            "bumps, scratches and colour patches, in a stitched `cloud` artifact (from a "
-            "`stitch` step or uploaded), judged against the inspection's tolerances. Writes "
-            "defects.json (kind `report`), seam-profiles.png (kind `plot`) and one defect per "
-            "finding out of tolerance (severity `info` for seams within it)."
-        ),
-        inputs=(Inputs(("cloud",), "the stitched point cloud"),),
-        outputs=(Output("report", "defects.json"), Output("plot", "seam-profiles.png")),
-    )
+RESULT = Output("report", "defects.json")
+PROFILES = Output("plot", "seam-profiles.png")
+
+MEASURE = JobKind(
+    name="measure",
+    queue="defects",
+    handler="services.defects.jobs:measure_job",
+    params=MeasureParams,
+    description=(
+        "Gap, step, parallelism and mismatch of every seam and junction, and dents, "
+        "bumps, scratches and colour patches, in a stitched `cloud` artifact (from a "
+        "`stitch` step or uploaded), judged against the inspection's tolerances. Writes the "
+        "result (as `vista measure`'s RESULT.json), the seam profiles and one defect per "
+        "finding out of tolerance (severity `info` for seams within it)."
+    ),
+    inputs=(Inputs(("cloud",), "the stitched point cloud"),),
+    outputs=(RESULT, PROFILES),
 )
+
+KINDS = (MEASURE,)

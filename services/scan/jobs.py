@@ -5,14 +5,15 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
+from contract.context import JobContext, inputs_of_kind
+from contract.errors import JobInputError
 from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
 from services.scan.inspect import decimate, inspect_cloud
-from supervisor.engine.context import JobContext
-from supervisor.engine.errors import JobInputError
+from services.scan.kinds import PREVIEW, REPORT
 
 
 def inspect_scan(ctx: JobContext) -> dict:
-    clouds = ctx.inputs_of_kind("scan", "cloud")
+    clouds = inputs_of_kind(ctx, "scan", "cloud")
     if not clouds:
         raise JobInputError("scan.inspect needs at least one PLY artifact as input")
     params = ctx.params
@@ -32,18 +33,18 @@ def inspect_scan(ctx: JobContext) -> dict:
             cloud, max_points=params.preview_points, spacing_mm=report.mean_spacing_mm
         )
         stem = Path(artifact.name).stem
-        preview_path = ctx.workdir / f"{stem}-preview.ply"
+        preview_path = ctx.workdir / PREVIEW.file_name(stem)
         write_ply(preview_path, preview, comments=(f"preview of artifact {artifact.id}",))
         ctx.progress(base + 0.9 * share, f"storing results for {artifact.name}")
         ctx.add_artifact_file(
             preview_path,
-            kind="preview",
+            kind=PREVIEW.kind,
             name=preview_path.name,
             media_type=PLY_MEDIA_TYPE,
             meta={"source_artifact_id": artifact.id, "point_count": len(preview.points)},
         )
         body = {"source_artifact_id": artifact.id, **asdict(report)}
-        ctx.add_artifact_json(body, kind="report", name=f"{stem}-report.json")
+        ctx.add_artifact_json(body, kind=REPORT.kind, name=REPORT.file_name(stem))
         reports[str(artifact.id)] = body
     ctx.progress(1.0, "done")
     return {"reports": reports}

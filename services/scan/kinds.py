@@ -2,7 +2,7 @@
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.registry import Inputs, JobKind, Output, register
+from contract.kinds import Inputs, JobKind, Output
 
 
 class ScanInspectParams(BaseModel):
@@ -16,20 +16,20 @@ class ScanInspectParams(BaseModel):
     )
 
 
-SCAN_INSPECT = register(
-    JobKind(
-        name="scan.inspect",
-        queue="scan",
-        handler="services.scan.jobs:inspect_scan",
-        params=ScanInspectParams,
-        description=(
-            "Checks a PLY point cloud and reports point count, bounds, spacing, density and "
-            "finiteness (a JSON `report` artifact) and writes a decimated `preview` PLY."
-        ),
-        inputs=(Inputs(("scan", "cloud"), "PLY point clouds", max=None),),
-        outputs=(
-            Output("report", "{stem}-report.json", per_input=True),
-            Output("preview", "{stem}-preview.ply", per_input=True),
-        ),
-    )
+REPORT = Output("report", "{stem}-report.json", per_input=True)
+PREVIEW = Output("preview", "{stem}-preview.ply", per_input=True)
+
+SCAN_INSPECT = JobKind(
+    name="scan.inspect",
+    queue="scan",
+    handler="services.scan.jobs:inspect_scan",
+    params=ScanInspectParams,
+    description=(
+        "Checks a PLY point cloud and reports point count, bounds, spacing, density and "
+        "finiteness (a JSON `report` artifact) and writes a decimated `preview` PLY."
+    ),
+    inputs=(Inputs(("scan", "cloud"), "PLY point clouds", max=None),),
+    outputs=(REPORT, PREVIEW),
 )
+
+KINDS = (SCAN_INSPECT,)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from supervisor.cli_errors import fail
+from contract.cli import fail
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands: every `vista` invocation
 # and every API process imports this module.
@@ -80,7 +80,7 @@ def simulate_stitching(
     """Write a complete stitching example with its ground truth: a calibration session
     (pairs.json), scans of a component along a workplan (scan_NNN.ply, scans.json), and
     truth.json (true mount, true robot poses, the part's pose and bounding box)."""
-    from services.stitching import scan_sim
+    from services.pointcloud import scan_sim
     from services.stitching.example import write_example
 
     if corrupt >= poses:

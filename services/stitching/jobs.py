@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from contract.context import JobContext, input_error, one_input
+from contract.errors import JobInputError
 from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
 from services.stitching.calibration import CalibrationError, NoiseModel, calibrate
 from services.stitching.files import (
@@ -14,38 +16,20 @@ from services.stitching.files import (
     read_handeye,
     read_pairs,
 )
+from services.stitching.kinds import HANDEYE, OVERLAP_PLOT, STITCH_REPORT, STITCHED_CLOUD
 from services.stitching.quality import histogram_png
 from services.stitching.report import icp_config, stitch_report
 from services.stitching.stitch import StitchConfig, stitch
-from supervisor.engine.context import InputArtifact, JobContext
-from supervisor.engine.errors import JobInputError
-
-
-def _one(ctx: JobContext, kind: str, what: str) -> InputArtifact:
-    found = ctx.inputs_of_kind(kind)
-    if len(found) != 1:
-        names = ", ".join(a.name for a in found) or "none"
-        raise JobInputError(
-            f"{ctx.claim.kind} needs exactly one `{kind}` artifact ({what}); got {names}"
-        )
-    return found[0]
-
-
-def _input_error(artifact: InputArtifact, exc: Exception) -> JobInputError:
-    """The file's error, naming the artifact instead of its storage path."""
-    return JobInputError(
-        str(exc).replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
-    )
 
 
 def calibrate_job(ctx: JobContext) -> dict:
     params = ctx.params
-    pairs = _one(ctx, "pairs", "PAIRS.json")
+    pairs = one_input(ctx, "pairs", "PAIRS.json")
     ctx.progress(0.05, f"reading {pairs.name}")
     try:
         base_T_flange, sensor_T_target = read_pairs(pairs.path)
     except StitchingFileError as exc:
-        raise _input_error(pairs, exc) from exc
+        raise input_error(pairs, exc) from exc
     ctx.progress(0.1, f"calibrating ({params.method}) from {len(base_T_flange)} pairs")
     noise = NoiseModel(
         params.robot_sigma_mm,
@@ -56,9 +40,9 @@ def calibrate_job(ctx: JobContext) -> dict:
     try:
         result = calibrate(base_T_flange, sensor_T_target, method=params.method, noise=noise)
     except CalibrationError as exc:
-        raise _input_error(pairs, exc) from exc
+        raise input_error(pairs, exc) from exc
     document = handeye_json(result)
-    ctx.add_artifact_json(document, kind="handeye", name="handeye.json")
+    ctx.add_artifact_json(document, kind=HANDEYE.kind, name=HANDEYE.file_name())
     ctx.progress(1.0, f"residual {result.residual_mm:.4f} mm, {len(result.dropped)} pairs dropped")
     return {
         "method": result.method,
@@ -72,16 +56,16 @@ def calibrate_job(ctx: JobContext) -> dict:
 
 def stitch_job(ctx: JobContext) -> dict:
     params = ctx.params
-    manifest = _one(ctx, "scans", "SCANS.json")
-    handeye = _one(ctx, "handeye", "HANDEYE.json")
+    manifest = one_input(ctx, "scans", "SCANS.json")
+    handeye = one_input(ctx, "handeye", "HANDEYE.json")
     try:
         names, base_T_flange = parse_scans(load_json(manifest.path), manifest.name)
     except StitchingFileError as exc:
-        raise _input_error(manifest, exc) from exc
+        raise input_error(manifest, exc) from exc
     try:
         flange_T_sensor, calibration = read_handeye(handeye.path)
     except StitchingFileError as exc:
-        raise _input_error(handeye, exc) from exc
+        raise input_error(handeye, exc) from exc
     scans = {a.name: a for a in ctx.inputs if a.media_type == PLY_MEDIA_TYPE}
     missing = [name for name in names if Path(name).name not in scans]
     if missing:
@@ -104,7 +88,7 @@ def stitch_job(ctx: JobContext) -> dict:
         try:
             clouds.append(read_ply(artifact.path))
         except PlyError as exc:
-            raise _input_error(artifact, exc) from exc
+            raise input_error(artifact, exc) from exc
 
     result = stitch(
         clouds,
@@ -115,20 +99,22 @@ def stitch_job(ctx: JobContext) -> dict:
     )
     ctx.progress(0.8, "measuring the overlap quality")
     quality, document = stitch_report(result, config=config, calibration=calibration)
-    cloud_path = ctx.workdir / "stitched.ply"
+    cloud_path = ctx.workdir / STITCHED_CLOUD.file_name()
     write_ply(cloud_path, result.cloud, comments=("vista stitched, base frame, mm",))
-    plot_path = ctx.workdir / "overlap.png"
+    plot_path = ctx.workdir / OVERLAP_PLOT.file_name()
     histogram_png(quality, plot_path)
     ctx.progress(0.95, "storing results")
     ctx.add_artifact_file(
         cloud_path,
-        kind="cloud",
-        name="stitched.ply",
+        kind=STITCHED_CLOUD.kind,
+        name=cloud_path.name,
         media_type=PLY_MEDIA_TYPE,
         meta={"point_count": len(result.cloud.points), "scans": len(clouds)},
     )
-    ctx.add_artifact_json(document, kind="report", name="stitch-report.json")
-    ctx.add_artifact_file(plot_path, kind="plot", name="overlap.png", media_type="image/png")
+    ctx.add_artifact_json(document, kind=STITCH_REPORT.kind, name=STITCH_REPORT.file_name())
+    ctx.add_artifact_file(
+        plot_path, kind=OVERLAP_PLOT.kind, name=plot_path.name, media_type="image/png"
+    )
     o = quality.overall
     ctx.progress(1.0, f"{len(result.cloud.points)} points; overlap mean {o.mean_mm:.4f} mm")
     return {

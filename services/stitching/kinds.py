@@ -4,7 +4,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.engine.registry import Inputs, JobKind, Output, register
+from contract.kinds import Inputs, JobKind, Output
 
 CalibrationMethod = Literal["vista", "thesis", "tsai", "park", "horaud", "andreff", "daniilidis"]
 IcpMethod = Literal["none", "bounded", "point-to-point", "point-to-plane"]
@@ -29,43 +29,42 @@ class StitchParams(BaseModel):
     icp_start: Literal["kinematic", "none"] = "kinematic"
 
 
-CALIBRATE = register(
-    JobKind(
-        name="calibrate",
-        queue="stitching",
-        handler="services.stitching.jobs:calibrate_job",
-        params=CalibrateParams,
-        description=(
-            "Robot–sensor (hand-eye) calibration from a pairs JSON artifact (kind `pairs`): "
-            "writes handeye.json (kind `handeye`) with flange_T_sensor, base_T_target, the "
-            "residual, dropped pairs and the uncertainty."
-        ),
-        inputs=(Inputs(("pairs",), "the robot–plate pose pairs (JSON)"),),
-        outputs=(Output("handeye", "handeye.json"),),
-    )
+HANDEYE = Output("handeye", "handeye.json")
+STITCHED_CLOUD = Output("cloud", "stitched.ply")
+STITCH_REPORT = Output("report", "stitch-report.json")
+OVERLAP_PLOT = Output("plot", "overlap.png")
+
+CALIBRATE = JobKind(
+    name="calibrate",
+    queue="stitching",
+    handler="services.stitching.jobs:calibrate_job",
+    params=CalibrateParams,
+    description=(
+        "Robot–sensor (hand-eye) calibration from the robot–plate pose pairs: writes the "
+        "calibration (flange_T_sensor, base_T_target, the residual, dropped pairs and the "
+        "uncertainty)."
+    ),
+    inputs=(Inputs(("pairs",), "the robot–plate pose pairs (JSON)"),),
+    outputs=(HANDEYE,),
 )
 
-STITCH = register(
-    JobKind(
-        name="stitch",
-        queue="stitching",
-        handler="services.stitching.jobs:stitch_job",
-        params=StitchParams,
-        description=(
-            "Kinematic stitching: a scans JSON artifact (kind `scans`) naming PLY artifacts "
-            "(kind `scan`) by name, and a `handeye` artifact (uploaded or from a `calibrate` "
-            "step). Writes the cleaned, merged stitched.ply (kind `cloud`), stitch-report.json "
-            "(kind `report`) and the overlap histogram overlap.png (kind `plot`)."
-        ),
-        inputs=(
-            Inputs(("scans",), "the scan list with each scan's robot pose (JSON)"),
-            Inputs(("scan",), "the PLY scans it names", max=None),
-            Inputs(("handeye",), "the hand-eye calibration (uploaded or from `calibrate`)"),
-        ),
-        outputs=(
-            Output("cloud", "stitched.ply"),
-            Output("report", "stitch-report.json"),
-            Output("plot", "overlap.png"),
-        ),
-    )
+STITCH = JobKind(
+    name="stitch",
+    queue="stitching",
+    handler="services.stitching.jobs:stitch_job",
+    params=StitchParams,
+    description=(
+        "Kinematic stitching: the scan list names the PLY scans by artifact name, each with "
+        "its robot pose; with the hand-eye calibration (uploaded or from a `calibrate` "
+        "step) the scans are merged into one cleaned cloud, with the overlap quality report "
+        "and histogram."
+    ),
+    inputs=(
+        Inputs(("scans",), "the scan list with each scan's robot pose (JSON)"),
+        Inputs(("scan",), "the PLY scans it names", max=None),
+        Inputs(("handeye",), "the hand-eye calibration (uploaded or from `calibrate`)"),
+    ),
+    outputs=(STITCHED_CLOUD, STITCH_REPORT, OVERLAP_PLOT),
 )
+
+KINDS = (CALIBRATE, STITCH)

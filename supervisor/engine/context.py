@@ -1,4 +1,5 @@
-"""What a job handler sees: its parameters and inputs, progress, cancellation, outputs.
+"""The engine's ``JobContext`` (see ``contract.context``): a claimed job's parameters and
+inputs, progress written to its row, cancellation, staged outputs.
 
 Outputs (artifacts, defects) are staged while the handler runs and recorded in the same
 transaction that marks the job succeeded, so a failed or lost attempt leaves nothing.
@@ -18,23 +19,14 @@ from typing import Any
 from pydantic import BaseModel
 from sqlalchemy import select, update
 
-from supervisor.engine.errors import JobCancelled, JobLost
+from contract.context import InputArtifact, NewDefect
+from contract.errors import JobCancelled, JobLost
+from supervisor.engine.runtime import Runtime
 from supervisor.models import Job
 from supervisor.models._types import utcnow
 from supervisor.storage import StoredFile
 
 PROGRESS_WRITE_INTERVAL_S = 0.25
-
-
-@dataclass(frozen=True)
-class InputArtifact:
-    id: int
-    kind: str
-    name: str
-    media_type: str
-    path: Path
-    meta: dict
-    job_id: int | None
 
 
 @dataclass(frozen=True)
@@ -64,21 +56,6 @@ class StagedArtifact:
     meta: dict
 
 
-@dataclass(frozen=True)
-class NewDefect:
-    """A finding a job reports; lengths in mm, ``normal`` a unit vector."""
-
-    type: str
-    location_mm: tuple[float, float, float]
-    normal: tuple[float, float, float]
-    value_mm: float | None
-    tolerance_mm: float | None
-    extent_mm: float
-    severity: str
-    confidence: float
-    measurements: dict = field(default_factory=dict)
-
-
 class StopSignal:
     """Set by the heartbeat thread or a progress write; read by the handler."""
 
@@ -100,27 +77,24 @@ class StopSignal:
         return self._event.wait(seconds)
 
 
-class JobContext:
-    def __init__(self, runtime: Any, claim: JobClaim, params: BaseModel, stop: StopSignal) -> None:
+class WorkerContext:
+    """A ``contract.context.JobContext`` for one attempt of a claimed job."""
+
+    def __init__(
+        self, runtime: Runtime, claim: JobClaim, params: BaseModel, stop: StopSignal
+    ) -> None:
         self._runtime = runtime
         self.claim = claim
+        self.kind = claim.kind
         self.params = params
+        self.attempt = claim.attempt
+        self.tolerances = claim.tolerances
+        self.inputs = claim.inputs
         self.stop = stop
         self.staged: list[StagedArtifact] = []
         self.defects: list[NewDefect] = []
         self._last_write = 0.0
         self._workdir: Path | None = None
-
-    @property
-    def job_id(self) -> int:
-        return self.claim.id
-
-    @property
-    def inputs(self) -> tuple[InputArtifact, ...]:
-        return self.claim.inputs
-
-    def inputs_of_kind(self, *kinds: str) -> list[InputArtifact]:
-        return [a for a in self.claim.inputs if a.kind in kinds]
 
     @property
     def workdir(self) -> Path:

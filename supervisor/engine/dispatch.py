@@ -44,19 +44,20 @@ class EmbeddedDispatcher:
 
 
 class DramatiqDispatcher:
+    """Sends each job id as a message to its queue's actor, by name."""
+
     polls_database = False
 
     def __init__(self, broker_url: str) -> None:
-        from supervisor.engine.dramatiq_actors import actors_for, make_broker
+        from supervisor.engine.broker import make_broker
 
         self.broker = make_broker(broker_url)
-        self._actors = actors_for(self.broker)
 
     def send(self, item: Dispatch) -> None:
-        actor = self._actors.get(item.queue)
-        if actor is None:
-            raise LookupError(f"no actor for queue {item.queue!r}")
-        actor.send_with_options(args=(item.job_id,), delay=int(item.delay_s * 1000) or None)
+        from supervisor.engine.broker import job_message
+
+        message = job_message(item.queue, item.job_id)
+        self.broker.enqueue(message, delay=int(item.delay_s * 1000) or None)
 
 
 def make_dispatcher(broker_url: str | None) -> Dispatcher:

@@ -10,13 +10,11 @@ import logging
 import threading
 from datetime import timedelta
 
-from sqlalchemy import or_, select, update
+from sqlalchemy import or_, select
 
-from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch, dispatch
-from supervisor.engine.runner import cancel_dependents
 from supervisor.engine.runtime import Runtime
-from supervisor.inspections.service import follow_runs
+from supervisor.engine.transitions import end_attempt
 from supervisor.models import Job
 from supervisor.models._types import utcnow
 
@@ -37,47 +35,35 @@ def recover_lost_jobs(rt: Runtime) -> list[int]:
     touched, resend = [], []
     for job_id, attempts, max_attempts, worker, queue in lost:
         silence = f"worker {worker or '?'} lost: no heartbeat for {timeout:.0f} s"
-        guard = update(Job).where(
-            Job.id == job_id,
-            Job.status == "running",
-            Job.attempts == attempts,
-            Job.heartbeat_at < cutoff,
-        )
+        still_silent = (Job.heartbeat_at < cutoff,)
         with rt.db.write() as session:
             if attempts < max_attempts:
-                changed = session.execute(
-                    guard.values(
-                        status="queued",
-                        worker=None,
-                        dispatched_at=None,
-                        not_before=None,
-                        message=f"{silence} in attempt {attempts}; re-queued",
-                    )
-                ).rowcount
-                if changed:
+                ended = end_attempt(
+                    session,
+                    job_id,
+                    attempts,
+                    status="queued",
+                    guard=still_silent,
+                    worker=None,
+                    dispatched_at=None,
+                    not_before=None,
+                    message=f"{silence} in attempt {attempts}; re-queued",
+                )
+                if ended is not None:
                     resend.append(Dispatch(job_id, queue))
             else:
-                changed = session.execute(
-                    guard.values(
-                        status="failed",
-                        message="failed",
-                        error=f"The {silence} in attempt {attempts} of {max_attempts}; "
-                        "it may have run out of memory or been stopped (see its log).",
-                        finished_at=utcnow(),
-                    )
-                ).rowcount
-                if changed:
-                    cancel_dependents(session, job_id, f"not run: job {job_id} failed")
-                    follow_runs(session, inspection_id=session.get(Job, job_id).inspection_id)
-            if changed:
-                inspection_id = session.scalar(select(Job.inspection_id).where(Job.id == job_id))
-                record_change(
+                ended = end_attempt(
                     session,
-                    entity="job",
-                    entity_id=job_id,
-                    op="update",
-                    inspection_id=inspection_id,
+                    job_id,
+                    attempts,
+                    status="failed",
+                    guard=still_silent,
+                    message="failed",
+                    error=f"The {silence} in attempt {attempts} of {max_attempts}; "
+                    "it may have run out of memory or been stopped (see its log).",
+                    finished_at=utcnow(),
                 )
+            if ended is not None:
                 touched.append(job_id)
                 log.warning("job %s: %s", job_id, silence)
     dispatch(rt.db, rt.dispatcher, resend)

@@ -16,45 +16,29 @@ import re
 import threading
 import time
 from datetime import timedelta
-from functools import lru_cache
 
 from pydantic import ValidationError
-from sqlalchemy import func, insert, or_, select, update
+from sqlalchemy import insert, or_, select, update
 from sqlalchemy.orm import Session
 
+from contract.context import InputArtifact
+from contract.errors import JobCancelled, JobInputError, JobLost, JobTimeLimit
 from supervisor.changes import record_change
-from supervisor.engine.context import (
-    InputArtifact,
-    JobClaim,
-    JobContext,
-    StopSignal,
-)
+from supervisor.engine.context import JobClaim, StopSignal, WorkerContext
 from supervisor.engine.dispatch import Dispatch, dispatch
-from supervisor.engine.errors import (
-    JobCancelled,
-    JobInputError,
-    JobLost,
-    JobTimeLimit,
-    is_transient,
-)
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
-from supervisor.inspections.service import follow_runs
+from supervisor.engine.transient import is_transient
+from supervisor.engine.transitions import end_attempt
 from supervisor.models import Artifact, Defect, Inspection, Job, JobDependency
 from supervisor.models._types import utcnow
-from supervisor.settings import get_settings
 
 log = logging.getLogger("vista.engine")
 
 
-@lru_cache
-def default_runtime() -> Runtime:
-    return Runtime.create(get_settings())
-
-
-def run_job(job_id: int, *, runtime: Runtime | None = None) -> str:
+def run_job(job_id: int, *, runtime: Runtime) -> str:
     """Execute job ``job_id`` once if it is queued; returns the status it ended in."""
-    rt = runtime or default_runtime()
+    rt = runtime
     claim = claim_job(rt, job_id)
     if claim is None:
         return "skipped"
@@ -70,7 +54,7 @@ def run_job(job_id: int, *, runtime: Runtime | None = None) -> str:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
         return _end_failed(rt, claim, sentence(f"params.{where}: {first['msg']}"))
-    ctx = JobContext(rt, claim, params, stop)
+    ctx = WorkerContext(rt, claim, params, stop)
     beat = _Heartbeat(rt, claim, stop)
     beat.start()
     error: BaseException | None = None
@@ -206,42 +190,28 @@ class _Heartbeat:
                 self._stop.set(JobCancelled, "cancelled on request")
 
 
-def _guarded(claim: JobClaim):  # noqa: ANN202 - an UPDATE statement
-    return update(Job).where(
-        Job.id == claim.id, Job.status == "running", Job.attempts == claim.attempt
-    )
-
-
-def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: JobContext, result: dict) -> str:
+def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: WorkerContext, result: dict) -> str:
     with rt.db.write() as session:
-        done = session.execute(
-            _guarded(claim).values(
-                status="succeeded",
-                progress=1.0,
-                result=result,
-                message="done",
-                finished_at=utcnow(),
-            )
-        ).rowcount
-        if not done:
+        ready = end_attempt(
+            session,
+            claim.id,
+            claim.attempt,
+            status="succeeded",
+            progress=1.0,
+            result=result,
+            message="done",
+            finished_at=utcnow(),
+        )
+        if ready is None:
             session.rollback()
             ctx.discard_outputs()
             return "lost"
         _store_outputs(session, claim, ctx)
-        ready = _promote_dependents(session, claim.id)
-        follow_runs(session, inspection_id=claim.inspection_id)
-        record_change(
-            session,
-            entity="job",
-            entity_id=claim.id,
-            op="update",
-            inspection_id=claim.inspection_id,
-        )
     dispatch(rt.db, rt.dispatcher, ready)
     return "succeeded"
 
 
-def _store_outputs(session: Session, claim: JobClaim, ctx: JobContext) -> None:
+def _store_outputs(session: Session, claim: JobClaim, ctx: WorkerContext) -> None:
     for staged in ctx.staged:
         artifact_id = session.execute(
             insert(Artifact)
@@ -293,83 +263,18 @@ def _store_outputs(session: Session, claim: JobClaim, ctx: JobContext) -> None:
         )
 
 
-def _promote_dependents(session: Session, job_id: int) -> list[Dispatch]:
-    """Queue the waiting jobs whose dependencies have now all succeeded."""
-    dependents = session.scalars(
-        select(JobDependency.job_id).where(JobDependency.depends_on_id == job_id)
-    ).all()
-    ready = []
-    for dependent_id in dependents:
-        # Lock the dependent first: two dependencies finishing at once must not both
-        # see the other as unfinished and leave the dependent waiting forever.
-        job = session.scalar(select(Job).where(Job.id == dependent_id).with_for_update())
-        if job is None or job.status != "waiting":
-            continue
-        unfinished = session.scalar(
-            select(func.count())
-            .select_from(JobDependency)
-            .join(Job, Job.id == JobDependency.depends_on_id)
-            .where(JobDependency.job_id == dependent_id, Job.status != "succeeded")
-        )
-        if unfinished == 0:
-            job.status = "queued"
-            job.message = "ready"
-            record_change(
-                session,
-                entity="job",
-                entity_id=job.id,
-                op="update",
-                inspection_id=job.inspection_id,
-            )
-            ready.append(Dispatch(job.id, job.queue))
-    return ready
-
-
-def cancel_dependents(session: Session, job_id: int, reason: str) -> None:
-    """Cancel every job downstream of ``job_id`` that has not started."""
-    frontier = [job_id]
-    while frontier:
-        children = session.scalars(
-            select(JobDependency.job_id).where(JobDependency.depends_on_id.in_(frontier))
-        ).all()
-        frontier = []
-        for child in session.scalars(
-            select(Job).where(Job.id.in_(children), Job.status.in_(("waiting", "queued")))
-        ):
-            child.status = "cancelled"
-            child.message = reason
-            child.finished_at = utcnow()
-            record_change(
-                session,
-                entity="job",
-                entity_id=child.id,
-                op="update",
-                inspection_id=child.inspection_id,
-            )
-            frontier.append(child.id)
-
-
 def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str | None) -> str:
     with rt.db.write() as session:
-        done = session.execute(
-            _guarded(claim).values(
-                status=status, message=message, error=error, finished_at=utcnow()
-            )
-        ).rowcount
-        if not done:
-            return "lost"
-        cancel_dependents(
-            session, claim.id, f"not run: step '{claim.step}' (job {claim.id}) {status}"
-        )
-        follow_runs(session, inspection_id=claim.inspection_id)
-        record_change(
+        ended = end_attempt(
             session,
-            entity="job",
-            entity_id=claim.id,
-            op="update",
-            inspection_id=claim.inspection_id,
+            claim.id,
+            claim.attempt,
+            status=status,
+            message=message,
+            error=error,
+            finished_at=utcnow(),
         )
-    return status
+    return status if ended is not None else "lost"
 
 
 def _end_failed(rt: Runtime, claim: JobClaim, error: str) -> str:
@@ -427,16 +332,17 @@ _DIRECTORIES = re.compile(r"(?<![\w.:/])(?:/[\w.-]+)+/")
 def _requeue(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
     delay_s = rt.settings.retry_backoff_s * 2 ** (claim.attempt - 1)
     with rt.db.write() as session:
-        done = session.execute(
-            _guarded(claim).values(
-                status="queued",
-                not_before=utcnow() + timedelta(seconds=delay_s),
-                dispatched_at=None,
-                worker=None,
-                message=f"retrying in {delay_s:.0f} s after: {type(exc).__name__}: {exc}"[:2000],
-            )
-        ).rowcount
-        if not done:
-            return "lost"
+        requeued = end_attempt(
+            session,
+            claim.id,
+            claim.attempt,
+            status="queued",
+            not_before=utcnow() + timedelta(seconds=delay_s),
+            dispatched_at=None,
+            worker=None,
+            message=f"retrying in {delay_s:.0f} s after: {type(exc).__name__}: {exc}"[:2000],
+        )
+    if requeued is None:
+        return "lost"
     dispatch(rt.db, rt.dispatcher, [Dispatch(claim.id, claim.queue, delay_s)])
     return "queued"

@@ -1,14 +1,22 @@
-"""The module ``dramatiq`` loads in ``vista worker``: broker, actors, maintenance."""
+"""The module ``dramatiq`` loads in ``vista worker``: the broker, one actor per service
+queue running ``run_job``, and the maintenance loop."""
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import dramatiq
 from dramatiq.middleware import Middleware
 
-from supervisor.engine.dramatiq_actors import actors_for, make_broker
+from supervisor.engine.broker import actor_name, make_broker
 from supervisor.engine.maintenance import MaintenanceLoop
-from supervisor.engine.registry import load_kinds
+from supervisor.engine.registry import load_kinds, queues
+from supervisor.engine.runner import run_job
+from supervisor.engine.runtime import Runtime
+from supervisor.engine.transient import is_transient
 from supervisor.settings import get_settings
+
+MAX_TRANSPORT_RETRIES = 5
 
 
 class _Maintenance(Middleware):
@@ -18,14 +26,27 @@ class _Maintenance(Middleware):
         self._loop: MaintenanceLoop | None = None
 
     def after_worker_boot(self, broker, worker) -> None:  # type: ignore[no-untyped-def]
-        from supervisor.engine.runner import default_runtime
-
-        self._loop = MaintenanceLoop(default_runtime())
+        self._loop = MaintenanceLoop(_runtime())
         self._loop.start()
 
     def before_worker_shutdown(self, broker, worker) -> None:  # type: ignore[no-untyped-def]
         if self._loop is not None:
             self._loop.stop()
+
+
+def _retry_transient(retries: int, exc: BaseException) -> bool:
+    """Dramatiq retries only what failed outside a handler (e.g. the database was away)."""
+    return retries < MAX_TRANSPORT_RETRIES and is_transient(exc)
+
+
+@lru_cache
+def _runtime() -> Runtime:
+    """This worker process's database, storage and dispatcher, made on first use."""
+    return Runtime.create(get_settings())
+
+
+def _run_job_message(job_id: int) -> None:
+    run_job(job_id, runtime=_runtime())
 
 
 _settings = get_settings()
@@ -35,4 +56,16 @@ load_kinds(_settings.extra_job_kinds)
 broker = make_broker(_settings.broker_url)
 broker.add_middleware(_Maintenance())
 dramatiq.set_broker(broker)
-actors = actors_for(broker)
+actors = {
+    queue: dramatiq.actor(
+        _run_job_message,
+        actor_name=actor_name(queue),
+        queue_name=queue,
+        broker=broker,
+        time_limit=(_settings.job_time_limit_s + 600) * 1000,
+        retry_when=_retry_transient,
+        min_backoff=1000,
+        max_backoff=60_000,
+    )
+    for queue in queues()
+}

@@ -29,6 +29,7 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from services.defects.kinds import RESULT as MEASURE_RESULT  # whose panels and seams it draws
 from services.pointcloud.ply import PLY_MEDIA_TYPE
 from supervisor.defects.service import consensus_docs, reading
 from supervisor.exports.gltf import (
@@ -66,8 +67,6 @@ TYPE_COLORS = {
 PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)
 OUTLINE_COLOR = (0.35, 0.85, 1.0, 1.0)
 SEAM_COLOR = (1.0, 1.0, 1.0, 1.0)
-MEASURE_REPORT = "defects.json"
-"""The measuring job's RESULT.json, whose panels and seams the scene draws."""
 
 
 def rgba(hex_colour: str) -> tuple[float, float, float, float]:
@@ -131,7 +130,7 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
         .where(
             Artifact.inspection_id == inspection.id,
             Artifact.kind == "report",
-            Artifact.name == MEASURE_REPORT,
+            Artifact.name == MEASURE_RESULT.file_name(),
         )
         .order_by(Artifact.id.desc())
         .limit(1)

@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-from collections import defaultdict
-
 from pydantic import BaseModel, ValidationError
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
+from contract.kinds import JobKind
 from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch
-from supervisor.engine.registry import JobKind, all_kinds, get_kind
-from supervisor.engine.runner import cancel_dependents
+from supervisor.engine.graph import cancel_dependents, dependencies, dependents
+from supervisor.engine.registry import all_kinds, get_kind
 from supervisor.inspections.service import follow_runs
 from supervisor.jobs.schemas import JobOut, RunCreate, RunOut
 from supervisor.jobs.step_inputs import check_step_inputs
@@ -117,19 +116,8 @@ def create_run(
     return run, ready
 
 
-def _dependencies(session: Session, job_ids: list[int]) -> dict[int, list[int]]:
-    edges: dict[int, list[int]] = defaultdict(list)
-    for job_id, depends_on_id in session.execute(
-        select(JobDependency.job_id, JobDependency.depends_on_id)
-        .where(JobDependency.job_id.in_(job_ids))
-        .order_by(JobDependency.depends_on_id)
-    ):
-        edges[job_id].append(depends_on_id)
-    return edges
-
-
 def jobs_out(session: Session, jobs: list[Job]) -> list[JobOut]:
-    edges = _dependencies(session, [j.id for j in jobs])
+    edges = dependencies(session, [j.id for j in jobs])
     return [
         JobOut.model_validate(job).model_copy(update={"depends_on": edges.get(job.id, [])})
         for job in jobs
@@ -226,7 +214,7 @@ def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list
         for item in current:
             if item.id != job.id and item.status not in ("cancelled", "failed"):
                 continue
-            upstream = _dependencies(session, [item.id]).get(item.id, [])
+            upstream = dependencies(session, [item.id]).get(item.id, [])
             unfinished = session.scalars(
                 select(Job.id).where(Job.id.in_(upstream), Job.status != "succeeded")
             ).all()
@@ -250,11 +238,7 @@ def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list
             )
             if item.status == "queued":
                 ready.append(Dispatch(item.id, item.queue))
-            frontier.extend(
-                session.scalars(
-                    select(JobDependency.job_id).where(JobDependency.depends_on_id == item.id)
-                )
-            )
+            frontier.extend(dependents(session, [item.id]))
     session.flush()
     follow_runs(session, inspection_id=job.inspection_id)
     return job, ready

@@ -3,7 +3,7 @@ so a run that cannot work is refused at once instead of failing when its job run
 
 from __future__ import annotations
 
-from supervisor.engine.registry import Inputs, JobKind
+from contract.kinds import Inputs, JobKind
 from supervisor.problems import Problem
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from sqlalchemy.exc import DBAPIError, OperationalError
-
 
 class JobCancelled(Exception):
     """Raised inside a handler (by ``JobContext.progress``) once cancellation was asked."""
@@ -23,11 +21,3 @@ class TransientJobError(Exception):
 
 class JobInputError(Exception):
     """The job's inputs cannot be processed; the job fails at once with this message."""
-
-
-def is_transient(exc: BaseException) -> bool:
-    if isinstance(exc, TransientJobError | ConnectionError | TimeoutError):
-        return True
-    if isinstance(exc, OperationalError):
-        return True
-    return isinstance(exc, DBAPIError) and bool(exc.connection_invalidated)

@@ -1,0 +1,94 @@
+"""What a job handler sees: its parameters and inputs, progress, cancellation, outputs.
+
+``JobContext`` is a protocol: the supervisor's engine gives handlers an object that has
+these members, and a test may give them any other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+from pydantic import BaseModel
+
+from contract.errors import JobInputError
+
+
+@dataclass(frozen=True)
+class InputArtifact:
+    id: int
+    kind: str
+    name: str
+    media_type: str
+    path: Path
+    meta: dict
+    job_id: int | None
+
+
+@dataclass(frozen=True)
+class NewDefect:
+    """A finding a job reports; lengths in mm, ``normal`` a unit vector."""
+
+    type: str
+    location_mm: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    value_mm: float | None
+    tolerance_mm: float | None
+    extent_mm: float
+    severity: str
+    confidence: float
+    measurements: dict = field(default_factory=dict)
+
+
+class JobContext(Protocol):
+    kind: str
+    """The job kind's name."""
+    params: BaseModel
+    """The parameters, validated against the kind's model."""
+    attempt: int
+    """1 for the first attempt."""
+    tolerances: dict
+    """The inspection's acceptance limits when the job was claimed."""
+    inputs: tuple[InputArtifact, ...]
+
+    @property
+    def workdir(self) -> Path:
+        """A scratch folder for this attempt, removed when it ends."""
+        ...
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        """Report progress (0..1); raises ``JobCancelled`` once cancellation was asked."""
+        ...
+
+    def check_cancelled(self) -> None: ...
+
+    def add_artifact_file(
+        self, path: Path, *, kind: str, name: str, media_type: str, meta: dict | None = None
+    ) -> None:
+        """Stage a file as an output; it is kept only if the attempt succeeds."""
+        ...
+
+    def add_artifact_json(self, data: dict, *, kind: str, name: str) -> None: ...
+
+    def add_defect(self, defect: NewDefect) -> None: ...
+
+
+def inputs_of_kind(ctx: JobContext, *kinds: str) -> list[InputArtifact]:
+    return [a for a in ctx.inputs if a.kind in kinds]
+
+
+def one_input(ctx: JobContext, kind: str, what: str) -> InputArtifact:
+    """The one input of ``kind``; anything else is the standard ``JobInputError``."""
+    found = inputs_of_kind(ctx, kind)
+    if len(found) != 1:
+        names = ", ".join(a.name for a in found) or "none"
+        raise JobInputError(f"{ctx.kind} needs exactly one `{kind}` artifact ({what}); got {names}")
+    return found[0]
+
+
+def input_error(artifact: InputArtifact, exc: Exception) -> JobInputError:
+    """The file's error, naming the artifact instead of its storage path."""
+    return JobInputError(
+        str(exc).replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
+    )

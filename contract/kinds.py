@@ -1,0 +1,68 @@
+"""A job kind as data: its name, queue, handler, parameters, what it reads and writes.
+
+A service lists its kinds in ``KINDS`` in its ``kinds`` module; the supervisor's registry
+collects them. Handlers are named by import path and imported only inside a worker, so
+the API process never loads a service's heavy libraries.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel
+
+ANY_KIND = "*"
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """How many artifacts of these kinds one step of a job kind reads."""
+
+    kinds: tuple[str, ...]
+    what: str
+    """What they are, for people: "the stitched point cloud"."""
+    min: int = 1
+    max: int | None = 1
+    """``None``: no upper limit."""
+
+    def accepts(self, kind: str) -> bool:
+        return ANY_KIND in self.kinds or kind in self.kinds
+
+
+@dataclass(frozen=True)
+class Output:
+    """An artifact a job kind writes; ``per_input`` ones are written once per input, their
+    ``name`` a template with ``{stem}`` (the input's name without its suffix)."""
+
+    kind: str
+    name: str
+    per_input: bool = False
+
+    def file_name(self, stem: str = "") -> str:
+        return self.name.format(stem=stem)
+
+
+@dataclass(frozen=True)
+class JobKind:
+    name: str
+    queue: str
+    handler: str
+    """``module:function`` taking a ``JobContext`` and returning a JSON-able dict."""
+    params: type[BaseModel]
+    description: str
+    inputs: tuple[Inputs, ...] = ()
+    """What the handler reads: checked when a run is created."""
+    outputs: tuple[Output, ...] = ()
+    """What it writes (the handler takes the names from here): a later step's inputs are
+    checked against them, and ``GET /job-kinds`` lists them."""
+
+    @property
+    def input_kinds(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(k for spec in self.inputs for k in spec.kinds))
+
+    def load_handler(self) -> Callable[[Any], dict]:
+        module_name, _, function = self.handler.partition(":")
+        return getattr(importlib.import_module(module_name), function)
