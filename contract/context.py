@@ -50,6 +50,8 @@ class JobContext(Protocol):
     """1 for the first attempt."""
     tolerances: dict
     """The inspection's acceptance limits when the job was claimed."""
+    threads: int
+    """Threads the handler's algorithms may run on (the worker's setting)."""
     inputs: tuple[InputArtifact, ...]
 
     @property

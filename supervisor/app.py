@@ -27,7 +27,7 @@ from supervisor.feedback.router import router as feedback_router
 from supervisor.inspections.router import router as inspections_router
 from supervisor.jobs.router import router as jobs_router
 from supervisor.judgments.router import router as judgments_router
-from supervisor.migrate import current_revision, head_revision
+from supervisor.migrate import check_schema
 from supervisor.problems import install_problem_handlers
 from supervisor.settings import Settings, get_settings
 from supervisor.sync.router import router as sync_router
@@ -36,19 +36,6 @@ from supervisor.users.router import router as users_router
 log = logging.getLogger("vista")
 API_PREFIX = "/api/v1"
 WEB_DIST = Path(__file__).resolve().parent.parent / "clients" / "web" / "dist"
-
-
-class SchemaOutOfDate(RuntimeError):
-    pass
-
-
-def check_schema(url: str) -> None:
-    current, head = current_revision(url), head_revision()
-    if current != head:
-        raise SchemaOutOfDate(
-            f"the database is at migration {current or 'none'} but this vista needs {head}: "
-            "run `vista migrate` first"
-        )
 
 
 def _engine_lock(settings: Settings) -> IO | None:

@@ -61,14 +61,16 @@ def serve(
 ) -> None:
     """Serve the supervisor API (and, without a broker, the embedded job engine)."""
     from supervisor import serving
-    from supervisor.app import SchemaOutOfDate, check_schema
+    from supervisor.migrate import SchemaOutOfDate, check_schema
 
     settings = get_settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     try:
-        check_schema(settings.resolved_database_url)
+        created = check_schema(settings.resolved_database_url)
     except SchemaOutOfDate as exc:
         fail(str(exc))
+    if created:
+        typer.echo(created)
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )

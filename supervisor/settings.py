@@ -16,6 +16,8 @@ from typing import Annotated
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from services.process import available_cores
+
 
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="VISTA_", extra="ignore")
@@ -38,6 +40,12 @@ class Settings(BaseSettings):
     access_log: bool = Field(False, description="Log every request (costs ~4 % under load).")
     max_upload_mb: int = Field(4096, ge=1, description="Largest artifact upload, MiB.")
     embedded_workers: int = Field(2, ge=0, description="Worker processes of the embedded engine.")
+    job_threads: int = Field(
+        default_factory=available_cores,
+        ge=1,
+        le=256,
+        description="Threads one job's algorithms run on (default: the cores available).",
+    )
     heartbeat_interval_s: float = Field(5.0, gt=0, description="How often a running job beats.")
     heartbeat_timeout_s: float = Field(
         60.0, gt=0, description="A running job silent this long is taken as lost."

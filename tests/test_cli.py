@@ -42,7 +42,15 @@ def test_cli_errors_are_sentences(cli):
     assert no_broker.exit_code == 2 and "VISTA_BROKER_URL" in no_broker.output
 
 
-def test_serve_refuses_a_database_that_is_not_migrated(cli):
+def test_serve_creates_a_new_embedded_database_and_refuses_an_old_one(cli, tmp_path):
+    from supervisor.migrate import check_schema, current_revision, head_revision, upgrade
+
+    new = f"sqlite:///{tmp_path / 'new.db'}"
+    created = check_schema(new)
+    assert created.startswith("created the database") and "new.db" in created
+    assert current_revision(new) == head_revision() and check_schema(new) is None
+    get_settings().data_dir.mkdir(parents=True)
+    upgrade(get_settings().resolved_database_url, "0001")  # an older vista's database
     refused = cli("serve")
     assert refused.exit_code == 2 and "run `vista migrate` first" in refused.output
 

@@ -68,6 +68,11 @@ def test_binning_agrees_with_numpy_and_skips_strays() -> None:
     ).reshape(raster.block_count.shape)
     seen = raster.block_count > 0
     assert np.allclose(raster.block_rgb[..., 0][seen], red[seen] / raster.block_count[seen])
+    # threads share the points: the same cells whatever their number
+    shared = rasterize(points, colors, frame, 0.5, bounds, workers=3)
+    assert np.array_equal(shared.count, raster.count)
+    assert np.allclose(shared.height, raster.height, equal_nan=True, atol=1e-6)
+    assert np.array_equal(shared.chunk_uv, raster.chunk_uv, equal_nan=True)
 
 
 def _slab_reference(local: np.ndarray, line: np.ndarray, sections: np.ndarray) -> np.ndarray:

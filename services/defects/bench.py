@@ -40,6 +40,7 @@ from services.defects.simulate import (
 )
 from services.pointcloud.scan_sim import SensorModel
 from services.pointcloud.transforms import from_rotvec
+from services.process import available_cores, prepare_process
 
 TARGETS = {
     "gap and step error p95 (mm)": 0.05,
@@ -157,8 +158,8 @@ LIMIT_CASES = ("square, rows along the seams (limit)",)
 SWEEPS = {"assemblies": CASES, "edges": EDGE_CASES}
 
 
-def _run(case: SweepCase, seed: int) -> tuple[Evaluation, Evaluation]:
-    """(vista, gauge) evaluations of one simulated assembly."""
+def _run(case: SweepCase, seed: int, threads: int) -> tuple[Evaluation, Evaluation]:
+    """(vista, gauge) evaluations of one simulated assembly, measured on ``threads``."""
     rng = np.random.default_rng(seed)
     assembly = random_assembly(case.spec, rng)
     width, height = case.field_mm
@@ -180,14 +181,18 @@ def _run(case: SweepCase, seed: int) -> tuple[Evaluation, Evaluation]:
         return scanner.edges_seen(scans.base_T_sensor, seams[seam_id], fraction)
 
     config = MeasureConfig()
-    result = measure(cloud, config)
-    timings = [sum(measure(cloud, config).seconds.values()) for _ in range(TIMED_RUNS - 1)]
+    result = measure(cloud, config, threads=threads)
+    timings = [
+        sum(measure(cloud, config, threads=threads).seconds.values()) for _ in range(TIMED_RUNS - 1)
+    ]
     seconds = float(np.median([sum(result.seconds.values()), *timings]))
     vista = replace(evaluate(result, truth, config.tolerances, seen=seen), seconds=seconds)
     # One scan line: the slab just wide enough to hold a continuous profile of the cloud.
     gauge_sections = replace(config.sections, slab_mm=2 * case.spacing_mm, edge_model="void")
     gauge_config = replace(config, sections=gauge_sections, surface=None)
-    gauge = evaluate(measure(cloud, gauge_config), truth, config.tolerances, seen=seen)
+    gauge = evaluate(
+        measure(cloud, gauge_config, threads=threads), truth, config.tolerances, seen=seen
+    )
     return vista, gauge
 
 
@@ -281,7 +286,7 @@ def _verdict(total: dict, rows: list[dict]) -> dict[str, bool]:
 
 
 def _sweep(
-    cases: tuple[SweepCase, ...], seeds: int, seed: int
+    cases: tuple[SweepCase, ...], seeds: int, seed: int, threads: int
 ) -> tuple[list[dict], Evaluation, Evaluation]:
     rows = []
     all_vista, all_gauge = Evaluation(), Evaluation()
@@ -289,7 +294,7 @@ def _sweep(
         vista, gauge = Evaluation(), Evaluation()
         for k in range(seeds):
             say(f"{case.name}: assembly {k + 1} of {seeds}")
-            v, g = _run(case, seed + 1000 * k + index)
+            v, g = _run(case, seed + 1000 * k + index, threads)
             vista.add(v)
             gauge.add(g)
         all_vista.add(vista)
@@ -314,16 +319,18 @@ def run_defects_bench(
 ) -> dict:
     """Run the ``sweeps`` (``assemblies``: ``cases``; ``edges``: ``edge_cases``), print
     the tables and the verdict, write the JSON document."""
+    prepare_process()
+    threads = available_cores()
     warm_up()  # compiling the numba passes is once per installation, not per m²
-    parts: dict = {}
+    parts: dict = {"threads": threads}
     verdict: dict[str, bool] = {}
     if "assemblies" in sweeps:
-        rows, all_vista, all_gauge = _sweep(cases, seeds, seed)
+        rows, all_vista, all_gauge = _sweep(cases, seeds, seed, threads)
         total, gauge_total = all_vista.summary(), all_gauge.summary()
         verdict |= _verdict(total, rows)
         parts |= {"cases": rows, "total": total, "gauge_total": gauge_total}
     if "edges" in sweeps:
-        edge_rows, _, _ = _sweep(edge_cases, seeds, seed + 100)
+        edge_rows, _, _ = _sweep(edge_cases, seeds, seed + 100, threads)
         verdict |= _edge_verdict(edge_rows)
         parts["edge_cases"] = edge_rows
     document = write_document(out, bench="defects", targets=TARGETS, verdict=verdict, **parts)

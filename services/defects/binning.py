@@ -14,15 +14,12 @@ seam (a sixth of them on a 2 × 2 assembly).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
 
-WORKERS = min(2, os.cpu_count() or 1)
-"""Threads for the passes over all points (each takes a share of the points)."""
 CHUNK = 64
 """The binning notes the (u, v) box of each run of this many consecutive points, so that
 later passes skip the runs far from what they look for (in a scanned or voxel-merged
@@ -31,14 +28,15 @@ TILE = 16
 """Cells along the side of the tiles that tell the seam pass which runs to read."""
 
 
-def _in_shares(task: Callable[[slice], tuple], n: int) -> list[tuple]:
-    """``task`` on ``WORKERS`` shares of n points, each starting at a whole chunk."""
+def _in_shares(task: Callable[[slice], tuple], n: int, workers: int) -> list[tuple]:
+    """``task`` on ``workers`` threads, each on a share of n points starting at a whole
+    chunk."""
     chunks = -(-n // CHUNK)
-    bounds = [min(n, (i * chunks // WORKERS) * CHUNK) for i in range(WORKERS + 1)]
-    shares = [slice(bounds[i], bounds[i + 1]) for i in range(WORKERS)]
-    if WORKERS == 1:
+    bounds = [min(n, (i * chunks // workers) * CHUNK) for i in range(workers + 1)]
+    shares = [slice(bounds[i], bounds[i + 1]) for i in range(workers)]
+    if workers == 1:
         return [task(shares[0])]
-    with ThreadPoolExecutor(WORKERS) as pool:
+    with ThreadPoolExecutor(workers) as pool:
         return list(pool.map(task, shares))
 
 
@@ -70,6 +68,7 @@ def seam_slabs(
     chunk_uv: np.ndarray,
     lines: np.ndarray,
     sections: np.ndarray,
+    workers: int = 1,
 ) -> list[list[np.ndarray]]:
     """The points in each seam's section slabs, as pieces of (4, M) rows: section k, y
     along the seam from its section's plane, x across the seam, height w.
@@ -79,7 +78,7 @@ def seam_slabs(
     along it) and ``sections`` rows = (position of section 0 along the line, pitch,
     number of sections, half slab width, reach across the line). Only the runs of points
     whose box touches a tile near a seam (its band: cell centres within reach + one cell
-    of the line) are read."""
+    of the line) are read, on ``workers`` threads."""
     seam_of_cell, band_tiles, capacity = _seam_bands(grid, count, lines, sections)
     offsets = np.concatenate([[0], np.cumsum(capacity)])
     parts = _in_shares(
@@ -96,6 +95,7 @@ def seam_slabs(
             offsets,
         ),
         len(points),
+        workers,
     )
     return [
         [slab[:, offsets[s] : offsets[s] + filled[s]] for slab, filled in parts]
@@ -111,12 +111,13 @@ def bin_points(
     grid: np.ndarray,
     shape: tuple[int, int],
     block: int,
+    workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
     """Per cell of a ``shape`` grid (``grid`` = u0, v0, 1 / cell): point count and sum of
     heights w (axes row 2); per block of ``block`` × ``block`` cells: point count and the
     sum of the (N, 3) ``colors`` (None without colours); per ``CHUNK`` consecutive
     points: (u_min, u_max, v_min, v_max) of those in the grid (float32; min > max if
-    none). Points outside the grid are left out."""
+    none). Points outside the grid are left out. ``workers`` threads share the points."""
     no_colors = np.zeros((0, 3), np.uint8)
     parts = _in_shares(
         lambda share: _bin_points(
@@ -129,6 +130,7 @@ def bin_points(
             block,
         ),
         len(points),
+        workers,
     )
     count, height, block_count, color, _ = parts[0]
     for part in parts[1:]:  # in place: no fresh (page-faulting) arrays of the grid's size

@@ -28,6 +28,9 @@ def measure(
     truth: Path = typer.Option(
         None, help="truth.json of `vista simulate defects`: prints the errors against it."
     ),
+    threads: int = typer.Option(
+        None, min=1, max=256, help="Threads to measure on (default: one per available core)."
+    ),
 ) -> None:
     """Measure every seam (gap, step, parallelism), junction (mismatch) and surface defect
     (dents, bumps, scratches, colour) of a panel-assembly cloud against the tolerances."""
@@ -36,7 +39,10 @@ def measure(
     from services.defects.measure import measure as run_measure
     from services.defects.report import profile_png, result_document
     from services.pointcloud.ply import PlyError, read_ply
+    from services.process import available_cores, prepare_process
     from services.stitching.files import StitchingFileError, load_json
+
+    prepare_process()
 
     try:
         settings = (
@@ -58,7 +64,9 @@ def measure(
             done = int(fraction * 100)
 
         try:
-            result = run_measure(points, settings, progress=progress)
+            result = run_measure(
+                points, settings, threads=threads or available_cores(), progress=progress
+            )
         except MeasureError as exc:
             fail(f"{cloud}: {exc}")
     document = result_document(result, settings)

@@ -70,6 +70,7 @@ def measure_job(ctx: JobContext) -> dict:
         result = measure(
             points,
             config,
+            threads=ctx.threads,
             progress=lambda fraction, message: ctx.progress(0.1 + 0.8 * fraction, message),
         )
     except MeasureError as exc:

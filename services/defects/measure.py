@@ -14,16 +14,13 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, replace
-from functools import cache
 from math import erf, sqrt
 
 import numpy as np
 from scipy import ndimage
-from threadpoolctl import ThreadpoolController
 
 from services.defects import binning
 from services.defects.config import MeasureConfig
-from services.defects.heap import keep_work_arrays_in_heap
 from services.defects.panels import PanelShape, describe_panels, segment_panels
 from services.defects.raster import Raster, SurfaceFrame, fit_frame, point_spacing_mm, rasterize
 from services.defects.seams import Junction, SeamLine, find_junctions, find_seams
@@ -184,23 +181,16 @@ def confidence(value: float, limit: float, sigma: float) -> float:
 
 
 def measure(
-    cloud: PointCloud, config: MeasureConfig | None = None, *, progress: Progress | None = None
+    cloud: PointCloud,
+    config: MeasureConfig | None = None,
+    *,
+    threads: int = 1,
+    progress: Progress | None = None,
 ) -> MeasureResult:
-    """Seams, junctions and surface findings of a stitched panel-assembly cloud."""
-    keep_work_arrays_in_heap()
-    # The work runs on its own threads (one per core); BLAS threads on top of them would
-    # only fight them for the cores (and spin while they wait).
-    with _blas().limit(limits=1, user_api="blas"):
-        return _measure(cloud, config or MeasureConfig(), progress)
-
-
-@cache
-def _blas() -> ThreadpoolController:
-    """The BLAS libraries loaded (looked up once: a few ms)."""
-    return ThreadpoolController()
-
-
-def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None) -> MeasureResult:
+    """Seams, junctions and surface findings of a stitched panel-assembly cloud, on
+    ``threads`` threads (one per core given: see ``services.process`` for the process's
+    set-up that lets them scale)."""
+    config = config or MeasureConfig()
     report = progress or (lambda fraction, message: None)
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
@@ -225,14 +215,14 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
             f"the cloud spans {span_u:.0f} × {span_v:.0f} mm: more than {MAX_CELLS:.0e} cells "
             f"of {config.cell_mm:g} mm (far stray points? crop the cloud, or raise cell_mm)"
         )
-    raster = rasterize(points, colors, frame, config.cell_mm, bounds)
+    raster = rasterize(points, colors, frame, config.cell_mm, bounds, threads)
     binned = int(raster.count.sum())
     if binned < 1000:
         raise MeasureError(f"the cloud has {binned} finite points; at least 1000 needed")
     spacing = point_spacing_mm(raster)
     cell = max(config.cell_mm, 1.5 * spacing)
     if cell > config.cell_mm:
-        raster = rasterize(points, colors, frame, cell, bounds)
+        raster = rasterize(points, colors, frame, cell, bounds, threads)
     lap("raster_s")
     report(0.15, f"segmenting panels on a {raster.shape[0]} × {raster.shape[1]} height map")
     panels = segment_panels(
@@ -250,7 +240,7 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
     # The panels' surfaces and the seams are measured independently, on as many threads
     # as there are cores (the compiled passes, NumPy and SciPy release the GIL for the
     # heavy part); the surface work starts first, while the seam lines are found.
-    with ThreadPoolExecutor(binning.WORKERS) if binning.WORKERS > 1 else nullcontext() as pool:
+    with ThreadPoolExecutor(threads) if threads > 1 else nullcontext() as pool:
         map_fn = map if pool is None else pool.map
         surface_parts = []
         if config.surface is not None:
@@ -269,7 +259,7 @@ def _measure(cloud: PointCloud, config: MeasureConfig, progress: Progress | None
         )
         lines = [_oriented(line, frame) for line in lines]
         lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
-        profiles = _profile_seams(points, raster, lines, config, spacing, map_fn)
+        profiles = _profile_seams(points, raster, lines, config, spacing, map_fn, threads)
         surface = [finding for part in surface_parts for finding in part]
         shapes = next(iter(described))
     located, panel_id = _locate_panels(shapes, frame)
@@ -359,9 +349,10 @@ def _profile_seams(
     config: MeasureConfig,
     spacing_mm: float,
     map_fn: Callable = map,
+    threads: int = 1,
 ) -> list[SeamProfile | None]:
-    """Each seam's sections, from one pass over the points near any seam; ``map_fn``
-    runs the seams."""
+    """Each seam's sections, from one pass over the points near any seam (on ``threads``
+    threads); ``map_fn`` runs the seams."""
     if not lines:
         return []
     sections = config.sections
@@ -387,6 +378,7 @@ def _profile_seams(
                 for s, (first, count) in zip(lines, ranges, strict=True)
             ]
         ),
+        threads,
     )
 
     def profile(seam: SeamLine, pieces: list, at: tuple[float, int]) -> SeamProfile | None:

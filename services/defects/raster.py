@@ -129,12 +129,13 @@ def rasterize(
     frame: SurfaceFrame,
     cell_mm: float,
     bounds_uv: np.ndarray,
+    workers: int = 1,
 ) -> Raster:
     """Bin (N, 3) cloud-frame points (and their (N, 3) uint8 colours) into cells of
     ``cell_mm`` on ``frame``: count and mean height per cell, mean colour per block. The
     grid covers ``bounds_uv`` (u_min, u_max, v_min, v_max of a sample, from
     ``binning.uv_bounds``) and ``BOUNDS_MARGIN_MM`` around; points beyond it (strays) and
-    points that are not finite are left out."""
+    points that are not finite are left out. ``workers``: threads for the pass."""
     margin = BOUNDS_MARGIN_MM + cell_mm
     origin = np.array([bounds_uv[0] - margin, bounds_uv[2] - margin])
     shape = (
@@ -144,7 +145,7 @@ def rasterize(
     grid = np.array([origin[0], origin[1], 1 / cell_mm])
     block = block_cells(cell_mm)
     count, total, block_count, color_total, chunk_uv = binning.bin_points(
-        points, colors, frame.origin, frame.axes, grid, shape, block
+        points, colors, frame.origin, frame.axes, grid, shape, block, workers
     )
     count = count.reshape(shape)
     block_count = block_count.reshape(-(-shape[0] // block), -(-shape[1] // block))

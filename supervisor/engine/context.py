@@ -89,6 +89,7 @@ class WorkerContext:
         self.params = params
         self.attempt = claim.attempt
         self.tolerances = claim.tolerances
+        self.threads = runtime.settings.job_threads
         self.inputs = claim.inputs
         self.stop = stop
         self.staged: list[StagedArtifact] = []

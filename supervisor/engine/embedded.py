@@ -15,6 +15,7 @@ import threading
 
 from sqlalchemy import or_, select
 
+from services.process import prepare_process
 from supervisor.engine.runner import run_job
 from supervisor.engine.runtime import Runtime
 from supervisor.models import Job
@@ -42,6 +43,7 @@ def next_due_jobs(rt: Runtime, limit: int = 4) -> list[int]:
 
 def _worker_main(settings_json: str, stop: mp.synchronize.Event) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when workers stop
+    prepare_process()
     rt = Runtime.create(Settings.model_validate_json(settings_json))
     while not stop.is_set():
         ran = False

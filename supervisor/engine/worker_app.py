@@ -8,6 +8,7 @@ from functools import lru_cache
 import dramatiq
 from dramatiq.middleware import Middleware
 
+from services.process import prepare_process
 from supervisor.engine.broker import actor_name, make_broker
 from supervisor.engine.maintenance import MaintenanceLoop
 from supervisor.engine.registry import load_kinds, queues
@@ -49,6 +50,7 @@ def _run_job_message(job_id: int) -> None:
     run_job(job_id, runtime=_runtime())
 
 
+prepare_process()  # each worker process imports this module
 _settings = get_settings()
 if not _settings.broker_url:
     raise SystemExit("vista worker needs VISTA_BROKER_URL (redis://… or amqp://…)")
