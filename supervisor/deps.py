@@ -14,12 +14,13 @@ from sqlalchemy.orm import Session
 from supervisor.auth.service import token_digest, user_for_token
 from supervisor.engine.runtime import Runtime
 from supervisor.models._types import utcnow
+from supervisor.models.users import ROLES, Role
 from supervisor.problems import Problem
 
-READ_ROLES = ("admin", "inspector", "viewer", "device")
-EDIT_ROLES = ("admin", "inspector")
-JUDGE_ROLES = ("admin", "inspector", "device")
-ADMIN_ROLES = ("admin",)
+READ_ROLES: tuple[Role, ...] = ROLES
+EDIT_ROLES: tuple[Role, ...] = ("admin", "inspector")
+JUDGE_ROLES: tuple[Role, ...] = ("admin", "inspector", "device")
+ADMIN_ROLES: tuple[Role, ...] = ("admin",)
 DEVICE_WRITE_PATHS = ("/api/v1/sync/judgments",)
 """The only writes a device token (a headset's) may make; it reads everything else."""
 

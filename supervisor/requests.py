@@ -9,8 +9,6 @@ from pydantic import BaseModel, ConfigDict, Field
 MAX_MM = 1e6
 """A kilometre: no coordinate or length the API keeps is larger."""
 Millimetres = Annotated[float, Field(ge=-MAX_MM, le=MAX_MM)]
-TOLERANCE_MAX_MM = 1000.0
-"""No acceptance limit is wider than a metre."""
 
 
 class RequestModel(BaseModel):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.defects.config import ConfigError, MeasureConfig, Tolerances, parse_config
+from services.defects.config import ConfigError, MeasureConfig, parse_config
 from services.defects.evaluate import evaluate
 from services.defects.example import write_defects_example
 from services.defects.measure import MeasureError, measure, severity
@@ -24,6 +24,7 @@ from services.defects.simulate import (
     random_assembly,
     seam_gap_mm,
 )
+from services.defects.tolerances import Limits
 from services.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
 from services.pointcloud.ply import PointCloud, read_ply
 from supervisor.cli import app
@@ -125,7 +126,7 @@ def test_finds_every_surface_defect_without_false_alarms(flat_example) -> None:
     cloud = read_ply(flat_example / "cloud.ply")
     truth = json.loads((flat_example / "truth.json").read_text())
     result = measure(cloud, MeasureConfig())
-    summary = evaluate(result, truth, Tolerances()).summary()
+    summary = evaluate(result, truth, Limits()).summary()
     for kind, counts in summary["surface"].items():
         assert counts["fn"] == 0 and counts["fp"] == 0, (kind, counts)
     dents = [f for f in result.findings if f.type in ("dent", "bump")]
@@ -185,7 +186,7 @@ def test_tolerances_decide_what_is_a_defect(flat_example) -> None:
             "step_mm": {"max": 50},
             "parallelism_mm": {"max": 50},
             "mismatch_mm": {"max": 50},
-            "surface": {"dent_depth_mm": 50, "scratch_depth_mm": 50, "color_delta_e": 500},
+            "surface": {"dent_depth_mm": 50, "scratch_depth_mm": 50, "color_delta_e": 100},
         }
     )
     result = measure(cloud, lenient)
@@ -198,12 +199,14 @@ def test_tolerances_decide_what_is_a_defect(flat_example) -> None:
 
 
 def test_config_errors_name_the_key() -> None:
-    with pytest.raises(ConfigError, match=r"config.step_mm.max must be a positive number"):
+    with pytest.raises(ConfigError, match=r"config.step_mm.max: Input should be greater than 0"):
         parse_config({"step_mm": {"max": -1}})
-    with pytest.raises(ConfigError, match=r"unknown keys \['gap'\]"):
+    with pytest.raises(ConfigError, match=r"config.gap: Extra inputs are not permitted"):
         parse_config({"gap": {"max": 1}})
-    with pytest.raises(ConfigError, match=r"min 2.0 must be below max 1.0"):
+    with pytest.raises(ConfigError, match=r"config.gap_mm: Value error, min \(2\) must be below"):
         parse_config({"gap_mm": {"min": 2, "max": 1}})
+    with pytest.raises(ConfigError, match=r"min \(0.5\) must be below max \(0.3\) \(the default"):
+        parse_config({"gap_mm": {"max": 0.3}})
     with pytest.raises(ConfigError, match=r"measurement: unknown key 'speed'"):
         parse_config({"measurement": {"speed": 2}})
     config = parse_config({"gap_mm": {"max": 4}, "measurement": {"pitch_mm": 5}})
@@ -248,7 +251,7 @@ def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
     failed = runner.invoke(
         app, ["measure", str(flat_example / "cloud.ply"), "--config", str(bad), "-o", str(out)]
     )
-    assert failed.exit_code == 2 and "step_mm.max must be a positive number" in failed.output
+    assert failed.exit_code == 2 and "step_mm.max: Input should be a valid number" in failed.output
     missing = runner.invoke(app, ["measure", str(tmp_path / "none.ply"), "-o", str(out)])
     assert missing.exit_code == 2 and "none.ply" in missing.output
 

@@ -38,3 +38,13 @@ def test_services_import_nothing_from_the_supervisor():
 
 def test_the_contract_imports_neither_side():
     assert reaching("contract", ("supervisor", "services", "tests")) == {}
+
+
+def test_the_python_clients_word_lists_are_the_servers():
+    """The SDK checks judgments before queuing them with its own copy of the lists (it
+    does not depend on the server's package): the same words."""
+    from vista_client import headset
+
+    from supervisor.models.defects import DEFECT_TYPES, VERDICTS
+
+    assert headset.VERDICTS == VERDICTS and headset.DEFECT_TYPES == DEFECT_TYPES

@@ -265,3 +265,32 @@ def test_cursor_waits_at_a_young_hole_in_the_log():
     # old enough: 12 was rolled back
     old = GAP_SETTLE_S + 1
     assert [r.seq for r in _settled([row(11, old), row(13, old)], 10, now)] == [11, 13]
+
+
+def _exactly(model, document: dict) -> None:  # noqa: ANN001 - a pydantic model class
+    """``document`` is what ``model`` declares: it validates, with no field more or less."""
+    model.model_validate(document)
+    assert set(document) == set(model.model_fields), (model.__name__, sorted(document))
+
+
+def test_the_served_pages_are_the_declared_response_models(client, tokens, inspection, runtime):
+    """The sync writes its JSON itself (fast); the documents are exactly SyncOut and
+    BatchOut, field for field, so the OpenAPI document cannot drift from them."""
+    from supervisor.judgments.schemas import JudgmentOut
+    from supervisor.sync.schemas import BatchOut, ItemResult, SyncConsensus, SyncDefect, SyncOut
+
+    ids = seed_defects(runtime, inspection, 3)
+    now = datetime.now(UTC)
+    pushed = client.post(
+        BATCH, json={"items": [_item(ids[0], at=now)]}, headers=auth(tokens["inspector"])
+    ).json()
+    _exactly(BatchOut, pushed)
+    _exactly(ItemResult, pushed["results"][0])
+    for since in (None, "0"):
+        page = _sync(client, tokens["viewer"], inspection, since)
+        _exactly(SyncOut, page)
+        _exactly(SyncDefect, page["defects"][0])
+        _exactly(JudgmentOut, page["judgments"][0])
+        _exactly(SyncConsensus, page["consensus"][0])
+    later = _sync(client, tokens["viewer"], inspection, page["next_cursor"])
+    _exactly(SyncOut, later)

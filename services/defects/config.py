@@ -17,8 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+from pydantic import ValidationError
+
 from services.defects.sections import EDGE_MODELS, GAP_MODES, SectionConfig
 from services.defects.surface import SurfaceConfig
+from services.defects.tolerances import Limits, Tolerances, limits_of, tolerances_of
 
 
 class ConfigError(ValueError):
@@ -26,21 +29,8 @@ class ConfigError(ValueError):
 
 
 @dataclass(frozen=True)
-class Tolerances:
-    gap_min_mm: float = 0.5
-    gap_max_mm: float = 3.0
-    step_max_mm: float = 0.5
-    parallelism_max_mm: float = 0.5
-    mismatch_max_mm: float = 0.5
-    dent_depth_mm: float = 0.2
-    """Also the limit for bumps (their height)."""
-    scratch_depth_mm: float = 0.1
-    color_delta_e: float = 3.0
-
-
-@dataclass(frozen=True)
 class MeasureConfig:
-    tolerances: Tolerances = field(default_factory=Tolerances)
+    tolerances: Limits = field(default_factory=Limits)
     cell_mm: float = 0.2
     """Height-map cell; raised to 1.5 × the point spacing for sparser clouds."""
     max_slope_deg: float = 30.0
@@ -56,16 +46,6 @@ class MeasureConfig:
     """None: seams and junctions only."""
 
 
-_TOLERANCE_KEYS = {
-    ("gap_mm", "min"): "gap_min_mm",
-    ("gap_mm", "max"): "gap_max_mm",
-    ("step_mm", "max"): "step_max_mm",
-    ("parallelism_mm", "max"): "parallelism_max_mm",
-    ("mismatch_mm", "max"): "mismatch_max_mm",
-    ("surface", "dent_depth_mm"): "dent_depth_mm",
-    ("surface", "scratch_depth_mm"): "scratch_depth_mm",
-    ("surface", "color_delta_e"): "color_delta_e",
-}
 _MEASUREMENT_KEYS = {
     "cell_mm": ("", "cell_mm"),
     "max_gap_mm": ("", "max_gap_mm"),
@@ -81,11 +61,10 @@ _CHOICE_KEYS = {"edge_model": EDGE_MODELS, "gap_mode": GAP_MODES}
 """Settings that name a choice (``sections.py`` says what each means)."""
 
 
-def _positive(value: Any, where: str, *, zero: bool = False) -> float:
+def _positive(value: Any, where: str) -> float:
     number = isinstance(value, int | float) and not isinstance(value, bool)
-    if not number or not (value > 0 or (zero and value == 0)) or value != value:
-        kind = "a number ≥ 0" if zero else "a positive number"
-        raise ConfigError(f"{where} must be {kind}, got {value!r}")
+    if not number or not value > 0 or value != value:
+        raise ConfigError(f"{where} must be a positive number, got {value!r}")
     return float(value)
 
 
@@ -93,33 +72,15 @@ def parse_config(document: Any, where: str = "config") -> MeasureConfig:
     """The MeasureConfig a CONFIG.json (or an inspection's tolerances) asks for."""
     if not isinstance(document, dict):
         raise ConfigError(f"{where}: expected a JSON object")
-    known = {group for group, _ in _TOLERANCE_KEYS} | {"measurement"}
-    unknown = sorted(set(document) - known)
-    if unknown:
-        raise ConfigError(f"{where}: unknown keys {unknown}; known: {sorted(known)}")
-    limits: dict[str, float] = {}
-    for (group, key), name in _TOLERANCE_KEYS.items():
-        section = document.get(group)
-        if section is None:
-            continue
-        if not isinstance(section, dict):
-            raise ConfigError(f"{where}.{group} must be an object")
-        allowed = {k for g, k in _TOLERANCE_KEYS if g == group}
-        if set(section) - allowed:
-            raise ConfigError(
-                f"{where}.{group}: unknown keys {sorted(set(section) - allowed)}; "
-                f"known: {sorted(allowed)}"
-            )
-        if section.get(key) is not None:
-            limits[name] = _positive(
-                section[key], f"{where}.{group}.{key}", zero=name == "gap_min_mm"
-            )
-    tolerances = replace(Tolerances(), **limits)
-    if tolerances.gap_min_mm >= tolerances.gap_max_mm:
-        raise ConfigError(
-            f"{where}.gap_mm: min {tolerances.gap_min_mm} must be below max {tolerances.gap_max_mm}"
+    try:
+        document_tolerances = Tolerances.model_validate(
+            {k: v for k, v in document.items() if k != "measurement"}
         )
-    config = MeasureConfig(tolerances=tolerances)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        at = ".".join([where, *(str(p) for p in first["loc"])])
+        raise ConfigError(f"{at}: {first['msg']}") from exc
+    config = MeasureConfig(tolerances=limits_of(document_tolerances))
     settings = document.get("measurement") or {}
     if not isinstance(settings, dict):
         raise ConfigError(f"{where}.measurement must be an object")
@@ -146,17 +107,8 @@ def parse_config(document: Any, where: str = "config") -> MeasureConfig:
 
 def config_document(config: MeasureConfig) -> dict:
     """The CONFIG.json that gives ``config``'s tolerances and section settings."""
-    t = config.tolerances
     return {
-        "gap_mm": {"min": t.gap_min_mm, "max": t.gap_max_mm},
-        "step_mm": {"max": t.step_max_mm},
-        "parallelism_mm": {"max": t.parallelism_max_mm},
-        "mismatch_mm": {"max": t.mismatch_max_mm},
-        "surface": {
-            "dent_depth_mm": t.dent_depth_mm,
-            "scratch_depth_mm": t.scratch_depth_mm,
-            "color_delta_e": t.color_delta_e,
-        },
+        **tolerances_of(config.tolerances).model_dump(exclude_none=True),
         "measurement": {
             "cell_mm": config.cell_mm,
             **{

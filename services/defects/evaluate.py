@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.defects.config import Tolerances
 from services.defects.measure import MeasureResult, SeamResult
+from services.defects.tolerances import Limits, upper_limit
 
 SEAM_MATCH_MM = 10.0
 JUNCTION_MATCH_MM = 15.0
@@ -196,15 +196,10 @@ def _match_seam(truth: dict, seams: list[SeamResult]) -> tuple[SeamResult, float
     return None if best is None else best[:2]
 
 
-def _out(kind: str, value: float, t: Tolerances) -> bool:
+def _out(kind: str, value: float, t: Limits) -> bool:
     if kind == "gap":
         raise ValueError("gap uses its range")
-    limit = {
-        "step": t.step_max_mm,
-        "parallelism": t.parallelism_max_mm,
-        "mismatch": t.mismatch_max_mm,
-    }
-    return abs(value) > limit[kind]
+    return abs(value) > upper_limit(t, kind)
 
 
 EdgesSeen = Callable[[int, np.ndarray], np.ndarray]
@@ -213,7 +208,7 @@ there (``AssemblyScanner.edges_seen``)."""
 
 
 def evaluate(
-    result: MeasureResult, truth: dict, tolerances: Tolerances, *, seen: EdgesSeen | None = None
+    result: MeasureResult, truth: dict, tolerances: Limits, *, seen: EdgesSeen | None = None
 ) -> Evaluation:
     """Compare ``result`` with a truth document (``simulate.truth_document``); ``seen``
     tells which sections' edges no view saw (their truth cannot be measured)."""

@@ -32,6 +32,7 @@ from services.defects.sections import (
     section_range,
 )
 from services.defects.surface import SurfaceFinding, find_surface_defects
+from services.defects.tolerances import upper_limit
 from services.pointcloud.ply import PointCloud
 from services.wording import counted
 
@@ -625,13 +626,8 @@ def _surface_finding(
     config: MeasureConfig,
     panel_id: dict[int, int],
 ) -> Finding:
-    t = config.tolerances
-    limit, unit = {
-        "dent": (t.dent_depth_mm, "mm"),
-        "bump": (t.dent_depth_mm, "mm"),
-        "scratch": (t.scratch_depth_mm, "mm"),
-        "color": (t.color_delta_e, "delta_e"),
-    }[finding.type]
+    limit = upper_limit(config.tolerances, finding.type)
+    unit = "delta_e" if finding.type == "color" else "mm"
     point, normal = _surface_point(raster, finding.at_uv)
     return Finding(
         finding.type,

@@ -5,6 +5,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.changes import record_change
 from supervisor.models import Artifact, Job
+from supervisor.models.jobs import UNFINISHED
 from supervisor.problems import Problem, not_found
 
 
@@ -19,9 +20,7 @@ def delete(session: Session, *, inspection_id: int, artifact_id: int, user_id: i
     """Delete the row; returns the storage uri to remove once the transaction committed."""
     artifact = get(session, inspection_id=inspection_id, artifact_id=artifact_id)
     unfinished = session.scalars(
-        select(Job).where(
-            Job.inspection_id == inspection_id, Job.status.in_(("waiting", "queued", "running"))
-        )
+        select(Job).where(Job.inspection_id == inspection_id, Job.status.in_(UNFINISHED))
     ).all()
     readers = [job.id for job in unfinished if artifact_id in (job.input_artifact_ids or [])]
     if readers:

@@ -1,17 +1,13 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.ids import IdField
+from supervisor.models.defects import DefectStatus, DefectType, Severity, Verdict
 from supervisor.requests import MAX_MM, Millimetres, RequestModel
 
-DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
-DefectStatus = Literal["open", "resolved", "dismissed"]
-Severity = Literal["info", "minor", "major", "critical"]
-Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
 Vector3 = tuple[Millimetres, Millimetres, Millimetres]
 """A location (mm) or a direction (any length: the API normalises it), within ±1 km."""
 

@@ -9,9 +9,9 @@ from sqlalchemy.orm import Session
 from supervisor.changes import record_change
 from supervisor.defects.schemas import Consensus, DefectCreate, DefectOut
 from supervisor.models import Defect, Inspection, Judgment
+from supervisor.models.defects import VERDICTS
 from supervisor.problems import Problem, not_found
 
-VERDICTS = ("confirmed", "rejected", "reclassified", "uncertain")
 AGREEMENT_NEEDED = 2 / 3
 
 

@@ -11,6 +11,7 @@ from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch
 from supervisor.models import Job, JobDependency
 from supervisor.models._types import utcnow
+from supervisor.models.jobs import NOT_STARTED
 
 
 def dependencies(session: Session, job_ids: list[int]) -> dict[int, list[int]]:
@@ -70,7 +71,7 @@ def cancel_dependents(session: Session, job_id: int, reason: str) -> None:
         children = dependents(session, frontier)
         frontier = []
         for child in session.scalars(
-            select(Job).where(Job.id.in_(children), Job.status.in_(("waiting", "queued")))
+            select(Job).where(Job.id.in_(children), Job.status.in_(NOT_STARTED))
         ):
             child.status = "cancelled"
             child.message = reason

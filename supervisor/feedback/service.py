@@ -26,23 +26,12 @@ from dataclasses import dataclass
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from services.defects.tolerances import FIELDS
 from supervisor.defects.service import reading, tally, votes_for
 from supervisor.feedback.schemas import FeedbackOut, Suggestion, ToleranceFeedback
 from supervisor.models import Defect, Inspection
 
 RESOLUTION = {"mm": 0.01, "delta_e": 0.1}
-TOLERANCE_FIELDS = {
-    ("gap", "max"): ("gap_mm", "max"),
-    ("gap", "min"): ("gap_mm", "min"),
-    ("step", "max"): ("step_mm", "max"),
-    ("parallelism", "max"): ("parallelism_mm", "max"),
-    ("mismatch", "max"): ("mismatch_mm", "max"),
-    ("dent", "max"): ("surface", "dent_depth_mm"),
-    ("bump", "max"): ("surface", "dent_depth_mm"),
-    ("scratch", "max"): ("surface", "scratch_depth_mm"),
-    ("color", "max"): ("surface", "color_delta_e"),
-}
-"""Where each (type, bound) limit lives in an inspection's tolerances."""
 
 
 @dataclass(frozen=True)
@@ -182,7 +171,7 @@ def _apply(tolerances: dict, groups: list[ToleranceFeedback]) -> dict:
     for group in groups:
         if group.suggestion.action == "keep":
             continue
-        section, name = TOLERANCE_FIELDS[(group.type, group.bound)]
+        section, name, _ = FIELDS[(group.type, group.bound)]
         suggested.setdefault(section, {})[name] = group.suggestion.tolerance
     return suggested
 

@@ -1,50 +1,13 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Literal
+from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from supervisor.requests import TOLERANCE_MAX_MM, Millimetres, RequestModel
-
-Area = Literal["cargo", "cabin", "component"]
-InspectionStatus = Literal["planned", "scanning", "processing", "review", "closed"]
-
-
-Limit = Annotated[float, Field(gt=0, le=TOLERANCE_MAX_MM)]
-
-
-class RangeMm(RequestModel):
-    min: float | None = Field(None, ge=0, le=TOLERANCE_MAX_MM)
-    max: Limit | None = None
-
-    @model_validator(mode="after")
-    def _ordered(self) -> RangeMm:
-        if self.min is not None and self.max is not None and self.min > self.max:
-            raise ValueError(f"min ({self.min:g}) must not exceed max ({self.max:g})")
-        return self
-
-
-class LimitMm(RequestModel):
-    max: Limit
-
-
-class SurfaceTolerances(RequestModel):
-    dent_depth_mm: Limit | None = Field(None, description="Deepest acceptable dent/bump.")
-    scratch_depth_mm: Limit | None = Field(None, description="Deepest acceptable scratch.")
-    color_delta_e: float | None = Field(
-        None, gt=0, le=100, description="Largest acceptable CIE ΔE."
-    )
-
-
-class Tolerances(RequestModel):
-    """Acceptance limits; a measurement outside them becomes a defect."""
-
-    gap_mm: RangeMm | None = None
-    step_mm: LimitMm | None = None
-    parallelism_mm: LimitMm | None = None
-    mismatch_mm: LimitMm | None = None
-    surface: SurfaceTolerances | None = None
+from services.defects.tolerances import Tolerances
+from supervisor.models.inspections import Area, InspectionStatus
+from supervisor.requests import Millimetres, RequestModel
 
 
 class ImageMarker(RequestModel):

@@ -6,6 +6,7 @@ from sqlalchemy.orm import Session
 from supervisor.changes import record_change
 from supervisor.inspections.schemas import InspectionCreate, InspectionUpdate
 from supervisor.models import Defect, Inspection, Job
+from supervisor.models.jobs import UNFINISHED
 from supervisor.problems import Problem, not_found
 
 
@@ -92,9 +93,6 @@ def delete(session: Session, *, inspection_id: int, user_id: int) -> None:
     )
 
 
-UNFINISHED_JOB_STATUSES = ("waiting", "queued", "running")
-
-
 def follow_runs(session: Session, *, inspection_id: int) -> None:
     """The inspection's status follows its runs: ``processing`` while a job is unfinished,
     then ``review`` once a job has succeeded or there are findings to judge. A closed
@@ -103,11 +101,7 @@ def follow_runs(session: Session, *, inspection_id: int) -> None:
     if inspection is None or inspection.status == "closed":
         return
     busy = session.scalar(
-        select(
-            exists().where(
-                Job.inspection_id == inspection_id, Job.status.in_(UNFINISHED_JOB_STATUSES)
-            )
-        )
+        select(exists().where(Job.inspection_id == inspection_id, Job.status.in_(UNFINISHED)))
     )
     done = session.scalar(
         select(

@@ -30,12 +30,12 @@ from supervisor.jobs.schemas import (
     RunOut,
 )
 from supervisor.models import Job, Run
+from supervisor.models.jobs import FINISHED
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
 
 router = APIRouter(tags=["runs and jobs"])
 readers = require(*READ_ROLES, action="read runs and jobs")
 operators = require(*EDIT_ROLES, action="start, cancel or retry jobs")
-TERMINAL = ("succeeded", "failed", "cancelled")
 EVENT_POLL_S = 0.5
 EVENT_KEEPALIVE_S = 15.0
 
@@ -218,7 +218,7 @@ async def job_events(
             if key != last:
                 last, idle = key, 0.0
                 yield f"event: progress\ndata: {json.dumps(snapshot)}\n\n"
-            if snapshot["status"] in TERMINAL:
+            if snapshot["status"] in FINISHED:
                 yield f"event: end\ndata: {json.dumps({'status': snapshot['status']})}\n\n"
                 return
             if await request.is_disconnected():

@@ -1,14 +1,14 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.ids import IdField
+from supervisor.models.jobs import JobStatus
 from supervisor.requests import RequestModel
 
-JobStatus = Literal["waiting", "queued", "running", "succeeded", "failed", "cancelled"]
 STEP_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,63}$"
 
 

@@ -16,6 +16,7 @@ from supervisor.jobs.schemas import JobOut, RunCreate, RunOut
 from supervisor.jobs.step_inputs import check_step_inputs
 from supervisor.models import Artifact, Job, JobDependency, Run
 from supervisor.models._types import utcnow
+from supervisor.models.jobs import FINISHED
 from supervisor.problems import Problem, not_found
 
 RUN_STATUS_ORDER = ("failed", "running", "queued", "waiting", "cancelled", "succeeded")
@@ -171,7 +172,7 @@ def get_job(session: Session, *, job_id: int) -> Job:
 def cancel_job(session: Session, *, job_id: int, user_id: int) -> Job:
     """Cancel now if not started; ask the worker to stop if running (it ends soon after)."""
     job = get_job(session, job_id=job_id)
-    if job.status in ("succeeded", "failed", "cancelled"):
+    if job.status in FINISHED:
         raise Problem(409, f"Job {job_id} already {job.status}; there is nothing to cancel.")
     if job.status == "running":
         session.execute(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Literal, get_args
 
 from sqlalchemy import CheckConstraint, Float, ForeignKey, Integer, String, Text, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
@@ -10,10 +11,14 @@ from sqlalchemy.orm import Mapped, mapped_column
 from supervisor.db import Base
 from supervisor.models._types import JSONType, UTCDateTime, created_at_column, utcnow
 
-DEFECT_TYPES = ("gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color")
-DEFECT_STATUSES = ("open", "resolved", "dismissed")
-SEVERITIES = ("info", "minor", "major", "critical")
-VERDICTS = ("confirmed", "rejected", "reclassified", "uncertain")
+DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
+DefectStatus = Literal["open", "resolved", "dismissed"]
+Severity = Literal["info", "minor", "major", "critical"]
+Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
+DEFECT_TYPES: tuple[DefectType, ...] = get_args(DefectType)
+DEFECT_STATUSES: tuple[DefectStatus, ...] = get_args(DefectStatus)
+SEVERITIES: tuple[Severity, ...] = get_args(Severity)
+VERDICTS: tuple[Verdict, ...] = get_args(Verdict)
 
 
 class Defect(Base):

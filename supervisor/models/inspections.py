@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Literal, get_args
 
 from sqlalchemy import BigInteger, CheckConstraint, ForeignKey, String
 from sqlalchemy.orm import Mapped, mapped_column
@@ -10,8 +11,10 @@ from sqlalchemy.orm import Mapped, mapped_column
 from supervisor.db import Base
 from supervisor.models._types import JSONType, UTCDateTime, created_at_column, utcnow
 
-AREAS = ("cargo", "cabin", "component")
-INSPECTION_STATUSES = ("planned", "scanning", "processing", "review", "closed")
+Area = Literal["cargo", "cabin", "component"]
+InspectionStatus = Literal["planned", "scanning", "processing", "review", "closed"]
+AREAS: tuple[Area, ...] = get_args(Area)
+INSPECTION_STATUSES: tuple[InspectionStatus, ...] = get_args(InspectionStatus)
 
 
 class Inspection(Base):

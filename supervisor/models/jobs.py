@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Literal, get_args
 
 from sqlalchemy import (
     Boolean,
@@ -18,8 +19,12 @@ from sqlalchemy.orm import Mapped, mapped_column
 from supervisor.db import Base
 from supervisor.models._types import JSONType, UTCDateTime, created_at_column
 
-JOB_STATUSES = ("waiting", "queued", "running", "succeeded", "failed", "cancelled")
-TERMINAL_STATUSES = ("succeeded", "failed", "cancelled")
+JobStatus = Literal["waiting", "queued", "running", "succeeded", "failed", "cancelled"]
+JOB_STATUSES: tuple[JobStatus, ...] = get_args(JobStatus)
+FINISHED: tuple[JobStatus, ...] = ("succeeded", "failed", "cancelled")
+"""A job in one of these stays there unless it is retried."""
+NOT_STARTED: tuple[JobStatus, ...] = ("waiting", "queued")
+UNFINISHED: tuple[JobStatus, ...] = (*NOT_STARTED, "running")
 
 
 class Run(Base):

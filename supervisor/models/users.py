@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Literal, get_args
 
 from sqlalchemy import Boolean, CheckConstraint, ForeignKey, String
 from sqlalchemy.orm import Mapped, mapped_column
@@ -10,8 +11,10 @@ from sqlalchemy.orm import Mapped, mapped_column
 from supervisor.db import Base
 from supervisor.models._types import UTCDateTime, created_at_column
 
-ROLES = ("admin", "inspector", "viewer", "device")
-TOKEN_KINDS = ("session", "device", "cli")
+Role = Literal["admin", "inspector", "viewer", "device"]
+TokenKind = Literal["session", "device", "cli"]
+ROLES: tuple[Role, ...] = get_args(Role)
+TOKEN_KINDS: tuple[TokenKind, ...] = get_args(TokenKind)
 
 
 class User(Base):

@@ -5,9 +5,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from supervisor.models.users import Role
 from supervisor.requests import RequestModel
-
-Role = Literal["admin", "inspector", "viewer", "device"]
 
 
 class UserCreate(RequestModel):

@@ -1,0 +1,112 @@
+"""An inspection's acceptance limits: one model for the API, CONFIG.json and ``measure``.
+
+The document (``Tolerances``) is what an inspection's ``tolerances`` and CONFIG.json hold;
+``Limits`` is the flat view ``measure`` judges by, every limit filled (defaults where the
+document is silent); ``FIELDS`` says where each finding type's limit lives in both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+TOLERANCE_MAX_MM = 1000.0
+"""No acceptance limit is wider than a metre."""
+Limit = Annotated[float, Field(gt=0, le=TOLERANCE_MAX_MM)]
+
+
+@dataclass(frozen=True)
+class Limits:
+    gap_min_mm: float = 0.5
+    gap_max_mm: float = 3.0
+    step_max_mm: float = 0.5
+    parallelism_max_mm: float = 0.5
+    mismatch_max_mm: float = 0.5
+    dent_depth_mm: float = 0.2
+    """Also the limit for bumps (their height)."""
+    scratch_depth_mm: float = 0.1
+    color_delta_e: float = 3.0
+
+
+class _Strict(BaseModel):
+    """Unknown keys and numbers that are not finite are refused."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class RangeMm(_Strict):
+    """A gap's acceptable range; a side not given takes its default (``Limits``)."""
+
+    min: float | None = Field(None, ge=0, le=TOLERANCE_MAX_MM)
+    max: Limit | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> RangeMm:
+        low = Limits.gap_min_mm if self.min is None else self.min
+        high = Limits.gap_max_mm if self.max is None else self.max
+        if low >= high:
+            said = "the default " if self.min is None or self.max is None else ""
+            raise ValueError(f"min ({low:g}) must be below max ({high:g}) ({said}range)")
+        return self
+
+
+class LimitMm(_Strict):
+    max: Limit
+
+
+class SurfaceTolerances(_Strict):
+    dent_depth_mm: Limit | None = Field(None, description="Deepest acceptable dent/bump.")
+    scratch_depth_mm: Limit | None = Field(None, description="Deepest acceptable scratch.")
+    color_delta_e: float | None = Field(
+        None, gt=0, le=100, description="Largest acceptable CIE ΔE."
+    )
+
+
+class Tolerances(_Strict):
+    """Acceptance limits; a measurement outside them becomes a defect."""
+
+    gap_mm: RangeMm | None = None
+    step_mm: LimitMm | None = None
+    parallelism_mm: LimitMm | None = None
+    mismatch_mm: LimitMm | None = None
+    surface: SurfaceTolerances | None = None
+
+
+FIELDS: dict[tuple[str, str], tuple[str, str, str]] = {
+    ("gap", "min"): ("gap_mm", "min", "gap_min_mm"),
+    ("gap", "max"): ("gap_mm", "max", "gap_max_mm"),
+    ("step", "max"): ("step_mm", "max", "step_max_mm"),
+    ("parallelism", "max"): ("parallelism_mm", "max", "parallelism_max_mm"),
+    ("mismatch", "max"): ("mismatch_mm", "max", "mismatch_max_mm"),
+    ("dent", "max"): ("surface", "dent_depth_mm", "dent_depth_mm"),
+    ("bump", "max"): ("surface", "dent_depth_mm", "dent_depth_mm"),
+    ("scratch", "max"): ("surface", "scratch_depth_mm", "scratch_depth_mm"),
+    ("color", "max"): ("surface", "color_delta_e", "color_delta_e"),
+}
+"""(finding type, "min" or "max") → (section, key) in the document, field of ``Limits``."""
+
+
+def upper_limit(limits: Limits, finding_type: str) -> float:
+    """The largest acceptable value of a finding of this type (any but a gap's range)."""
+    return getattr(limits, FIELDS[(finding_type, "max")][2])
+
+
+def limits_of(tolerances: Tolerances) -> Limits:
+    """The flat limits: the document's, and the defaults where it is silent."""
+    document = tolerances.model_dump(exclude_none=True)
+    given = {
+        field: document[section][key]
+        for section, key, field in FIELDS.values()
+        if key in document.get(section, {})
+    }
+    return replace(Limits(), **given)
+
+
+def tolerances_of(limits: Limits) -> Tolerances:
+    """The document that gives every one of ``limits``."""
+    document: dict = {}
+    for section, key, field in FIELDS.values():
+        document.setdefault(section, {})[key] = getattr(limits, field)
+    return Tolerances.model_validate(document)
