@@ -40,7 +40,7 @@ def migrate(revision: str = typer.Option("head", help="Target revision.")) -> No
     url = settings.resolved_database_url
     try:
         upgrade(url, revision)
-    except Exception as exc:  # noqa: BLE001 - shown to the user
+    except Exception as exc:  # shown to the user
         fail(f"migration failed on {_redact(url)}: {exc}")
     typer.echo(f"database {_redact(url)} is at migration {current_revision(url)}")
 

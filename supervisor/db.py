@@ -9,18 +9,16 @@ transaction so they never wait for a writer.
 from __future__ import annotations
 
 import json
+import sqlite3
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from functools import lru_cache
 from typing import Any
 
 import orjson
 from sqlalchemy import MetaData, create_engine, event
 from sqlalchemy.engine import Connection, Engine
 from sqlalchemy.orm import DeclarativeBase, Session, sessionmaker
-
-from supervisor.settings import get_settings
 
 NAMING_CONVENTION = {
     "ix": "ix_%(column_0_label)s",
@@ -41,7 +39,7 @@ def _configure_sqlite(engine: Engine) -> None:
     writer = threading.Lock()
 
     @event.listens_for(engine, "connect")
-    def _on_connect(dbapi_connection, _record) -> None:  # type: ignore[no-untyped-def]
+    def _on_connect(dbapi_connection: sqlite3.Connection, _record: object) -> None:
         dbapi_connection.isolation_level = None  # SQLAlchemy emits BEGIN itself below
         cursor = dbapi_connection.cursor()
         cursor.execute("PRAGMA journal_mode=WAL")
@@ -51,7 +49,7 @@ def _configure_sqlite(engine: Engine) -> None:
         cursor.close()
 
     @event.listens_for(engine, "begin")
-    def _on_begin(connection) -> None:  # type: ignore[no-untyped-def]
+    def _on_begin(connection: Connection) -> None:
         write = connection.get_execution_options().get("vista_write", False)
         if write:
             writer.acquire()
@@ -62,7 +60,7 @@ def _configure_sqlite(engine: Engine) -> None:
             _release(connection)
             raise
 
-    def _release(connection) -> None:  # type: ignore[no-untyped-def]
+    def _release(connection: Connection) -> None:
         if connection.info.pop("vista_writer", False):
             writer.release()
 
@@ -131,8 +129,3 @@ class Database:
 
     def dispose(self) -> None:
         self.engine.dispose()
-
-
-@lru_cache
-def get_database(url: str | None = None) -> Database:
-    return Database(url or get_settings().resolved_database_url)

@@ -114,7 +114,7 @@ def run_demo(
     with TestClient(create_app(settings)) as client:
         client.headers["authorization"] = f"Bearer {token}"
 
-        def call(method: str, url: str, **kwargs) -> dict:  # noqa: ANN003
+        def call(method: str, url: str, **kwargs) -> dict:
             response = client.request(method, url, **kwargs)
             if response.status_code >= 400:
                 raise DemoError(f"{method} {url}: {response.status_code} {response.text}")

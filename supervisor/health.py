@@ -23,7 +23,7 @@ def _check_database(runtime: Runtime) -> str | None:
     try:
         with runtime.db.read() as session:
             session.execute(text("SELECT 1"))
-    except Exception as exc:  # noqa: BLE001 - reported to the caller
+    except Exception as exc:  # reported to the caller
         return f"database unreachable: {type(exc).__name__}"
     return None
 
@@ -43,7 +43,7 @@ def _check_broker(runtime: Runtime) -> str | None:
             parameters = pika.URLParameters(url)
             parameters.socket_timeout = 2
             pika.BlockingConnection(parameters).close()
-    except Exception as exc:  # noqa: BLE001 - reported to the caller
+    except Exception as exc:  # reported to the caller
         return f"broker unreachable: {type(exc).__name__}"
     return None
 

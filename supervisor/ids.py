@@ -13,5 +13,5 @@ IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 IdField = Annotated[int, Field(ge=1, le=MAX_ID)]
 
 
-def IdQuery(description: str):  # noqa: ANN201, N802 - reads like a type at the call site
+def IdQuery(description: str):  # noqa: ANN201 - reads like a type at the call site
     return Query(None, ge=1, le=MAX_ID, description=description)

@@ -146,7 +146,7 @@ def tokens(runtime: Runtime) -> dict[str, str]:
 
 
 @pytest.fixture
-def runtime_factory():  # noqa: ANN201 - a factory of (client, tokens, runtime)
+def runtime_factory():  # a factory of (client, tokens, runtime)
     """For tests that need settings of their own (e.g. a small upload limit)."""
     opened: list[tuple[TestClient, Runtime]] = []
 

@@ -107,7 +107,7 @@ def _with(body: object, path: tuple, raw: str) -> str:
     return json.dumps(copy).replace('"__number__"', raw)
 
 
-def _row_counts(runtime) -> dict[str, int]:  # noqa: ANN001
+def _row_counts(runtime) -> dict[str, int]:
     with runtime.db.read() as session:
         return {
             t.name: session.scalar(select(func.count()).select_from(t))
@@ -150,7 +150,7 @@ def seeded(client, tokens, tmp_path):
     }
 
 
-def _refuses_every_bad_number(client, runtime, request: tuple, body: dict, paths) -> int:  # noqa: ANN001
+def _refuses_every_bad_number(client, runtime, request: tuple, body: dict, paths) -> int:
     """Send ``body`` with each of ``paths`` set to each bad number: a 422 naming the field
     and nothing stored, every time. Returns how many requests were tried."""
     method, url, headers = request

@@ -169,7 +169,7 @@ def test_api_docs_work_offline(start_server, tmp_path, sqlite_url):
     server = start_server(make_settings(tmp_path, sqlite_url), run_engine=False)
     elsewhere: list[str] = []
 
-    def only_local(route):  # noqa: ANN001
+    def only_local(route):
         if route.request.url.startswith(server.url):
             route.continue_()
         else:

@@ -5,7 +5,7 @@ from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
 from sqlalchemy import inspect
 
-import supervisor.models  # noqa: F401, I001 - registers every table
+import supervisor.models  # noqa: F401 - registers every table
 from supervisor.db import Base, make_engine
 from supervisor.migrate import alembic_config, current_revision, head_revision, upgrade
 

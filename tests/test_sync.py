@@ -267,7 +267,7 @@ def test_cursor_waits_at_a_young_hole_in_the_log():
     assert [r.seq for r in _settled([row(11, old), row(13, old)], 10, now)] == [11, 13]
 
 
-def _exactly(model, document: dict) -> None:  # noqa: ANN001 - a pydantic model class
+def _exactly(model, document: dict) -> None:  # a pydantic model class
     """``document`` is what ``model`` declares: it validates, with no field more or less."""
     model.model_validate(document)
     assert set(document) == set(model.model_fields), (model.__name__, sorted(document))

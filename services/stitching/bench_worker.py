@@ -41,13 +41,15 @@ def _rss_mb() -> float:
 
 
 def run_vista(
-    clouds: list[PointCloud], base_T_flange, flange_T_sensor
+    clouds: list[PointCloud], base_T_flange: np.ndarray, flange_T_sensor: np.ndarray
 ) -> tuple[PointCloud, StitchResult]:
     result = stitch(clouds, base_T_flange, flange_T_sensor, config=CONFIG)
     return result.cloud, result
 
 
-def run_open3d(clouds: list[PointCloud], base_T_flange, flange_T_sensor) -> tuple[PointCloud, None]:
+def run_open3d(
+    clouds: list[PointCloud], base_T_flange: np.ndarray, flange_T_sensor: np.ndarray
+) -> tuple[PointCloud, None]:
     """The same steps with Open3D's API, as a user of it would write them."""
     import open3d as o3d
 

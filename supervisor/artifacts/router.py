@@ -100,7 +100,7 @@ async def upload_artifact(
         temp_path.unlink(missing_ok=True)
 
 
-def _store(request, runtime, user, inspection_id, kind, name, media_type, received, meta):  # noqa: ANN001, ANN202, PLR0913
+def _store(request, runtime, user, inspection_id, kind, name, media_type, received, meta):  # noqa: ANN001, ANN202
     final_uri: list[str] = []
 
     def create():  # noqa: ANN202

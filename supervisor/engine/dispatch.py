@@ -70,7 +70,7 @@ def dispatch(db: Database, dispatcher: Dispatcher, items: Iterable[Dispatch]) ->
     for item in items:
         try:
             dispatcher.send(item)
-        except Exception:  # noqa: BLE001 - the maintenance loop resends undispatched jobs
+        except Exception:  # the maintenance loop resends undispatched jobs
             log.exception("could not send job %s to queue %s", item.job_id, item.queue)
             continue
         sent.append(item.job_id)

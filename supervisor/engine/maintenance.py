@@ -114,5 +114,5 @@ class MaintenanceLoop:
             try:
                 recover_lost_jobs(self._rt)
                 resend_queued(self._rt)
-            except Exception:  # noqa: BLE001 - the next round tries again
+            except Exception:  # the next round tries again
                 log.warning("job maintenance failed", exc_info=True)

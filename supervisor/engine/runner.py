@@ -60,7 +60,7 @@ def run_job(job_id: int, *, runtime: Runtime) -> str:
     error: BaseException | None = None
     try:
         result = kind.load_handler()(ctx)
-    except BaseException as exc:  # noqa: BLE001 - every way out is recorded
+    except BaseException as exc:  # every way out is recorded
         result, error = None, exc
     finally:
         beat.stop()
@@ -181,7 +181,7 @@ class _Heartbeat:
                         .values(heartbeat_at=utcnow())
                     ).rowcount
                     cancel = session.scalar(select(Job.cancel_requested).where(Job.id == claim.id))
-            except Exception:  # noqa: BLE001 - a missed beat is retried next interval
+            except Exception:  # a missed beat is retried next interval
                 log.warning("heartbeat of job %s failed", claim.id, exc_info=True)
                 continue
             if not alive:

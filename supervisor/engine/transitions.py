@@ -26,7 +26,7 @@ def end_attempt(
     *,
     status: str,
     guard: tuple[ColumnElement[bool], ...] = (),
-    **values: Any,  # noqa: ANN401 - the job's other columns to set
+    **values: Any,  # the job's other columns to set
 ) -> list[Dispatch] | None:
     """Move attempt ``attempt`` of job ``job_id`` from running to ``status`` (queued again,
     succeeded, failed or cancelled), setting ``values``; ``guard``: further conditions.

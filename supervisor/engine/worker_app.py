@@ -26,11 +26,11 @@ class _Maintenance(Middleware):
     def __init__(self) -> None:
         self._loop: MaintenanceLoop | None = None
 
-    def after_worker_boot(self, broker, worker) -> None:  # type: ignore[no-untyped-def]
+    def after_worker_boot(self, broker: dramatiq.Broker, worker: dramatiq.Worker) -> None:
         self._loop = MaintenanceLoop(_runtime())
         self._loop.start()
 
-    def before_worker_shutdown(self, broker, worker) -> None:  # type: ignore[no-untyped-def]
+    def before_worker_shutdown(self, broker: dramatiq.Broker, worker: dramatiq.Worker) -> None:
         if self._loop is not None:
             self._loop.stop()
 

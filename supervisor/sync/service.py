@@ -287,7 +287,9 @@ def _same_content(judgment: Judgment, item: OfflineJudgment) -> bool:
     )
 
 
-def apply_batch(db: Database, *, user_id: int, username: str, items: list[OfflineJudgment]):
+def apply_batch(
+    db: Database, *, user_id: int, username: str, items: list[OfflineJudgment]
+) -> tuple[list[dict], list[dict]]:
     """Apply a batch of offline judgments of one user; returns (results, consensus docs).
 
     A user's batches run one at a time (a lock per user on PostgreSQL; SQLite has one
@@ -313,7 +315,7 @@ def apply_batch(db: Database, *, user_id: int, username: str, items: list[Offlin
 
 def _apply(
     session: Session, *, user_id: int, username: str, items: list[OfflineJudgment], lock: bool
-):
+) -> tuple[list[dict], list[dict]]:
     now = utcnow()
     client_ids = list({item.client_id for item in items})
     defect_ids = list({item.defect_id for item in items})

@@ -217,7 +217,9 @@ class VistaClient:
 
     # -- sync and scene -----------------------------------------------------------------
 
-    def sync(self, inspection_id: int, since: str | None = None, *, limit: int | None = None):
+    def sync(
+        self, inspection_id: int, since: str | None = None, *, limit: int | None = None
+    ) -> dict:
         """One page of what changed since ``since`` (None: everything)."""
         params: dict[str, Any] = {"inspection": inspection_id}
         if since is not None:
