@@ -20,7 +20,13 @@ def write_document(out: Path, *, bench: str, targets: dict, **parts: object) -> 
     document = {
         "bench": bench,
         "when": datetime.now(UTC).isoformat(timespec="seconds"),
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+            "processor": platform.processor() or platform.machine(),
+            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        },
         "targets": targets,
         **parts,
     }

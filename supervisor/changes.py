@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from sqlalchemy import insert
 from sqlalchemy.orm import Session
 
@@ -25,4 +27,28 @@ def record_change(
             inspection_id=inspection_id,
             user_id=user_id,
         )
+    )
+
+
+def add_created(session: Session, entity: str, row: object, user_id: int) -> None:
+    """Add a new row and log its creation (see ``record_update``)."""
+    session.add(row)
+    session.flush()
+    _record(session, entity, row, "create", user_id)
+
+
+def record_update(session: Session, entity: str, row: object, user_id: int | None = None) -> None:
+    """Log an update of ``row``: one with ``id`` and ``inspection_id`` (an inspection is
+    logged under itself)."""
+    _record(session, entity, row, "update", user_id)
+
+
+def _record(session: Session, entity: str, row: Any, op: str, user_id: int | None) -> None:
+    record_change(
+        session,
+        entity=entity,
+        entity_id=row.id,
+        op=op,
+        inspection_id=row.id if entity == "inspection" else row.inspection_id,
+        user_id=user_id,
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -129,3 +129,19 @@ class Database:
 
     def dispose(self) -> None:
         self.engine.dispose()
+
+
+_AFTER_COMMIT = "after_commit"
+
+
+def after_commit(session: Session, action: Callable[[], None]) -> None:
+    """Run ``action`` once ``session``'s transaction has committed (never if it rolls
+    back): sending jobs to the queue, deleting stored files of removed rows."""
+    session.info.setdefault(_AFTER_COMMIT, []).append(action)
+
+
+def commit(session: Session) -> None:
+    """Commit ``session`` and run what was asked to follow the commit."""
+    session.commit()
+    for action in session.info.pop(_AFTER_COMMIT, []):
+        action()

@@ -12,6 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from supervisor.auth.service import token_digest, user_for_token
+from supervisor.db import commit
 from supervisor.engine.runtime import Runtime
 from supervisor.models._types import utcnow
 from supervisor.models.users import ROLES, Role
@@ -65,17 +66,27 @@ def get_runtime(request: Request) -> Runtime:
 
 
 async def get_session(request: Request) -> AsyncIterator[Session]:
-    """A session that takes the write lock (SQLite) only for methods that change data.
+    """The request's session, and the one commit policy of the API.
 
-    Creating it does no I/O, so only closing it (which returns the connection) goes to
-    the thread pool.
+    For a method that changes data it takes the write lock (SQLite) and commits when the
+    endpoint has returned — before the response is sent (``SESSION`` gives it the
+    function scope), so a failed commit is the response — then runs what the endpoint
+    asked to follow the commit (``db.after_commit``). When the endpoint raises, nothing is
+    committed. Creating it does no I/O, so only the commit and the close go to the thread
+    pool.
     """
     write = request.method not in ("GET", "HEAD", "OPTIONS")
     session = request.app.state.runtime.db.session(write=write)
     try:
         yield session
+        if write:
+            await run_in_threadpool(commit, session)
     finally:
         await run_in_threadpool(session.close)
+
+
+SESSION = Depends(get_session, scope="function")
+"""The request's session (see ``get_session``): ``session: Session = SESSION``."""
 
 
 def _look_up(request: Request, token: str) -> tuple[CurrentUser, float | None] | None:

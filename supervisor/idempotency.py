@@ -15,6 +15,7 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
+from supervisor.db import after_commit as run_after_commit
 from supervisor.models import IdempotencyRecord
 from supervisor.problems import Problem
 
@@ -60,7 +61,8 @@ def create_once(
     create: Callable[[], Created],
     after_commit: Callable[[], None] | None = None,
 ) -> JSONResponse:
-    """Run ``create`` (which adds rows to ``session``) and commit, honouring the key."""
+    """Run ``create`` (which adds rows to ``session``) and flush, honouring the key; the
+    caller's commit policy commits, then runs ``after_commit``."""
     key = request.headers.get(KEY_HEADER)
     if key is not None and not (0 < len(key) <= MAX_KEY_LENGTH):
         raise Problem(400, f"{KEY_HEADER} must be 1 to {MAX_KEY_LENGTH} characters.")
@@ -82,7 +84,7 @@ def create_once(
             )
         )
     try:
-        session.commit()
+        session.flush()
     except IntegrityError:
         session.rollback()
         replay = _replay(session, user_id, key, request_sha256) if key else None
@@ -90,7 +92,7 @@ def create_once(
             raise
         return replay
     if after_commit is not None:
-        after_commit()
+        run_after_commit(session, after_commit)
     return JSONResponse(body, status_code=201, headers={"Location": location} if location else None)
 
 

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import base64
 import binascii
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Annotated, Generic, TypeVar
 
 from fastapi import Query
 from pydantic import BaseModel
+from sqlalchemy import Select
+from sqlalchemy.orm import Session
 
 from supervisor.ids import MAX_ID
 from supervisor.problems import Problem
@@ -40,6 +42,28 @@ def decode_cursor(cursor: str | None) -> int:
         return int(value)
     except (ValueError, binascii.Error, UnicodeDecodeError) as exc:
         raise Problem(400, "The cursor is not one this server gave out; start without it.") from exc
+
+
+def paginate(
+    session: Session,
+    query: Select,
+    *,
+    cursor: str | None,
+    limit: int,
+    out: Callable[[list], list],
+    equal: dict | None = None,
+) -> Page:
+    """One page of ``query``'s entities (one kind, with an integer ``id``) in id order after
+    ``cursor``, narrowed to rows whose column equals each ``equal`` value that is given
+    (None: any); ``out`` turns the page's rows into its items."""
+    entity = query.column_descriptions[0]["entity"]
+    for column, value in (equal or {}).items():
+        if value is not None:
+            query = query.where(column == value)
+    rows = session.scalars(
+        query.where(entity.id > decode_cursor(cursor)).order_by(entity.id).limit(limit + 1)
+    ).all()
+    return Page(items=out(list(rows[:limit])), next_cursor=next_cursor(rows, limit))
 
 
 def next_cursor(rows: Sequence, limit: int) -> str | None:

@@ -9,15 +9,10 @@ from pathlib import Path
 import pytest
 from sqlalchemy import insert
 
-from supervisor.bench.api import (
-    PAGE_REQUESTS,
-    WriterLog,
-    format_table,
-    percentile,
-    run_api_bench,
-    seed_database,
-    verify_judgments,
-)
+from supervisor.bench.api import format_table, run_api_bench
+from supervisor.bench.load import PAGE_REQUESTS, WriterLog, verify_judgments
+from supervisor.bench.seeding import seed_database
+from supervisor.bench.stats import percentile
 from supervisor.db import make_engine
 from supervisor.models import Judgment, JudgmentRevision
 from supervisor.models._types import utcnow

@@ -22,9 +22,9 @@ from services.defects.simulate import (
     panel_mesh,
     part_to_layout,
     random_assembly,
-    seam_gap_mm,
 )
 from services.defects.tolerances import Limits
+from services.defects.truth import Truth, seam_gap_mm
 from services.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
 from services.pointcloud.ply import PointCloud, read_ply
 from supervisor.cli import app
@@ -99,7 +99,7 @@ def test_a_deep_edge_side_face_runs_down_below_its_foot() -> None:
 
 def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) -> None:
     cloud = read_ply(flat_example / "cloud.ply")
-    truth = json.loads((flat_example / "truth.json").read_text())
+    truth = Truth.from_document(json.loads((flat_example / "truth.json").read_text()))
     config = MeasureConfig()
     result = measure(cloud, config, threads=2)
     summary = evaluate(result, truth, config.tolerances).summary()
@@ -115,7 +115,7 @@ def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) 
     for kind, counts in summary["geometric"].items():
         assert counts["fp"] == 0 and counts["fn"] == 0, (kind, counts)
     # the edges are found rounded, with the panels' radii
-    radii = {round(p["edge"]["size_mm"], 2) for p in truth["panels"]}
+    radii = {round(p.edge.size_mm, 2) for p in truth.panels}
     measured = [e.radius_mm for s in result.seams for e in s.edges]
     assert all(e.model == "round" for s in result.seams for e in s.edges)
     assert all(min(abs(r - t) for t in radii) < 0.15 for r in measured)
@@ -124,20 +124,20 @@ def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) 
 
 def test_finds_every_surface_defect_without_false_alarms(flat_example) -> None:
     cloud = read_ply(flat_example / "cloud.ply")
-    truth = json.loads((flat_example / "truth.json").read_text())
+    truth = Truth.from_document(json.loads((flat_example / "truth.json").read_text()))
     result = measure(cloud, MeasureConfig())
     summary = evaluate(result, truth, Limits()).summary()
     for kind, counts in summary["surface"].items():
         assert counts["fn"] == 0 and counts["fp"] == 0, (kind, counts)
     dents = [f for f in result.findings if f.type in ("dent", "bump")]
-    true_dents = [d for d in truth["defects"] if d["type"] in ("dent", "bump")]
+    true_dents = [d for d in truth.defects if d.type in ("dent", "bump")]
     for d in true_dents:
-        near = min(dents, key=lambda f: np.linalg.norm(f.location - d["location"]))
-        assert abs(near.value - d["depth_mm"]) < 0.05 * d["depth_mm"] + 0.02
+        near = min(dents, key=lambda f: np.linalg.norm(f.location - np.array(d.location)))
+        assert abs(near.value - d.depth_mm) < 0.05 * d.depth_mm + 0.02
     colors = [f for f in result.findings if f.type == "color"]
-    for d in (d for d in truth["defects"] if d["type"] == "color"):
-        near = min(colors, key=lambda f: np.linalg.norm(f.location - d["location"]))
-        assert abs(near.value - d["delta_e"]) < 0.25 * d["delta_e"]
+    for d in (d for d in truth.defects if d.type == "color"):
+        near = min(colors, key=lambda f: np.linalg.norm(f.location - np.array(d.location)))
+        assert abs(near.value - d.delta_e) < 0.25 * d.delta_e
 
 
 def test_result_document_follows_the_contract(flat_example) -> None:
@@ -254,6 +254,16 @@ def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
     assert failed.exit_code == 2 and "step_mm.max: Input should be a valid number" in failed.output
     missing = runner.invoke(app, ["measure", str(tmp_path / "none.ply"), "-o", str(out)])
     assert missing.exit_code == 2 and "none.ply" in missing.output
+    truth = json.loads((flat_example / "truth.json").read_text())
+    del truth["seams"][0]["step_mm"]
+    (tmp_path / "truth.json").write_text(json.dumps(truth))
+    untrue = runner.invoke(
+        app,
+        ["measure", str(flat_example / "cloud.ply"), "-o", str(out)]
+        + ["--truth", str(tmp_path / "truth.json")],
+    )
+    assert untrue.exit_code == 2 and "not a truth document" in untrue.output
+    assert "step_mm" in untrue.output
 
 
 def test_bench_compares_with_the_gauge_against_truth(tmp_path) -> None:

@@ -7,9 +7,11 @@ from datetime import UTC, datetime, timedelta
 from types import SimpleNamespace
 
 import pytest
-from sqlalchemy import update
+from sqlalchemy import func, select, update
 
-from supervisor.models import Defect
+from supervisor.judgments.schemas import JudgmentIn
+from supervisor.judgments.write import JudgmentWrite, Written, write
+from supervisor.models import Change, Defect, JudgmentRevision
 from supervisor.sync.service import GAP_SETTLE_S, _settled
 from tests.conftest import auth
 from tests.seeding import seed_defects
@@ -199,7 +201,7 @@ def test_bad_sync_input_is_refused_and_changes_nothing(client, tokens, inspectio
     for body, phrase in [
         ({"items": []}, "at least 1"),
         ({"items": [_item(defect, at=now) | {"client_time": "2026-01-01T10:00:00"}]}, "time zone"),
-        ({"items": [_item(defect, "reclassified", at=now)]}, "new_type is given exactly"),
+        ({"items": [_item(defect, "reclassified", at=now)]}, "new_type is required when"),
         ({"items": [_item(defect, at=now)] * 1001}, "at most 1000"),
     ]:
         answer = client.post(BATCH, json=body, headers=auth(device))
@@ -294,3 +296,49 @@ def test_the_served_pages_are_the_declared_response_models(client, tokens, inspe
         _exactly(SyncConsensus, page["consensus"][0])
     later = _sync(client, tokens["viewer"], inspection, page["next_cursor"])
     _exactly(SyncOut, later)
+
+
+def test_the_one_judgment_write_keeps_a_later_judgment_for_the_sync(
+    client, tokens, inspection, runtime
+):
+    """PUT and sync push share one write: a change bumps the revision with its revision and
+    change-log rows, the same judgment again adds nothing, the sync's write keeps a judgment
+    made later (a PUT that lands while a batch is being applied), and a reclassification
+    to the defect's own type is refused by the same rule on both paths."""
+    (defect,) = seed_defects(runtime, inspection, 1)  # a gap
+    user_id = client.get("/api/v1/me", headers=auth(tokens["device"])).json()["id"]
+    now = datetime.now(UTC)
+
+    def put(verdict: str, *, at: datetime, newer_only: bool = False, new_type=None) -> Written:
+        given = JudgmentIn(verdict=verdict, new_type=new_type)
+        judgment = JudgmentWrite.of(
+            given, defect_id=defect, user_id=user_id, client_time=at, now=now, newer_only=newer_only
+        )
+        with runtime.db.write() as session:
+            return write(session, judgment)
+
+    first = put("confirmed", at=now)
+    assert first.changed and first.judgment.revision == 1 and first.votes == [("confirmed", None)]
+    again = put("confirmed", at=now + timedelta(seconds=1))
+    assert not again.changed and again.judgment.revision == 1
+    late = put("rejected", at=now - timedelta(minutes=1), newer_only=True)
+    assert not late.changed and late.judgment.verdict == "confirmed"
+    later = put("rejected", at=now + timedelta(minutes=1), newer_only=True)
+    assert later.changed and later.judgment.revision == 2
+    own_type = put("reclassified", at=now + timedelta(minutes=2), new_type="gap")
+    assert own_type.refused and not own_type.changed and own_type.defect_type == "gap"
+    with runtime.db.read() as session:
+        revisions = session.scalars(select(JudgmentRevision.revision)).all()
+        logged = session.scalar(
+            select(func.count()).select_from(Change).where(Change.entity == "judgment")
+        )
+    assert sorted(revisions) == [1, 2] and logged == 2
+    missing = JudgmentWrite.of(
+        JudgmentIn(verdict="confirmed"),
+        defect_id=999_999,
+        user_id=user_id,
+        client_time=now,
+        now=now,
+    )
+    with runtime.db.write() as session:
+        assert write(session, missing).defect_type is None

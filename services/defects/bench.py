@@ -36,8 +36,8 @@ from services.defects.simulate import (
     AssemblySpec,
     random_assembly,
     scan_assembly,
-    truth_document,
 )
+from services.defects.truth import truth_of
 from services.pointcloud.scan_sim import SensorModel
 from services.pointcloud.transforms import from_rotvec
 from services.process import available_cores, prepare_process
@@ -174,7 +174,7 @@ def _run(case: SweepCase, seed: int, threads: int) -> tuple[Evaluation, Evaluati
     base_T_part = BASE_T_PART @ from_rotvec(np.radians([0.0, 0.0, case.yaw_deg]), np.zeros(3))
     scans = scan_assembly(assembly, base_T_part, sensor, tilt_deg=case.tilt_deg, rng=rng)
     cloud = merged_cloud(scans, voxel_mm=0.1, misregistration_mm=case.misregistration_mm)
-    truth = truth_document(assembly, base_T_part)
+    truth = truth_of(assembly, base_T_part)
     scanner, seams = AssemblyScanner(assembly, base_T_part, sensor), assembly.seams
 
     def seen(seam_id: int, fraction: np.ndarray) -> np.ndarray:

@@ -38,6 +38,7 @@ def measure(
     from services.defects.measure import MeasureError
     from services.defects.measure import measure as run_measure
     from services.defects.report import profile_png, result_document
+    from services.defects.truth import Truth
     from services.pointcloud.ply import PlyError, read_ply
     from services.process import available_cores, prepare_process
     from services.stitching.files import StitchingFileError, load_json
@@ -48,12 +49,14 @@ def measure(
         settings = (
             MeasureConfig() if config is None else parse_config(load_json(config), str(config))
         )
-        truth_document = None if truth is None else load_json(truth)
+        truth_json = None if truth is None else load_json(truth)
         points = read_ply(cloud)
     except (ConfigError, StitchingFileError, PlyError, OSError) as exc:
         fail(str(exc))
-    if truth_document is not None and not {"seams", "junctions", "defects"} <= set(truth_document):
-        fail(f"{truth}: not a truth.json of `vista simulate defects` (no seams/junctions/defects)")
+    try:
+        true = None if truth_json is None else Truth.from_document(truth_json)
+    except ValueError as exc:
+        fail(f"{truth}: {exc}")
     with typer.progressbar(length=100, label="measuring") as bar:
         done = 0
 
@@ -107,10 +110,10 @@ def measure(
         profile_png(result, settings, plot)
         typer.echo(f"wrote {plot}")
     typer.echo(f"wrote {out}")
-    if truth_document is not None:
+    if true is not None:
         from services.defects.evaluate import evaluate
 
-        summary = evaluate(result, truth_document, settings.tolerances).summary()
+        summary = evaluate(result, true, settings.tolerances).summary()
         typer.echo("against the truth (mm):")
         typer.echo(json.dumps(_rounded(summary), indent=1))
 

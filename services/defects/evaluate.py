@@ -11,21 +11,12 @@ import numpy as np
 
 from services.defects.measure import MeasureResult, SeamResult
 from services.defects.tolerances import Limits, upper_limit
+from services.defects.truth import TrueSeam, Truth
 
 SEAM_MATCH_MM = 10.0
 JUNCTION_MATCH_MM = 15.0
 SURFACE_TYPES = ("dent", "bump", "scratch", "color")
 GEOMETRIC_TYPES = ("gap", "step", "parallelism", "mismatch")
-
-
-def recall_floor(defect: dict) -> bool:
-    """Whether a true surface defect is inside the issue's recall target: dents and bumps
-    ≥ 0.2 mm deep, scratches ≥ 0.1 mm deep, colour patches ΔE ≥ 5."""
-    if defect["type"] in ("dent", "bump"):
-        return defect["depth_mm"] >= 0.2
-    if defect["type"] == "scratch":
-        return defect["depth_mm"] >= 0.1
-    return defect["delta_e"] >= 5.0
 
 
 @dataclass
@@ -173,9 +164,9 @@ class Evaluation:
         }
 
 
-def _match_seam(truth: dict, seams: list[SeamResult]) -> tuple[SeamResult, float] | None:
+def _match_seam(truth: TrueSeam, seams: list[SeamResult]) -> tuple[SeamResult, float] | None:
     """The measured seam along the true one, and +1/−1 if it runs the same/other way."""
-    start, end = np.array(truth["start"]), np.array(truth["end"])
+    start, end = np.array(truth.start), np.array(truth.end)
     direction = (end - start) / np.linalg.norm(end - start)
     best = None
     for seam in seams:
@@ -208,29 +199,29 @@ there (``AssemblyScanner.edges_seen``)."""
 
 
 def evaluate(
-    result: MeasureResult, truth: dict, tolerances: Limits, *, seen: EdgesSeen | None = None
+    result: MeasureResult, truth: Truth, tolerances: Limits, *, seen: EdgesSeen | None = None
 ) -> Evaluation:
-    """Compare ``result`` with a truth document (``simulate.truth_document``); ``seen``
+    """Compare ``result`` with the truth (``truth.truth_of``); ``seen``
     tells which sections' edges no view saw (their truth cannot be measured)."""
     e = Evaluation(panel_area_m2=result.panel_area_m2, seconds=sum(result.seconds.values()))
     flagged = {(f.type, f.source.get("seam", f.source.get("junction"))) for f in result.defects}
     matched_seams: dict[int, SeamResult] = {}
-    for true_seam in truth["seams"]:
+    for true_seam in truth.seams:
         e.seams_true += 1
         match = _match_seam(true_seam, result.seams)
-        start, end = np.array(true_seam["start"]), np.array(true_seam["end"])
-        g0, g1 = true_seam["gap_start_mm"], true_seam["gap_end_mm"]
+        start, end = np.array(true_seam.start), np.array(true_seam.end)
+        g0, g1 = true_seam.gap_start_mm, true_seam.gap_end_mm
         true_out = {
             "gap": min(g0, g1) < tolerances.gap_min_mm or max(g0, g1) > tolerances.gap_max_mm,
-            "step": _out("step", true_seam["step_mm"], tolerances),
-            "parallelism": _out("parallelism", true_seam["parallelism_mm"], tolerances),
+            "step": _out("step", true_seam.step_mm, tolerances),
+            "parallelism": _out("parallelism", true_seam.parallelism_mm, tolerances),
         }
         if match is None:
             for kind, out in true_out.items():
                 e.geometric[kind].false_negative += int(out)
             continue
         seam, sign = match
-        matched_seams[true_seam["id"]] = seam
+        matched_seams[true_seam.id] = seam
         e.seams_found += 1
         segment = end - start
         fraction = (seam.sections_at - start) @ segment / (segment @ segment)
@@ -243,14 +234,14 @@ def evaluate(
         e.negative_gaps += int((seam.sections_gap_mm[measured] < 0).sum())
         hidden = np.zeros(len(fraction), bool)
         if seen is not None:
-            hidden = ~seen(true_seam["id"], np.clip(fraction, 0, 1)).all(axis=1)
+            hidden = ~seen(true_seam.id, np.clip(fraction, 0, 1)).all(axis=1)
         e.unmeasurable_true += int(hidden.sum())
         e.unmeasurable_flagged += int((hidden & ~measured).sum())
         e.gap_errors_mm += (seam.sections_gap_mm[measured] - true_gap[measured]).tolist()
         has_step = np.isfinite(seam.sections_step_mm)
-        e.step_errors_mm += (seam.sections_step_mm[has_step] - sign * true_seam["step_mm"]).tolist()
+        e.step_errors_mm += (seam.sections_step_mm[has_step] - sign * true_seam.step_mm).tolist()
         if seam.parallelism_mm is not None:
-            e.parallelism_errors_mm.append(seam.parallelism_mm - true_seam["parallelism_mm"])
+            e.parallelism_errors_mm.append(seam.parallelism_mm - true_seam.parallelism_mm)
         for kind, out in true_out.items():
             found = (kind, seam.id) in flagged
             counts = e.geometric[kind]
@@ -264,10 +255,10 @@ def evaluate(
             for kind in ("gap", "step", "parallelism"):
                 e.geometric[kind].false_positive += int((kind, seam.id) in flagged)
     used_junctions = set()
-    for true_junction in truth["junctions"]:
+    for true_junction in truth.junctions:
         e.junctions_true += 1
-        out = _out("mismatch", true_junction["mismatch_mm"], tolerances)
-        at = np.array(true_junction["at"])
+        out = _out("mismatch", true_junction.mismatch_mm, tolerances)
+        at = np.array(true_junction.at)
         near = [
             j for j in result.junctions if np.linalg.norm(j.at[:2] - at[:2]) < JUNCTION_MATCH_MM
         ]
@@ -278,7 +269,7 @@ def evaluate(
         junction = near[0]
         used_junctions.add(junction.id)
         e.junctions_found += 1
-        e.mismatch_errors_mm.append(junction.mismatch_mm - true_junction["mismatch_mm"])
+        e.mismatch_errors_mm.append(junction.mismatch_mm - true_junction.mismatch_mm)
         found = ("mismatch", junction.id) in flagged
         counts.true_positive += int(out and found)
         counts.false_negative += int(out and not found)
@@ -290,28 +281,23 @@ def evaluate(
     return e
 
 
-def _evaluate_surface(e: Evaluation, result: MeasureResult, truth: dict) -> None:
+def _evaluate_surface(e: Evaluation, result: MeasureResult, truth: Truth) -> None:
     findings = [f for f in result.findings if f.type in SURFACE_TYPES]
     used = np.zeros(len(findings), dtype=bool)
-    for defect in truth["defects"]:
-        at = np.array(defect["location"])
-        size = defect.get("diameter_mm", defect.get("length_mm", 0.0))
-        reach = max(5.0, 0.5 * size)
+    for defect in truth.defects:
+        at = np.array(defect.location)
+        reach = max(5.0, 0.5 * defect.size_mm)
         hit = None
         for k, f in enumerate(findings):
-            if (
-                f.type == defect["type"]
-                and not used[k]
-                and np.linalg.norm(f.location - at) <= reach
-            ):
+            if f.type == defect.type and not used[k] and np.linalg.norm(f.location - at) <= reach:
                 hit = k
                 break
         if hit is not None:
             used[hit] = True
-        if not recall_floor(defect):
+        if not defect.in_recall_target:
             e.surface_missed_below_floor += int(hit is None)
             continue
-        counts = e.surface[defect["type"]]
+        counts = e.surface[defect.type]
         counts.true_positive += int(hit is not None)
         counts.false_negative += int(hit is None)
     for k, f in enumerate(findings):

@@ -21,8 +21,8 @@ from services.defects.simulate import (
     AssemblySpec,
     random_assembly,
     scan_assembly,
-    truth_document,
 )
+from services.defects.truth import truth_of
 from services.pointcloud.ply import PointCloud, write_ply
 from services.pointcloud.scan_sim import SensorModel
 from services.pointcloud.transforms import invert, make_transform, perturb, to_json
@@ -91,7 +91,7 @@ def write_defects_example(
         "base_T_part": to_json(BASE_T_PART),
         "sensor": {"grid": list(grid), "noise_mm": sensor.noise_mm},
         "seed": seed,
-        **truth_document(assembly, BASE_T_PART),
+        **truth_of(assembly, BASE_T_PART).document(),
     }
     (out_dir / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
     (out_dir / "config.json").write_text(

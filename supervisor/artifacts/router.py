@@ -5,23 +5,21 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from supervisor.artifacts import service
 from supervisor.artifacts.kinds import ARTIFACT_KINDS, ArtifactKindName
 from supervisor.artifacts.schemas import ARTIFACT_KIND_PATTERN, MEDIA_TYPES, ArtifactOut
 from supervisor.artifacts.validation import validate_upload
-from supervisor.changes import record_change
-from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_runtime, get_session, require
+from supervisor.db import after_commit
+from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
-from supervisor.idempotency import create_once
 from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
 from supervisor.models import Artifact
-from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page
 from supervisor.problems import Problem
-from supervisor.storage import UploadTooLarge, safe_name
+from supervisor.storage import UploadTooLarge
 
 router = APIRouter(tags=["artifacts"])
 readers = require(*READ_ROLES, action="read artifacts")
@@ -93,58 +91,10 @@ async def upload_artifact(
         media_type, meta = await run_in_threadpool(
             validate_upload, temp_path, media_type=media_type, name=name, kind=kind
         )
-        return await run_in_threadpool(
-            _store, request, runtime, user, inspection_id, kind, name, media_type, received, meta
-        )
+        upload = service.Upload(inspection_id, kind, name, media_type, received, meta)
+        return await run_in_threadpool(service.store, request, runtime, user.id, upload)
     finally:
         temp_path.unlink(missing_ok=True)
-
-
-def _store(request, runtime, user, inspection_id, kind, name, media_type, received, meta):  # noqa: ANN001, ANN202
-    final_uri: list[str] = []
-
-    def create():  # noqa: ANN202
-        get_inspection(session, inspection_id=inspection_id)
-        uri = runtime.storage.commit(received.uri, inspection_id=inspection_id, name=name)
-        final_uri.append(uri)
-        artifact = Artifact(
-            inspection_id=inspection_id,
-            kind=kind,
-            name=safe_name(name),
-            media_type=media_type,
-            size_bytes=received.size_bytes,
-            sha256=received.sha256,
-            storage_uri=uri,
-            meta=meta,
-            created_by=user.id,
-        )
-        session.add(artifact)
-        session.flush()
-        record_change(
-            session,
-            entity="artifact",
-            entity_id=artifact.id,
-            op="create",
-            inspection_id=inspection_id,
-            user_id=user.id,
-        )
-        body = ArtifactOut.model_validate(artifact).model_dump(mode="json")
-        return body, f"/api/v1/inspections/{inspection_id}/artifacts/{artifact.id}"
-
-    digest = f"{kind}\n{name}\n{media_type}\n{received.sha256}"
-    with runtime.db.session(write=True) as session:
-        try:
-            response = create_once(
-                request, session, user_id=user.id, body_digest=digest, create=create
-            )
-        except BaseException:
-            for uri in final_uri:
-                runtime.storage.delete(uri)
-            raise
-    if response.headers.get("Idempotent-Replayed"):
-        for uri in final_uri:  # a concurrent duplicate committed first; ours is not needed
-            runtime.storage.delete(uri)
-    return response
 
 
 @router.get("/inspections/{inspection_id}/artifacts", response_model=Page[ArtifactOut])
@@ -153,19 +103,11 @@ def list_artifacts(
     kind: str | None = Query(None, pattern=ARTIFACT_KIND_PATTERN),
     cursor: str | None = None,
     limit: Limit = DEFAULT_LIMIT,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> Page[ArtifactOut]:
-    get_inspection(session, inspection_id=inspection_id)
-    query = select(Artifact).where(
-        Artifact.inspection_id == inspection_id, Artifact.id > decode_cursor(cursor)
-    )
-    if kind:
-        query = query.where(Artifact.kind == kind)
-    rows = session.scalars(query.order_by(Artifact.id).limit(limit + 1)).all()
-    return Page[ArtifactOut](
-        items=[ArtifactOut.model_validate(a) for a in rows[:limit]],
-        next_cursor=next_cursor(rows, limit),
+    return service.page(
+        session, inspection_id=inspection_id, kind=kind or None, cursor=cursor, limit=limit
     )
 
 
@@ -173,7 +115,7 @@ def list_artifacts(
 def get_artifact(
     inspection_id: IdPath,
     artifact_id: IdPath,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> Artifact:
     return service.get(session, inspection_id=inspection_id, artifact_id=artifact_id)
@@ -190,7 +132,7 @@ def get_artifact(
 def download_artifact(
     inspection_id: IdPath,
     artifact_id: IdPath,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     runtime: Runtime = Depends(get_runtime),
     _: CurrentUser = Depends(readers),
 ) -> FileResponse:
@@ -211,13 +153,12 @@ def download_artifact(
 def delete_artifact(
     inspection_id: IdPath,
     artifact_id: IdPath,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),
 ) -> Response:
     uri = service.delete(
         session, inspection_id=inspection_id, artifact_id=artifact_id, user_id=user.id
     )
-    session.commit()
-    runtime.storage.delete(uri)
+    after_commit(session, lambda: runtime.storage.delete(uri))
     return Response(status_code=204)

@@ -1,12 +1,24 @@
+"""Artifacts: keeping an upload, finding one, deleting one."""
+
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+from fastapi import Request, Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from supervisor.changes import record_change
+from supervisor.artifacts.schemas import ArtifactOut
+from supervisor.changes import add_created, record_change
+from supervisor.db import commit
+from supervisor.engine.runtime import Runtime
+from supervisor.idempotency import create_once
+from supervisor.inspections.service import get as get_inspection
 from supervisor.models import Artifact, Job
 from supervisor.models.jobs import UNFINISHED
+from supervisor.pagination import Page, paginate
 from supervisor.problems import Problem, not_found
+from supervisor.storage import StoredFile, safe_name
 
 
 def get(session: Session, *, inspection_id: int, artifact_id: int) -> Artifact:
@@ -36,3 +48,77 @@ def delete(session: Session, *, inspection_id: int, artifact_id: int, user_id: i
         user_id=user_id,
     )
     return uri
+
+
+@dataclass(frozen=True)
+class Upload:
+    """A file received and checked, to be kept as an artifact of ``inspection_id``."""
+
+    inspection_id: int
+    kind: str
+    name: str
+    media_type: str
+    received: StoredFile
+    """The file in storage's incoming area."""
+    meta: dict
+
+
+def store(request: Request, runtime: Runtime, user_id: int, upload: Upload) -> Response:
+    """Keep the upload (its file moved into the inspection's folder, its row and change
+    written) once per Idempotency-Key; the response to send. The upload is read before
+    the transaction starts, so this holds the write lock only while it stores the row
+    (and runs its own transaction, not the request's); a file whose row did not commit
+    is deleted."""
+    final_uri: list[str] = []
+
+    def create() -> tuple[dict, str]:
+        get_inspection(session, inspection_id=upload.inspection_id)
+        uri = runtime.storage.commit(
+            upload.received.uri, inspection_id=upload.inspection_id, name=upload.name
+        )
+        final_uri.append(uri)
+        artifact = Artifact(
+            inspection_id=upload.inspection_id,
+            kind=upload.kind,
+            name=safe_name(upload.name),
+            media_type=upload.media_type,
+            size_bytes=upload.received.size_bytes,
+            sha256=upload.received.sha256,
+            storage_uri=uri,
+            meta=upload.meta,
+            created_by=user_id,
+        )
+        add_created(session, "artifact", artifact, user_id)
+        body = ArtifactOut.model_validate(artifact).model_dump(mode="json")
+        return body, f"/api/v1/inspections/{upload.inspection_id}/artifacts/{artifact.id}"
+
+    digest = f"{upload.kind}\n{upload.name}\n{upload.media_type}\n{upload.received.sha256}"
+    with runtime.db.session(write=True) as session:
+        try:
+            response = create_once(
+                request, session, user_id=user_id, body_digest=digest, create=create
+            )
+            commit(session)
+        except BaseException:
+            for uri in final_uri:
+                runtime.storage.delete(uri)
+            raise
+    if response.headers.get("Idempotent-Replayed"):
+        for uri in final_uri:  # a concurrent duplicate committed first; ours is not needed
+            runtime.storage.delete(uri)
+    return response
+
+
+def page(
+    session: Session, *, inspection_id: int, kind: str | None, cursor: str | None, limit: int
+) -> Page:
+    """The inspection's artifacts (of one kind, if given) after ``cursor``."""
+    get_inspection(session, inspection_id=inspection_id)
+    return paginate(
+        session,
+        select(Artifact).where(Artifact.inspection_id == inspection_id),
+        equal={Artifact.kind: kind},
+        cursor=cursor,
+        limit=limit,
+        out=lambda rows: [ArtifactOut.model_validate(a) for a in rows],
+    )

@@ -7,7 +7,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.auth import service
 from supervisor.auth.schemas import MeOut, TokenOut, TokenRequest
-from supervisor.deps import CurrentUser, current_user, get_runtime, get_session
+from supervisor.deps import SESSION, CurrentUser, current_user, get_runtime
 from supervisor.engine.runtime import Runtime
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem
@@ -18,7 +18,7 @@ router = APIRouter(tags=["auth"])
 @router.post("/auth/token", response_model=TokenOut)
 def sign_in(
     body: TokenRequest,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     runtime: Runtime = Depends(get_runtime),
 ) -> TokenOut:
     """Exchange a username and password for a bearer token."""
@@ -27,7 +27,6 @@ def sign_in(
         raise Problem(401, "Unknown username or wrong password.")
     ttl = timedelta(hours=runtime.settings.token_ttl_hours)
     token = service.issue_token(session, user=user, kind="session", name="sign-in", ttl=ttl)
-    session.commit()
     return TokenOut(access_token=token, expires_at=utcnow() + ttl)
 
 

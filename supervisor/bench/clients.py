@@ -23,8 +23,9 @@ import numpy as np
 from sqlalchemy import insert
 
 from contract.bench import print_verdict, say, write_document
-from supervisor.bench.api import defect_rows, running_server, seed_database
 from supervisor.bench.browser import launch_chromium
+from supervisor.bench.seeding import defect_rows, seed_database
+from supervisor.bench.server import running_server
 from supervisor.db import Database
 from supervisor.models import Artifact, Change, Defect, Inspection
 from supervisor.storage import URI_SCHEME

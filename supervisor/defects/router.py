@@ -14,11 +14,11 @@ from supervisor.defects.schemas import (
     DefectUpdate,
     Severity,
 )
-from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_session, require
+from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, require
 from supervisor.idempotency import create_once, digest_model
 from supervisor.ids import IdPath, IdQuery
 from supervisor.models import Defect
-from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 
 router = APIRouter(tags=["defects"])
 readers = require(*READ_ROLES, action="read defects")
@@ -36,24 +36,23 @@ def list_defects(
     ),
     cursor: str | None = None,
     limit: Limit = DEFAULT_LIMIT,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> Page[DefectOut]:
     """Defects in id order, each with its reviewers' consensus; follow ``next_cursor``."""
-    query = select(Defect).where(Defect.id > decode_cursor(cursor))
-    if inspection is not None:
-        query = query.where(Defect.inspection_id == inspection)
-    if run is not None:
-        query = query.where(Defect.run_id == run)
-    if type is not None:
-        query = query.where(Defect.type == type)
-    if status is not None:
-        query = query.where(Defect.status == status)
-    if severity is not None:
-        query = query.where(Defect.severity == severity)
-    rows = session.scalars(query.order_by(Defect.id).limit(limit + 1)).all()
-    return Page[DefectOut](
-        items=service.defects_out(session, list(rows[:limit])), next_cursor=next_cursor(rows, limit)
+    return paginate(
+        session,
+        select(Defect),
+        equal={
+            Defect.inspection_id: inspection,
+            Defect.run_id: run,
+            Defect.type: type,
+            Defect.status: status,
+            Defect.severity: severity,
+        },
+        cursor=cursor,
+        limit=limit,
+        out=lambda rows: service.defects_out(session, rows),
     )
 
 
@@ -61,7 +60,7 @@ def list_defects(
 def report_defect(
     body: DefectCreate,
     request: Request,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     user: CurrentUser = Depends(editors),
 ) -> JSONResponse:
     """Report a finding by hand (an inspector saw it; no job measured it)."""
@@ -78,7 +77,7 @@ def report_defect(
 
 @router.get("/defects/{defect_id}", response_model=DefectOut)
 def get_defect(
-    defect_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    defect_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> DefectOut:
     return service.defects_out(session, [service.get(session, defect_id=defect_id)])[0]
 
@@ -87,11 +86,9 @@ def get_defect(
 def update_defect(
     defect_id: IdPath,
     body: DefectUpdate,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     user: CurrentUser = Depends(editors),
 ) -> DefectOut:
     """Move a defect through its workflow: open → resolved (repaired) or dismissed."""
     defect = service.set_status(session, defect_id=defect_id, status=body.status, user_id=user.id)
-    out = service.defects_out(session, [defect])[0]
-    session.commit()
-    return out
+    return service.defects_out(session, [defect])[0]

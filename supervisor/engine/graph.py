@@ -7,7 +7,7 @@ from collections import defaultdict
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from supervisor.changes import record_change
+from supervisor.changes import record_update
 from supervisor.engine.dispatch import Dispatch
 from supervisor.models import Job, JobDependency
 from supervisor.models._types import utcnow
@@ -53,13 +53,7 @@ def promote_dependents(session: Session, job_id: int) -> list[Dispatch]:
         if unfinished == 0:
             job.status = "queued"
             job.message = "ready"
-            record_change(
-                session,
-                entity="job",
-                entity_id=job.id,
-                op="update",
-                inspection_id=job.inspection_id,
-            )
+            record_update(session, "job", job)
             ready.append(Dispatch(job.id, job.queue))
     return ready
 
@@ -76,11 +70,5 @@ def cancel_dependents(session: Session, job_id: int, reason: str) -> None:
             child.status = "cancelled"
             child.message = reason
             child.finished_at = utcnow()
-            record_change(
-                session,
-                entity="job",
-                entity_id=child.id,
-                op="update",
-                inspection_id=child.inspection_id,
-            )
+            record_update(session, "job", child)
             frontier.append(child.id)

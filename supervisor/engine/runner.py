@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session
 
 from contract.context import InputArtifact
 from contract.errors import JobCancelled, JobInputError, JobLost, JobTimeLimit
-from supervisor.changes import record_change
+from supervisor.changes import record_change, record_update
 from supervisor.engine.context import JobClaim, StopSignal, WorkerContext
 from supervisor.engine.dispatch import Dispatch, dispatch
 from supervisor.engine.registry import get_kind
@@ -99,9 +99,7 @@ def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:
             return None
         job = session.get(Job, job_id)
         assert job is not None
-        record_change(
-            session, entity="job", entity_id=job.id, op="update", inspection_id=job.inspection_id
-        )
+        record_update(session, "job", job)
         return JobClaim(
             id=job.id,
             kind=job.kind,

@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
-import hashlib
-import os
-
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 
 from supervisor.deps import READ_ROLES, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
-from supervisor.exports.etag import scene_etag
+from supervisor.exports.service import scene_file
 from supervisor.ids import IdPath
-from supervisor.inspections.service import get as get_inspection
 
 
 class SceneFile(FileResponse):
@@ -26,41 +22,6 @@ class SceneFile(FileResponse):
 router = APIRouter(tags=["exports"])
 readers = require(*READ_ROLES, action="read scenes")
 GLB_MEDIA_TYPE = "model/gltf-binary"
-
-
-def _matches(if_none_match: str | None, etag: str) -> bool:
-    if not if_none_match:
-        return False
-    tags = [t.strip().removeprefix("W/") for t in if_none_match.split(",")]
-    return "*" in tags or etag in tags
-
-
-def _scene_file(
-    runtime: Runtime, inspection_id: int, max_points: int, if_none_match: str | None
-) -> tuple[str, str | None]:
-    """(ETag, cached file) of the scene as it is now, built if not cached yet; no file
-    when the client has this version already."""
-    from supervisor.exports.scene import build_scene, gather
-
-    with runtime.db.read() as session:
-        inspection = get_inspection(session, inspection_id=inspection_id)
-        etag = scene_etag(session, inspection_id=inspection_id, max_points=max_points)
-        if _matches(if_none_match, etag):
-            return etag, None
-        folder = runtime.storage.export_dir(inspection_id)
-        path = folder / f"scene-{hashlib.sha256(etag.encode()).hexdigest()[:24]}.glb"
-        if path.exists():
-            return etag, str(path)
-        source = gather(session, runtime.storage, inspection=inspection)
-    data = build_scene(source, max_points=max_points, etag=etag)
-    folder.mkdir(parents=True, exist_ok=True)
-    temp = path.with_suffix(f".{os.getpid()}.part")
-    temp.write_bytes(data)
-    os.replace(temp, path)
-    for old in folder.glob("scene-*.glb"):
-        if old != path:
-            old.unlink(missing_ok=True)
-    return etag, str(path)
 
 
 @router.get(
@@ -87,7 +48,7 @@ async def scene_glb(
     while nothing in the scene changed."""
     max_points = points or runtime.settings.scene_max_points
     etag, path = await run_in_threadpool(
-        _scene_file, runtime, inspection_id, max_points, request.headers.get("if-none-match")
+        scene_file, runtime, inspection_id, max_points, request.headers.get("if-none-match")
     )
     headers = {"ETag": etag, "Cache-Control": "private, no-cache"}
     if path is None:

@@ -31,7 +31,7 @@ from sqlalchemy.orm import Session
 
 from services.defects.kinds import RESULT as MEASURE_RESULT  # whose panels and seams it draws
 from services.pointcloud.ply import PLY_MEDIA_TYPE
-from supervisor.defects.service import consensus_docs, reading
+from supervisor.defects.service import reading
 from supervisor.exports.gltf import (
     GLTF_R_BASE,
     GLTF_T_BASE,
@@ -44,6 +44,7 @@ from supervisor.exports.gltf import (
     rotation_from_y,
     write_glb,
 )
+from supervisor.judgments.consensus import consensus_docs
 from supervisor.models import Artifact, Defect, Inspection
 from supervisor.storage import Storage
 

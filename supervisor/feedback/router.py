@@ -3,7 +3,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Query
 from sqlalchemy.orm import Session
 
-from supervisor.deps import READ_ROLES, CurrentUser, get_session, require
+from supervisor.deps import READ_ROLES, SESSION, CurrentUser, require
 from supervisor.feedback import service
 from supervisor.feedback.schemas import FeedbackOut
 from supervisor.ids import IdQuery
@@ -19,7 +19,7 @@ def review_feedback(
     min_reviews: int = Query(
         3, ge=1, le=1000, description="Reviewed rows a group needs before a limit moves."
     ),
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> FeedbackOut:
     """Per defect type and limit: how many automatic findings reviewers confirmed or

@@ -27,8 +27,9 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from services.defects.tolerances import FIELDS
-from supervisor.defects.service import reading, tally, votes_for
+from supervisor.defects.service import reading
 from supervisor.feedback.schemas import FeedbackOut, Suggestion, ToleranceFeedback
+from supervisor.judgments.consensus import tally, votes_for
 from supervisor.models import Defect, Inspection
 
 RESOLUTION = {"mm": 0.01, "delta_e": 0.1}

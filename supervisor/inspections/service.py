@@ -3,7 +3,7 @@ from __future__ import annotations
 from sqlalchemy import exists, select
 from sqlalchemy.orm import Session
 
-from supervisor.changes import record_change
+from supervisor.changes import add_created, record_change, record_update
 from supervisor.inspections.schemas import InspectionCreate, InspectionUpdate
 from supervisor.models import Defect, Inspection, Job
 from supervisor.models.jobs import UNFINISHED
@@ -28,16 +28,7 @@ def create(session: Session, *, data: InspectionCreate, user_id: int) -> Inspect
         status=data.status,
         created_by=user_id,
     )
-    session.add(inspection)
-    session.flush()
-    record_change(
-        session,
-        entity="inspection",
-        entity_id=inspection.id,
-        op="create",
-        inspection_id=inspection.id,
-        user_id=user_id,
-    )
+    add_created(session, "inspection", inspection, user_id)
     return inspection
 
 
@@ -58,14 +49,7 @@ def update(
     for field, value in changes.items():
         setattr(inspection, field, value if value is not None else "")
     session.flush()
-    record_change(
-        session,
-        entity="inspection",
-        entity_id=inspection.id,
-        op="update",
-        inspection_id=inspection.id,
-        user_id=user_id,
-    )
+    record_update(session, "inspection", inspection, user_id=user_id)
     return inspection
 
 

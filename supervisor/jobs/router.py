@@ -12,7 +12,8 @@ from fastapi.responses import JSONResponse, StreamingResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from supervisor.deps import EDIT_ROLES, READ_ROLES, CurrentUser, get_runtime, get_session, require
+from supervisor.db import after_commit
+from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, get_runtime, require
 from supervisor.engine.dispatch import dispatch
 from supervisor.engine.registry import load_kinds
 from supervisor.engine.runtime import Runtime
@@ -31,7 +32,7 @@ from supervisor.jobs.schemas import (
 )
 from supervisor.models import Job, Run
 from supervisor.models.jobs import FINISHED
-from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 
 router = APIRouter(tags=["runs and jobs"])
 readers = require(*READ_ROLES, action="read runs and jobs")
@@ -65,7 +66,7 @@ def create_run(
     inspection_id: IdPath,
     body: RunCreate,
     request: Request,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(operators),
 ) -> JSONResponse:
@@ -100,25 +101,22 @@ def list_runs(
     inspection_id: IdPath,
     cursor: str | None = None,
     limit: Limit = 20,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> Page[RunOut]:
     get_inspection(session, inspection_id=inspection_id)
-    rows = session.scalars(
-        select(Run)
-        .where(Run.inspection_id == inspection_id, Run.id > decode_cursor(cursor))
-        .order_by(Run.id)
-        .limit(limit + 1)
-    ).all()
-    return Page[RunOut](
-        items=[service.run_out(session, r) for r in rows[:limit]],
-        next_cursor=next_cursor(rows, limit),
+    return paginate(
+        session,
+        select(Run).where(Run.inspection_id == inspection_id),
+        cursor=cursor,
+        limit=limit,
+        out=lambda rows: [service.run_out(session, r) for r in rows],
     )
 
 
 @router.get("/runs/{run_id}", response_model=RunOut)
 def get_run(
-    run_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    run_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> RunOut:
     return service.run_out(session, service.get_run(session, run_id=run_id))
 
@@ -130,54 +128,46 @@ def list_jobs(
     status: JobStatus | None = None,
     cursor: str | None = None,
     limit: Limit = DEFAULT_LIMIT,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> Page[JobOut]:
-    query = select(Job).where(Job.id > decode_cursor(cursor))
-    if run is not None:
-        query = query.where(Job.run_id == run)
-    if inspection is not None:
-        query = query.where(Job.inspection_id == inspection)
-    if status is not None:
-        query = query.where(Job.status == status)
-    rows = session.scalars(query.order_by(Job.id).limit(limit + 1)).all()
-    return Page[JobOut](
-        items=service.jobs_out(session, list(rows[:limit])),
-        next_cursor=next_cursor(rows, limit),
+    return paginate(
+        session,
+        select(Job),
+        equal={Job.run_id: run, Job.inspection_id: inspection, Job.status: status},
+        cursor=cursor,
+        limit=limit,
+        out=lambda rows: service.jobs_out(session, rows),
     )
 
 
 @router.get("/jobs/{job_id}", response_model=JobOut)
 def get_job(
-    job_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    job_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> JobOut:
     return service.job_out(session, service.get_job(session, job_id=job_id))
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut)
 def cancel_job(
-    job_id: IdPath, session: Session = Depends(get_session), user: CurrentUser = Depends(operators)
+    job_id: IdPath, session: Session = SESSION, user: CurrentUser = Depends(operators)
 ) -> JobOut:
     """Cancel a job: at once if it has not started, else at its next progress report."""
     job = service.cancel_job(session, job_id=job_id, user_id=user.id)
-    out = service.job_out(session, job)
-    session.commit()
-    return out
+    return service.job_out(session, job)
 
 
 @router.post("/jobs/{job_id}/retry", response_model=JobOut)
 def retry_job(
     job_id: IdPath,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(operators),
 ) -> JobOut:
     """Run a failed or cancelled job again; the jobs after it follow when it succeeds."""
     job, ready = service.retry_job(session, job_id=job_id, user_id=user.id)
-    out = service.job_out(session, job)
-    session.commit()
-    dispatch(runtime.db, runtime.dispatcher, ready)
-    return out
+    after_commit(session, lambda: dispatch(runtime.db, runtime.dispatcher, ready))
+    return service.job_out(session, job)
 
 
 def _snapshot(runtime: Runtime, job_id: int) -> dict | None:

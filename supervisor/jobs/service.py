@@ -7,7 +7,7 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from contract.kinds import JobKind
-from supervisor.changes import record_change
+from supervisor.changes import record_change, record_update
 from supervisor.engine.dispatch import Dispatch
 from supervisor.engine.graph import cancel_dependents, dependencies, dependents
 from supervisor.engine.registry import all_kinds, get_kind
@@ -187,14 +187,7 @@ def cancel_job(session: Session, *, job_id: int, user_id: int) -> Job:
         cancel_dependents(session, job.id, f"not run: step '{job.step}' (job {job.id}) cancelled")
         session.flush()
         follow_runs(session, inspection_id=job.inspection_id)
-    record_change(
-        session,
-        entity="job",
-        entity_id=job.id,
-        op="update",
-        inspection_id=job.inspection_id,
-        user_id=user_id,
-    )
+    record_update(session, "job", job, user_id=user_id)
     session.flush()
     session.refresh(job)
     return job
@@ -229,14 +222,7 @@ def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list
             item.dispatched_at = None
             item.finished_at = None
             item.message = "retry requested"
-            record_change(
-                session,
-                entity="job",
-                entity_id=item.id,
-                op="update",
-                inspection_id=item.inspection_id,
-                user_id=user_id,
-            )
+            record_update(session, "job", item, user_id=user_id)
             if item.status == "queued":
                 ready.append(Dispatch(item.id, item.queue))
             frontier.extend(dependents(session, [item.id]))

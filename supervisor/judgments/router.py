@@ -7,9 +7,9 @@ from sqlalchemy.orm import Session
 from supervisor.deps import (
     JUDGE_ROLES,
     READ_ROLES,
+    SESSION,
     CurrentUser,
     get_runtime,
-    get_session,
     require,
 )
 from supervisor.engine.runtime import Runtime
@@ -41,7 +41,7 @@ async def put_my_judgment(
 
 @router.get("/defects/{defect_id}/judgments", response_model=DefectJudgmentsOut)
 def list_judgments(
-    defect_id: IdPath, session: Session = Depends(get_session), _: CurrentUser = Depends(readers)
+    defect_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> DefectJudgmentsOut:
     """Every user's current judgment with its full history, and the consensus."""
     return service.all_for_defect(session, defect_id=defect_id)

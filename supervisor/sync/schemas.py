@@ -3,11 +3,11 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, Field, field_validator, model_validator
+from pydantic import BaseModel, Field, field_validator
 
-from supervisor.defects.schemas import Consensus, DefectType, Verdict
+from supervisor.defects.schemas import Consensus, DefectType
 from supervisor.ids import IdField
-from supervisor.judgments.schemas import JudgmentOut
+from supervisor.judgments.schemas import JudgmentIn, JudgmentOut
 from supervisor.requests import RequestModel
 
 MAX_BATCH = 1000
@@ -54,14 +54,14 @@ class SyncOut(BaseModel):
     more: bool = Field(description="More is waiting: call again at once with next_cursor.")
 
 
-class OfflineJudgment(RequestModel):
+class OfflineJudgment(JudgmentIn):
+    """A judgment made on a headset, offline: the same fields as a PUT's, and which defect,
+    when and under which client id."""
+
     client_id: str = Field(
         min_length=1, max_length=64, description="Made by the client (a UUID); retries reuse it."
     )
     defect_id: IdField
-    verdict: Verdict
-    new_type: DefectType | None = None
-    comment: str = Field("", max_length=4000)
     client_time: datetime = Field(description="When the user judged, by the client's clock.")
 
     @field_validator("client_time")
@@ -70,12 +70,6 @@ class OfflineJudgment(RequestModel):
         if value.tzinfo is None:
             raise ValueError("give a time zone (e.g. a trailing 'Z' for UTC)")
         return value
-
-    @model_validator(mode="after")
-    def _new_type_only_when_reclassified(self) -> OfflineJudgment:
-        if (self.verdict == "reclassified") != (self.new_type is not None):
-            raise ValueError("new_type is given exactly when the verdict is 'reclassified'")
-        return self
 
 
 class JudgmentBatch(RequestModel):

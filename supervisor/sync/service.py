@@ -22,22 +22,22 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
-from sqlalchemy import bindparam, select, text
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy import bindparam, select, text, update
+from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from supervisor.changes import record_change
 from supervisor.db import Database
-from supervisor.defects.service import READING_KEYS, consensus_docs, reading
+from supervisor.defects.service import READING_KEYS, reading
 from supervisor.exports.etag import scene_etag
 from supervisor.inspections.schemas import InspectionOut
-from supervisor.judgments.service import judgment_out, same_type_refusal
+from supervisor.judgments.consensus import consensus_docs
+from supervisor.judgments.service import judgment_out
+from supervisor.judgments.write import JudgmentWrite, same_type_refusal, write
 from supervisor.models import (
     Change,
     Defect,
     Inspection,
     Judgment,
-    JudgmentRevision,
     SyncReceipt,
     User,
 )
@@ -279,12 +279,32 @@ def _digest(item: OfflineJudgment) -> str:
     return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
 
-def _same_content(judgment: Judgment, item: OfflineJudgment) -> bool:
+def _same_content(judgment: Row, item: OfflineJudgment) -> bool:
     return (judgment.verdict, judgment.new_type, judgment.comment) == (
         item.verdict,
         item.new_type,
         item.comment,
     )
+
+
+_JUDGMENTS = Judgment.__table__
+_MINE = (  # locked on PostgreSQL (SQLite has one writer anyway)
+    select(_JUDGMENTS)
+    .where(
+        _JUDGMENTS.c.user_id == bindparam("user_id"),
+        _JUDGMENTS.c.defect_id.in_(bindparam("ids", expanding=True)),
+    )
+    .with_for_update()
+)
+_TOUCH = (  # the same judgment again, made later: only its time moves
+    update(_JUDGMENTS)
+    .where(
+        _JUDGMENTS.c.user_id == bindparam("judge"),
+        _JUDGMENTS.c.defect_id == bindparam("defect"),
+    )
+    .values(client_time=bindparam("made_at"))
+    .returning(*_JUDGMENTS.c)
+)
 
 
 def apply_batch(
@@ -294,31 +314,22 @@ def apply_batch(
 
     A user's batches run one at a time (a lock per user on PostgreSQL; SQLite has one
     writer), so a retried batch racing its first attempt replays instead of applying
-    twice. A concurrent PUT of the same judgment can still win the insert; the batch is
-    then run again and sees it.
+    twice. Each judgment goes through the one judgment write, which keeps a stored
+    judgment made later (a concurrent PUT, say).
     """
-    for attempt in range(3):
-        try:
-            with db.write() as session:
-                if not db.is_sqlite:
-                    session.execute(
-                        text("SELECT pg_advisory_xact_lock(7413, :user_id)"), {"user_id": user_id}
-                    )
-                return _apply(
-                    session, user_id=user_id, username=username, items=items, lock=not db.is_sqlite
-                )
-        except IntegrityError:
-            if attempt == 2:
-                raise
-    raise AssertionError("unreachable")
+    with db.write() as session:
+        if not db.is_sqlite:
+            session.execute(
+                text("SELECT pg_advisory_xact_lock(7413, :user_id)"), {"user_id": user_id}
+            )
+        return _apply(session, user_id=user_id, username=username, items=items)
 
 
 def _apply(
-    session: Session, *, user_id: int, username: str, items: list[OfflineJudgment], lock: bool
+    session: Session, *, user_id: int, username: str, items: list[OfflineJudgment]
 ) -> tuple[list[dict], list[dict]]:
     now = utcnow()
     client_ids = list({item.client_id for item in items})
-    defect_ids = list({item.defect_id for item in items})
     receipts = {
         r.client_id: r
         for r in session.scalars(
@@ -329,21 +340,8 @@ def _apply(
             {"ids": client_ids},
         )
     }
-    defects = {
-        d.id: d
-        for d in session.execute(
-            select(Defect.id, Defect.inspection_id, Defect.type).where(
-                Defect.id.in_(bindparam("ids", expanding=True))
-            ),
-            {"ids": defect_ids},
-        )
-    }
-    current_query = select(Judgment).where(
-        Judgment.user_id == user_id, Judgment.defect_id.in_(bindparam("ids", expanding=True))
-    )
-    if lock:
-        current_query = current_query.with_for_update()
-    current = {j.defect_id: j for j in session.scalars(current_query, {"ids": defect_ids})}
+    ids = list({item.defect_id for item in items})
+    current = {j.defect_id: j for j in session.execute(_MINE, {"user_id": user_id, "ids": ids})}
     results = []
     for item in items:
         digest = _digest(item)
@@ -357,16 +355,15 @@ def _apply(
             else:
                 status, result["replayed"] = receipt.status, True
         else:
-            status, detail = _apply_one(session, item, defects, current, user_id, now)
+            status, detail = _apply_one(session, item, current, user_id, now)
             if status != "rejected":
-                judgment = current[item.defect_id]
                 receipt = SyncReceipt(
                     user_id=user_id,
                     client_id=item.client_id,
                     defect_id=item.defect_id,
                     request_sha256=digest,
                     status=status,
-                    revision=judgment.revision,
+                    revision=current[item.defect_id].revision,
                 )
                 session.add(receipt)
                 receipts[item.client_id] = receipt
@@ -379,69 +376,58 @@ def _apply(
     return results, consensus_docs(session, touched)
 
 
+def _kept(judgment: Row | None, item: OfflineJudgment) -> tuple[str, str | None] | None:
+    """``stale`` when the stored judgment was made after this one, ``unchanged`` when it
+    says the same; None when this one is to be written."""
+    if judgment is None:
+        return None
+    if judgment.client_time is not None and judgment.client_time >= item.client_time:
+        return "stale", (
+            f"your judgment of defect {item.defect_id} made at "
+            f"{judgment.client_time.isoformat()} is newer and stays."
+        )
+    if _same_content(judgment, item):
+        return "unchanged", None
+    return None
+
+
 def _apply_one(
     session: Session,
     item: OfflineJudgment,
-    defects: dict,
-    current: dict[int, Judgment],
+    current: dict[int, Row],
     user_id: int,
     now: datetime,
 ) -> tuple[str, str | None]:
-    defect = defects.get(item.defect_id)
-    if defect is None:
-        return "rejected", f"There is no defect with id {item.defect_id}."
-    refusal = same_type_refusal(item.verdict, item.new_type, defect.type)
-    if refusal:
-        return "rejected", refusal
     ahead_s = (item.client_time - now).total_seconds()
     if ahead_s > MAX_CLOCK_AHEAD_S:
         return "rejected", (
             f"client_time is {ahead_s:.0f} s ahead of the server's clock "
             f"(at most {MAX_CLOCK_AHEAD_S:.0f} s allowed): set the device's clock."
         )
-    judgment = current.get(item.defect_id)
-    if (
-        judgment is not None
-        and judgment.client_time is not None
-        and judgment.client_time >= item.client_time
-    ):
-        return "stale", (
-            f"your judgment of defect {item.defect_id} made at "
-            f"{judgment.client_time.isoformat()} is newer and stays."
+    kept = _kept(current.get(item.defect_id), item)
+    if kept is None:
+        written = write(
+            session,
+            JudgmentWrite.of(
+                item,
+                defect_id=item.defect_id,
+                user_id=user_id,
+                client_time=item.client_time,
+                now=now,
+                newer_only=True,
+            ),
         )
-    if judgment is not None and _same_content(judgment, item):
-        judgment.client_time = item.client_time
-        return "unchanged", None
-    if judgment is None:
-        judgment = Judgment(defect_id=item.defect_id, user_id=user_id, revision=0)
-        session.add(judgment)
-        current[item.defect_id] = judgment
-    judgment.verdict, judgment.new_type, judgment.comment = (
-        item.verdict,
-        item.new_type,
-        item.comment,
-    )
-    judgment.revision += 1
-    judgment.updated_at = now
-    judgment.client_time = item.client_time
-    session.add(
-        JudgmentRevision(
-            defect_id=item.defect_id,
-            user_id=user_id,
-            revision=judgment.revision,
-            verdict=item.verdict,
-            new_type=item.new_type,
-            comment=item.comment,
-            client_time=item.client_time,
-            created_at=now,
-        )
-    )
-    record_change(
-        session,
-        entity="judgment",
-        entity_id=item.defect_id,
-        op="update",
-        inspection_id=defect.inspection_id,
-        user_id=user_id,
-    )
-    return "applied", None
+        if written.defect_type is None:
+            return "rejected", f"There is no defect with id {item.defect_id}."
+        if written.refused:
+            return "rejected", same_type_refusal(written.defect_type)
+        assert written.judgment is not None
+        current[item.defect_id] = written.judgment
+        if written.changed:
+            return "applied", None
+        kept = _kept(written.judgment, item)  # a judgment stored meanwhile
+        assert kept is not None
+    if kept[0] == "unchanged":
+        params = {"judge": user_id, "defect": item.defect_id, "made_at": item.client_time}
+        current[item.defect_id] = session.execute(_TOUCH, params).one()
+    return kept

@@ -7,12 +7,12 @@ from fastapi.responses import JSONResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from supervisor.deps import ADMIN_ROLES, CurrentUser, get_session, require
+from supervisor.deps import ADMIN_ROLES, SESSION, CurrentUser, require
 from supervisor.idempotency import create_once, digest_model
 from supervisor.ids import IdPath
 from supervisor.models import User
 from supervisor.models._types import utcnow
-from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, decode_cursor, next_cursor
+from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 from supervisor.problems import not_found
 from supervisor.users import service
 from supervisor.users.schemas import TokenCreate, TokenCreated, UserCreate, UserOut
@@ -25,7 +25,7 @@ manage_users = require(*ADMIN_ROLES, action="manage users")
 def create_user(
     body: UserCreate,
     request: Request,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     admin: CurrentUser = Depends(manage_users),
 ) -> JSONResponse:
     """Create a user (admins only). Device accounts have no password, only tokens."""
@@ -45,15 +45,15 @@ def create_user(
 def list_users(
     cursor: str | None = None,
     limit: Limit = DEFAULT_LIMIT,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(manage_users),
 ) -> Page[UserOut]:
-    rows = session.scalars(
-        select(User).where(User.id > decode_cursor(cursor)).order_by(User.id).limit(limit + 1)
-    ).all()
-    return Page[UserOut](
-        items=[UserOut.model_validate(u) for u in rows[:limit]],
-        next_cursor=next_cursor(rows, limit),
+    return paginate(
+        session,
+        select(User),
+        cursor=cursor,
+        limit=limit,
+        out=lambda rows: [UserOut.model_validate(u) for u in rows],
     )
 
 
@@ -61,7 +61,7 @@ def list_users(
 def create_token(
     user_id: IdPath,
     body: TokenCreate,
-    session: Session = Depends(get_session),
+    session: Session = SESSION,
     _: CurrentUser = Depends(manage_users),
 ) -> TokenCreated:
     """Issue an API token for a user, e.g. a headset's device token (admins only).
@@ -75,7 +75,6 @@ def create_token(
     token = service.create_token(
         session, user=user, name=body.name, kind=body.kind, ttl_hours=body.ttl_hours
     )
-    session.commit()
     expires = utcnow() + timedelta(hours=body.ttl_hours) if body.ttl_hours else None
     return TokenCreated(
         token=token, name=body.name, kind=body.kind, user_id=user.id, expires_at=expires
