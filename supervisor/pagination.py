@@ -16,6 +16,7 @@ from supervisor.ids import MAX_ID
 from supervisor.problems import Problem
 
 T = TypeVar("T")
+Item = TypeVar("Item", bound=BaseModel)
 DEFAULT_LIMIT = 100
 MAX_LIMIT = 500
 Limit = Annotated[int, Query(ge=1, le=MAX_LIMIT, description="Items per page.")]
@@ -50,12 +51,15 @@ def paginate(
     *,
     cursor: str | None,
     limit: int,
-    out: Callable[[list], list],
+    item: type[Item],
+    out: Callable[[list], list[Item]] | None = None,
     equal: dict | None = None,
-) -> Page:
+) -> Page[Item]:
     """One page of ``query``'s entities (one kind, with an integer ``id``) in id order after
     ``cursor``, narrowed to rows whose column equals each ``equal`` value that is given
-    (None: any); ``out`` turns the page's rows into its items."""
+    (None: any). The page's items are ``item``s: ``out`` of the rows, by default each row
+    validated as one. (The page is of the endpoint's declared type, so FastAPI need not
+    validate it again.)"""
     entity = query.column_descriptions[0]["entity"]
     for column, value in (equal or {}).items():
         if value is not None:
@@ -63,7 +67,9 @@ def paginate(
     rows = session.scalars(
         query.where(entity.id > decode_cursor(cursor)).order_by(entity.id).limit(limit + 1)
     ).all()
-    return Page(items=out(list(rows[:limit])), next_cursor=next_cursor(rows, limit))
+    page = list(rows[:limit])
+    items = out(page) if out is not None else [item.model_validate(r) for r in page]
+    return Page[item](items=items, next_cursor=next_cursor(rows, limit))
 
 
 def next_cursor(rows: Sequence, limit: int) -> str | None:

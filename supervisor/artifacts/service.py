@@ -111,7 +111,7 @@ def store(request: Request, runtime: Runtime, user_id: int, upload: Upload) -> R
 
 def page(
     session: Session, *, inspection_id: int, kind: str | None, cursor: str | None, limit: int
-) -> Page:
+) -> Page[ArtifactOut]:
     """The inspection's artifacts (of one kind, if given) after ``cursor``."""
     get_inspection(session, inspection_id=inspection_id)
     return paginate(
@@ -120,5 +120,5 @@ def page(
         equal={Artifact.kind: kind},
         cursor=cursor,
         limit=limit,
-        out=lambda rows: [ArtifactOut.model_validate(a) for a in rows],
+        item=ArtifactOut,
     )

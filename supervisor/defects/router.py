@@ -52,6 +52,7 @@ def list_defects(
         },
         cursor=cursor,
         limit=limit,
+        item=DefectOut,
         out=lambda rows: service.defects_out(session, rows),
     )
 

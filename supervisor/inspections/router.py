@@ -49,7 +49,7 @@ def list_inspections(
         select(Inspection),
         cursor=cursor,
         limit=limit,
-        out=lambda rows: [InspectionOut.model_validate(i) for i in rows],
+        item=InspectionOut,
     )
 
 

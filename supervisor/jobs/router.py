@@ -110,6 +110,7 @@ def list_runs(
         select(Run).where(Run.inspection_id == inspection_id),
         cursor=cursor,
         limit=limit,
+        item=RunOut,
         out=lambda rows: [service.run_out(session, r) for r in rows],
     )
 
@@ -137,6 +138,7 @@ def list_jobs(
         equal={Job.run_id: run, Job.inspection_id: inspection, Job.status: status},
         cursor=cursor,
         limit=limit,
+        item=JobOut,
         out=lambda rows: service.jobs_out(session, rows),
     )
 

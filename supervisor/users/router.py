@@ -53,7 +53,7 @@ def list_users(
         select(User),
         cursor=cursor,
         limit=limit,
-        out=lambda rows: [UserOut.model_validate(u) for u in rows],
+        item=UserOut,
     )
 
 
