@@ -11,6 +11,7 @@ import typer
 
 from contract.cli import fail
 from services.defects import cli as defects_cli
+from services.odometry import cli as odometry_cli
 from services.stitching import cli as stitching_cli
 from services.wording import counted
 from supervisor.settings import get_settings
@@ -217,6 +218,7 @@ def bench_clients(
 
 stitching_cli.register(app, simulate_app, bench_app)
 defects_cli.register(app, simulate_app, bench_app)
+odometry_cli.register(app)
 
 if __name__ == "__main__":
     app()

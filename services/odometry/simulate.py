@@ -1,0 +1,72 @@
+"""``vista odometry simulate``: a floor-camera sequence with its ground truth.
+
+``OUT/frames/NNNNNN.png`` (8-bit grey, the camera's full resolution), ``OUT/camera.json``
+and ``OUT/truth.tum`` (frame i's camera pose in the frame of camera 0).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from services.odometry.camera import Camera
+from services.odometry.drive import Robot, drive, path_commands
+from services.odometry.floors import make_floor
+from services.odometry.render import Effects, exposures, render
+from services.odometry.tum import Trajectory2D, write_tum
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Simulated:
+    folder: Path
+    camera: Camera
+    truth: Trajectory2D
+    distance_mm: float
+
+
+def frame_name(index: int) -> str:
+    return f"{index:06d}.png"
+
+
+def simulate_sequence(
+    out_dir: Path,
+    *,
+    floor: str = "concrete",
+    path: str = "loop",
+    seconds: float | None = None,
+    fps: float = 60.0,
+    seed: int = 0,
+    camera: Camera | None = None,
+    effects: Effects = Effects(),
+    robot: Robot = Robot(),
+    progress: Progress | None = None,
+) -> Simulated:
+    """Drive ``path`` over ``floor`` and write what the camera saw and where it was."""
+    say = progress or (lambda message: None)
+    camera = camera or Camera.thesis(fps=fps)
+    rng = np.random.default_rng(seed)
+    say(f"floor {floor}")
+    ground = make_floor(floor, seed)
+    motion = drive(path_commands(path, seconds=seconds, seed=seed), robot)
+    times = np.arange(0.0, motion.seconds + 1e-9, 1.0 / camera.fps)
+    exposure = exposures(camera, times, effects, rng)
+    truth = Trajectory2D(times, motion.at(times), camera.height_mm - exposure.height_mm)
+    frames_dir = out_dir / "frames"
+    frames_dir.mkdir(parents=True, exist_ok=True)
+    say(
+        f"rendering {len(times)} frames ({motion.distance_mm / 1000:.2f} m, {motion.seconds:.1f} s)"
+    )
+    for index, image in enumerate(render(ground, camera, motion, times, effects, rng, exposure)):
+        cv2.imwrite(str(frames_dir / frame_name(index)), image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        if progress and index and index % 500 == 0:
+            say(f"  {index} of {len(times)} frames")
+    (out_dir / "camera.json").write_text(json.dumps(camera.document(), indent=1) + "\n")
+    write_tum(out_dir / "truth.tum", truth)
+    return Simulated(out_dir, camera, truth, motion.distance_mm)

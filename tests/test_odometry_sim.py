@@ -1,0 +1,155 @@
+"""The floor-camera simulator: its frames agree with its truth, its files round-trip."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from services.odometry import se2
+from services.odometry.camera import Camera
+from services.odometry.drive import (
+    THESIS_PATH_MM,
+    Command,
+    drive,
+    loop_path,
+    path_commands,
+    random_path,
+)
+from services.odometry.floors import PROCEDURAL, image_floor, procedural_floor
+from services.odometry.render import Effects, render
+from services.odometry.tum import Trajectory2D, read_tum, write_tum
+from supervisor.cli import app
+
+SMALL = Camera(width=240, height=180, fps=60.0, mm_per_px=0.6)
+STILL = Effects(exposure_ms=0.0, vignetting=0.0, noise=0.0)
+
+
+def test_se2_compose_inverse_and_integrate() -> None:
+    rng = np.random.default_rng(1)
+    poses = np.column_stack(
+        [rng.normal(0, 500, 50), rng.normal(0, 500, 50), rng.uniform(-3, 3, 50)]
+    )
+    poses[0] = 0
+    steps = se2.relative(poses)
+    assert np.allclose(se2.integrate(steps), np.column_stack([poses[:, :2], se2.wrap(poses[:, 2])]))
+    assert np.allclose(se2.compose(poses, se2.inverse(poses)), 0, atol=1e-9)
+
+
+def test_the_loop_is_the_thesis_length_and_random_paths_keep_the_limits() -> None:
+    loop = drive(loop_path())
+    assert loop.distance_mm == pytest.approx(THESIS_PATH_MM, abs=2.0)
+    assert np.allclose(loop.pose[0], 0)
+    motion = drive(random_path(30.0, np.random.default_rng(4)))
+    speed = np.hypot(*np.diff(motion.pose[:, :2], axis=0).T) / np.diff(motion.t_s)
+    turn = np.degrees(np.abs(np.diff(np.unwrap(motion.pose[:, 2])))) / np.diff(motion.t_s)
+    assert speed.max() < 2000 + 180 * np.radians(120) + 1  # the camera rides 120 mm ahead
+    assert turn.max() <= 180.0 + 1e-6
+    assert (speed < 1).any() and (turn > 29).any()  # stops and spins happen
+    assert sum(c.seconds for c in path_commands("lawnmower", seconds=7.5, seed=0)) == 7.5
+
+
+@pytest.mark.parametrize("name", ["concrete", "tiles", "wood"])
+def test_procedural_floors_tile_without_seams(name: str) -> None:
+    albedo = procedural_floor(name, seed=2, n=512).albedo
+    inside = np.abs(np.diff(albedo, axis=1)).mean()
+    across = np.abs(albedo[:, 0] - albedo[:, -1]).mean()
+    assert across < 2 * inside
+
+
+def test_frames_agree_with_the_true_motion() -> None:
+    """Frame j resampled from frame i through the true relative motion matches frame j
+    best: a motion off by a tenth of a pixel or 0.05° fits worse, one off by a pixel or
+    0.5° much worse (x along the columns, y along the rows)."""
+    floor = procedural_floor("concrete", seed=3, n=1024)
+    motion = drive([Command(0.3, 300.0, 40.0)])
+    times = np.array([0.1, 0.2])
+    first, second = render(floor, SMALL, motion, times, STILL, np.random.default_rng(0))
+    step = se2.relative(motion.at(times))[0]
+
+    def error(move: np.ndarray) -> float:
+        cols = np.arange(SMALL.width) - (SMALL.width - 1) / 2
+        rows = np.arange(SMALL.height) - (SMALL.height - 1) / 2
+        across, down = np.meshgrid(cols * SMALL.mm_per_px, rows * SMALL.mm_per_px)
+        c, s = np.cos(move[2]), np.sin(move[2])
+        x = (move[0] + c * across - s * down) / SMALL.mm_per_px + (SMALL.width - 1) / 2
+        y = (move[1] + s * across + c * down) / SMALL.mm_per_px + (SMALL.height - 1) / 2
+        warped = cv2.remap(
+            first.astype(np.float32), x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR
+        )
+        inner = (slice(30, -30), slice(40, -40))
+        return float(np.abs(warped[inner] - second[inner].astype(np.float32)).mean())
+
+    assert abs(step[0]) > 3 and abs(step[2]) > 0.005  # it moved and turned
+    exact = error(step)
+    assert exact < 2.0  # grey levels: what bilinear resampling of a fine texture leaves
+    px, degree = SMALL.mm_per_px, np.radians(1.0)
+    for off in ([px, 0, 0], [0, px, 0], [0, 0, degree / 2]):
+        assert error(step + off) > 1.7 * exact
+    for off in ([px / 10, 0, 0], [-px / 10, 0, 0], [0, px / 10, 0], [0, -px / 10, 0]):
+        assert error(step + off) > exact  # the truth is the best fit to a tenth of a pixel
+    assert error(step + [0, 0, degree / 20]) > exact and error(step - [0, 0, degree / 20]) > exact
+
+
+def test_tum_round_trip_and_errors(tmp_path) -> None:
+    t = np.arange(5) / 60
+    pose = np.column_stack([np.arange(5) * 3.25, -np.arange(5) * 1.5, np.linspace(0, 3.0, 5)])
+    write_tum(tmp_path / "a.tum", Trajectory2D(t, pose, np.full(5, 0.5)))
+    back = read_tum(tmp_path / "a.tum")
+    assert np.allclose(back.pose, pose, atol=1e-6) and np.allclose(back.t_s, t, atol=1e-6)
+    assert np.allclose(back.z_mm, 0.5)
+    (tmp_path / "bad.tum").write_text("0 0 0 0 0 0 0 1\n0.1 1 2 3\n")
+    with pytest.raises(ValueError, match=r"bad.tum:2: a pose is 8 finite numbers"):
+        read_tum(tmp_path / "bad.tum")
+    (tmp_path / "tilt.tum").write_text("0 0 0 0 0 0 0 1\n0.1 0 0 0 0.3 0 0 0.95\n")
+    with pytest.raises(ValueError, match="pose 2 rotates out of the floor's plane"):
+        read_tum(tmp_path / "tilt.tum")
+
+
+def test_camera_json_round_trip_and_errors() -> None:
+    camera = Camera.thesis()
+    assert Camera.from_document(json.loads(json.dumps(camera.document()))) == camera
+    assert np.hypot(*camera.footprint_mm) == pytest.approx(189.7)
+    with pytest.raises(ValueError, match="no 'fps'"):
+        Camera.from_document({k: v for k, v in camera.document().items() if k != "fps"})
+    with pytest.raises(ValueError, match="width must be a whole number"):
+        Camera.from_document({**camera.document(), "width": 640.5})
+
+
+def test_image_floors(tmp_path) -> None:
+    assert image_floor("gravel").albedo.shape == (3072, 3072)
+    (tmp_path / "tiny.png").write_bytes(cv2.imencode(".png", np.zeros((8, 8), np.uint8))[1])
+    with pytest.raises(ValueError, match="too small a floor"):
+        image_floor(tmp_path / "tiny.png")
+    (tmp_path / "text.png").write_text("not an image")
+    with pytest.raises(ValueError, match="not an image file"):
+        image_floor(tmp_path / "text.png")
+    assert "low-texture" in PROCEDURAL
+
+
+def test_cli_simulate_writes_the_contract(tmp_path) -> None:
+    runner = CliRunner()
+    out = tmp_path / "seq"
+    done = runner.invoke(
+        app,
+        ["odometry", "simulate", str(out), "--floor", "gravel", "--path", "random"]
+        + ["--seconds", "0.2", "--seed", "3"],
+    )
+    assert done.exit_code == 0, done.output
+    frames = sorted((out / "frames").glob("*.png"))
+    assert [f.name for f in frames[:2]] == ["000000.png", "000001.png"] and len(frames) == 13
+    image = cv2.imread(str(frames[0]), cv2.IMREAD_UNCHANGED)
+    assert image.dtype == np.uint8 and image.shape == (480, 640)
+    camera = json.loads((out / "camera.json").read_text())
+    assert set(camera) == {"width", "height", "fps", "mm_per_px", "height_mm", "focal_mm"}
+    truth = read_tum(out / "truth.tum")
+    assert len(truth) == 13 and np.allclose(truth.pose[0], 0)
+    for args, phrase in [
+        (["--floor", "marble"], "not a floor name"),
+        (["--path", "spiral"], "known paths are loop, lawnmower, random"),
+    ]:
+        refused = runner.invoke(app, ["odometry", "simulate", str(tmp_path / "x"), *args])
+        assert refused.exit_code == 2 and phrase in refused.output
