@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 import typer
@@ -79,6 +81,97 @@ def simulate(
         f"({done.camera.width} × {done.camera.height}, {done.camera.mm_per_px:.4f} mm/px), "
         f"camera.json, truth.tum ({done.distance_mm / 1000:.3f} m in {done.truth.t_s[-1]:.2f} s)"
     )
+
+
+def _camera(path: Path):  # noqa: ANN202 - a Camera (imported inside: keep the CLI light)
+    from services.odometry.camera import Camera
+
+    try:
+        return Camera.from_document(json.loads(path.read_text()))
+    except OSError as exc:
+        fail(f"{path}: {exc.strerror or exc}")
+    except json.JSONDecodeError as exc:
+        fail(f"{path}: not JSON ({exc.msg} at line {exc.lineno})")
+    except ValueError as exc:
+        fail(f"{path}: {exc}")
+
+
+@odometry_app.command("run")
+def run(
+    frames_dir: Path = typer.Argument(..., help="Folder of frames (PNG, in name order)."),
+    camera: Path = typer.Option(..., "--camera", help="camera.json of the frames."),
+    method: str = typer.Option("phase", help="phase: phase correlation + Fourier–Mellin."),
+    out: Path = typer.Option(..., "-o", "--out", help="Where to write the trajectory (TUM)."),
+    plot: Path = typer.Option(None, help="Also draw the trajectory as a PNG."),
+    truth: Path = typer.Option(None, help="truth.tum: drawn beside the estimate in the plot."),
+) -> None:
+    """Estimate the camera's motion between consecutive frames and chain it into a
+    trajectory: TRAJ.tum (metres, frame i at i / fps s, in camera 0's frame) and, beside it,
+    TRAJ.json (each pair's motion, confidence and flag; the position's growing 1σ)."""
+    from services.odometry.report import run_document, trajectory_png
+    from services.odometry.run import METHODS, run_odometry
+    from services.odometry.tum import read_tum, write_tum
+
+    if method not in METHODS:
+        fail(f"--method {method!r}: known methods are {', '.join(METHODS)}")
+    settings = _camera(camera)
+    true = None
+    if truth is not None:
+        try:
+            true = read_tum(truth)
+        except (OSError, ValueError) as exc:
+            fail(str(exc))
+    with typer.progressbar(length=100, label=f"odometry ({method})") as bar:
+        done = [0]
+
+        def progress(fraction: float, message: str) -> None:
+            step = int(fraction * 100) - done[0]
+            if step > 0:
+                bar.update(step)
+                done[0] += step
+
+        try:
+            result = run_odometry(frames_dir, settings, method, progress=progress)
+        except ValueError as exc:
+            fail(str(exc))
+    write_tum(out, result.trajectory)
+    report = out.with_suffix(".json")
+    report.write_text(json.dumps(run_document(result), indent=1) + "\n")
+    if plot is not None:
+        trajectory_png(result.trajectory, plot, true, result.sigma_xy_mm)
+    final = result.trajectory.pose[-1]
+    typer.echo(
+        f"{len(result.steps.motion)} pairs at {result.pairs_per_s:.0f} pairs/s, "
+        f"{result.flagged} flagged; ends at x {final[0] / 1000:.3f} m, y {final[1] / 1000:.3f} m, "
+        f"θ {math.degrees(final[2]):.2f}° (1σ {result.sigma_xy_mm[-1]:.1f} mm)"
+    )
+    typer.echo(f"wrote {out}, {report}" + (f", {plot}" if plot else ""))
+
+
+@odometry_app.command("eval")
+def eval_(
+    trajectory: Path = typer.Argument(..., help="The estimated trajectory (TUM)."),
+    truth: Path = typer.Argument(..., help="The true trajectory (TUM)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Where to write EVAL.json."),
+) -> None:
+    """Per-step RMSE of δx, δy (mm) and δθ (°), the final position error, the ATE (after the
+    best rigid alignment) and the drift in % of the distance travelled."""
+    from services.odometry.evaluate import evaluate
+    from services.odometry.tum import read_tum
+
+    try:
+        result = evaluate(read_tum(trajectory), read_tum(truth))
+    except (OSError, ValueError) as exc:
+        fail(str(exc))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result.document(), indent=1) + "\n")
+    typer.echo(
+        f"{result.poses} poses over {result.distance_m:.3f} m: RMSE δx {result.rmse_dx_mm:.4f} mm, "
+        f"δy {result.rmse_dy_mm:.4f} mm, δθ {result.rmse_dtheta_deg:.4f}°; final error "
+        f"{result.final_error_m:.4f} m, ATE {result.ate_rmse_m:.4f} m, drift "
+        f"{result.drift_percent:.3f} %"
+    )
+    typer.echo(f"wrote {out}")
 
 
 def register(app: typer.Typer) -> None:

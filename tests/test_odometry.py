@@ -1,4 +1,5 @@
-"""The floor-camera simulator: its frames agree with its truth, its files round-trip."""
+"""Floor-camera odometry: the simulator agrees with its truth, its files round-trip, the
+methods against truth at small scale, the commands and their errors."""
 
 from __future__ import annotations
 
@@ -153,3 +154,67 @@ def test_cli_simulate_writes_the_contract(tmp_path) -> None:
     ]:
         refused = runner.invoke(app, ["odometry", "simulate", str(tmp_path / "x"), *args])
         assert refused.exit_code == 2 and phrase in refused.output
+
+
+@pytest.fixture(scope="module")
+def short_sequence(tmp_path_factory):
+    """0.5 s of the lawnmower path (speeding up along its first row) over asphalt, 640 × 480."""
+    from services.odometry.simulate import simulate_sequence
+
+    out = tmp_path_factory.mktemp("odometry") / "seq"
+    simulate_sequence(out, floor="asphalt", path="lawnmower", seconds=0.5, seed=5)
+    return out
+
+
+def test_phase_correlation_peer_against_truth(short_sequence) -> None:
+    from services.odometry.evaluate import evaluate
+    from services.odometry.run import run_odometry
+
+    camera = Camera.from_document(json.loads((short_sequence / "camera.json").read_text()))
+    result = run_odometry(short_sequence / "frames", camera, "phase")
+    scores = evaluate(result.trajectory, read_tum(short_sequence / "truth.tum"))
+    assert scores.poses == 31 and result.flagged == 0
+    assert scores.rmse_dx_mm < 0.1 and scores.rmse_dy_mm < 0.1 and scores.rmse_dtheta_deg < 0.2
+    assert np.all(np.diff(result.sigma_xy_mm) >= 0)  # the uncertainty grows with distance
+
+
+def test_cli_run_and_eval(short_sequence, tmp_path) -> None:
+    runner = CliRunner()
+    trajectory = tmp_path / "traj.tum"
+    done = runner.invoke(
+        app,
+        ["odometry", "run", str(short_sequence / "frames"), "--camera"]
+        + [str(short_sequence / "camera.json"), "-o", str(trajectory), "--plot"]
+        + [str(tmp_path / "traj.png"), "--truth", str(short_sequence / "truth.tum")],
+    )
+    assert done.exit_code == 0, done.output
+    assert "30 pairs" in done.output and (tmp_path / "traj.png").stat().st_size > 10_000
+    report = json.loads((tmp_path / "traj.json").read_text())
+    assert report["pairs"] == 30 and len(report["sigma_xy_mm"]) == 31
+    assert read_tum(trajectory).pose.shape == (31, 3)
+    scored = runner.invoke(
+        app,
+        ["odometry", "eval", str(trajectory), str(short_sequence / "truth.tum")]
+        + ["-o", str(tmp_path / "eval.json")],
+    )
+    assert scored.exit_code == 0, scored.output
+    figures = json.loads((tmp_path / "eval.json").read_text())
+    assert set(figures) >= {"rmse_dx_mm", "rmse_dy_mm", "rmse_dtheta_deg", "final_error_m"}
+    assert {"ate_rmse_m", "drift_percent"} <= set(figures)
+    (tmp_path / "camera.json").write_text('{"width": 640}')
+    for args, phrase in [
+        (["--camera", str(tmp_path / "camera.json")], "camera.json: no 'height'"),
+        (["--camera", str(short_sequence / "camera.json"), "--method", "magic"], "known methods"),
+    ]:
+        refused = runner.invoke(
+            app, ["odometry", "run", str(short_sequence / "frames"), *args, "-o", str(trajectory)]
+        )
+        assert refused.exit_code == 2 and phrase in refused.output, refused.output
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    refused = runner.invoke(
+        app,
+        ["odometry", "run", str(empty), "--camera", str(short_sequence / "camera.json")]
+        + ["-o", str(trajectory)],
+    )
+    assert refused.exit_code == 2 and "needs at least 2 PNG frames" in refused.output

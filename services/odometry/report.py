@@ -1,0 +1,96 @@
+"""What ``vista odometry run`` and ``eval`` write besides the TUM file: the run's JSON
+(per pair: motion, confidence, flag; per pose: uncertainty) and the plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from services.odometry.evaluate import match
+from services.odometry.run import OdometryRun
+from services.odometry.tum import Trajectory2D
+
+
+def run_document(run: OdometryRun) -> dict:
+    steps = run.steps
+    return {
+        "method": run.method,
+        "frames": len(run.trajectory),
+        "pairs": len(steps.motion),
+        "flagged": run.flagged,
+        "pairs_per_s": round(run.pairs_per_s, 1),
+        "final_sigma_xy_mm": round(float(run.sigma_xy_mm[-1]), 3),
+        "pairs_detail": [
+            {
+                "pair": k,
+                "dx_mm": round(float(m[0]), 5),
+                "dy_mm": round(float(m[1]), 5),
+                "dtheta_deg": round(float(np.degrees(m[2])), 5),
+                "confidence": round(float(c), 3),
+                "flag": reason,
+            }
+            for k, (m, c, reason) in enumerate(
+                zip(steps.motion, steps.confidence, steps.reasons, strict=True)
+            )
+        ],
+        "sigma_xy_mm": [round(float(v), 3) for v in run.sigma_xy_mm],
+    }
+
+
+def trajectory_png(
+    estimate: Trajectory2D,
+    path: Path,
+    truth: Trajectory2D | None = None,
+    sigma_mm: np.ndarray | None = None,
+) -> None:
+    """The path seen from above (estimate, truth), and, with the truth, the position error
+    against the distance travelled (with the estimate's 1σ where given)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = 2 if truth is not None else 1
+    figure, axes = plt.subplots(1, panels, figsize=(6.5 * panels, 5.5), squeeze=False)
+    top = axes[0, 0]
+    if truth is not None:
+        top.plot(truth.pose[:, 0] / 1000, truth.pose[:, 1] / 1000, color="0.3", lw=2, label="truth")
+    top.plot(
+        estimate.pose[:, 0] / 1000,
+        estimate.pose[:, 1] / 1000,
+        color="tab:orange",
+        lw=1.2,
+        label="estimate",
+    )
+    top.plot([0], [0], "ko", ms=4)
+    top.set_aspect("equal")
+    top.invert_yaxis()  # y along the image rows: drawn as the camera sees it
+    top.set_xlabel("x (m, camera 0's columns)")
+    top.set_ylabel("y (m, camera 0's rows)")
+    top.legend(loc="best")
+    top.set_title("trajectory")
+    if truth is not None:
+        est_index, true_index = match(estimate, truth)
+        true = truth.pose[true_index]
+        distance = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(true[:, :2], axis=0).T))])
+        error = np.hypot(*(estimate.pose[est_index, :2] - true[:, :2]).T)
+        side = axes[0, 1]
+        side.plot(distance / 1000, error, color="tab:red", label="position error")
+        if sigma_mm is not None:
+            side.fill_between(
+                distance / 1000,
+                0,
+                np.asarray(sigma_mm)[est_index],
+                color="tab:blue",
+                alpha=0.2,
+                label="estimated 1σ",
+            )
+        side.set_xlabel("distance travelled (m)")
+        side.set_ylabel("error (mm)")
+        side.legend(loc="upper left")
+        side.set_title("error against distance")
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
