@@ -218,3 +218,30 @@ def test_cli_run_and_eval(short_sequence, tmp_path) -> None:
         + ["-o", str(trajectory)],
     )
     assert refused.exit_code == 2 and "needs at least 2 PNG frames" in refused.output
+
+
+def test_vista_direct_alignment_against_truth(short_sequence) -> None:
+    """vista's method on the same frames: within the issue's per-step targets (0.03 mm,
+    0.05°) while speeding up (motion blur growing), nothing flagged."""
+    from services.odometry.evaluate import evaluate
+    from services.odometry.run import run_odometry
+
+    camera = Camera.from_document(json.loads((short_sequence / "camera.json").read_text()))
+    truth = read_tum(short_sequence / "truth.tum")
+    one = run_odometry(short_sequence / "frames", camera)
+    scores = evaluate(one.trajectory, truth)
+    assert one.method == "vista" and one.flagged == 0
+    assert scores.rmse_dx_mm < 0.03 and scores.rmse_dy_mm < 0.03
+    assert scores.rmse_dtheta_deg < 0.05 and scores.final_error_m < 0.001
+
+
+def test_direct_alignment_flags_a_plain_floor() -> None:
+    from services.odometry.direct import align, prepare
+
+    floor = procedural_floor("low-texture", seed=1, n=1024)
+    motion = drive([Command(0.2, 300.0)])
+    first, second = render(
+        floor, SMALL, motion, np.array([0.1, 0.12]), Effects(), np.random.default_rng(2)
+    )
+    found = align(prepare(first), prepare(second), np.zeros(3))
+    assert found.reason == "too little texture"

@@ -100,7 +100,14 @@ def _camera(path: Path):  # noqa: ANN202 - a Camera (imported inside: keep the C
 def run(
     frames_dir: Path = typer.Argument(..., help="Folder of frames (PNG, in name order)."),
     camera: Path = typer.Option(..., "--camera", help="camera.json of the frames."),
-    method: str = typer.Option("phase", help="phase: phase correlation + Fourier–Mellin."),
+    method: str = typer.Option(
+        "vista",
+        help="vista: direct alignment at full resolution (no training needed); phase: "
+        "phase correlation with a Fourier–Mellin turn (the classical peer).",
+    ),
+    threads: int = typer.Option(
+        None, min=1, max=256, help="Threads (default: one per available core)."
+    ),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write the trajectory (TUM)."),
     plot: Path = typer.Option(None, help="Also draw the trajectory as a PNG."),
     truth: Path = typer.Option(None, help="truth.tum: drawn beside the estimate in the plot."),
@@ -111,7 +118,9 @@ def run(
     from services.odometry.report import run_document, trajectory_png
     from services.odometry.run import METHODS, run_odometry
     from services.odometry.tum import read_tum, write_tum
+    from services.process import available_cores, prepare_process
 
+    prepare_process()
     if method not in METHODS:
         fail(f"--method {method!r}: known methods are {', '.join(METHODS)}")
     settings = _camera(camera)
@@ -131,7 +140,13 @@ def run(
                 done[0] += step
 
         try:
-            result = run_odometry(frames_dir, settings, method, progress=progress)
+            result = run_odometry(
+                frames_dir,
+                settings,
+                method,
+                threads=threads or available_cores(),
+                progress=progress,
+            )
         except ValueError as exc:
             fail(str(exc))
     write_tum(out, result.trajectory)

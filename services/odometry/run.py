@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,10 +21,11 @@ import numpy as np
 
 from services.odometry import se2
 from services.odometry.camera import Camera
+from services.odometry.direct import align, prepare, seed_px
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
 
-METHODS = ("phase",)
+METHODS = ("vista", "phase")
 Progress = Callable[[float, str], None]
 
 MIN_RESPONSE = 0.08
@@ -51,7 +53,7 @@ class OdometryRun:
     steps: Steps
     method: str
     seconds: float
-    """Estimation time (not reading the frames)."""
+    """Time to read the frames and estimate the motions."""
     sigma_xy_mm: np.ndarray
     """(N,) the position's standard deviation, growing with the distance."""
 
@@ -87,17 +89,13 @@ def read_frames(files: list[Path], camera: Camera) -> Iterator[np.ndarray]:
         yield image
 
 
-def phase_steps(
-    frames: Iterator[np.ndarray], camera: Camera, count: int, progress: Progress
-) -> tuple[Steps, float]:
+def phase_steps(files: list[Path], camera: Camera, progress: Progress) -> Steps:
     """The peer: phase correlation with a Fourier–Mellin turn, pair by pair."""
     motion, confidence, reasons = [], [], []
-    spent = 0.0
+    frames = read_frames(files, camera)
     previous = next(frames)
     for k, frame in enumerate(frames):
-        started = time.perf_counter()
         pair = pair_motion(previous, frame)
-        spent += time.perf_counter() - started
         motion.append(
             [pair.dx_px * camera.mm_per_px, pair.dy_px * camera.mm_per_px, pair.dtheta_rad]
         )
@@ -105,9 +103,58 @@ def phase_steps(
         reasons.append(None if pair.response >= MIN_RESPONSE else "the frames do not match")
         previous = frame
         if k % 100 == 0:
-            progress((k + 1) / count, f"pair {k + 1} of {count}")
+            progress((k + 1) / len(files), f"pair {k + 1} of {len(files) - 1}")
     sigma = np.tile([0.03, 0.03, np.radians(0.3)], (len(motion), 1))
-    return Steps(np.array(motion), np.array(confidence), reasons, sigma), spent
+    return Steps(np.array(motion), np.array(confidence), reasons, sigma)
+
+
+def _direct_run(files: list[Path], camera: Camera) -> Steps:
+    """vista's method on consecutive frames: each pair aligned from the previous pair's
+    motion, or from phase correlation when that does not give a trusted alignment."""
+    frames = read_frames(files, camera)
+    motion, confidence, reasons, sigma = [], [], [], []
+    first = next(frames)
+    previous = prepare(first)
+    guess = None
+    px = camera.mm_per_px
+    for frame in frames:
+        current = prepare(frame)
+        if guess is None:
+            guess = seed_px(first, frame)
+        found = align(previous, current, guess)
+        if found.reason is not None:
+            retry = align(previous, current, seed_px(first, frame))
+            if retry.reason is None or retry.residual < found.residual:
+                found = retry
+        motion.append([found.motion_px[0] * px, found.motion_px[1] * px, found.motion_px[2]])
+        deviation = np.sqrt(np.maximum(np.diag(found.covariance), 0.0))
+        sigma.append([deviation[0] * px, deviation[1] * px, deviation[2]])
+        confidence.append(float(np.exp(-found.residual / 8.0) * min(1.0, found.overlap / 0.8)))
+        reasons.append(found.reason)
+        if found.reason is None:
+            guess = found.motion_px
+        first, previous = frame, current
+    return Steps(np.array(motion), np.array(confidence), reasons, np.array(sigma))
+
+
+def direct_steps(files: list[Path], camera: Camera, threads: int) -> Steps:
+    """vista's method on ``threads`` threads, each on a run of consecutive pairs (reading
+    its own frames; OpenCV and NumPy let go of the interpreter while they work)."""
+    count = len(files) - 1
+    parts = max(1, min(threads, count // 100))
+    bounds = np.linspace(0, count, parts + 1).round().astype(int)
+    runs = [files[bounds[k] : bounds[k + 1] + 1] for k in range(parts)]
+    if parts == 1:
+        results = [_direct_run(runs[0], camera)]
+    else:
+        with ThreadPoolExecutor(parts) as pool:
+            results = list(pool.map(lambda run: _direct_run(run, camera), runs))
+    return Steps(
+        np.concatenate([r.motion for r in results]),
+        np.concatenate([r.confidence for r in results]),
+        [reason for r in results for reason in r.reasons],
+        np.concatenate([r.sigma for r in results]),
+    )
 
 
 def _bridged(steps: Steps) -> Steps:
@@ -116,10 +163,9 @@ def _bridged(steps: Steps) -> Steps:
     trusted = np.array([reason is None for reason in steps.reasons])
     index = np.maximum.accumulate(np.where(trusted, np.arange(len(trusted)), -1))
     padded = np.vstack([np.zeros(3), steps.motion])
-    motion = padded[index + 1]
     guess = np.array([GUESS_SIGMA_MM, GUESS_SIGMA_MM, np.radians(GUESS_SIGMA_DEG)])
     sigma = np.where(trusted[:, None], steps.sigma, guess)
-    return Steps(motion, steps.confidence, steps.reasons, sigma)
+    return Steps(padded[index + 1], steps.confidence, steps.reasons, sigma)
 
 
 def position_sigma(steps: Steps) -> np.ndarray:
@@ -134,14 +180,23 @@ def position_sigma(steps: Steps) -> np.ndarray:
 def run_odometry(
     folder: Path,
     camera: Camera,
-    method: str = "phase",
+    method: str = "vista",
+    *,
+    threads: int = 1,
     progress: Progress | None = None,
 ) -> OdometryRun:
+    """The trajectory of the frames in ``folder`` by ``method`` (``METHODS``)."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
     report = progress or (lambda fraction, message: None)
     files = frame_files(folder)
-    steps, seconds = phase_steps(read_frames(files, camera), camera, len(files) - 1, report)
+    started = time.perf_counter()
+    if method == "phase":
+        steps = phase_steps(files, camera, report)
+    else:
+        report(0.05, f"aligning {len(files) - 1} pairs")
+        steps = direct_steps(files, camera, threads)
+    seconds = time.perf_counter() - started
     steps = _bridged(steps)
     times = np.arange(len(files)) / camera.fps
     trajectory = Trajectory2D(times, se2.integrate(steps.motion))

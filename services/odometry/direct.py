@@ -1,0 +1,200 @@
+"""vista's method: direct planar alignment of consecutive frames at full resolution.
+
+The motion of frame j against frame i is the rigid planar warp that makes frame j,
+sampled at the warped positions of frame i's textured pixels, look like frame i —
+inverse-compositional Gauss–Newton on a three-level pyramid (the template's gradients and
+Hessian are computed once per frame), with the brightness's gain and offset refitted at
+each step (lights change, shadows move) and a Huber weight (what one frame shows and the
+other does not). It starts from the previous pair's motion (a robot's speed changes little
+in 1/60 s) and, when that does not converge, from phase correlation on a quarter-size
+frame.
+
+Each pair gets a covariance (residual variance × the Hessian's inverse), a confidence and,
+when it cannot be trusted, a reason: too little texture, frames that do not match after
+alignment (blur, a floor that changed), too little overlap (too fast).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from services.odometry.phase import pair_motion
+
+LEVELS = 3
+POINTS_PER_LEVEL = (12_000, 6_000, 3_000)
+"""Template pixels used at full, half and quarter size (the most textured ones)."""
+ITERATIONS = (6, 8, 10)
+CONVERGED_PX = 0.002
+HUBER = 1.345
+MIN_TEXTURE = 4.0
+"""Below this RMS gradient (grey levels per pixel) the floor is too plain to align on."""
+MAX_RESIDUAL = 12.0
+"""Grey levels RMS after alignment above which the frames do not match."""
+MIN_OVERLAP = 0.5
+
+
+@dataclass
+class Template:
+    """One frame prepared as the template of its pair (per pyramid level)."""
+
+    images: list[np.ndarray]
+    points: list[np.ndarray]
+    """(N, 2) x, y of the chosen pixels about the level's centre."""
+    values: list[np.ndarray]
+    jacobians: list[np.ndarray]
+    """(N, 3): d(value)/d(tx, ty, θ) at the identity."""
+    texture: float
+    """RMS gradient at full size (grey levels per pixel)."""
+
+
+@dataclass(frozen=True)
+class Alignment:
+    motion_px: np.ndarray
+    """tx, ty (full-size pixels), θ (rad): frame j's pixel q shows frame i's R q + t."""
+    covariance: np.ndarray
+    """(3, 3) of the motion (px², px·rad, rad²)."""
+    residual: float
+    overlap: float
+    texture: float
+    reason: str | None
+
+
+def _centre(shape: tuple[int, int]) -> np.ndarray:
+    return np.array([(shape[1] - 1) / 2, (shape[0] - 1) / 2])
+
+
+def prepare(image: np.ndarray) -> Template:
+    """A frame's pyramid, its most textured pixels per level and their Jacobians."""
+    level = image.astype(np.float32)
+    images, points, values, jacobians = [], [], [], []
+    texture = 0.0
+    for k in range(LEVELS):
+        if k:
+            level = cv2.pyrDown(level)
+        gx = cv2.Sobel(level, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
+        gy = cv2.Sobel(level, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
+        magnitude = gx * gx + gy * gy
+        if k == 0:
+            texture = float(np.sqrt(magnitude[2:-2, 2:-2].mean()))
+        border, stride = 4, 2 if k == 0 else 1  # at full size every other pixel competes
+        inner = magnitude[border:-border:stride, border:-border:stride]
+        count = min(POINTS_PER_LEVEL[k], inner.size // 4)
+        flat = np.argpartition(inner.ravel(), inner.size - count)[-count:]
+        rows, cols = np.unravel_index(flat, inner.shape)
+        rows, cols = rows * stride + border, cols * stride + border
+        centre = _centre(level.shape)
+        xy = np.column_stack([cols - centre[0], rows - centre[1]]).astype(np.float64)
+        gxs, gys = gx[rows, cols].astype(np.float64), gy[rows, cols].astype(np.float64)
+        jacobians.append(np.column_stack([gxs, gys, -xy[:, 1] * gxs + xy[:, 0] * gys]))
+        points.append(xy)
+        values.append(level[rows, cols].astype(np.float64))
+        images.append(level)
+    return Template(images, points, values, jacobians, texture)
+
+
+def _sample(image: np.ndarray, xy: np.ndarray, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``image`` at R(θ)·xy + t (about its centre), and which samples fell inside."""
+    c, s = np.cos(motion[2]), np.sin(motion[2])
+    centre = _centre(image.shape)
+    x = c * xy[:, 0] - s * xy[:, 1] + motion[0] + centre[0]
+    y = s * xy[:, 0] + c * xy[:, 1] + motion[1] + centre[1]
+    inside = (x >= 0) & (x <= image.shape[1] - 1) & (y >= 0) & (y <= image.shape[0] - 1)
+    values = cv2.remap(
+        image,
+        x.astype(np.float32)[None, :],
+        y.astype(np.float32)[None, :],
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )[0]
+    return values.astype(np.float64), inside
+
+
+def _compose_inverse(motion: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """motion ∘ delta⁻¹ for warps p ↦ R p + t (the inverse-compositional update)."""
+    c, s = np.cos(delta[2]), np.sin(delta[2])
+    inv_t = -np.array([c * delta[0] + s * delta[1], -s * delta[0] + c * delta[1]])
+    cm, sm = np.cos(motion[2]), np.sin(motion[2])
+    t = motion[:2] + np.array([cm * inv_t[0] - sm * inv_t[1], sm * inv_t[0] + cm * inv_t[1]])
+    return np.array([t[0], t[1], motion[2] - delta[2]])
+
+
+def _align_level(
+    template: Template, level: int, image: np.ndarray, start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Gauss–Newton at one level from ``start`` (level pixels): the warp from template to
+    ``image`` coordinates, J^T W J, the robust residual RMS and the overlap."""
+    xy, value, jac = template.points[level], template.values[level], template.jacobians[level]
+    motion = start.copy()
+    hessian = np.eye(3)
+    residual, overlap = np.inf, 0.0
+    for _ in range(ITERATIONS[level]):
+        sampled, inside = _sample(image, xy, motion)
+        overlap = float(inside.mean())
+        if overlap < 0.2:
+            break
+        # brightness: fit value ≈ gain · sampled + offset over the overlap
+        seen, wanted = sampled[inside], value[inside]
+        seen_mean, wanted_mean = seen.mean(), wanted.mean()
+        spread = np.dot(seen - seen_mean, seen - seen_mean)
+        gain = np.dot(seen - seen_mean, wanted - wanted_mean) / spread if spread > 0 else 1.0
+        offset = wanted_mean - gain * seen_mean
+        error = np.where(inside, gain * sampled + offset - value, 0.0)
+        scale = 1.2533 * np.abs(error[inside]).mean() + 1e-6  # σ of Gaussian errors
+        weight = np.where(inside, np.minimum(1.0, HUBER * scale / (np.abs(error) + 1e-12)), 0.0)
+        weighted = jac * weight[:, None]
+        hessian = jac.T @ weighted
+        delta = np.linalg.solve(hessian + 1e-9 * np.eye(3), weighted.T @ error)
+        motion = _compose_inverse(motion, delta)
+        residual = float(np.sqrt(np.sum(weight * error**2) / max(np.sum(weight), 1.0)))
+        extent = np.abs(xy).max()
+        if np.hypot(delta[0], delta[1]) + abs(delta[2]) * extent < CONVERGED_PX:
+            break
+    return motion, hessian, residual, overlap
+
+
+def _inverse(motion: np.ndarray) -> np.ndarray:
+    """The inverse of the warp p ↦ R p + t."""
+    c, s = np.cos(motion[2]), np.sin(motion[2])
+    return np.array([-(c * motion[0] + s * motion[1]), s * motion[0] - c * motion[1], -motion[2]])
+
+
+def align(template: Template, image: Template, guess_px: np.ndarray) -> Alignment:
+    """The motion from the template's frame to ``image``'s, starting at ``guess_px``.
+
+    The motion m says frame j's pixel q shows frame i's pixel R q + t; the template's pixel
+    p is therefore found in frame j at m⁻¹(p), the warp the alignment moves."""
+    motion = _inverse(guess_px)
+    hessian, residual, overlap = np.eye(3), np.inf, 0.0
+    for level in reversed(range(LEVELS)):
+        factor = 2.0**level
+        start = np.array([motion[0] / factor, motion[1] / factor, motion[2]])
+        found, hessian, residual, overlap = _align_level(
+            template, level, image.images[level], start
+        )
+        motion = np.array([found[0] * factor, found[1] * factor, found[2]])
+    # the motion and its covariance, carried through the inversion (numeric Jacobian)
+    result = _inverse(motion)
+    step = 1e-6
+    jac = np.column_stack(
+        [(_inverse(motion + step * np.eye(3)[k]) - result) / step for k in range(3)]
+    )
+    covariance = jac @ (residual**2 * np.linalg.pinv(hessian)) @ jac.T
+    reason = None
+    if template.texture < MIN_TEXTURE:
+        reason = "too little texture"
+    elif overlap < MIN_OVERLAP:
+        reason = "too little overlap (too fast)"
+    elif not residual < MAX_RESIDUAL:
+        reason = "the frames do not match after alignment (blur, a changed floor)"
+    return Alignment(result, covariance, residual, overlap, template.texture, reason)
+
+
+def seed_px(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """A start from phase correlation on quarter-size frames (full-size pixels)."""
+    small_a = cv2.resize(first, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+    small_b = cv2.resize(second, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+    pair = pair_motion(small_a, small_b)
+    return np.array([pair.dx_px * 4, pair.dy_px * 4, pair.dtheta_rad])
