@@ -9,9 +9,10 @@ other does not). It starts from the previous pair's motion (a robot's speed chan
 in 1/60 s) and, when that does not converge, from phase correlation on a quarter-size
 frame.
 
-Each pair gets a covariance (residual variance × the Hessian's inverse), a confidence and,
-when it cannot be trusted, a reason: too little texture, frames that do not match after
-alignment (blur, a floor that changed), too little overlap (too fast).
+Each pair gets a covariance (residual variance × the Hessian's inverse), a sharpness (how
+much worse the frames match one pixel off) and, when it cannot be trusted, a reason: too
+little texture (no sharpness), frames that do not match after alignment (blur, a floor
+that changed), too little overlap (too fast).
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ POINTS_PER_LEVEL = (12_000, 6_000, 3_000)
 ITERATIONS = (6, 8, 10)
 CONVERGED_PX = 0.002
 HUBER = 1.345
-MIN_TEXTURE = 4.0
-"""Below this RMS gradient (grey levels per pixel) the floor is too plain to align on."""
+MIN_SHARPNESS = 0.1
+"""The frames must match at least this much worse one pixel off the found motion (noise
+matches noise anywhere: a plain floor has nothing to align on)."""
 MAX_RESIDUAL = 12.0
 """Grey levels RMS after alignment above which the frames do not match."""
 MIN_OVERLAP = 0.5
@@ -59,6 +61,7 @@ class Alignment:
     residual: float
     overlap: float
     texture: float
+    sharpness: float
     reason: str | None
 
 
@@ -155,6 +158,24 @@ def _align_level(
     return motion, hessian, residual, overlap
 
 
+def sharpness(template: Template, image: Template, warp: np.ndarray) -> float:
+    """How much worse the frames match one pixel off the found warp (along x and y, the
+    smaller): near 0 when the floor has nothing to align on (noise matches noise
+    anywhere), or only lines along one direction."""
+    xy, value = template.points[0], template.values[0]
+
+    def cost(motion: np.ndarray) -> float:
+        sampled, inside = _sample(image.images[0], xy, motion)
+        seen, wanted = sampled[inside], value[inside]
+        gain = np.std(wanted) / (np.std(seen) + 1e-9)
+        error = gain * (seen - seen.mean()) - (wanted - wanted.mean())
+        return float(np.mean(error**2))
+
+    base = cost(warp)
+    worse = [cost(warp + shift) for shift in ([1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0])]
+    return float(min(min(worse[:2]), min(worse[2:])) / (base + 1e-9) - 1.0)
+
+
 def _inverse(motion: np.ndarray) -> np.ndarray:
     """The inverse of the warp p ↦ R p + t."""
     c, s = np.cos(motion[2]), np.sin(motion[2])
@@ -182,14 +203,15 @@ def align(template: Template, image: Template, guess_px: np.ndarray) -> Alignmen
         [(_inverse(motion + step * np.eye(3)[k]) - result) / step for k in range(3)]
     )
     covariance = jac @ (residual**2 * np.linalg.pinv(hessian)) @ jac.T
+    sharp = sharpness(template, image, motion)
     reason = None
-    if template.texture < MIN_TEXTURE:
+    if sharp < MIN_SHARPNESS:
         reason = "too little texture"
     elif overlap < MIN_OVERLAP:
         reason = "too little overlap (too fast)"
     elif not residual < MAX_RESIDUAL:
         reason = "the frames do not match after alignment (blur, a changed floor)"
-    return Alignment(result, covariance, residual, overlap, template.texture, reason)
+    return Alignment(result, covariance, residual, overlap, template.texture, sharp, reason)
 
 
 def seed_px(first: np.ndarray, second: np.ndarray) -> np.ndarray:

@@ -31,6 +31,9 @@ Progress = Callable[[float, str], None]
 MIN_RESPONSE = 0.08
 """Below this phase-correlation peak the frames did not match (textureless, blurred, too
 far apart)."""
+DIRECT_SIGMA_FLOOR = np.array([0.01, 0.01, np.radians(0.004)])
+"""Per-pair errors the alignment's covariance does not see (interpolation, blur, the
+sensor's bias): the per-step RMSE of vista's method on the simulated floors."""
 GUESS_SIGMA_MM = 5.0
 GUESS_SIGMA_DEG = 1.0
 
@@ -128,8 +131,13 @@ def _direct_run(files: list[Path], camera: Camera) -> Steps:
                 found = retry
         motion.append([found.motion_px[0] * px, found.motion_px[1] * px, found.motion_px[2]])
         deviation = np.sqrt(np.maximum(np.diag(found.covariance), 0.0))
-        sigma.append([deviation[0] * px, deviation[1] * px, deviation[2]])
-        confidence.append(float(np.exp(-found.residual / 8.0) * min(1.0, found.overlap / 0.8)))
+        sigma.append(
+            np.maximum([deviation[0] * px, deviation[1] * px, deviation[2]], DIRECT_SIGMA_FLOOR)
+        )
+        confidence.append(
+            float(min(1.0, found.sharpness) * min(1.0, found.overlap / 0.8))
+            * float(np.exp(-found.residual / 16.0))
+        )
         reasons.append(found.reason)
         if found.reason is None:
             guess = found.motion_px
