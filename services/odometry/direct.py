@@ -69,9 +69,33 @@ def _centre(shape: tuple[int, int]) -> np.ndarray:
     return np.array([(shape[1] - 1) / 2, (shape[0] - 1) / 2])
 
 
-def prepare(image: np.ndarray) -> Template:
-    """A frame's pyramid, its most textured pixels per level and their Jacobians."""
+def flat_field(frames: list[np.ndarray]) -> np.ndarray:
+    """The light's fixed pattern over the frame (vignetting, a lamp's spot), mean 1: a
+    smooth surface (quadratic plus a fourth-power radial term) fitted to the mean of
+    ``frames``, whose texture averages out as the floor moves. The pattern stays while the
+    floor moves under it: left in, it pulls the heading a little at every frame."""
+    mean = np.mean([f.astype(np.float32) for f in frames], axis=0)
+    rows, cols = mean.shape
+
+    def terms(y: np.ndarray, x: np.ndarray) -> list[np.ndarray]:
+        u, v = (x - (cols - 1) / 2) / cols, (y - (rows - 1) / 2) / cols
+        return [np.ones_like(u), u, v, u * u, u * v, v * v, (u * u + v * v) ** 2]
+
+    y, x = np.mgrid[0:rows:4, 0:cols:4].astype(np.float64)
+    design = np.column_stack([t.ravel() for t in terms(y, x)])
+    coefficients = np.linalg.lstsq(design, mean[::4, ::4].ravel(), rcond=None)[0]
+    y, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
+    surface = sum(c * t for c, t in zip(coefficients, terms(y, x), strict=True))
+    surface = np.maximum(surface, 1e-3 * surface.max())
+    return (surface / surface.mean()).astype(np.float32)
+
+
+def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
+    """A frame's pyramid (divided by the light's ``flat`` field, if given), its most
+    textured pixels per level and their Jacobians."""
     level = image.astype(np.float32)
+    if flat is not None:
+        level = level / flat
     images, points, values, jacobians = [], [], [], []
     texture = 0.0
     for k in range(LEVELS):

@@ -21,7 +21,7 @@ import numpy as np
 
 from services.odometry import se2
 from services.odometry.camera import Camera
-from services.odometry.direct import align, prepare, seed_px
+from services.odometry.direct import align, flat_field, prepare, seed_px
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
 
@@ -31,6 +31,8 @@ Progress = Callable[[float, str], None]
 MIN_RESPONSE = 0.08
 """Below this phase-correlation peak the frames did not match (textureless, blurred, too
 far apart)."""
+FLAT_FIELD_FRAMES = 200
+"""Frames (spread over the sequence) whose mean gives the light's fixed pattern."""
 DIRECT_SIGMA_FLOOR = np.array([0.01, 0.01, np.radians(0.004)])
 """Per-pair errors the alignment's covariance does not see (interpolation, blur, the
 sensor's bias): the per-step RMSE of vista's method on the simulated floors."""
@@ -111,17 +113,17 @@ def phase_steps(files: list[Path], camera: Camera, progress: Progress) -> Steps:
     return Steps(np.array(motion), np.array(confidence), reasons, sigma)
 
 
-def _direct_run(files: list[Path], camera: Camera) -> Steps:
+def _direct_run(files: list[Path], camera: Camera, flat: np.ndarray) -> Steps:
     """vista's method on consecutive frames: each pair aligned from the previous pair's
     motion, or from phase correlation when that does not give a trusted alignment."""
     frames = read_frames(files, camera)
     motion, confidence, reasons, sigma = [], [], [], []
     first = next(frames)
-    previous = prepare(first)
+    previous = prepare(first, flat)
     guess = None
     px = camera.mm_per_px
     for frame in frames:
-        current = prepare(frame)
+        current = prepare(frame, flat)
         if guess is None:
             guess = seed_px(first, frame)
         found = align(previous, current, guess)
@@ -147,16 +149,19 @@ def _direct_run(files: list[Path], camera: Camera) -> Steps:
 
 def direct_steps(files: list[Path], camera: Camera, threads: int) -> Steps:
     """vista's method on ``threads`` threads, each on a run of consecutive pairs (reading
-    its own frames; OpenCV and NumPy let go of the interpreter while they work)."""
+    its own frames; OpenCV and NumPy let go of the interpreter while they work), all with
+    the light's fixed pattern taken out (``flat_field`` of frames spread over the run)."""
     count = len(files) - 1
     parts = max(1, min(threads, count // 100))
     bounds = np.linspace(0, count, parts + 1).round().astype(int)
     runs = [files[bounds[k] : bounds[k + 1] + 1] for k in range(parts)]
+    sample = files[:: max(1, len(files) // FLAT_FIELD_FRAMES)][:FLAT_FIELD_FRAMES]
+    flat = flat_field(list(read_frames(sample, camera)))
     if parts == 1:
-        results = [_direct_run(runs[0], camera)]
+        results = [_direct_run(runs[0], camera, flat)]
     else:
         with ThreadPoolExecutor(parts) as pool:
-            results = list(pool.map(lambda run: _direct_run(run, camera), runs))
+            results = list(pool.map(lambda run: _direct_run(run, camera, flat), runs))
     return Steps(
         np.concatenate([r.motion for r in results]),
         np.concatenate([r.confidence for r in results]),
