@@ -28,7 +28,8 @@ LEVELS = 3
 POINTS_PER_LEVEL = (12_000, 6_000, 3_000)
 """Template pixels used at full, half and quarter size (the most textured ones)."""
 ITERATIONS = (6, 8, 10)
-CONVERGED_PX = 0.002
+CONVERGED_PX = (0.005, 0.02, 0.05)
+"""A level is done when a step moves its points less than this (level pixels)."""
 HUBER = 1.345
 MIN_SHARPNESS = 0.1
 """The frames must match at least this much worse one pixel off the found motion (noise
@@ -177,7 +178,7 @@ def _align_level(
         motion = _compose_inverse(motion, delta)
         residual = float(np.sqrt(np.sum(weight * error**2) / max(np.sum(weight), 1.0)))
         extent = np.abs(xy).max()
-        if np.hypot(delta[0], delta[1]) + abs(delta[2]) * extent < CONVERGED_PX:
+        if np.hypot(delta[0], delta[1]) + abs(delta[2]) * extent < CONVERGED_PX[level]:
             break
     return motion, hessian, residual, overlap
 
@@ -206,14 +207,18 @@ def _inverse(motion: np.ndarray) -> np.ndarray:
     return np.array([-(c * motion[0] + s * motion[1]), s * motion[0] - c * motion[1], -motion[2]])
 
 
-def align(template: Template, image: Template, guess_px: np.ndarray) -> Alignment:
+def align(
+    template: Template, image: Template, guess_px: np.ndarray, *, coarsest: int = LEVELS - 1
+) -> Alignment:
     """The motion from the template's frame to ``image``'s, starting at ``guess_px``.
 
     The motion m says frame j's pixel q shows frame i's pixel R q + t; the template's pixel
-    p is therefore found in frame j at m⁻¹(p), the warp the alignment moves."""
+    p is therefore found in frame j at m⁻¹(p), the warp the alignment moves. A guess good
+    to a pixel or two (the previous pair's motion) may start at a finer ``coarsest``
+    level."""
     motion = _inverse(guess_px)
     hessian, residual, overlap = np.eye(3), np.inf, 0.0
-    for level in reversed(range(LEVELS)):
+    for level in reversed(range(coarsest + 1)):
         factor = 2.0**level
         start = np.array([motion[0] / factor, motion[1] / factor, motion[2]])
         found, hessian, residual, overlap = _align_level(

@@ -21,7 +21,7 @@ import numpy as np
 
 from services.odometry import se2
 from services.odometry.camera import Camera
-from services.odometry.direct import align, flat_field, prepare, seed_px
+from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
 
@@ -120,13 +120,13 @@ def _direct_run(files: list[Path], camera: Camera, flat: np.ndarray) -> Steps:
     motion, confidence, reasons, sigma = [], [], [], []
     first = next(frames)
     previous = prepare(first, flat)
-    guess = None
+    guess, trusted = None, False
     px = camera.mm_per_px
     for frame in frames:
         current = prepare(frame, flat)
         if guess is None:
             guess = seed_px(first, frame)
-        found = align(previous, current, guess)
+        found = align(previous, current, guess, coarsest=1 if trusted else LEVELS - 1)
         if found.reason is not None:
             retry = align(previous, current, seed_px(first, frame))
             if retry.reason is None or retry.residual < found.residual:
@@ -141,7 +141,8 @@ def _direct_run(files: list[Path], camera: Camera, flat: np.ndarray) -> Steps:
             * float(np.exp(-found.residual / 16.0))
         )
         reasons.append(found.reason)
-        if found.reason is None:
+        trusted = found.reason is None
+        if trusted:
             guess = found.motion_px
         first, previous = frame, current
     return Steps(np.array(motion), np.array(confidence), reasons, np.array(sigma))
