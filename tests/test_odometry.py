@@ -245,3 +245,46 @@ def test_direct_alignment_flags_a_plain_floor() -> None:
     )
     found = align(prepare(first), prepare(second), np.zeros(3))
     assert found.reason == "too little texture"
+
+
+def test_oenet_trains_exports_and_runs_at_tiny_scale(short_sequence, tmp_path) -> None:
+    """OE-Net (Table 6.1) built by the command on one short sequence for one epoch: the
+    ONNX file says what it is, and `run --method oenet` uses it (its accuracy is the
+    bench's business, after a real training run)."""
+    from services.nn.onnx_io import read_model
+    from services.odometry.oenet import network
+
+    # Table 6.1 layer by layer: 2 750 498 in the translation branch, 2 363 489 in the rotation
+    assert sum(p.numel() for p in network().parameters()) == 5_113_987
+    runner = CliRunner()
+    model = tmp_path / "oenet.onnx"
+    trained = runner.invoke(
+        app,
+        ["odometry", "train", str(short_sequence), "-o", str(model), "--epochs", "1"]
+        + ["--batch", "16", "--device", "cpu"],
+    )
+    assert trained.exit_code == 0, trained.output
+    metadata = read_model(model).metadata
+    assert metadata["architecture"] == "oenet" and metadata["training"]["pairs"] == 30
+    assert metadata["input"]["shape"] == ["batch", 2, 64, 64]
+    done = runner.invoke(
+        app,
+        ["odometry", "run", str(short_sequence / "frames"), "--camera"]
+        + [str(short_sequence / "camera.json"), "--method", "oenet", "--model", str(model)]
+        + ["-o", str(tmp_path / "o.tum")],
+    )
+    assert done.exit_code == 0, done.output
+    assert read_tum(tmp_path / "o.tum").pose.shape == (31, 3)
+    for args, phrase in [
+        (["--method", "oenet"], "OE-Net needs its model file"),
+    ]:
+        refused = runner.invoke(
+            app,
+            ["odometry", "run", str(short_sequence / "frames"), "--camera"]
+            + [str(short_sequence / "camera.json"), *args, "-o", str(tmp_path / "x.tum")],
+        )
+        assert refused.exit_code == 2 and phrase in refused.output
+    refused = runner.invoke(
+        app, ["odometry", "train", str(short_sequence), "-o", str(model), "--arch", "vista"]
+    )
+    assert refused.exit_code == 2 and "needs no training" in refused.output

@@ -103,8 +103,10 @@ def run(
     method: str = typer.Option(
         "vista",
         help="vista: direct alignment at full resolution (no training needed); phase: "
-        "phase correlation with a Fourier–Mellin turn (the classical peer).",
+        "phase correlation with a Fourier–Mellin turn (the classical peer); oenet: the "
+        "thesis's network (needs --model).",
     ),
+    model: Path = typer.Option(None, help="MODEL.onnx of `vista odometry train` (oenet)."),
     threads: int = typer.Option(
         None, min=1, max=256, help="Threads (default: one per available core)."
     ),
@@ -144,6 +146,7 @@ def run(
                 frames_dir,
                 settings,
                 method,
+                model=model,
                 threads=threads or available_cores(),
                 progress=progress,
             )
@@ -161,6 +164,63 @@ def run(
         f"θ {math.degrees(final[2]):.2f}° (1σ {result.sigma_xy_mm[-1]:.1f} mm)"
     )
     typer.echo(f"wrote {out}, {report}" + (f", {plot}" if plot else ""))
+
+
+@odometry_app.command("train")
+def train(
+    data_dirs: list[Path] = typer.Argument(
+        ..., help="Sequences of `vista odometry simulate` (frames/, camera.json, truth.tum)."
+    ),
+    out: Path = typer.Option(..., "-o", "--out", help="Where to write MODEL.onnx."),
+    arch: str = typer.Option("oenet", help="oenet: the thesis's Table 6.1."),
+    epochs: int = typer.Option(30, min=1, max=10_000, help="Passes over the pairs."),
+    batch: int = typer.Option(256, min=1, max=65_536, help="Pairs per step (thesis: 256)."),
+    learning_rate: float = typer.Option(0.01, min=1e-6, max=10, help="SGD step (momentum 0.9)."),
+    seed: int = typer.Option(0, help="Random seed (split, initial weights, shuffling)."),
+    device: str = typer.Option("auto", help="auto, cpu or cuda."),
+    checkpoints: Path = typer.Option(
+        None, help="Folder for each epoch's checkpoint; a run with the same folder resumes."
+    ),
+) -> None:
+    """Train a network on simulated sequences (each pair of consecutive frames is a
+    sample) and export it as ONNX with its metadata (architecture, training data, input,
+    validation error), checked against torch's output."""
+    from services.nn.device import DEVICES
+    from services.nn.train import TrainConfig
+    from services.odometry.oenet import train_oenet
+    from services.process import available_cores
+
+    if arch != "oenet":
+        fail(
+            f"--arch {arch!r}: only oenet is a network here; vista's method is direct "
+            "alignment and needs no training"
+        )
+    if device not in DEVICES:
+        fail(f"--device {device!r}: known devices are {', '.join(DEVICES)}")
+    config = TrainConfig(
+        epochs=epochs,
+        batch=batch,
+        learning_rate=learning_rate,
+        seed=seed,
+        device=device,
+        threads=available_cores(),
+    )
+    try:
+        metadata = train_oenet(
+            data_dirs,
+            out,
+            config,
+            checkpoint_dir=checkpoints,
+            progress=lambda fraction, message: typer.echo(message),
+        )
+    except (OSError, ValueError) as exc:
+        fail(str(exc))
+    metrics = metadata["metrics"]
+    typer.echo(
+        f"wrote {out}: {metadata['training']['pairs']} pairs, {metadata['training']['epochs']} "
+        f"epochs in {metadata['training']['seconds']:.0f} s; validation RMSE "
+        f"{metrics['val_rmse']:.4f} (mm and °, best epoch {metrics['best_epoch'] + 1})"
+    )
 
 
 @odometry_app.command("eval")

@@ -25,7 +25,7 @@ from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
 
-METHODS = ("vista", "phase")
+METHODS = ("vista", "phase", "oenet")
 Progress = Callable[[float, str], None]
 
 MIN_RESPONSE = 0.08
@@ -191,22 +191,44 @@ def position_sigma(steps: Steps) -> np.ndarray:
     return np.sqrt(np.concatenate([[0.0], np.cumsum(step_var)]))
 
 
+def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) -> Steps:
+    """OE-Net's motions; its σ is the validation RMSE it was exported with (it gives no
+    confidence of its own, so nothing is flagged)."""
+    from services.nn.onnx_io import read_model
+    from services.odometry.oenet import oenet_motions
+
+    motion = oenet_motions(model, list(read_frames(files, camera)), camera, threads)
+    rmse = float(read_model(model).metadata.get("metrics", {}).get("val_rmse", 0.1))
+    sigma = np.tile([rmse, rmse, np.radians(rmse)], (len(motion), 1))
+    return Steps(motion, np.ones(len(motion)), [None] * len(motion), sigma)
+
+
 def run_odometry(
     folder: Path,
     camera: Camera,
     method: str = "vista",
     *,
+    model: Path | None = None,
     threads: int = 1,
     progress: Progress | None = None,
 ) -> OdometryRun:
-    """The trajectory of the frames in ``folder`` by ``method`` (``METHODS``)."""
+    """The trajectory of the frames in ``folder`` by ``method`` (``METHODS``; ``oenet``
+    needs the ``model`` file that ``vista odometry train`` builds)."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    if method == "oenet" and (model is None or not model.is_file()):
+        raise ValueError(
+            "OE-Net needs its model file (--model): build one with `vista odometry train "
+            "DATA_DIR… -o MODEL.onnx` (simulate the training sequences with `vista odometry "
+            "simulate`); `--method vista` needs no model"
+        )
     report = progress or (lambda fraction, message: None)
     files = frame_files(folder)
     started = time.perf_counter()
     if method == "phase":
         steps = phase_steps(files, camera, report)
+    elif method == "oenet":
+        steps = oenet_steps(files, camera, model, threads)
     else:
         report(0.05, f"aligning {len(files) - 1} pairs")
         steps = direct_steps(files, camera, threads)

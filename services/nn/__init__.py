@@ -1,0 +1,1 @@
+"""The neural-network layer every learned service shares (odometry, depth, tracking)."""

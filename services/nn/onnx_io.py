@@ -1,0 +1,109 @@
+"""Models as ONNX files with their metadata, checked against torch when exported, and
+onnxruntime sessions that do not spin.
+
+The metadata (``metadata_props`` of the ONNX model) says what a model is: its
+architecture, the data it was trained on, its input (name, shape, dtype, units), what it
+outputs and its measured metrics — a JSON object under the key ``vista``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+METADATA_KEY = "vista"
+TOLERANCE = 1e-4
+"""Largest difference allowed between onnxruntime's output and torch's (relative to the
+output's scale)."""
+
+
+@dataclass(frozen=True)
+class ModelFile:
+    path: Path
+    metadata: dict
+
+
+def export_onnx(
+    model,  # noqa: ANN001 - a torch.nn.Module in eval mode
+    example: np.ndarray,
+    path: Path,
+    metadata: dict,
+    *,
+    input_name: str = "input",
+    output_name: str = "output",
+) -> float:
+    """Write ``model`` to ``path`` (the batch size free) with ``metadata``; run the file in
+    onnxruntime on ``example`` and return the largest difference from torch's output
+    (ValueError when it exceeds ``TOLERANCE`` of the output's scale)."""
+    import onnx
+    import torch
+
+    model.eval()
+    tensor = torch.from_numpy(np.ascontiguousarray(example, dtype=np.float32))
+    with torch.no_grad():
+        expected = model(tensor).numpy()
+    # the exporter narrates on stdout and warns about torchvision, which vista does not use
+    quiet = logging.getLogger("torch.onnx")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(
+                model,
+                (tensor,),
+                input_names=[input_name],
+                output_names=[output_name],
+                dynamic_shapes=({0: torch.export.Dim("batch")},),
+                dynamo=True,
+                verbose=False,
+            )
+    finally:
+        quiet.setLevel(level)
+    proto = program.model_proto
+    entry = proto.metadata_props.add()
+    entry.key, entry.value = METADATA_KEY, json.dumps(metadata, sort_keys=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save_model(proto, str(path))
+    got = session(path, threads=1).run(None, {input_name: example.astype(np.float32)})[0]
+    difference = float(np.abs(got - expected).max())
+    scale = float(np.abs(expected).max()) or 1.0
+    if difference > TOLERANCE * max(scale, 1.0):
+        raise ValueError(
+            f"{path}: onnxruntime's output differs from torch's by {difference:.2e} "
+            f"(scale {scale:.2e})"
+        )
+    return difference
+
+
+def session(path: Path, threads: int = 1):  # noqa: ANN201 - an onnxruntime.InferenceSession
+    """An onnxruntime session on ``threads`` threads that sleep instead of spinning."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    options.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+def read_model(path: Path) -> ModelFile:
+    """A model file's metadata; ValueError when it is not an ONNX file of vista's."""
+    import onnx
+
+    try:
+        proto = onnx.load_model(str(path), load_external_data=False)
+    except Exception as exc:  # onnx raises several types for a bad file
+        raise ValueError(f"{path}: not an ONNX model ({type(exc).__name__})") from None
+    for entry in proto.metadata_props:
+        if entry.key == METADATA_KEY:
+            return ModelFile(path, json.loads(entry.value))
+    raise ValueError(f"{path}: an ONNX model without vista's metadata (not built by vista)")

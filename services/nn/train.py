@@ -1,0 +1,152 @@
+"""A seeded training loop with progress and checkpoints, for any regression network.
+
+The data are numpy arrays (inputs, targets); a seeded split keeps ``val_fraction`` aside.
+Each epoch's checkpoint (weights, optimiser, epoch, history) is written to
+``checkpoint_dir``; a run started again with the same directory resumes after the last
+finished epoch. The weights kept are the best on the validation set.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    epochs: int = 30
+    batch: int = 256
+    learning_rate: float = 0.01
+    momentum: float = 0.9
+    weight_decay: float = 1e-4
+    val_fraction: float = 0.1
+    seed: int = 0
+    device: str = "auto"
+    threads: int = 2
+
+
+@dataclass
+class TrainResult:
+    epochs_run: int
+    best_epoch: int
+    best_val_loss: float
+    history: list[dict] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def _split(count: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    order = np.random.default_rng(seed).permutation(count)
+    val = max(1, int(round(count * val_fraction))) if count > 1 else 0
+    return order[val:], order[:val]
+
+
+def train(
+    model,  # noqa: ANN001 - a torch.nn.Module
+    inputs: np.ndarray,
+    targets: np.ndarray,
+    config: TrainConfig,
+    *,
+    checkpoint_dir: Path | None = None,
+    progress: Progress | None = None,
+) -> TrainResult:
+    """Train ``model`` (in place) by SGD with momentum on the mean squared error; the
+    model ends with its best validation weights."""
+    import torch
+
+    from services.nn.device import choose_device
+
+    say = progress or (lambda fraction, message: None)
+    if len(inputs) != len(targets) or len(inputs) < 2:
+        raise ValueError(f"{len(inputs)} inputs and {len(targets)} targets: need ≥ 2 pairs")
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(config.threads)
+    device = choose_device(config.device)
+    model.to(device)
+    train_idx, val_idx = _split(len(inputs), config.val_fraction, config.seed)
+    x = torch.from_numpy(np.ascontiguousarray(inputs, dtype=np.float32))
+    y = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float32))
+    optimiser = torch.optim.SGD(
+        model.parameters(),
+        lr=config.learning_rate,
+        momentum=config.momentum,
+        weight_decay=config.weight_decay,
+    )
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
+    result = TrainResult(0, -1, float("inf"))
+    best_state = None
+    start_epoch = 0
+    last = checkpoint_dir / "last.pt" if checkpoint_dir else None
+    if last is not None and last.exists():
+        saved = torch.load(last, map_location=device, weights_only=False)
+        model.load_state_dict(saved["model"])
+        optimiser.load_state_dict(saved["optimiser"])
+        schedule.load_state_dict(saved["schedule"])
+        start_epoch = saved["epoch"] + 1
+        result = saved["result"]
+        best_state = saved["best_state"]
+        say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
+    started = time.perf_counter()
+    shuffle = np.random.default_rng(config.seed + 1)
+    for epoch in range(start_epoch, config.epochs):
+        model.train()
+        order = train_idx[shuffle.permutation(len(train_idx))]
+        total = 0.0
+        for first in range(0, len(order), config.batch):
+            batch = torch.from_numpy(order[first : first + config.batch])
+            xb, yb = x[batch].to(device), y[batch].to(device)
+            optimiser.zero_grad()
+            loss = torch.nn.functional.mse_loss(model(xb), yb)
+            loss.backward()
+            optimiser.step()
+            total += float(loss.detach()) * len(batch)
+        schedule.step()
+        train_loss = total / len(order)
+        val_loss = evaluate_loss(model, x[val_idx], y[val_idx], config.batch, device)
+        result.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
+        if val_loss < result.best_val_loss:
+            result.best_val_loss, result.best_epoch = val_loss, epoch
+            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        result.epochs_run = epoch + 1
+        say(
+            (epoch + 1) / config.epochs,
+            f"epoch {epoch + 1}/{config.epochs}: train {train_loss:.5f}, val {val_loss:.5f}",
+        )
+        if last is not None:
+            last.parent.mkdir(parents=True, exist_ok=True)
+            torch.save(
+                {
+                    "model": model.state_dict(),
+                    "optimiser": optimiser.state_dict(),
+                    "schedule": schedule.state_dict(),
+                    "epoch": epoch,
+                    "result": result,
+                    "best_state": best_state,
+                },
+                last,
+            )
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    result.seconds += time.perf_counter() - started
+    model.to("cpu").eval()
+    return result
+
+
+def evaluate_loss(model, x, y, batch: int, device) -> float:  # noqa: ANN001 - torch objects
+    """Mean squared error of ``model`` on (x, y); nan without samples."""
+    import torch
+
+    if len(x) == 0:
+        return float("nan")
+    model.eval()
+    total = 0.0
+    with torch.no_grad():
+        for first in range(0, len(x), batch):
+            xb, yb = x[first : first + batch].to(device), y[first : first + batch].to(device)
+            total += float(torch.nn.functional.mse_loss(model(xb), yb, reduction="sum"))
+    return total / (len(x) * y.shape[1])

@@ -1,0 +1,182 @@
+"""OE-Net exactly as the thesis's Table 6.1: two branches on two consecutive 64 × 64 grey
+frames — translation (17/9/5 kernels, 32/64/128 channels, FC 1024/256/2) and rotation
+(5/5/5 kernels, FC 256/32/1) — concatenated into (δx mm, δy mm, δθ °) and trained on the
+mean squared error by SGD with momentum 0.9 in batches of 256.
+
+The table gives no activations after the fully connected layers; ReLU follows each but the
+last. The 64 × 64 inputs are the frames' centre squares, area-averaged (the thesis
+downsampled its frames; a square keeps the floor's geometry), scaled to 0–1.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from services.odometry import se2
+from services.odometry.camera import Camera
+from services.odometry.tum import read_tum
+
+INPUT_SIDE = 64
+ARCHITECTURE = "oenet"
+
+
+def network():  # noqa: ANN201 - a torch.nn.Module (torch imported inside)
+    import torch
+    from torch import nn
+
+    class OENet(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.translation = nn.Sequential(
+                nn.Conv2d(2, 32, 17, stride=1, padding=2),
+                nn.ReLU(),
+                nn.MaxPool2d(2, 2),
+                nn.Conv2d(32, 64, 9, stride=1, padding=2),
+                nn.ReLU(),
+                nn.MaxPool2d(2, 2),
+                nn.Conv2d(64, 128, 5, stride=1, padding=1),
+                nn.ReLU(),
+                nn.MaxPool2d(2, 2),
+                nn.Flatten(),
+                nn.Linear(4 * 4 * 128, 1024),
+                nn.ReLU(),
+                nn.Linear(1024, 256),
+                nn.ReLU(),
+                nn.Linear(256, 2),
+            )
+            self.rotation = nn.Sequential(
+                nn.Conv2d(2, 32, 5, stride=1, padding=2),
+                nn.ReLU(),
+                nn.MaxPool2d(2, 2),
+                nn.Conv2d(32, 64, 5, stride=1, padding=2),
+                nn.ReLU(),
+                nn.MaxPool2d(2, 2),
+                nn.Conv2d(64, 128, 5, stride=1, padding=2),
+                nn.ReLU(),
+                nn.MaxPool2d(2, 2),
+                nn.Flatten(),
+                nn.Linear(8 * 8 * 128, 256),
+                nn.ReLU(),
+                nn.Linear(256, 32),
+                nn.ReLU(),
+                nn.Linear(32, 1),
+            )
+
+        def forward(self, pair: torch.Tensor) -> torch.Tensor:
+            return torch.cat([self.translation(pair), self.rotation(pair)], dim=1)
+
+    return OENet()
+
+
+def network_input(frame: np.ndarray) -> np.ndarray:
+    """A frame as one 64 × 64 input channel: its centre square, area-averaged, 0–1."""
+    rows, cols = frame.shape
+    side = min(rows, cols)
+    top, left = (rows - side) // 2, (cols - side) // 2
+    square = frame[top : top + side, left : left + side]
+    small = cv2.resize(square, (INPUT_SIDE, INPUT_SIDE), interpolation=cv2.INTER_AREA)
+    return small.astype(np.float32) / 255.0
+
+
+def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, Camera]:
+    """A simulated sequence (frames/, camera.json, truth.tum) as network inputs
+    (N−1, 2, 64, 64) and targets (N−1, 3): δx mm, δy mm, δθ °."""
+    import json
+
+    from services.odometry.run import frame_files, read_frames
+
+    camera = Camera.from_document(json.loads((folder / "camera.json").read_text()))
+    truth = read_tum(folder / "truth.tum")
+    files = frame_files(folder / "frames")
+    if len(files) != len(truth):
+        raise ValueError(f"{folder}: {len(files)} frames but {len(truth)} poses in truth.tum")
+    small = np.stack([network_input(f) for f in read_frames(files, camera)])
+    inputs = np.stack([small[:-1], small[1:]], axis=1)
+    steps = se2.relative(truth.pose)
+    targets = np.column_stack([steps[:, 0], steps[:, 1], np.degrees(steps[:, 2])])
+    return inputs, targets.astype(np.float32), camera
+
+
+def train_oenet(
+    folders: list[Path],
+    out: Path,
+    config,  # noqa: ANN001 - services.nn.train.TrainConfig
+    *,
+    checkpoint_dir: Path | None = None,
+    progress=None,  # noqa: ANN001 - (fraction, message) -> None
+) -> dict:
+    """Train OE-Net on the pairs of simulated sequences, export it to ``out`` (ONNX, checked
+    against torch) and return its metadata."""
+    from services.nn.onnx_io import export_onnx
+    from services.nn.train import train
+
+    say = progress or (lambda fraction, message: None)
+    parts = [pairs_of(folder) for folder in folders]
+    cameras = {round(camera.mm_per_px, 6) for _, _, camera in parts}
+    if len(cameras) > 1:
+        raise ValueError(
+            f"the sequences come from cameras of different scales: {sorted(cameras)} mm/px"
+        )
+    inputs = np.concatenate([p[0] for p in parts])
+    targets = np.concatenate([p[1] for p in parts])
+    say(0.0, f"{len(inputs)} pairs from {len(folders)} sequence(s)")
+    model = network()
+    result = train(model, inputs, targets, config, checkpoint_dir=checkpoint_dir, progress=say)
+    metadata = {
+        "architecture": ARCHITECTURE,
+        "task": "floor-camera odometry: relative planar motion of two consecutive frames",
+        "input": {
+            "name": "pair",
+            "shape": ["batch", 2, INPUT_SIDE, INPUT_SIDE],
+            "dtype": "float32",
+            "content": "the two frames' centre squares area-averaged to 64 × 64, grey 0–1",
+        },
+        "output": {"name": "motion", "columns": ["dx_mm", "dy_mm", "dtheta_deg"]},
+        "camera": parts[0][2].document(),
+        "training": {
+            "sequences": [str(folder) for folder in folders],
+            "pairs": int(len(inputs)),
+            "epochs": result.epochs_run,
+            "batch": config.batch,
+            "learning_rate": config.learning_rate,
+            "momentum": config.momentum,
+            "seed": config.seed,
+            "seconds": round(result.seconds, 1),
+        },
+        "metrics": {
+            "best_epoch": result.best_epoch,
+            "val_mse": result.best_val_loss,
+            "val_rmse": float(np.sqrt(result.best_val_loss)),
+        },
+    }
+    difference = export_onnx(
+        model, inputs[:4], out, metadata, input_name="pair", output_name="motion"
+    )
+    say(1.0, f"exported {out} (onnxruntime vs torch: {difference:.1e})")
+    return metadata
+
+
+def oenet_motions(
+    model_path: Path, frames: list[np.ndarray], camera: Camera, threads: int
+) -> np.ndarray:
+    """(N−1, 3) motions (mm, mm, rad) of consecutive frames by an exported OE-Net; its
+    translation rescaled when this camera's mm/px differs from the training camera's."""
+    from services.nn.onnx_io import read_model, session
+
+    model = read_model(model_path)
+    if model.metadata.get("architecture") != ARCHITECTURE:
+        raise ValueError(
+            f"{model_path}: a {model.metadata.get('architecture')!r} model, not OE-Net"
+        )
+    trained = Camera.from_document(model.metadata["camera"])
+    scale = camera.mm_per_px / trained.mm_per_px
+    small = np.stack([network_input(f) for f in frames])
+    inputs = np.stack([small[:-1], small[1:]], axis=1)
+    runner = session(model_path, threads=threads)
+    out = np.concatenate(
+        [runner.run(None, {"pair": inputs[k : k + 256]})[0] for k in range(0, len(inputs), 256)]
+    )
+    return np.column_stack([out[:, 0] * scale, out[:, 1] * scale, np.radians(out[:, 2])])

@@ -1,0 +1,76 @@
+"""The neural-network layer: seeded training with checkpoints that resume, ONNX export
+checked against torch, model metadata, sessions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from services.nn.device import choose_device
+from services.nn.onnx_io import export_onnx, read_model, session
+from services.nn.train import TrainConfig, train
+
+
+def _data(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(256, 4)).astype(np.float32)
+    y = (x @ np.array([[1.0, -2.0], [0.5, 0.0], [0.0, 1.5], [2.0, 1.0]], np.float32)) + 0.3
+    return x, y.astype(np.float32)
+
+
+def _model() -> torch.nn.Module:
+    torch.manual_seed(0)
+    return torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.ReLU(), torch.nn.Linear(16, 2))
+
+
+def test_training_learns_and_is_seeded() -> None:
+    x, y = _data()
+    config = TrainConfig(epochs=8, batch=32, learning_rate=0.05, seed=3, device="cpu", threads=1)
+    first, second = _model(), _model()
+    result = train(first, x, y, config)
+    train(second, x, y, config)
+    losses = [h["val_loss"] for h in result.history]
+    assert losses[-1] < 0.2 * losses[0] and result.best_val_loss == min(losses)
+    for a, b in zip(first.parameters(), second.parameters(), strict=True):
+        assert torch.equal(a, b)  # the same seed gives the same weights
+
+
+def test_training_resumes_from_its_checkpoint(tmp_path) -> None:
+    x, y = _data()
+    config = TrainConfig(epochs=2, batch=64, seed=1, device="cpu", threads=1)
+    model = _model()
+    train(model, x, y, config, checkpoint_dir=tmp_path)
+    messages = []
+    later = train(
+        model,
+        x,
+        y,
+        TrainConfig(epochs=3, batch=64, seed=1, device="cpu", threads=1),
+        checkpoint_dir=tmp_path,
+        progress=lambda fraction, message: messages.append(message),
+    )
+    assert messages[0] == "resuming after epoch 2" and len(later.history) == 3
+    with pytest.raises(ValueError, match="need ≥ 2 pairs"):
+        train(_model(), x[:1], y[:1], config)
+
+
+def test_onnx_export_matches_torch_and_carries_metadata(tmp_path) -> None:
+    model = _model().eval()
+    x, _ = _data()
+    path = tmp_path / "m.onnx"
+    difference = export_onnx(model, x[:3], path, {"architecture": "toy", "metrics": {"mse": 1}})
+    assert difference < 1e-5
+    assert read_model(path).metadata == {"architecture": "toy", "metrics": {"mse": 1}}
+    out = session(path, threads=1).run(None, {"input": x[:10]})[0]
+    assert np.allclose(out, model(torch.from_numpy(x[:10])).detach().numpy(), atol=1e-5)
+    (tmp_path / "junk.onnx").write_bytes(b"not a model")
+    with pytest.raises(ValueError, match="not an ONNX model"):
+        read_model(tmp_path / "junk.onnx")
+
+
+def test_device_choice() -> None:
+    assert choose_device("cpu").type == "cpu"
+    assert choose_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(ValueError, match="known devices"):
+        choose_device("tpu")
