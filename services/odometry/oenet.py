@@ -23,6 +23,31 @@ INPUT_SIDE = 64
 ARCHITECTURE = "oenet"
 
 
+TRANSLATION_BRANCH = (((17, 2), (9, 2), (5, 1)), (1024, 256, 2))
+"""Table 6.1: (kernel, padding) of Conv1–3 (stride 1, then ReLU and 2 × 2 max-pooling;
+32, 64, 128 channels) and the sizes of FC1–3."""
+ROTATION_BRANCH = (((5, 2), (5, 2), (5, 2)), (256, 32, 1))
+
+
+def _branch(convolutions: tuple, sizes: tuple):  # noqa: ANN202 - a torch.nn.Sequential
+    from torch import nn
+
+    layers: list = []
+    channels, side = 2, INPUT_SIDE
+    for (kernel, padding), out in zip(convolutions, (32, 64, 128), strict=True):
+        layers += [nn.Conv2d(channels, out, kernel, stride=1, padding=padding), nn.ReLU()]
+        layers.append(nn.MaxPool2d(2, 2))
+        channels, side = out, (side + 2 * padding - kernel + 1) // 2
+    layers.append(nn.Flatten())
+    width = channels * side * side
+    for k, size in enumerate(sizes):
+        layers.append(nn.Linear(width, size))
+        if k < len(sizes) - 1:
+            layers.append(nn.ReLU())
+        width = size
+    return nn.Sequential(*layers)
+
+
 def network():  # noqa: ANN201 - a torch.nn.Module (torch imported inside)
     import torch
     from torch import nn
@@ -30,40 +55,8 @@ def network():  # noqa: ANN201 - a torch.nn.Module (torch imported inside)
     class OENet(nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            self.translation = nn.Sequential(
-                nn.Conv2d(2, 32, 17, stride=1, padding=2),
-                nn.ReLU(),
-                nn.MaxPool2d(2, 2),
-                nn.Conv2d(32, 64, 9, stride=1, padding=2),
-                nn.ReLU(),
-                nn.MaxPool2d(2, 2),
-                nn.Conv2d(64, 128, 5, stride=1, padding=1),
-                nn.ReLU(),
-                nn.MaxPool2d(2, 2),
-                nn.Flatten(),
-                nn.Linear(4 * 4 * 128, 1024),
-                nn.ReLU(),
-                nn.Linear(1024, 256),
-                nn.ReLU(),
-                nn.Linear(256, 2),
-            )
-            self.rotation = nn.Sequential(
-                nn.Conv2d(2, 32, 5, stride=1, padding=2),
-                nn.ReLU(),
-                nn.MaxPool2d(2, 2),
-                nn.Conv2d(32, 64, 5, stride=1, padding=2),
-                nn.ReLU(),
-                nn.MaxPool2d(2, 2),
-                nn.Conv2d(64, 128, 5, stride=1, padding=2),
-                nn.ReLU(),
-                nn.MaxPool2d(2, 2),
-                nn.Flatten(),
-                nn.Linear(8 * 8 * 128, 256),
-                nn.ReLU(),
-                nn.Linear(256, 32),
-                nn.ReLU(),
-                nn.Linear(32, 1),
-            )
+            self.translation = _branch(*TRANSLATION_BRANCH)
+            self.rotation = _branch(*ROTATION_BRANCH)
 
         def forward(self, pair: torch.Tensor) -> torch.Tensor:
             return torch.cat([self.translation(pair), self.rotation(pair)], dim=1)
