@@ -74,3 +74,10 @@ def test_device_choice() -> None:
     assert choose_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
     with pytest.raises(ValueError, match="known devices"):
         choose_device("tpu")
+
+
+def test_a_diverging_run_says_so() -> None:
+    x, y = _data()
+    config = TrainConfig(epochs=2, batch=32, learning_rate=1e6, clip_norm=1e12, device="cpu")
+    with pytest.raises(ValueError, match="training diverged in epoch 1"):
+        train(_model(), x, y * 1e6, config)

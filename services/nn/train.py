@@ -1,4 +1,5 @@
-"""A seeded training loop with progress and checkpoints, for any regression network.
+"""A seeded training loop with progress and checkpoints, for any regression network:
+SGD with momentum on the mean squared error, gradients clipped, a cosine schedule.
 
 The data are numpy arrays (inputs, targets); a seeded split keeps ``val_fraction`` aside.
 Each epoch's checkpoint (weights, optimiser, epoch, history) is written to
@@ -25,6 +26,8 @@ class TrainConfig:
     learning_rate: float = 0.01
     momentum: float = 0.9
     weight_decay: float = 1e-4
+    clip_norm: float = 5.0
+    """Gradients are scaled down to at most this norm (large targets, early steps)."""
     val_fraction: float = 0.1
     seed: int = 0
     device: str = "auto"
@@ -103,10 +106,16 @@ def train(
             optimiser.zero_grad()
             loss = torch.nn.functional.mse_loss(model(xb), yb)
             loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), config.clip_norm)
             optimiser.step()
             total += float(loss.detach()) * len(batch)
         schedule.step()
         train_loss = total / len(order)
+        if not np.isfinite(train_loss):
+            raise ValueError(
+                f"training diverged in epoch {epoch + 1} (loss {train_loss}): lower the "
+                f"learning rate (now {config.learning_rate})"
+            )
         val_loss = evaluate_loss(model, x[val_idx], y[val_idx], config.batch, device)
         result.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
         if val_loss < result.best_val_loss:
