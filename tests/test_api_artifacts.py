@@ -160,3 +160,48 @@ def test_oversize_upload_is_413_whether_declared_or_streamed(tmp_path, sqlite_ur
     streamed = _upload(client, tokens["inspector"], inspection, chunks())
     assert streamed.status_code == 413
     assert _stored_files(runtime) == []
+
+
+@pytest.mark.parametrize(
+    ("kind", "media_type", "data", "phrase"),
+    [
+        ("frames", "application/gzip", b"\x1f\x8b not really", "not a frame sequence"),
+        ("frames", "application/zip", b"PK\x05\x06" + bytes(18), "needs at least 2 PNG frames"),
+        ("model", "application/octet-stream", b"\x08\x07junk", "not a model vista can run"),
+        ("trajectory", "text/plain", b"0 0 0 0 0 0 0 1\n0.1 1 2\n", "not a TUM trajectory"),
+    ],
+)
+def test_sequences_models_and_trajectories_are_checked(
+    client, tokens, inspection, runtime, kind, media_type, data, phrase
+):
+    response = _upload(
+        client,
+        tokens["inspector"],
+        inspection,
+        data,
+        name="f",
+        kind=kind,
+        headers={"content-type": media_type},
+    )
+    assert response.status_code == 422 and phrase in response.json()["detail"], response.text
+    assert _stored_files(runtime) == []
+
+
+def test_a_frame_sequence_is_kept_with_what_it_holds(client, tokens, inspection, tmp_path):
+    from tests.sequences import pack, small_sequence
+
+    archive = pack(small_sequence(tmp_path / "seq", seconds=0.05), tmp_path / "seq.tar.gz")
+    created = _upload(
+        client,
+        tokens["inspector"],
+        inspection,
+        archive.read_bytes(),
+        name="seq.tar.gz",
+        kind="frames",
+        headers={"content-type": "application/octet-stream"},
+    )
+    assert created.status_code == 201, created.text
+    artifact = created.json()
+    assert artifact["media_type"] == "application/gzip"
+    assert artifact["meta"]["frames"] == 4 and artifact["meta"]["truth"] is True
+    assert artifact["meta"]["camera"]["mm_per_px"] == 0.6

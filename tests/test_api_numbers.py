@@ -13,6 +13,7 @@ from supervisor.db import Base
 from supervisor.demo import TOLERANCES
 from tests.conftest import auth
 from tests.plyfiles import ply_bytes
+from tests.sequences import pack, small_sequence
 
 BAD_NUMBERS = (
     "NaN",
@@ -128,6 +129,10 @@ def seeded(client, tokens, tmp_path):
         ("pairs", b"{}"),
         ("scans", b"{}"),
         ("handeye", b"{}"),
+        (
+            "frames",
+            pack(small_sequence(tmp_path / "seq", seconds=0.05), tmp_path / "seq.zip").read_bytes(),
+        ),
     ):
         artifacts[kind] = client.post(
             f"/api/v1/inspections/{inspection['id']}/artifacts",

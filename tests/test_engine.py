@@ -81,7 +81,7 @@ class Engine:
                     "supervisor.cli",
                     "worker",
                     "--queues",
-                    "scan,stitching,defects,test",
+                    "scan,stitching,defects,odometry,training,test",
                 ],
                 env=env,
                 cwd=REPO,
@@ -464,6 +464,74 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     failed = engine.wait(lonely["jobs"][0]["id"])
     assert failed["status"] == "failed" and "no panel top" in failed["error"]
     assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []
+
+
+def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_path):
+    """A frame sequence uploaded as a tar.gz: `odometry.train` builds OE-Net from it, an
+    `odometry` step after it runs that model, another runs vista's method; with the
+    archive's truth both are evaluated. A sequence without truth cannot train, and oenet
+    without a model is refused with what to add."""
+    from tests.sequences import pack, small_sequence
+
+    folder = small_sequence(tmp_path / "seq", seconds=0.3)
+    engine = engine_factory()
+    frames = _upload(engine, pack(folder, tmp_path / "seq.tar.gz"), "frames", "application/gzip")
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    uploaded = engine.http.get(f"{base}/{frames}").json()
+    assert uploaded["meta"]["frames"] == 19 and uploaded["meta"]["truth"]
+    run = engine.run(
+        [
+            {
+                "name": "train",
+                "kind": "odometry.train",
+                "inputs": [frames],
+                "params": {"epochs": 1, "batch": 8, "device": "cpu"},
+            },
+            {
+                "name": "oenet",
+                "kind": "odometry",
+                "inputs": [frames],
+                "after": ["train"],
+                "params": {"method": "oenet"},
+            },
+            {"name": "vista", "kind": "odometry", "inputs": [frames]},
+        ]
+    )
+    train, oenet, vista = [engine.wait(j["id"], timeout=240) for j in run["jobs"]]
+    assert [j["status"] for j in (train, oenet, vista)] == ["succeeded"] * 3, (train, oenet, vista)
+    assert train["result"]["architecture"] == "oenet"
+    assert train["result"]["split"] == {"train": 14, "val": 2, "test": 2}
+    scores = vista["result"]["evaluation"]
+    assert scores["poses"] == 19 and vista["result"]["flagged"] == 0
+    assert scores["rmse_dx_mm"] < 0.05 and scores["rmse_dy_mm"] < 0.05
+    assert scores["rmse_dtheta_deg"] < 0.05
+    assert oenet["result"]["evaluation"]["poses"] == 19  # its accuracy is the bench's business
+    listed = engine.http.get(base, params={"limit": 100}).json()["items"]
+    made = {(a["job_id"], a["name"], a["kind"]) for a in listed}
+    assert {(train["id"], "oenet.onnx", "model"), (train["id"], "training.json", "report")} <= made
+    for job in (oenet, vista):
+        assert {
+            (job["id"], "trajectory.tum", "trajectory"),
+            (job["id"], "odometry.json", "report"),
+            (job["id"], "trajectory.png", "plot"),
+            (job["id"], "evaluation.json", "report"),
+        } <= made
+    tum = next(a for a in listed if a["job_id"] == vista["id"] and a["kind"] == "trajectory")
+    assert tum["media_type"] == "text/plain"
+    assert len(engine.http.get(f"{base}/{tum['id']}/content").text.splitlines()) == 19
+
+    bare = _upload(
+        engine, pack(folder, tmp_path / "bare.zip", truth=False), "frames", "application/zip"
+    )
+    refused = engine.run(
+        [
+            {"name": "train", "kind": "odometry.train", "inputs": [bare]},
+            {"name": "oenet", "kind": "odometry", "inputs": [bare], "params": {"method": "oenet"}},
+        ]
+    )
+    train, oenet = [engine.wait(j["id"], timeout=60) for j in refused["jobs"]]
+    assert train["status"] == "failed" and "has no truth.tum" in train["error"]
+    assert oenet["status"] == "failed" and "needs a `model` input" in oenet["error"]
 
 
 def test_a_job_error_is_one_sentence_without_server_paths():

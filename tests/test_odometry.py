@@ -288,3 +288,81 @@ def test_oenet_trains_exports_and_runs_at_tiny_scale(short_sequence, tmp_path) -
         app, ["odometry", "train", str(short_sequence), "-o", str(model), "--arch", "vista"]
     )
     assert refused.exit_code == 2 and "needs no training" in refused.output
+
+
+def test_sequence_archives_unpack_in_frame_order_and_refuse_what_is_not_one(tmp_path) -> None:
+    import io
+    import tarfile
+    import zipfile
+
+    from services.odometry.sequence import SequenceError, extract_sequence, inspect_sequence
+    from tests.sequences import pack, small_sequence
+
+    folder = small_sequence(tmp_path / "seq", seconds=0.1)
+    originals = sorted((folder / "frames").glob("*.png"))
+    for suffix in ("seq.tar.gz", "seq.zip", "seq.tar"):
+        archive = pack(folder, tmp_path / suffix)  # frames packed last to first
+        found = inspect_sequence(archive)
+        assert len(found.frames) == 7 and found.truth_member == "seq/truth.tum"
+        assert (
+            found.media_type
+            == {
+                "seq.tar.gz": "application/gzip",
+                "seq.zip": "application/zip",
+                "seq.tar": "application/x-tar",
+            }[suffix]
+        )
+        out = tmp_path / f"out-{suffix}"
+        extract_sequence(archive, out)
+        assert [p.read_bytes() for p in sorted((out / "frames").glob("*.png"))] == [
+            p.read_bytes() for p in originals
+        ]
+        assert read_tum(out / "truth.tum").pose.shape == (7, 3)
+    assert inspect_sequence(pack(folder, tmp_path / "bare.zip", truth=False)).truth_member is None
+
+    def zipped(members: dict[str, bytes]) -> Path:
+        path = tmp_path / f"case-{len(list(tmp_path.glob('case-*')))}.zip"
+        with zipfile.ZipFile(path, "w") as out:
+            for name, data in members.items():
+                out.writestr(name, data)
+        return path
+
+    png = originals[0].read_bytes()
+    camera = (folder / "camera.json").read_bytes()
+    truth = (folder / "truth.tum").read_text().splitlines()
+    cases = [
+        ({"a/0.png": png, "a/1.png": png}, "no camera.json"),
+        ({"a/0.png": png, "b/1.png": png, "camera.json": camera}, "must be in one folder"),
+        ({"0.png": png, "camera.json": camera}, "needs at least 2 PNG frames"),
+        ({"0.png": png, "1.png": png, "camera.json": b"{"}, "camera.json is not JSON"),
+        ({"0.png": png, "1.png": png, "camera.json": b'{"width": 3}'}, "width = 3 is outside"),
+        (
+            {"0.png": png, "1.png": png, "camera.json": camera, "truth.tum": "\n".join(truth[:3])},
+            "truth.tum has 3 poses for 2 frames",
+        ),
+        ({"0.png": png, "1.png": png, "camera.json": camera, "truth.tum": b"x"}, "not numbers"),
+    ]
+    for members, phrase in cases:
+        with pytest.raises(SequenceError, match=phrase):
+            inspect_sequence(zipped(members))
+    (tmp_path / "notes.txt").write_text("frames")
+    with pytest.raises(SequenceError, match="not a zip or tar archive"):
+        inspect_sequence(tmp_path / "notes.txt")
+    # a member's own path never decides where it is written
+    evil = tmp_path / "evil.tar"
+    with tarfile.open(evil, "w") as out:
+        for name, data in [("../../0.png", png), ("../1.png", png), ("/etc/camera.json", camera)]:
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            out.addfile(info, io.BytesIO(data))
+    with pytest.raises(SequenceError, match="must be in one folder"):
+        inspect_sequence(evil)
+    with tarfile.open(evil, "w") as out:
+        for name, data in [("../../0.png", png), ("../../1.png", png), ("camera.json", camera)]:
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            out.addfile(info, io.BytesIO(data))
+    landed = tmp_path / "deep" / "er" / "out"
+    extract_sequence(evil, landed)
+    assert sorted(p.name for p in (landed / "frames").iterdir()) == ["000000.png", "000001.png"]
+    assert not (tmp_path / "deep" / "0.png").exists()

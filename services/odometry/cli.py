@@ -117,9 +117,9 @@ def run(
     """Estimate the camera's motion between consecutive frames and chain it into a
     trajectory: TRAJ.tum (metres, frame i at i / fps s, in camera 0's frame) and, beside it,
     TRAJ.json (each pair's motion, confidence and flag; the position's growing 1σ)."""
-    from services.odometry.report import run_document, trajectory_png
+    from services.odometry.report import write_run
     from services.odometry.run import METHODS, run_odometry
-    from services.odometry.tum import read_tum, write_tum
+    from services.odometry.tum import read_tum
     from services.process import available_cores, prepare_process
 
     prepare_process()
@@ -152,11 +152,8 @@ def run(
             )
         except ValueError as exc:
             fail(str(exc))
-    write_tum(out, result.trajectory)
     report = out.with_suffix(".json")
-    report.write_text(json.dumps(run_document(result), indent=1) + "\n")
-    if plot is not None:
-        trajectory_png(result.trajectory, plot, true, result.sigma_xy_mm)
+    write_run(result, out, report, plot, true)
     final = result.trajectory.pose[-1]
     typer.echo(
         f"{len(result.steps.motion)} pairs at {result.pairs_per_s:.0f} pairs/s, "
@@ -187,7 +184,7 @@ def train(
     validation error), checked against torch's output."""
     from services.nn.device import DEVICES
     from services.nn.train import TrainConfig
-    from services.odometry.oenet import train_oenet
+    from services.odometry.oenet import train_oenet, training_summary
     from services.process import available_cores
 
     if arch != "oenet":
@@ -215,12 +212,7 @@ def train(
         )
     except (OSError, ValueError) as exc:
         fail(str(exc))
-    metrics = metadata["metrics"]
-    typer.echo(
-        f"wrote {out}: {metadata['training']['pairs']} pairs, {metadata['training']['epochs']} "
-        f"epochs in {metadata['training']['seconds']:.0f} s; validation RMSE "
-        f"{metrics['val_rmse']:.4f} (mm and °, best epoch {metrics['best_epoch'] + 1})"
-    )
+    typer.echo(f"wrote {out}: {training_summary(metadata)}")
 
 
 @odometry_app.command("eval")

@@ -21,6 +21,7 @@ from services.odometry.tum import read_tum
 
 INPUT_SIDE = 64
 ARCHITECTURE = "oenet"
+OUTPUT_COLUMNS = ("dx_mm", "dy_mm", "dtheta_deg")
 
 
 TRANSLATION_BRANCH = (((17, 2), (9, 2), (5, 1)), (1024, 256, 2))
@@ -99,10 +100,12 @@ def train_oenet(
     config,  # noqa: ANN001 - services.nn.train.TrainConfig
     *,
     checkpoint_dir: Path | None = None,
+    sources: list[str] | None = None,
     progress=None,  # noqa: ANN001 - (fraction, message) -> None
 ) -> dict:
     """Train OE-Net on the pairs of simulated sequences, export it to ``out`` (ONNX, checked
-    against torch) and return its metadata."""
+    against torch) and return its metadata; ``sources`` names the sequences in it (default:
+    their folders)."""
     from services.nn.onnx_io import export_onnx
     from services.nn.train import train
 
@@ -127,10 +130,10 @@ def train_oenet(
             "dtype": "float32",
             "content": "the two frames' centre squares area-averaged to 64 × 64, grey 0–1",
         },
-        "output": {"name": "motion", "columns": ["dx_mm", "dy_mm", "dtheta_deg"]},
+        "output": {"name": "motion", "columns": list(OUTPUT_COLUMNS)},
         "camera": parts[0][2].document(),
         "training": {
-            "sequences": [str(folder) for folder in folders],
+            "sequences": sources or [str(folder) for folder in folders],
             "pairs": int(len(inputs)),
             "epochs": result.epochs_run,
             "batch": config.batch,
@@ -138,11 +141,18 @@ def train_oenet(
             "momentum": config.momentum,
             "seed": config.seed,
             "seconds": round(result.seconds, 1),
+            "history": result.history,
         },
         "metrics": {
             "best_epoch": result.best_epoch,
             "val_mse": result.best_val_loss,
-            "val_rmse": float(np.sqrt(result.best_val_loss)),
+            "val_rmse": dict(zip(OUTPUT_COLUMNS, result.val_rmse, strict=True)),
+            "test_rmse": (
+                dict(zip(OUTPUT_COLUMNS, result.test_rmse, strict=True))
+                if result.test_rmse is not None
+                else None
+            ),
+            "split": result.split,
         },
     }
     difference = export_onnx(
@@ -173,3 +183,31 @@ def oenet_motions(
         [runner.run(None, {"pair": inputs[k : k + 256]})[0] for k in range(0, len(inputs), 256)]
     )
     return np.column_stack([out[:, 0] * scale, out[:, 1] * scale, np.radians(out[:, 2])])
+
+
+def oenet_sigma(model_path: Path) -> np.ndarray:
+    """(3,) the expected error of one motion (mm, mm, rad): the model's test RMSE (its
+    validation RMSE when it was trained without a test set)."""
+    from services.nn.onnx_io import read_model
+
+    metrics = read_model(model_path).metadata.get("metrics", {})
+    rmse = metrics.get("test_rmse") or metrics.get("val_rmse")
+    if not isinstance(rmse, dict):
+        raise ValueError(f"{model_path}: the model's metadata has no per-column RMSE")
+    return np.array([rmse["dx_mm"], rmse["dy_mm"], np.radians(rmse["dtheta_deg"])])
+
+
+def training_summary(metadata: dict) -> str:
+    """One line on a trained model: its data, time and errors per column."""
+    training, metrics = metadata["training"], metadata["metrics"]
+
+    def columns(rmse: dict) -> str:
+        return f"δx {rmse['dx_mm']:.4f} mm, δy {rmse['dy_mm']:.4f} mm, δθ {rmse['dtheta_deg']:.4f}°"
+
+    line = (
+        f"{training['pairs']} pairs, {training['epochs']} epochs in {training['seconds']:.0f} s "
+        f"(best epoch {metrics['best_epoch'] + 1}); validation RMSE {columns(metrics['val_rmse'])}"
+    )
+    if metrics.get("test_rmse"):
+        line += f"; test RMSE {columns(metrics['test_rmse'])}"
+    return line

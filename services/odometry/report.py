@@ -3,13 +3,29 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
 from services.odometry.evaluate import match
 from services.odometry.run import OdometryRun
-from services.odometry.tum import Trajectory2D
+from services.odometry.tum import Trajectory2D, write_tum
+
+
+def write_run(
+    run: OdometryRun,
+    trajectory_path: Path,
+    report_path: Path,
+    plot_path: Path | None = None,
+    truth: Trajectory2D | None = None,
+) -> None:
+    """A run's files: the trajectory (TUM), its JSON and, if asked, its plot (against the
+    truth when given)."""
+    write_tum(trajectory_path, run.trajectory)
+    report_path.write_text(json.dumps(run_document(run), indent=1) + "\n")
+    if plot_path is not None:
+        trajectory_png(run.trajectory, plot_path, truth, run.sigma_xy_mm)
 
 
 def run_document(run: OdometryRun) -> dict:

@@ -192,14 +192,12 @@ def position_sigma(steps: Steps) -> np.ndarray:
 
 
 def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) -> Steps:
-    """OE-Net's motions; its σ is the validation RMSE it was exported with (it gives no
+    """OE-Net's motions; its σ is the test RMSE it was exported with (it gives no
     confidence of its own, so nothing is flagged)."""
-    from services.nn.onnx_io import read_model
-    from services.odometry.oenet import oenet_motions
+    from services.odometry.oenet import oenet_motions, oenet_sigma
 
     motion = oenet_motions(model, list(read_frames(files, camera)), camera, threads)
-    rmse = float(read_model(model).metadata.get("metrics", {}).get("val_rmse", 0.1))
-    sigma = np.tile([rmse, rmse, np.radians(rmse)], (len(motion), 1))
+    sigma = np.tile(oenet_sigma(model), (len(motion), 1))
     return Steps(motion, np.ones(len(motion)), [None] * len(motion), sigma)
 
 

@@ -49,7 +49,12 @@ def write_tum(path: Path, trajectory: Trajectory2D) -> None:
 def read_tum(path: Path) -> Trajectory2D:
     """A TUM file as a planar trajectory; ValueError naming the line that is not a pose,
     or a rotation that leaves the floor's plane."""
-    lines = path.read_text().splitlines()
+    return parse_tum(path.read_text(), str(path))
+
+
+def parse_tum(text: str, path: str) -> Trajectory2D:
+    """``read_tum`` of a file's ``text`` (``path`` names it in the errors)."""
+    lines = text.splitlines()
     rows = []
     for number, line in enumerate(lines, 1):
         text = line.strip()

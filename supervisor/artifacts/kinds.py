@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-Format = Literal["ply", "ply-mesh", "json", "png", "glb"]
+Format = Literal["ply", "ply-mesh", "json", "png", "glb", "archive", "onnx", "tum"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,18 @@ ARTIFACT_KINDS = {
         ArtifactKind("report", "json", "A job's or a tool's report."),
         ArtifactKind("plot", "png", "A figure."),
         ArtifactKind("scene", "glb", "A 3D scene for viewers (binary glTF)."),
+        ArtifactKind(
+            "frames",
+            "archive",
+            "A camera's frame sequence: a zip or tar of PNG frames in one folder with "
+            "camera.json (size, fps, mm/px) and, when known, truth.tum.",
+        ),
+        ArtifactKind(
+            "model", "onnx", "A learned model: ONNX with vista's metadata (its training command)."
+        ),
+        ArtifactKind(
+            "trajectory", "tum", "A camera trajectory in the TUM format (t tx ty tz qx qy qz qw)."
+        ),
         ArtifactKind("other", None, "Any file kept with the inspection; no job reads it."),
     )
 }

@@ -13,6 +13,9 @@ MEDIA_TYPES = {
     "text/plain": ".txt",
     "text/csv": ".csv",
     "model/gltf-binary": ".glb",
+    "application/zip": ".zip",
+    "application/gzip": ".tar.gz",
+    "application/x-tar": ".tar",
 }
 
 

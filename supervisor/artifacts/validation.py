@@ -18,6 +18,8 @@ _MEDIA_TYPE_OF: dict[Format, str] = {
     "json": "application/json",
     "png": "image/png",
     "glb": "model/gltf-binary",
+    "onnx": "application/octet-stream",
+    "tum": "text/plain",
 }
 _FORMAT_OF_MEDIA_TYPE: dict[str, Format] = {
     PLY_MEDIA_TYPE: "ply",
@@ -45,8 +47,14 @@ def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> tup
     form = required or ("ply" if is_ply(head) else declared)
     if form in ("ply", "ply-mesh"):
         return PLY_MEDIA_TYPE, {"ply": _ply_meta(path, name, kind, mesh=form == "ply-mesh")}
+    if form == "archive":
+        return _sequence_meta(path, name, kind)
     if form == "json":
         _check_json(path, name, kind)
+    elif form == "onnx":
+        return _MEDIA_TYPE_OF[form], _model_meta(path, name, kind)
+    elif form == "tum":
+        _check_tum(path, name, kind)
     elif form in _MAGIC:
         magic, called = _MAGIC[form]
         if not head.startswith(magic):
@@ -83,3 +91,39 @@ def _check_json(path: Path, name: str, kind: str) -> None:
             json.load(handle)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise Problem(422, f"{name} (kind={kind}) is not valid JSON: {exc}.") from exc
+
+
+def _sequence_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
+    from services.odometry.sequence import SequenceError, inspect_sequence
+
+    try:
+        found = inspect_sequence(path)
+    except SequenceError as exc:
+        raise Problem(422, f"{name} (kind={kind}) is not a frame sequence: {exc}.") from exc
+    meta = {
+        "frames": len(found.frames),
+        "camera": found.camera.document(),
+        "truth": found.truth_member is not None,
+    }
+    return found.media_type, meta
+
+
+def _model_meta(path: Path, name: str, kind: str) -> dict:
+    from services.nn.onnx_io import read_model
+
+    try:
+        metadata = read_model(path).metadata
+    except ValueError as exc:
+        reason = str(exc).replace(f"{path}: ", "")
+        raise Problem(422, f"{name} (kind={kind}) is not a model vista can run: {reason}.") from exc
+    return {"architecture": metadata.get("architecture"), "metrics": metadata.get("metrics")}
+
+
+def _check_tum(path: Path, name: str, kind: str) -> None:
+    from services.odometry.tum import parse_tum
+
+    try:
+        text = path.read_text()
+        parse_tum(text, name)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise Problem(422, f"{name} (kind={kind}) is not a TUM trajectory: {exc}.") from exc

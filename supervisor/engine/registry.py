@@ -10,7 +10,12 @@ import importlib
 
 from contract.kinds import JobKind
 
-SERVICE_KIND_MODULES = ("services.scan.kinds", "services.stitching.kinds", "services.defects.kinds")
+SERVICE_KIND_MODULES = (
+    "services.scan.kinds",
+    "services.stitching.kinds",
+    "services.defects.kinds",
+    "services.odometry.kinds",
+)
 
 _KINDS: dict[str, JobKind] = {}
 

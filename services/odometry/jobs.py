@@ -1,0 +1,142 @@
+"""Job handlers ``odometry`` (a frame sequence in; trajectory, report, plot and, with the
+truth, the evaluation out) and ``odometry.train`` (sequences with truth in; an ONNX model
+and its training history out)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from contract.context import InputArtifact, JobContext, input_error, inputs_of_kind, one_input
+from contract.errors import JobInputError
+from services.odometry.kinds import (
+    EVALUATION,
+    MODEL,
+    RUN_REPORT,
+    TRAINING_REPORT,
+    TRAJECTORY,
+    TRAJECTORY_PLOT,
+)
+from services.odometry.sequence import SequenceArchive, SequenceError, extract_sequence
+
+TUM_MEDIA_TYPE = "text/plain"
+ONNX_MEDIA_TYPE = "application/octet-stream"
+
+
+def _unpacked(artifact: InputArtifact, folder: Path) -> SequenceArchive:
+    try:
+        return extract_sequence(artifact.path, folder)
+    except SequenceError as exc:
+        raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+
+
+def odometry_job(ctx: JobContext) -> dict:
+    from services.odometry.evaluate import evaluate
+    from services.odometry.report import write_run
+    from services.odometry.run import run_odometry
+    from services.odometry.tum import read_tum
+
+    method = ctx.params.method
+    sequence = one_input(ctx, "frames", "the frame sequence")
+    models = inputs_of_kind(ctx, "model")
+    if method == "oenet" and not models:
+        raise JobInputError(
+            "method oenet needs a `model` input: an OE-Net built by an `odometry.train` step "
+            "or `vista odometry train` (method vista needs none)"
+        )
+    if method != "oenet" and models:
+        raise JobInputError(f"method {method} uses no model; leave the `model` input out")
+    ctx.progress(0.01, f"unpacking {sequence.name}")
+    folder = ctx.workdir / "sequence"
+    found = _unpacked(sequence, folder)
+    truth = read_tum(folder / "truth.tum") if found.truth_member else None
+    try:
+        result = run_odometry(
+            folder / "frames",
+            found.camera,
+            method,
+            model=models[0].path if models else None,
+            threads=ctx.threads,
+            progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
+        )
+    except ValueError as exc:
+        raise input_error(models[0] if models and "model" in str(exc) else sequence, exc) from exc
+    ctx.progress(0.92, "writing the trajectory")
+    out = ctx.workdir / "out"
+    out.mkdir()
+    write_run(
+        result,
+        out / TRAJECTORY.file_name(),
+        out / RUN_REPORT.file_name(),
+        out / TRAJECTORY_PLOT.file_name(),
+        truth,
+    )
+    for output, media_type in (
+        (TRAJECTORY, TUM_MEDIA_TYPE),
+        (RUN_REPORT, "application/json"),
+        (TRAJECTORY_PLOT, "image/png"),
+    ):
+        path = out / output.file_name()
+        ctx.add_artifact_file(path, kind=output.kind, name=path.name, media_type=media_type)
+    summary = {
+        "method": method,
+        "frames": len(result.trajectory),
+        "pairs_per_s": round(result.pairs_per_s, 1),
+        "flagged": result.flagged,
+        "final_sigma_xy_mm": round(float(result.sigma_xy_mm[-1]), 3),
+    }
+    if truth is not None:
+        scores = evaluate(result.trajectory, truth).document()
+        ctx.add_artifact_json(scores, kind=EVALUATION.kind, name=EVALUATION.file_name())
+        summary["evaluation"] = scores
+    ctx.progress(1.0, f"{len(result.steps.motion)} pairs, {result.flagged} flagged")
+    return summary
+
+
+def train_job(ctx: JobContext) -> dict:
+    from services.nn.train import TrainConfig
+    from services.odometry.oenet import train_oenet, training_summary
+
+    params = ctx.params
+    sequences = inputs_of_kind(ctx, "frames")
+    if not sequences:
+        raise JobInputError("odometry.train needs at least one `frames` sequence with truth.tum")
+    folders = []
+    for number, artifact in enumerate(sequences):
+        ctx.progress(0.1 * number / len(sequences), f"unpacking {artifact.name}")
+        folder = ctx.workdir / f"sequence-{number}"
+        if _unpacked(artifact, folder).truth_member is None:
+            raise JobInputError(
+                f"artifact {artifact.id} ({artifact.name}) has no truth.tum: training needs "
+                "each pair's true motion"
+            )
+        folders.append(folder)
+    config = TrainConfig(
+        epochs=params.epochs,
+        batch=params.batch,
+        learning_rate=params.learning_rate,
+        seed=params.seed,
+        device=params.device,
+        threads=ctx.threads,
+    )
+    model = ctx.workdir / MODEL.file_name()
+    try:
+        metadata = train_oenet(
+            folders,
+            model,
+            config,
+            checkpoint_dir=ctx.workdir / "checkpoints",
+            sources=[f"artifact {a.id} ({a.name})" for a in sequences],
+            progress=lambda fraction, message: ctx.progress(0.1 + 0.88 * fraction, message),
+        )
+    except ValueError as exc:
+        raise JobInputError(str(exc).replace(str(ctx.workdir), "the job's folder")) from exc
+    ctx.add_artifact_file(
+        model,
+        kind=MODEL.kind,
+        name=model.name,
+        media_type=ONNX_MEDIA_TYPE,
+        meta={"architecture": metadata["architecture"], "metrics": metadata["metrics"]},
+    )
+    ctx.add_artifact_json(metadata, kind=TRAINING_REPORT.kind, name=TRAINING_REPORT.file_name())
+    ctx.progress(1.0, training_summary(metadata))
+    return {"architecture": metadata["architecture"], **metadata["metrics"]}

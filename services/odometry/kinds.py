@@ -1,0 +1,78 @@
+"""Job kinds of the odometry service (imported by the API: keep it light)."""
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from contract.kinds import Inputs, JobKind, Output
+
+SEQUENCE = Inputs(
+    ("frames",),
+    "a frame sequence: a zip or tar of the PNG frames with camera.json (truth.tum optional)",
+)
+
+
+class OdometryParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    method: Literal["vista", "phase", "oenet"] = Field(
+        "vista",
+        description="vista: direct alignment (no model needed); phase: phase correlation with "
+        "a Fourier–Mellin turn; oenet: the thesis's network (needs a `model` input).",
+    )
+
+
+class TrainParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    arch: Literal["oenet"] = Field("oenet", description="oenet: the thesis's Table 6.1.")
+    epochs: int = Field(30, ge=1, le=10_000, description="Passes over the pairs.")
+    batch: int = Field(256, ge=1, le=65_536, description="Pairs per step (thesis: 256).")
+    learning_rate: float = Field(0.01, gt=0, le=10, description="SGD step (momentum 0.9).")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
+    )
+
+
+TRAJECTORY = Output("trajectory", "trajectory.tum")
+RUN_REPORT = Output("report", "odometry.json")
+TRAJECTORY_PLOT = Output("plot", "trajectory.png")
+EVALUATION = Output("report", "evaluation.json")
+MODEL = Output("model", "oenet.onnx")
+TRAINING_REPORT = Output("report", "training.json")
+
+ODOMETRY = JobKind(
+    name="odometry",
+    queue="odometry",
+    handler="services.odometry.jobs:odometry_job",
+    params=OdometryParams,
+    description=(
+        "Floor-camera visual odometry of a `frames` sequence: the camera's trajectory (TUM, "
+        "metres, in camera 0's frame), each pair's motion, confidence and flag with the "
+        "position's growing 1σ, and a plot; with the archive's truth.tum, the evaluation "
+        "(per-step RMSE, final error, ATE, drift) as `vista odometry eval` writes it."
+    ),
+    inputs=(
+        SEQUENCE,
+        Inputs(("model",), "an OE-Net model (method oenet only)", min=0),
+    ),
+    outputs=(TRAJECTORY, RUN_REPORT, TRAJECTORY_PLOT, EVALUATION),
+)
+
+ODOMETRY_TRAIN = JobKind(
+    name="odometry.train",
+    queue="training",
+    handler="services.odometry.jobs:train_job",
+    params=TrainParams,
+    description=(
+        "Trains OE-Net (thesis Table 6.1) on the consecutive frame pairs of `frames` "
+        "sequences that carry their truth.tum, and writes it as an ONNX `model` (its "
+        "metadata: architecture, training data, input, validation and test RMSE) with the "
+        "training's history."
+    ),
+    inputs=(Inputs(("frames",), "frame sequences with their truth.tum", max=None),),
+    outputs=(MODEL, TRAINING_REPORT),
+)
+
+KINDS = (ODOMETRY, ODOMETRY_TRAIN)
