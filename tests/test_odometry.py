@@ -320,7 +320,7 @@ def test_sequence_archives_unpack_in_frame_order_and_refuse_what_is_not_one(tmp_
         assert read_tum(out / "truth.tum").pose.shape == (7, 3)
     assert inspect_sequence(pack(folder, tmp_path / "bare.zip", truth=False)).truth_member is None
 
-    def zipped(members: dict[str, bytes]) -> Path:
+    def zipped(members: dict[str, bytes]):
         path = tmp_path / f"case-{len(list(tmp_path.glob('case-*')))}.zip"
         with zipfile.ZipFile(path, "w") as out:
             for name, data in members.items():
