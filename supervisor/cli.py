@@ -218,7 +218,7 @@ def bench_clients(
 
 stitching_cli.register(app, simulate_app, bench_app)
 defects_cli.register(app, simulate_app, bench_app)
-odometry_cli.register(app)
+odometry_cli.register(app, bench_app)
 
 if __name__ == "__main__":
     app()

@@ -366,3 +366,26 @@ def test_sequence_archives_unpack_in_frame_order_and_refuse_what_is_not_one(tmp_
     extract_sequence(evil, landed)
     assert sorted(p.name for p in (landed / "frames").iterdir()) == ["000000.png", "000001.png"]
     assert not (tmp_path / "deep" / "0.png").exists()
+
+
+def test_bench_compares_the_methods_on_the_same_frames_and_keeps_them(tmp_path, capsys) -> None:
+    from services.odometry.bench import Case, run_odometry_bench
+
+    case = Case("tiny gravel", "floor", floor="gravel", seconds=0.3)
+    out = tmp_path / "odometry.json"
+    document = run_odometry_bench(
+        out, oenet_model=None, work=tmp_path / "work", cases=(case,), loop=None, threads=1
+    )
+    row = document["sweep"][0]
+    assert row["case"] == "tiny gravel" and set(row) >= {"vista", "phase"}
+    assert row["vista"]["poses"] == 19 and row["vista"]["flagged"] == 0
+    assert row["vista"]["drift_percent"] < 0.2 and row["vista"]["rmse_dtheta_deg"] < 0.05
+    assert row["phase"]["poses"] == 19  # the peer ran on the same frames
+    assert json.loads(out.read_text())["sweep"][0]["vista"] == row["vista"]
+    assert "| tiny gravel |" in capsys.readouterr().out
+    frame = tmp_path / "work" / "tiny-gravel" / "frames" / "000000.png"
+    written = frame.stat().st_mtime_ns
+    run_odometry_bench(
+        out, oenet_model=None, work=tmp_path / "work", cases=(case,), loop=None, threads=1
+    )
+    assert frame.stat().st_mtime_ns == written  # the sequence was reused, not simulated again

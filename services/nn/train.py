@@ -1,6 +1,11 @@
 """A seeded training loop with progress and checkpoints, for any regression network:
 SGD with momentum on the mean squared error, gradients clipped, a cosine schedule.
 
+The targets' columns may differ in unit and size (millimetres and degrees): the network
+learns them standardised — each column's training mean and spread are a fixed last layer
+of the model it returns (``Rescaled``), so that model answers in the targets' own units and
+the loss weighs every column alike.
+
 The data are numpy arrays (inputs, targets); a seeded split keeps ``val_fraction`` aside to
 choose the weights by and ``test_fraction`` that nothing is chosen by (the thesis's 80/10/10),
 and the result gives both sets' RMSE per target column.
@@ -13,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +40,14 @@ class TrainConfig:
     seed: int = 0
     device: str = "auto"
     threads: int = 2
+    standardize_targets: bool = True
 
 
 @dataclass
 class TrainResult:
+    model: object
+    """The trained network (in ``Rescaled`` when the targets were standardised): the one
+    to export."""
     epochs_run: int
     best_epoch: int
     best_val_loss: float
@@ -63,6 +72,23 @@ def split(
     return order[val + test :], order[:val], order[val : val + test]
 
 
+def rescaled(model, mean: np.ndarray, std: np.ndarray):  # noqa: ANN001, ANN201 - torch modules
+    """``model`` whose outputs are scaled by ``std`` and shifted by ``mean`` (per column)."""
+    import torch
+
+    class Rescaled(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.inner = model
+            self.register_buffer("mean", torch.as_tensor(mean, dtype=torch.float32))
+            self.register_buffer("std", torch.as_tensor(std, dtype=torch.float32))
+
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            return self.inner(x) * self.std + self.mean
+
+    return Rescaled()
+
+
 def train(
     model,  # noqa: ANN001 - a torch.nn.Module
     inputs: np.ndarray,
@@ -72,8 +98,9 @@ def train(
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
 ) -> TrainResult:
-    """Train ``model`` (in place) by SGD with momentum on the mean squared error; the
-    model ends with its best validation weights."""
+    """Train ``model`` (in place) by SGD with momentum on the mean squared error (of the
+    standardised targets when ``config.standardize_targets``); the result's ``model`` ends
+    with the best validation weights and answers in the targets' units."""
     import torch
 
     from services.nn.device import choose_device
@@ -84,12 +111,21 @@ def train(
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     device = choose_device(config.device)
-    model.to(device)
     train_idx, val_idx, test_idx = split(
         len(inputs), config.val_fraction, config.test_fraction, config.seed
     )
     x = torch.from_numpy(np.ascontiguousarray(inputs, dtype=np.float32))
     y = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float32))
+    scale = torch.ones(y.shape[1])
+    if config.standardize_targets:
+        mean, std = targets[train_idx].mean(axis=0), targets[train_idx].std(axis=0)
+        std = np.where(std > 1e-12, std, 1.0)
+        model = rescaled(model, mean, std)
+        scale = torch.as_tensor(std, dtype=torch.float32)
+    # images (N, C, H, W) train about a fifth faster with their channels last on the CPU
+    layout = torch.channels_last if x.ndim == 4 else torch.contiguous_format
+    model.to(device, memory_format=layout)
+    weight = (1.0 / scale**2).to(device)
     optimiser = torch.optim.SGD(
         model.parameters(),
         lr=config.learning_rate,
@@ -97,7 +133,7 @@ def train(
         weight_decay=config.weight_decay,
     )
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
-    result = TrainResult(0, -1, float("inf"))
+    result = TrainResult(model, 0, -1, float("inf"))
     best_state = None
     start_epoch = 0
     last = checkpoint_dir / "last.pt" if checkpoint_dir else None
@@ -107,20 +143,21 @@ def train(
         optimiser.load_state_dict(saved["optimiser"])
         schedule.load_state_dict(saved["schedule"])
         start_epoch = saved["epoch"] + 1
-        result = saved["result"]
+        result = replace(saved["result"], model=model)
         best_state = saved["best_state"]
         say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
     started = time.perf_counter()
-    shuffle = np.random.default_rng(config.seed + 1)
     for epoch in range(start_epoch, config.epochs):
         model.train()
-        order = train_idx[shuffle.permutation(len(train_idx))]
+        order = train_idx[
+            np.random.default_rng([config.seed + 1, epoch]).permutation(len(train_idx))
+        ]
         total = 0.0
         for first in range(0, len(order), config.batch):
             batch = torch.from_numpy(order[first : first + config.batch])
-            xb, yb = x[batch].to(device), y[batch].to(device)
+            xb, yb = x[batch].to(device, memory_format=layout), y[batch].to(device)
             optimiser.zero_grad()
-            loss = torch.nn.functional.mse_loss(model(xb), yb)
+            loss = ((model(xb) - yb).pow(2) * weight).mean()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), config.clip_norm)
             optimiser.step()
@@ -132,7 +169,7 @@ def train(
                 f"training diverged in epoch {epoch + 1} (loss {train_loss}): lower the "
                 f"learning rate (now {config.learning_rate})"
             )
-        val_loss = evaluate_loss(model, x[val_idx], y[val_idx], config.batch, device)
+        val_loss = evaluate_loss(model, x[val_idx], y[val_idx], config.batch, device, weight)
         result.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
         if val_loss < result.best_val_loss:
             result.best_val_loss, result.best_epoch = val_loss, epoch
@@ -150,7 +187,7 @@ def train(
                     "optimiser": optimiser.state_dict(),
                     "schedule": schedule.state_dict(),
                     "epoch": epoch,
-                    "result": result,
+                    "result": replace(result, model=None),
                     "best_state": best_state,
                 },
                 last,
@@ -162,7 +199,7 @@ def train(
     if len(test_idx):
         result.test_rmse = column_rmse(model, x[test_idx], y[test_idx], config.batch, device)
     result.split = {"train": len(train_idx), "val": len(val_idx), "test": len(test_idx)}
-    model.to("cpu").eval()
+    model.to("cpu", memory_format=torch.contiguous_format).eval()
     return result
 
 
@@ -183,8 +220,9 @@ def column_rmse(model, x, y, batch: int, device) -> list[float]:  # noqa: ANN001
     return [float(v) for v in error.pow(2).mean(dim=0).sqrt()]
 
 
-def evaluate_loss(model, x, y, batch: int, device) -> float:  # noqa: ANN001 - torch objects
-    """Mean squared error of ``model`` on (x, y); nan without samples."""
+def evaluate_loss(model, x, y, batch: int, device, weight) -> float:  # noqa: ANN001 - torch objects
+    """Mean squared error of ``model`` on (x, y), each column weighted by ``weight``; nan
+    without samples."""
     if len(x) == 0:
         return float("nan")
-    return float((predict(model, x, batch, device) - y).pow(2).mean())
+    return float(((predict(model, x, batch, device) - y).pow(2) * weight.cpu()).mean())

@@ -241,5 +241,43 @@ def eval_(
     typer.echo(f"wrote {out}")
 
 
-def register(app: typer.Typer) -> None:
+def bench_odometry(
+    out: Path = typer.Option(Path("bench-results/odometry.json"), help="Where to write the JSON."),
+    oenet_model: Path = typer.Option(
+        Path("bench-results/odometry/oenet.onnx"),
+        help="OE-Net to compare; trained here first (about an hour) when the file is missing.",
+    ),
+    no_oenet: bool = typer.Option(False, "--no-oenet", help="Leave OE-Net out."),
+    work: Path = typer.Option(
+        Path("bench-results/odometry/sequences"),
+        help="Where the simulated sequences are kept (reused by the next run).",
+    ),
+    only: list[str] = typer.Option(
+        None,
+        help="Run only the sweep's cases whose name contains this (repeatable); "
+        "'loop' for the circuit alone.",
+    ),
+) -> None:
+    """vista's method, phase correlation and OE-Net on the same simulated frames: the
+    thesis-like 28.6 m circuit at 60 fps and a sweep (every floor, one never used in
+    training, speeds 0.2–2 m/s, turns, blur, light, height); per-step RMSE, final error,
+    drift, flagged pairs, pairs/s on this machine's cores."""
+    from services.odometry.bench import LOOP, SWEEP, run_odometry_bench
+
+    cases = SWEEP
+    loop = LOOP
+    if only:
+        cases = tuple(c for c in SWEEP if any(word in c.name for word in only))
+        loop = LOOP if "loop" in only else None
+        if not cases and loop is None:
+            fail(
+                f"--only {only}: no case's name contains that; cases: loop, {', '.join(c.name for c in SWEEP)}"
+            )
+    run_odometry_bench(
+        out, oenet_model=None if no_oenet else oenet_model, work=work, cases=cases, loop=loop
+    )
+
+
+def register(app: typer.Typer, bench_app: typer.Typer) -> None:
     app.add_typer(odometry_app, name="odometry")
+    bench_app.command("odometry")(bench_odometry)

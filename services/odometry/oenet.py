@@ -5,7 +5,9 @@ mean squared error by SGD with momentum 0.9 in batches of 256.
 
 The table gives no activations after the fully connected layers; ReLU follows each but the
 last. The 64 × 64 inputs are the frames' centre squares, area-averaged (the thesis
-downsampled its frames; a square keeps the floor's geometry), scaled to 0–1.
+downsampled its frames; a square keeps the floor's geometry), each scaled to zero mean and
+unit spread; the targets are learned standardised (``services.nn.train``), the exported
+model answers in mm and degrees.
 """
 
 from __future__ import annotations
@@ -62,17 +64,28 @@ def network():  # noqa: ANN201 - a torch.nn.Module (torch imported inside)
         def forward(self, pair: torch.Tensor) -> torch.Tensor:
             return torch.cat([self.translation(pair), self.rotation(pair)], dim=1)
 
-    return OENet()
+    net = OENet()
+    # He's initialisation (each ReLU layer keeps its signal's size); each branch's last layer
+    # starts at zero, so training starts from the targets' mean instead of noise
+    for layer in net.modules():
+        if isinstance(layer, nn.Conv2d | nn.Linear):
+            nn.init.kaiming_normal_(layer.weight, nonlinearity="relu")
+            nn.init.zeros_(layer.bias)
+    for branch in (net.translation, net.rotation):
+        nn.init.zeros_(branch[-1].weight)
+    return net
 
 
 def network_input(frame: np.ndarray) -> np.ndarray:
-    """A frame as one 64 × 64 input channel: its centre square, area-averaged, 0–1."""
+    """A frame as one 64 × 64 input channel: its centre square, area-averaged, scaled to
+    zero mean and unit spread (a brighter light changes nothing)."""
     rows, cols = frame.shape
     side = min(rows, cols)
     top, left = (rows - side) // 2, (cols - side) // 2
     square = frame[top : top + side, left : left + side]
     small = cv2.resize(square, (INPUT_SIDE, INPUT_SIDE), interpolation=cv2.INTER_AREA)
-    return small.astype(np.float32) / 255.0
+    small = small.astype(np.float32)
+    return (small - small.mean()) / (small.std() + 1.0)
 
 
 def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, Camera]:
@@ -128,7 +141,8 @@ def train_oenet(
             "name": "pair",
             "shape": ["batch", 2, INPUT_SIDE, INPUT_SIDE],
             "dtype": "float32",
-            "content": "the two frames' centre squares area-averaged to 64 × 64, grey 0–1",
+            "content": "the two frames' centre squares area-averaged to 64 × 64, each "
+            "scaled to zero mean and unit spread (grey levels / (std + 1))",
         },
         "output": {"name": "motion", "columns": list(OUTPUT_COLUMNS)},
         "camera": parts[0][2].document(),
@@ -156,7 +170,7 @@ def train_oenet(
         },
     }
     difference = export_onnx(
-        model, inputs[:4], out, metadata, input_name="pair", output_name="motion"
+        result.model, inputs[:4], out, metadata, input_name="pair", output_name="motion"
     )
     say(1.0, f"exported {out} (onnxruntime vs torch: {difference:.1e})")
     return metadata

@@ -10,6 +10,7 @@ uncertainty is that of a guess.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +37,10 @@ FLAT_FIELD_FRAMES = 200
 DIRECT_SIGMA_FLOOR = np.array([0.01, 0.01, np.radians(0.004)])
 """Per-pair errors the alignment's covariance does not see (interpolation, blur, the
 sensor's bias): the per-step RMSE of vista's method on the simulated floors."""
+SCALE_SIGMA = 5e-4
+"""Relative error of the steps' lengths that they share, so it does not average out: at a
+steady speed interpolation pulls every step's sub-pixel part the same way (0.03 % on the
+simulated loop), and a real camera's height known to 0.05 mm adds as much."""
 GUESS_SIGMA_MM = 5.0
 GUESS_SIGMA_DEG = 1.0
 
@@ -94,12 +99,13 @@ def read_frames(files: list[Path], camera: Camera) -> Iterator[np.ndarray]:
         yield image
 
 
-def phase_steps(files: list[Path], camera: Camera, progress: Progress) -> Steps:
-    """The peer: phase correlation with a Fourier–Mellin turn, pair by pair."""
+def _phase_run(files: list[Path], camera: Camera, tick: Callable[[], None]) -> Steps:
+    """The peer on consecutive frames: phase correlation with a Fourier–Mellin turn."""
     motion, confidence, reasons = [], [], []
     frames = read_frames(files, camera)
     previous = next(frames)
-    for k, frame in enumerate(frames):
+    for frame in frames:
+        tick()
         pair = pair_motion(previous, frame)
         motion.append(
             [pair.dx_px * camera.mm_per_px, pair.dy_px * camera.mm_per_px, pair.dtheta_rad]
@@ -107,13 +113,13 @@ def phase_steps(files: list[Path], camera: Camera, progress: Progress) -> Steps:
         confidence.append(min(1.0, pair.response / 0.5))
         reasons.append(None if pair.response >= MIN_RESPONSE else "the frames do not match")
         previous = frame
-        if k % 100 == 0:
-            progress((k + 1) / len(files), f"pair {k + 1} of {len(files) - 1}")
     sigma = np.tile([0.03, 0.03, np.radians(0.3)], (len(motion), 1))
     return Steps(np.array(motion), np.array(confidence), reasons, sigma)
 
 
-def _direct_run(files: list[Path], camera: Camera, flat: np.ndarray) -> Steps:
+def _direct_run(
+    files: list[Path], camera: Camera, flat: np.ndarray, tick: Callable[[], None]
+) -> Steps:
     """vista's method on consecutive frames: each pair aligned from the previous pair's
     motion, or from phase correlation when that does not give a trusted alignment."""
     frames = read_frames(files, camera)
@@ -123,6 +129,7 @@ def _direct_run(files: list[Path], camera: Camera, flat: np.ndarray) -> Steps:
     guess, trusted = None, False
     px = camera.mm_per_px
     for frame in frames:
+        tick()
         current = prepare(frame, flat)
         if guess is None:
             guess = seed_px(first, frame)
@@ -148,26 +155,47 @@ def _direct_run(files: list[Path], camera: Camera, flat: np.ndarray) -> Steps:
     return Steps(np.array(motion), np.array(confidence), reasons, np.array(sigma))
 
 
-def direct_steps(files: list[Path], camera: Camera, threads: int) -> Steps:
-    """vista's method on ``threads`` threads, each on a run of consecutive pairs (reading
-    its own frames; OpenCV and NumPy let go of the interpreter while they work), all with
-    the light's fixed pattern taken out (``flat_field`` of frames spread over the run)."""
+def in_parts(
+    files: list[Path],
+    threads: int,
+    run_part: Callable[[list[Path], Callable[[], None]], Steps],
+    progress: Progress,
+) -> Steps:
+    """``run_part`` on ``threads`` runs of consecutive frames at once (each reads its own
+    frames; OpenCV and NumPy let go of the interpreter while they work), joined; each
+    calls its ``tick`` once per pair, and ``progress`` hears of every 1 %."""
     count = len(files) - 1
     parts = max(1, min(threads, count // 100))
     bounds = np.linspace(0, count, parts + 1).round().astype(int)
     runs = [files[bounds[k] : bounds[k + 1] + 1] for k in range(parts)]
-    sample = files[:: max(1, len(files) // FLAT_FIELD_FRAMES)][:FLAT_FIELD_FRAMES]
-    flat = flat_field(list(read_frames(sample, camera)))
+    done = itertools.count(1)
+    every = max(1, count // 100)
+
+    def tick() -> None:
+        pairs = next(done)  # atomic under the interpreter's lock
+        if pairs % every == 0:
+            progress(pairs / count, f"pair {pairs} of {count}")
+
     if parts == 1:
-        results = [_direct_run(runs[0], camera, flat)]
+        results = [run_part(runs[0], tick)]
     else:
         with ThreadPoolExecutor(parts) as pool:
-            results = list(pool.map(lambda run: _direct_run(run, camera, flat), runs))
+            results = list(pool.map(lambda run: run_part(run, tick), runs))
     return Steps(
         np.concatenate([r.motion for r in results]),
         np.concatenate([r.confidence for r in results]),
         [reason for r in results for reason in r.reasons],
         np.concatenate([r.sigma for r in results]),
+    )
+
+
+def direct_steps(files: list[Path], camera: Camera, threads: int, progress: Progress) -> Steps:
+    """vista's method on ``threads`` threads, all with the light's fixed pattern taken out
+    (``flat_field`` of frames spread over the run)."""
+    sample = files[:: max(1, len(files) // FLAT_FIELD_FRAMES)][:FLAT_FIELD_FRAMES]
+    flat = flat_field(list(read_frames(sample, camera)))
+    return in_parts(
+        files, threads, lambda run, tick: _direct_run(run, camera, flat, tick), progress
     )
 
 
@@ -183,12 +211,14 @@ def _bridged(steps: Steps) -> Steps:
 
 
 def position_sigma(steps: Steps) -> np.ndarray:
-    """(N,) position standard deviation: the steps' own errors add up, and the heading's
-    error turns every later step."""
+    """(N,) position standard deviation: the steps' own errors add up, the heading's error
+    turns every later step, and an error of scale the steps share grows with the distance."""
     heading_var = np.concatenate([[0.0], np.cumsum(steps.sigma[:, 2] ** 2)])
     length = np.hypot(steps.motion[:, 0], steps.motion[:, 1])
     step_var = steps.sigma[:, 0] ** 2 + steps.sigma[:, 1] ** 2 + heading_var[:-1] * length**2
-    return np.sqrt(np.concatenate([[0.0], np.cumsum(step_var)]))
+    distance = np.concatenate([[0.0], np.cumsum(length)])
+    random = np.concatenate([[0.0], np.cumsum(step_var)])
+    return np.sqrt(random + (SCALE_SIGMA * distance) ** 2)
 
 
 def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) -> Steps:
@@ -224,12 +254,11 @@ def run_odometry(
     files = frame_files(folder)
     started = time.perf_counter()
     if method == "phase":
-        steps = phase_steps(files, camera, report)
+        steps = in_parts(files, threads, lambda run, tick: _phase_run(run, camera, tick), report)
     elif method == "oenet":
         steps = oenet_steps(files, camera, model, threads)
     else:
-        report(0.05, f"aligning {len(files) - 1} pairs")
-        steps = direct_steps(files, camera, threads)
+        steps = direct_steps(files, camera, threads, report)
     seconds = time.perf_counter() - started
     steps = _bridged(steps)
     times = np.arange(len(files)) / camera.fps

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from services.odometry.camera import Camera
-from services.odometry.drive import Robot, drive, path_commands
+from services.odometry.drive import Command, Robot, drive, path_commands
 from services.odometry.floors import make_floor
 from services.odometry.render import Effects, exposures, render
 from services.odometry.tum import Trajectory2D, write_tum
@@ -46,15 +46,17 @@ def simulate_sequence(
     camera: Camera | None = None,
     effects: Effects = Effects(),
     robot: Robot = Robot(),
+    commands: list[Command] | None = None,
     progress: Progress | None = None,
 ) -> Simulated:
-    """Drive ``path`` over ``floor`` and write what the camera saw and where it was."""
+    """Drive ``path`` (or the given ``commands``) over ``floor`` and write what the camera
+    saw and where it was."""
     say = progress or (lambda message: None)
     camera = camera or Camera.thesis(fps=fps)
     rng = np.random.default_rng(seed)
     say(f"floor {floor}")
     ground = make_floor(floor, seed)
-    motion = drive(path_commands(path, seconds=seconds, seed=seed), robot)
+    motion = drive(commands or path_commands(path, seconds=seconds, seed=seed), robot)
     times = np.arange(0.0, motion.seconds + 1e-9, 1.0 / camera.fps)
     exposure = exposures(camera, times, effects, rng)
     truth = Trajectory2D(times, motion.at(times), camera.height_mm - exposure.height_mm)
