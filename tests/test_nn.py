@@ -81,3 +81,17 @@ def test_a_diverging_run_says_so() -> None:
     config = TrainConfig(epochs=2, batch=32, learning_rate=1e6, clip_norm=1e12, device="cpu")
     with pytest.raises(ValueError, match="training diverged in epoch 1"):
         train(_model(), x, y * 1e6, config)
+
+
+def test_targets_in_different_units_are_learned_alike_and_answered_in_their_units() -> None:
+    x, y = _data()
+    y = y * np.array([1000.0, 0.001], np.float32)  # one column in µm, the other in m
+    config = TrainConfig(epochs=20, batch=32, learning_rate=0.05, seed=2, device="cpu", threads=1)
+    result = train(_model(), x, y, config)
+    relative = np.array(result.val_rmse) / y.std(axis=0)
+    assert relative.max() < 0.15 and relative.max() < 2 * relative.min(), relative  # alike
+    with torch.no_grad():
+        answered = result.model(torch.from_numpy(x)).numpy()
+    assert np.all(np.sqrt(np.mean((answered - y) ** 2, axis=0)) / y.std(axis=0) < 0.15)
+    assert result.split == {"train": 204, "val": 26, "test": 26}  # the thesis's 80/10/10
+    assert result.test_rmse is not None and len(result.test_rmse) == 2

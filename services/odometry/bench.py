@@ -28,6 +28,7 @@ from services.odometry.camera import Camera
 from services.odometry.drive import Command
 from services.odometry.evaluate import evaluate
 from services.odometry.floors import PROCEDURAL, SAMPLE_IMAGES
+from services.odometry.kinds import OENET_EPOCHS, OENET_LEARNING_RATE
 from services.odometry.render import Effects
 from services.odometry.run import run_odometry
 from services.odometry.simulate import simulate_sequence
@@ -38,7 +39,6 @@ METHODS = ("vista", "phase", "oenet")
 UNSEEN_FLOOR = "moon"
 """scikit-image's lunar surface picture: used by no model here in training."""
 TRAINING_SEEDS = (1, 2, 3, 4)
-TRAINING_EPOCHS = 30
 TARGETS = {
     "oenet_rmse_dxy_mm": 0.13,
     "oenet_rmse_dtheta_deg": 1.0,
@@ -163,11 +163,14 @@ def _train_oenet(model: Path, work: Path, threads: int) -> None:
         _sequence(Case(f"training circuit {s}", "training", path="loop", seconds=0.0, seed=s), work)
         for s in TRAINING_SEEDS
     ]
-    say(f"training OE-Net for {TRAINING_EPOCHS} epochs (about an hour on 2 cores)")
+    say(f"training OE-Net for {OENET_EPOCHS} epochs (about an hour on 2 cores)")
+    config = TrainConfig(
+        epochs=OENET_EPOCHS, learning_rate=OENET_LEARNING_RATE, threads=threads, device="cpu"
+    )
     metadata = train_oenet(
         folders,
         model,
-        TrainConfig(epochs=TRAINING_EPOCHS, threads=threads, device="cpu"),
+        config,
         checkpoint_dir=work / "oenet-checkpoints",
         progress=lambda fraction, message: say(f"  {message}"),
     )

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from contract.cli import fail
+from services.odometry.kinds import OENET_EPOCHS, OENET_LEARNING_RATE
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
 
@@ -170,9 +171,11 @@ def train(
     ),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write MODEL.onnx."),
     arch: str = typer.Option("oenet", help="oenet: the thesis's Table 6.1."),
-    epochs: int = typer.Option(30, min=1, max=10_000, help="Passes over the pairs."),
+    epochs: int = typer.Option(OENET_EPOCHS, min=1, max=10_000, help="Passes over the pairs."),
     batch: int = typer.Option(256, min=1, max=65_536, help="Pairs per step (thesis: 256)."),
-    learning_rate: float = typer.Option(0.01, min=1e-6, max=10, help="SGD step (momentum 0.9)."),
+    learning_rate: float = typer.Option(
+        OENET_LEARNING_RATE, min=1e-6, max=10, help="SGD step (momentum 0.9)."
+    ),
     seed: int = typer.Option(0, help="Random seed (split, initial weights, shuffling)."),
     device: str = typer.Option("auto", help="auto, cpu or cuda."),
     checkpoints: Path = typer.Option(

@@ -25,7 +25,7 @@ import numpy as np
 from services.odometry.phase import pair_motion
 
 LEVELS = 3
-POINTS_PER_LEVEL = (12_000, 6_000, 3_000)
+POINTS_PER_LEVEL = (6_000, 4_000, 3_000)
 """Template pixels used at full, half and quarter size (the most textured ones)."""
 ITERATIONS = (6, 8, 10)
 CONVERGED_PX = (0.005, 0.02, 0.05)
@@ -34,6 +34,8 @@ HUBER = 1.345
 MIN_SHARPNESS = 0.1
 """The frames must match at least this much worse one pixel off the found motion (noise
 matches noise anywhere: a plain floor has nothing to align on)."""
+SHARPNESS_STRIDE = 3
+"""The sharpness is measured on every third template pixel (4 000 of them)."""
 MAX_RESIDUAL = 12.0
 """Grey levels RMS after alignment above which the frames do not match."""
 MIN_OVERLAP = 0.5
@@ -91,6 +93,15 @@ def flat_field(frames: list[np.ndarray]) -> np.ndarray:
     return (surface / surface.mean()).astype(np.float32)
 
 
+def _strongest(values: np.ndarray, count: int) -> np.ndarray:
+    """Flat indices of about the ``count`` largest ``values``: those at or above the
+    threshold that every 8th value puts there (a fifth of ``argpartition``'s time)."""
+    values = values.ravel()
+    sample = values[::8]
+    rank = sample.size - max(1, count // 8)
+    return np.flatnonzero(values >= np.partition(sample, rank)[rank])
+
+
 def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
     """A frame's pyramid (divided by the light's ``flat`` field, if given), its most
     textured pixels per level and their Jacobians."""
@@ -109,9 +120,8 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
             texture = float(np.sqrt(magnitude[2:-2, 2:-2].mean()))
         border, stride = 4, 2 if k == 0 else 1  # at full size every other pixel competes
         inner = magnitude[border:-border:stride, border:-border:stride]
-        count = min(POINTS_PER_LEVEL[k], inner.size // 4)
-        flat = np.argpartition(inner.ravel(), inner.size - count)[-count:]
-        rows, cols = np.unravel_index(flat, inner.shape)
+        chosen = _strongest(inner, min(POINTS_PER_LEVEL[k], inner.size // 4))
+        rows, cols = np.unravel_index(chosen, inner.shape)
         rows, cols = rows * stride + border, cols * stride + border
         centre = _centre(level.shape)
         xy = np.column_stack([cols - centre[0], rows - centre[1]]).astype(np.float64)
@@ -164,10 +174,11 @@ def _align_level(
         if overlap < 0.2:
             break
         # brightness: fit value ≈ gain · sampled + offset over the overlap
+        # (sums of products, not np.dot: OpenBLAS's 1-D dot took 1–2 ms on 12 000 values here)
         seen, wanted = sampled[inside], value[inside]
         seen_mean, wanted_mean = seen.mean(), wanted.mean()
-        spread = np.dot(seen - seen_mean, seen - seen_mean)
-        gain = np.dot(seen - seen_mean, wanted - wanted_mean) / spread if spread > 0 else 1.0
+        spread = ((seen - seen_mean) ** 2).sum()
+        gain = ((seen - seen_mean) * (wanted - wanted_mean)).sum() / spread if spread > 0 else 1.0
         offset = wanted_mean - gain * seen_mean
         error = np.where(inside, gain * sampled + offset - value, 0.0)
         scale = 1.2533 * np.abs(error[inside]).mean() + 1e-6  # σ of Gaussian errors
@@ -187,7 +198,7 @@ def sharpness(template: Template, image: Template, warp: np.ndarray) -> float:
     """How much worse the frames match one pixel off the found warp (along x and y, the
     smaller): near 0 when the floor has nothing to align on (noise matches noise
     anywhere), or only lines along one direction."""
-    xy, value = template.points[0], template.values[0]
+    xy, value = template.points[0][::SHARPNESS_STRIDE], template.values[0][::SHARPNESS_STRIDE]
 
     def cost(motion: np.ndarray) -> float:
         sampled, inside = _sample(image.images[0], xy, motion)
