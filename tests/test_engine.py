@@ -532,6 +532,12 @@ def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_
     train, oenet = [engine.wait(j["id"], timeout=60) for j in refused["jobs"]]
     assert train["status"] == "failed" and "has no truth.tum" in train["error"]
     assert oenet["status"] == "failed" and "needs a `model` input" in oenet["error"]
+    (folder / "frames" / "000002.png").write_bytes(b"\x89PNG\r\n\x1a\n but no image")
+    broken = _upload(engine, pack(folder, tmp_path / "broken.zip"), "frames", "application/zip")
+    failed = engine.run([{"name": "vista", "kind": "odometry", "inputs": [broken]}])
+    job = engine.wait(failed["jobs"][0]["id"], timeout=60)
+    assert job["status"] == "failed", job
+    assert f"Artifact {broken} (broken.zip): seq/frames/000002.png: not an image" in job["error"]
 
 
 def test_a_job_error_is_one_sentence_without_server_paths():

@@ -3,6 +3,8 @@ checked against torch, model metadata, sessions."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -95,3 +97,21 @@ def test_targets_in_different_units_are_learned_alike_and_answered_in_their_unit
     assert np.all(np.sqrt(np.mean((answered - y) ** 2, axis=0)) / y.std(axis=0) < 0.15)
     assert result.split == {"train": 204, "val": 26, "test": 26}  # the thesis's 80/10/10
     assert result.test_rmse is not None and len(result.test_rmse) == 2
+
+
+def test_a_checkpoint_of_other_data_or_settings_is_not_resumed(tmp_path) -> None:
+    x, y = _data()
+    config = TrainConfig(epochs=1, batch=64, seed=1, device="cpu", threads=1)
+    train(_model(), x, y, config, checkpoint_dir=tmp_path)
+    for data, settings in [(y + 1.0, config), (y, replace(config, learning_rate=0.5))]:
+        messages = []
+        again = train(
+            _model(),
+            x,
+            data,
+            settings,
+            checkpoint_dir=tmp_path,
+            progress=lambda fraction, message, said=messages: said.append(message),
+        )
+        assert "another run's checkpoint" in messages[0] and again.epochs_run == 1
+    assert not list(tmp_path.glob("*.partial"))

@@ -345,6 +345,9 @@ def test_sequence_archives_unpack_in_frame_order_and_refuse_what_is_not_one(tmp_
     for members, phrase in cases:
         with pytest.raises(SequenceError, match=phrase):
             inspect_sequence(zipped(members))
+    numbered = {f"f/{k}.png": png for k in (10, 2, 1)} | {"f/camera.json": camera}
+    numbered |= {"__MACOSX/f/._1.png": b"finder", "f/._2.png": b"finder"}
+    assert inspect_sequence(zipped(numbered)).frames == ("f/1.png", "f/2.png", "f/10.png")
     (tmp_path / "notes.txt").write_text("frames")
     with pytest.raises(SequenceError, match="not a zip or tar archive"):
         inspect_sequence(tmp_path / "notes.txt")

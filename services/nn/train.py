@@ -16,9 +16,11 @@ finished epoch. The weights kept are the best on the validation set.
 
 from __future__ import annotations
 
+import hashlib
+import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +64,16 @@ class TrainResult:
     """How many samples trained, validated and tested."""
 
 
+def _fingerprint(config: TrainConfig, inputs: np.ndarray, targets: np.ndarray) -> dict:
+    """What makes a checkpoint this run's: the settings that shape training and the data
+    (more epochs may follow a finished run: the schedule stretches to them)."""
+    ignored = ("device", "threads", "epochs")
+    settings = {k: v for k, v in asdict(config).items() if k not in ignored}
+    data = hashlib.sha256(np.ascontiguousarray(targets).tobytes())
+    data.update(str(inputs.shape).encode())
+    return {"settings": settings, "data": data.hexdigest()}
+
+
 def split(
     count: int, val_fraction: float, test_fraction: float, seed: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -98,9 +110,10 @@ def train(
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
 ) -> TrainResult:
-    """Train ``model`` (in place) by SGD with momentum on the mean squared error (of the
-    standardised targets when ``config.standardize_targets``); the result's ``model`` ends
-    with the best validation weights and answers in the targets' units."""
+    """Train ``model`` by SGD with momentum on the mean squared error (of the standardised
+    targets when ``config.standardize_targets``). The result's ``model`` — ``model`` itself,
+    or ``model`` inside ``Rescaled`` — ends with the best validation weights and answers in
+    the targets' units: export that one (``model`` alone then answers standardised)."""
     import torch
 
     from services.nn.device import choose_device
@@ -137,11 +150,20 @@ def train(
     best_state = None
     start_epoch = 0
     last = checkpoint_dir / "last.pt" if checkpoint_dir else None
-    if last is not None and last.exists():
-        saved = torch.load(last, map_location=device, weights_only=False)
+    run = _fingerprint(config, inputs, targets)
+    saved = (
+        torch.load(last, map_location=device, weights_only=False)
+        if last and last.exists()
+        else None
+    )
+    if saved is not None and saved.get("run") != run:
+        say(0.0, f"{last} is another run's checkpoint (other data or settings): starting afresh")
+        saved = None
+    if saved is not None:
         model.load_state_dict(saved["model"])
         optimiser.load_state_dict(saved["optimiser"])
         schedule.load_state_dict(saved["schedule"])
+        schedule.T_max = config.epochs
         start_epoch = saved["epoch"] + 1
         result = replace(saved["result"], model=model)
         best_state = saved["best_state"]
@@ -175,14 +197,19 @@ def train(
             result.best_val_loss, result.best_epoch = val_loss, epoch
             best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
         result.epochs_run = epoch + 1
+        per_epoch_s = (time.perf_counter() - started) / (epoch + 1 - start_epoch)
+        left_min = per_epoch_s * (config.epochs - epoch - 1) / 60
         say(
             (epoch + 1) / config.epochs,
-            f"epoch {epoch + 1}/{config.epochs}: train {train_loss:.5f}, val {val_loss:.5f}",
+            f"epoch {epoch + 1}/{config.epochs}: train {train_loss:.5f}, val {val_loss:.5f} "
+            f"({per_epoch_s:.0f} s an epoch, about {left_min:.0f} min left)",
         )
         if last is not None:
             last.parent.mkdir(parents=True, exist_ok=True)
+            partial = last.with_suffix(".partial")
             torch.save(
                 {
+                    "run": run,
                     "model": model.state_dict(),
                     "optimiser": optimiser.state_dict(),
                     "schedule": schedule.state_dict(),
@@ -190,8 +217,9 @@ def train(
                     "result": replace(result, model=None),
                     "best_state": best_state,
                 },
-                last,
+                partial,
             )
+            os.replace(partial, last)  # a kill mid-write leaves the previous one
     if best_state is not None:
         model.load_state_dict(best_state)
     result.seconds += time.perf_counter() - started

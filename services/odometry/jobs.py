@@ -4,9 +4,10 @@ and its training history out)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
-from contract.context import InputArtifact, JobContext, input_error, inputs_of_kind, one_input
+from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
 from contract.errors import JobInputError
 from services.odometry.kinds import (
     EVALUATION,
@@ -27,6 +28,27 @@ def _unpacked(artifact: InputArtifact, folder: Path) -> SequenceArchive:
         return extract_sequence(artifact.path, folder)
     except SequenceError as exc:
         raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+
+
+def _named(
+    message: str,
+    sequence: InputArtifact,
+    found: SequenceArchive,
+    folder: Path,
+    models: list[InputArtifact],
+) -> str:
+    """An error about the unpacked files in the user's names: the artifact and the frame's
+    name in the archive, the model artifact."""
+    frames = re.escape(str(folder / "frames")) + r"/(\d+)\.png"
+    message = re.sub(
+        frames,
+        lambda m: f"artifact {sequence.id} ({sequence.name}): {found.frames[int(m[1])]}",
+        message,
+    )
+    message = message.replace(str(folder / "frames"), f"artifact {sequence.id} ({sequence.name})")
+    for model in models:
+        message = message.replace(str(model.path), f"artifact {model.id} ({model.name})")
+    return message
 
 
 def odometry_job(ctx: JobContext) -> dict:
@@ -59,7 +81,7 @@ def odometry_job(ctx: JobContext) -> dict:
             progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
         )
     except ValueError as exc:
-        raise input_error(models[0] if models and "model" in str(exc) else sequence, exc) from exc
+        raise JobInputError(_named(str(exc), sequence, found, folder, models)) from exc
     ctx.progress(0.92, "writing the trajectory")
     out = ctx.workdir / "out"
     out.mkdir()

@@ -12,6 +12,7 @@ model answers in mm and degrees.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import cv2
@@ -119,19 +120,23 @@ def train_oenet(
     """Train OE-Net on the pairs of simulated sequences, export it to ``out`` (ONNX, checked
     against torch) and return its metadata; ``sources`` names the sequences in it (default:
     their folders)."""
+    import torch
+
     from services.nn.onnx_io import export_onnx
     from services.nn.train import train
 
     say = progress or (lambda fraction, message: None)
     parts = [pairs_of(folder) for folder in folders]
-    cameras = {round(camera.mm_per_px, 6) for _, _, camera in parts}
-    if len(cameras) > 1:
+    squares = {round(square_mm(camera), 3) for _, _, camera in parts}
+    if len(squares) > 1:
         raise ValueError(
-            f"the sequences come from cameras of different scales: {sorted(cameras)} mm/px"
+            "the sequences' cameras see floor squares of different sizes "
+            f"({', '.join(f'{side} mm' for side in sorted(squares))}): train on one camera"
         )
     inputs = np.concatenate([p[0] for p in parts])
     targets = np.concatenate([p[1] for p in parts])
     say(0.0, f"{len(inputs)} pairs from {len(folders)} sequence(s)")
+    torch.manual_seed(config.seed)  # the initial weights too
     model = network()
     result = train(model, inputs, targets, config, checkpoint_dir=checkpoint_dir, progress=say)
     metadata = {
@@ -159,7 +164,7 @@ def train_oenet(
         },
         "metrics": {
             "best_epoch": result.best_epoch,
-            "val_mse": result.best_val_loss,
+            "val_loss_standardised": result.best_val_loss,
             "val_rmse": dict(zip(OUTPUT_COLUMNS, result.val_rmse, strict=True)),
             "test_rmse": (
                 dict(zip(OUTPUT_COLUMNS, result.test_rmse, strict=True))
@@ -177,10 +182,11 @@ def train_oenet(
 
 
 def oenet_motions(
-    model_path: Path, frames: list[np.ndarray], camera: Camera, threads: int
+    model_path: Path, frames: Iterable[np.ndarray], camera: Camera, threads: int
 ) -> np.ndarray:
     """(N−1, 3) motions (mm, mm, rad) of consecutive frames by an exported OE-Net; its
-    translation rescaled when this camera's mm/px differs from the training camera's."""
+    translation rescaled when this camera's floor square differs from the training
+    camera's. Only each frame's 64 × 64 input is kept."""
     from services.nn.onnx_io import read_model, session
 
     model = read_model(model_path)
@@ -188,8 +194,7 @@ def oenet_motions(
         raise ValueError(
             f"{model_path}: a {model.metadata.get('architecture')!r} model, not OE-Net"
         )
-    trained = Camera.from_document(model.metadata["camera"])
-    scale = camera.mm_per_px / trained.mm_per_px
+    scale = _scale(camera, model.metadata)
     small = np.stack([network_input(f) for f in frames])
     inputs = np.stack([small[:-1], small[1:]], axis=1)
     runner = session(model_path, threads=threads)
@@ -199,16 +204,33 @@ def oenet_motions(
     return np.column_stack([out[:, 0] * scale, out[:, 1] * scale, np.radians(out[:, 2])])
 
 
-def oenet_sigma(model_path: Path) -> np.ndarray:
+def oenet_sigma(model_path: Path, camera: Camera) -> np.ndarray:
     """(3,) the expected error of one motion (mm, mm, rad): the model's test RMSE (its
-    validation RMSE when it was trained without a test set)."""
+    validation RMSE when it was trained without a test set), scaled to ``camera``."""
     from services.nn.onnx_io import read_model
 
-    metrics = read_model(model_path).metadata.get("metrics", {})
+    metadata = read_model(model_path).metadata
+    metrics = metadata.get("metrics") or {}
     rmse = metrics.get("test_rmse") or metrics.get("val_rmse")
     if not isinstance(rmse, dict):
-        raise ValueError(f"{model_path}: the model's metadata has no per-column RMSE")
-    return np.array([rmse["dx_mm"], rmse["dy_mm"], np.radians(rmse["dtheta_deg"])])
+        raise ValueError(
+            f"{model_path}: the model's metadata has no RMSE per motion component: retrain it "
+            "with `vista odometry train`"
+        )
+    scale = _scale(camera, metadata)
+    return np.array([rmse["dx_mm"] * scale, rmse["dy_mm"] * scale, np.radians(rmse["dtheta_deg"])])
+
+
+def square_mm(camera: Camera) -> float:
+    """The side of the floor square the network sees (the frame's centre square)."""
+    return camera.mm_per_px * min(camera.width, camera.height)
+
+
+def _scale(camera: Camera, metadata: dict) -> float:
+    """How much more floor one input pixel covers with ``camera`` than in training."""
+    if "camera" not in metadata:
+        raise ValueError("the model's metadata has no training camera: retrain it")
+    return square_mm(camera) / square_mm(Camera.from_document(metadata["camera"]))
 
 
 def training_summary(metadata: dict) -> str:

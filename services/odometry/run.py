@@ -226,8 +226,8 @@ def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) ->
     confidence of its own, so nothing is flagged)."""
     from services.odometry.oenet import oenet_motions, oenet_sigma
 
-    motion = oenet_motions(model, list(read_frames(files, camera)), camera, threads)
-    sigma = np.tile(oenet_sigma(model), (len(motion), 1))
+    motion = oenet_motions(model, read_frames(files, camera), camera, threads)
+    sigma = np.tile(oenet_sigma(model, camera), (len(motion), 1))
     return Steps(motion, np.ones(len(motion)), [None] * len(motion), sigma)
 
 

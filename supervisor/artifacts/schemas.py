@@ -15,6 +15,8 @@ MEDIA_TYPES = {
     "model/gltf-binary": ".glb",
     "application/zip": ".zip",
     "application/gzip": ".tar.gz",
+    "application/x-bzip2": ".tar.bz2",
+    "application/x-xz": ".tar.xz",
     "application/x-tar": ".tar",
 }
 
