@@ -51,8 +51,6 @@ class Template:
     values: list[np.ndarray]
     jacobians: list[np.ndarray]
     """(N, 3): d(value)/d(tx, ty, θ) at the identity."""
-    texture: float
-    """RMS gradient at full size (grey levels per pixel)."""
 
 
 @dataclass(frozen=True)
@@ -63,7 +61,6 @@ class Alignment:
     """(3, 3) of the motion (px², px·rad, rad²)."""
     residual: float
     overlap: float
-    texture: float
     sharpness: float
     reason: str | None
 
@@ -109,45 +106,38 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
     if flat is not None:
         level = level / flat
     images, points, values, jacobians = [], [], [], []
-    texture = 0.0
     for k in range(LEVELS):
         if k:
             level = cv2.pyrDown(level)
         gx = cv2.Sobel(level, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
         gy = cv2.Sobel(level, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
-        magnitude = gx * gx + gy * gy
-        if k == 0:
-            texture = float(np.sqrt(magnitude[2:-2, 2:-2].mean()))
         border, stride = 4, 2 if k == 0 else 1  # at full size every other pixel competes
-        inner = magnitude[border:-border:stride, border:-border:stride]
-        chosen = _strongest(inner, min(POINTS_PER_LEVEL[k], inner.size // 4))
-        rows, cols = np.unravel_index(chosen, inner.shape)
+        inner = (slice(border, -border, stride), slice(border, -border, stride))
+        magnitude = np.square(gx[inner]) + np.square(gy[inner])
+        chosen = _strongest(magnitude, min(POINTS_PER_LEVEL[k], magnitude.size // 4))
+        rows, cols = np.unravel_index(chosen, magnitude.shape)
         rows, cols = rows * stride + border, cols * stride + border
         centre = _centre(level.shape)
-        xy = np.column_stack([cols - centre[0], rows - centre[1]]).astype(np.float64)
-        gxs, gys = gx[rows, cols].astype(np.float64), gy[rows, cols].astype(np.float64)
+        xy = np.column_stack([cols - centre[0], rows - centre[1]]).astype(np.float32)
+        gxs, gys = gx[rows, cols], gy[rows, cols]
         jacobians.append(np.column_stack([gxs, gys, -xy[:, 1] * gxs + xy[:, 0] * gys]))
         points.append(xy)
-        values.append(level[rows, cols].astype(np.float64))
+        values.append(level[rows, cols])
         images.append(level)
-    return Template(images, points, values, jacobians, texture)
+    return Template(images, points, values, jacobians)
 
 
 def _sample(image: np.ndarray, xy: np.ndarray, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``image`` at R(θ)·xy + t (about its centre), and which samples fell inside."""
+    """``image`` at R(θ)·xy + t (about its centre), and which samples fell inside (float32
+    throughout: a tenth of a pixel's precision is 10⁻⁵ of the frame's size)."""
     c, s = np.cos(motion[2]), np.sin(motion[2])
     centre = _centre(image.shape)
-    x = c * xy[:, 0] - s * xy[:, 1] + motion[0] + centre[0]
-    y = s * xy[:, 0] + c * xy[:, 1] + motion[1] + centre[1]
+    affine = np.array([[c, -s, motion[0] + centre[0]], [s, c, motion[1] + centre[1]]])
+    where = cv2.transform(xy[None], affine)  # (1, N, 2) float32
+    x, y = where[0, :, 0], where[0, :, 1]
     inside = (x >= 0) & (x <= image.shape[1] - 1) & (y >= 0) & (y <= image.shape[0] - 1)
-    values = cv2.remap(
-        image,
-        x.astype(np.float32)[None, :],
-        y.astype(np.float32)[None, :],
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    )[0]
-    return values.astype(np.float64), inside
+    values = cv2.remap(image, where, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return values[0], inside
 
 
 def _compose_inverse(motion: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -180,12 +170,13 @@ def _align_level(
         spread = ((seen - seen_mean) ** 2).sum()
         gain = ((seen - seen_mean) * (wanted - wanted_mean)).sum() / spread if spread > 0 else 1.0
         offset = wanted_mean - gain * seen_mean
-        error = np.where(inside, gain * sampled + offset - value, 0.0)
+        error = np.where(inside, gain * sampled + offset - value, 0.0).astype(np.float32)
         scale = 1.2533 * np.abs(error[inside]).mean() + 1e-6  # σ of Gaussian errors
         weight = np.where(inside, np.minimum(1.0, HUBER * scale / (np.abs(error) + 1e-12)), 0.0)
-        weighted = jac * weight[:, None]
-        hessian = jac.T @ weighted
-        delta = np.linalg.solve(hessian + 1e-9 * np.eye(3), weighted.T @ error)
+        weighted = jac * weight.astype(np.float32)[:, None]
+        hessian = (jac.T @ weighted).astype(np.float64)
+        gradient = (weighted.T @ error).astype(np.float64)
+        delta = np.linalg.solve(hessian + 1e-9 * np.eye(3), gradient)
         motion = _compose_inverse(motion, delta)
         residual = float(np.sqrt(np.sum(weight * error**2) / max(np.sum(weight), 1.0)))
         extent = np.abs(xy).max()
@@ -251,7 +242,7 @@ def align(
         reason = "too little overlap (too fast)"
     elif not residual < MAX_RESIDUAL:
         reason = "the frames do not match after alignment (blur, a changed floor)"
-    return Alignment(result, covariance, residual, overlap, template.texture, sharp, reason)
+    return Alignment(result, covariance, residual, overlap, sharp, reason)
 
 
 def seed_px(first: np.ndarray, second: np.ndarray) -> np.ndarray:
