@@ -35,6 +35,7 @@ def run_document(run: OdometryRun) -> dict:
         "frames": len(run.trajectory),
         "pairs": len(steps.motion),
         "flagged": run.flagged,
+        "warned": run.warned,
         "pairs_per_s": round(run.pairs_per_s, 1),
         "final_sigma_xy_mm": round(float(run.sigma_xy_mm[-1]), 3),
         "pairs_detail": [
@@ -45,9 +46,16 @@ def run_document(run: OdometryRun) -> dict:
                 "dtheta_deg": round(float(np.degrees(m[2])), 5),
                 "confidence": round(float(c), 3),
                 "flag": reason,
+                "warning": warning,
             }
-            for k, (m, c, reason) in enumerate(
-                zip(steps.motion, steps.confidence, steps.reasons, strict=True)
+            for k, (m, c, reason, warning) in enumerate(
+                zip(
+                    steps.motion,
+                    steps.confidence,
+                    steps.reasons,
+                    steps.warnings or [None] * len(steps.reasons),
+                    strict=True,
+                )
             )
         ],
         "sigma_xy_mm": [round(float(v), 3) for v in run.sigma_xy_mm],

@@ -2,10 +2,11 @@
 uncertainty.
 
 Frame i (``NNNNNN.png``, in name order) is taken at i / fps seconds. Each consecutive pair
-gives the camera's motion in the first frame's frame, a confidence (0–1) and, when the
-pair cannot be trusted, a reason; the motions are chained in SE(2). A flagged pair's motion
-is replaced by the one before it (a robot does not stop dead between two frames) and its
-uncertainty is that of a guess.
+gives the camera's motion in the first frame's frame, a confidence (0–1), when its
+alignment failed a reason (a flag), and when it is less sure than usual a warning; the
+motions are chained in SE(2). A flagged pair's motion is replaced by the one before it (a
+robot does not stop dead between two frames) and its uncertainty is that of a guess; a
+warned pair keeps its motion with a larger uncertainty.
 """
 
 from __future__ import annotations
@@ -41,6 +42,13 @@ SCALE_SIGMA = 5e-4
 """Relative error of the steps' lengths that they share, so it does not average out: at a
 steady speed interpolation pulls every step's sub-pixel part the same way (0.03 % on the
 simulated loop), and a real camera's height known to 0.05 mm adds as much."""
+LOW_TEXTURE_SIGMA = np.array([0.04, 0.04, np.radians(0.02)])
+"""A warned pair's least error: the median per-step error of the faintest floor, blur and
+noise of the bench's sweep."""
+MAX_JUMP_MM = 2.8
+MAX_JUMP_RAD = np.radians(2.0)
+"""What a step may differ from the one before: 1 g for 1/60 s moves 2.8 mm."""
+JUMP = "a change of motion no robot makes between two frames"
 GUESS_SIGMA_MM = 5.0
 GUESS_SIGMA_DEG = 1.0
 
@@ -52,9 +60,11 @@ class Steps:
     confidence: np.ndarray
     """(N−1,) 0–1."""
     reasons: list[str | None]
-    """Why a pair is flagged (None: trusted)."""
+    """Why a pair is flagged: its alignment failed (None: it did not)."""
     sigma: np.ndarray
     """(N−1, 3) the expected error of each motion: mm, mm, rad."""
+    warnings: list[str | None] | None = None
+    """Why a measured pair is less sure than usual (None: all as usual)."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +84,10 @@ class OdometryRun:
     @property
     def flagged(self) -> int:
         return sum(r is not None for r in self.steps.reasons)
+
+    @property
+    def warned(self) -> int:
+        return sum(w is not None for w in self.steps.warnings or ())
 
 
 def frame_files(folder: Path) -> list[Path]:
@@ -117,42 +131,55 @@ def _phase_run(files: list[Path], camera: Camera, tick: Callable[[], None]) -> S
     return Steps(np.array(motion), np.array(confidence), reasons, sigma)
 
 
+def _implausible(motion_mm: np.ndarray, expected_mm: np.ndarray) -> bool:
+    """A change of motion between two frames that no robot makes (about 1 g)."""
+    jump = motion_mm - expected_mm
+    return bool(np.hypot(jump[0], jump[1]) > MAX_JUMP_MM or abs(jump[2]) > MAX_JUMP_RAD)
+
+
 def _direct_run(
     files: list[Path], camera: Camera, flat: np.ndarray, tick: Callable[[], None]
 ) -> Steps:
     """vista's method on consecutive frames: each pair aligned from the previous pair's
-    motion, or from phase correlation when that does not give a trusted alignment."""
+    motion, or from phase correlation when that failed or jumped implausibly."""
     frames = read_frames(files, camera)
-    motion, confidence, reasons, sigma = [], [], [], []
-    first = next(frames)
-    previous = prepare(first, flat)
-    guess, trusted = None, False
-    px = camera.mm_per_px
+    motion, confidence, reasons, warnings, sigma = [], [], [], [], []
+    previous = prepare(next(frames), flat)
+    guess, trusted, sure = None, False, False
+    px = np.array([camera.mm_per_px, camera.mm_per_px, 1.0])
     for frame in frames:
         tick()
         current = prepare(frame, flat)
         if guess is None:
-            guess = seed_px(first, frame)
-        found = align(previous, current, guess, coarsest=1 if trusted else LEVELS - 1)
-        if found.reason is not None:
-            retry = align(previous, current, seed_px(first, frame))
-            if retry.reason is None or retry.residual < found.residual:
-                found = retry
-        motion.append([found.motion_px[0] * px, found.motion_px[1] * px, found.motion_px[2]])
-        deviation = np.sqrt(np.maximum(np.diag(found.covariance), 0.0))
-        sigma.append(
-            np.maximum([deviation[0] * px, deviation[1] * px, deviation[2]], DIRECT_SIGMA_FLOOR)
-        )
+            guess = seed_px(previous, current)
+        # a sure previous motion starts at half size; else (a start, a failure, a faint
+        # floor whose full-size gradients are mostly noise) the quarter size's averaged
+        # pixels lead
+        found = align(previous, current, guess, coarsest=1 if sure else LEVELS - 1)
+        reason = found.reason
+        if trusted and reason is None and _implausible(found.motion_px * px, guess * px):
+            reason = JUMP
+        if reason is not None:
+            retry = align(previous, current, seed_px(previous, current))
+            jumped = trusted and _implausible(retry.motion_px * px, guess * px)
+            if retry.reason is None and not jumped:
+                found, reason = retry, None
+        motion.append(found.motion_px * px)
+        deviation = np.sqrt(np.maximum(np.diag(found.covariance), 0.0)) * px
+        floor = LOW_TEXTURE_SIGMA if found.warning else DIRECT_SIGMA_FLOOR
+        sigma.append(np.maximum(deviation, floor))
         confidence.append(
-            float(min(1.0, found.sharpness) * min(1.0, found.overlap / 0.8))
+            float(min(1.0, max(found.sharpness, 0.0)) * min(1.0, found.overlap / 0.8))
             * float(np.exp(-found.residual / 16.0))
         )
-        reasons.append(found.reason)
-        trusted = found.reason is None
+        reasons.append(reason)
+        warnings.append(found.warning)
+        trusted = reason is None
+        sure = trusted and found.warning is None
         if trusted:
             guess = found.motion_px
-        first, previous = frame, current
-    return Steps(np.array(motion), np.array(confidence), reasons, np.array(sigma))
+        previous = current
+    return Steps(np.array(motion), np.array(confidence), reasons, np.array(sigma), warnings)
 
 
 def in_parts(
@@ -186,6 +213,7 @@ def in_parts(
         np.concatenate([r.confidence for r in results]),
         [reason for r in results for reason in r.reasons],
         np.concatenate([r.sigma for r in results]),
+        [w for r in results for w in (r.warnings or [None] * len(r.reasons))],
     )
 
 
@@ -207,7 +235,7 @@ def _bridged(steps: Steps) -> Steps:
     padded = np.vstack([np.zeros(3), steps.motion])
     guess = np.array([GUESS_SIGMA_MM, GUESS_SIGMA_MM, np.radians(GUESS_SIGMA_DEG)])
     sigma = np.where(trusted[:, None], steps.sigma, guess)
-    return Steps(padded[index + 1], steps.confidence, steps.reasons, sigma)
+    return Steps(padded[index + 1], steps.confidence, steps.reasons, sigma, steps.warnings)
 
 
 def position_sigma(steps: Steps) -> np.ndarray:
