@@ -150,6 +150,7 @@ def _measure(folder: Path, method: str, model: Path | None, threads: int) -> dic
     return {
         **scores.document(),
         "flagged": run.flagged,
+        "warned": run.warned,
         "pairs_per_s": run.pairs_per_s,
         "final_sigma_m": final_sigma_m,
         "final_error_within_2_sigma": scores.final_error_m <= 2 * final_sigma_m,
@@ -185,14 +186,15 @@ def _fmt(value: float, digits: int = 4) -> str:
 def _loop_table(rows: dict[str, dict], thesis_protocol: dict | None) -> str:
     lines = [
         "| method | RMSE δx mm | RMSE δy mm | RMSE δθ ° | final error m | ATE m | drift % "
-        "| flagged | pairs/s | final error within 2σ |",
+        "| flagged / warned | pairs/s | final error within 2σ |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for method, r in rows.items():
         lines.append(
             f"| {method} | {_fmt(r['rmse_dx_mm'])} | {_fmt(r['rmse_dy_mm'])} "
             f"| {_fmt(r['rmse_dtheta_deg'])} | {_fmt(r['final_error_m'])} "
-            f"| {_fmt(r['ate_rmse_m'])} | {_fmt(r['drift_percent'], 3)} | {r['flagged']} "
+            f"| {_fmt(r['ate_rmse_m'])} | {_fmt(r['drift_percent'], 3)} "
+            f"| {r['flagged']} / {r['warned']} "
             f"| {r['pairs_per_s']:.0f} | {'yes' if r['final_error_within_2_sigma'] else 'no'} |"
         )
     if thesis_protocol:
@@ -208,7 +210,7 @@ def _loop_table(rows: dict[str, dict], thesis_protocol: dict | None) -> str:
 
 
 def _sweep_table(rows: list[dict], methods: tuple[str, ...]) -> str:
-    head = " | ".join(f"{m} drift % (flagged)" for m in methods)
+    head = " | ".join(f"{m} drift % (flagged / warned)" for m in methods)
     steps = " | ".join(f"{m} RMSE δx, δy mm / δθ °" for m in methods)
     lines = [
         f"| case | m | {head} | {steps} |",
@@ -216,7 +218,8 @@ def _sweep_table(rows: list[dict], methods: tuple[str, ...]) -> str:
     ]
     for row in rows:
         drift = " | ".join(
-            f"{_fmt(row[m]['drift_percent'], 3)} ({row[m]['flagged']})" for m in methods
+            f"{_fmt(row[m]['drift_percent'], 3)} ({row[m]['flagged']} / {row[m]['warned']})"
+            for m in methods
         )
         rmse = " | ".join(
             f"{_fmt(row[m]['rmse_dx_mm'])}, {_fmt(row[m]['rmse_dy_mm'])} / "

@@ -158,7 +158,7 @@ def run(
     final = result.trajectory.pose[-1]
     typer.echo(
         f"{len(result.steps.motion)} pairs at {result.pairs_per_s:.0f} pairs/s, "
-        f"{result.flagged} flagged; ends at x {final[0] / 1000:.3f} m, y {final[1] / 1000:.3f} m, "
+        f"{result.flagged} flagged, {result.warned} warned; ends at x {final[0] / 1000:.3f} m, y {final[1] / 1000:.3f} m, "
         f"θ {math.degrees(final[2]):.2f}° (1σ {result.sigma_xy_mm[-1]:.1f} mm)"
     )
     typer.echo(f"wrote {out}, {report}" + (f", {plot}" if plot else ""))

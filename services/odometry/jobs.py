@@ -104,13 +104,17 @@ def odometry_job(ctx: JobContext) -> dict:
         "frames": len(result.trajectory),
         "pairs_per_s": round(result.pairs_per_s, 1),
         "flagged": result.flagged,
+        "warned": result.warned,
         "final_sigma_xy_mm": round(float(result.sigma_xy_mm[-1]), 3),
     }
     if truth is not None:
         scores = evaluate(result.trajectory, truth).document()
         ctx.add_artifact_json(scores, kind=EVALUATION.kind, name=EVALUATION.file_name())
         summary["evaluation"] = scores
-    ctx.progress(1.0, f"{len(result.steps.motion)} pairs, {result.flagged} flagged")
+    ctx.progress(
+        1.0,
+        f"{len(result.steps.motion)} pairs, {result.flagged} flagged, {result.warned} warned",
+    )
     return summary
 
 
