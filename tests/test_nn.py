@@ -42,7 +42,7 @@ def test_training_resumes_from_its_checkpoint(tmp_path) -> None:
     x, y = _data()
     config = TrainConfig(epochs=2, batch=64, seed=1, device="cpu", threads=1)
     model = _model()
-    train(model, x, y, config, checkpoint_dir=tmp_path)
+    earlier = train(model, x, y, config, checkpoint_dir=tmp_path)
     messages = []
     later = train(
         model,
@@ -53,6 +53,7 @@ def test_training_resumes_from_its_checkpoint(tmp_path) -> None:
         progress=lambda fraction, message: messages.append(message),
     )
     assert messages[0] == "resuming after epoch 2" and len(later.history) == 3
+    assert later.seconds > earlier.seconds  # the time of both runs
     with pytest.raises(ValueError, match="need ≥ 2 pairs"):
         train(_model(), x[:1], y[:1], config)
 

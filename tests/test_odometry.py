@@ -412,3 +412,28 @@ def test_a_faint_floor_is_measured_with_a_warning_not_guessed(tmp_path) -> None:
     true_steps = se2.relative(read_tum(tmp_path / "truth.tum").pose)
     guessed = np.vstack([np.zeros(3), true_steps[:-1]])  # the motion before, as a bridge has it
     assert scores.rmse_dx_mm < 0.5 * np.sqrt(np.mean((guessed - true_steps)[:, 0] ** 2))
+
+
+@pytest.mark.skipif(
+    not __import__("services.odometry.bench", fromlist=["KITTI_FRAME"]).KITTI_FRAME.is_file(),
+    reason="../shared/data (KITTI) is not beside this checkout",
+)
+def test_vista_on_a_real_camera_frame_as_the_floor(tmp_path) -> None:
+    """A KITTI camera frame (a real sensor's texture and noise, a nearly plain sky) as the
+    floor: vista's method keeps within its per-step targets; the phase peer on the same
+    frames is several times worse."""
+    from services.odometry.bench import KITTI_FRAME
+    from services.odometry.evaluate import evaluate
+    from services.odometry.run import run_odometry
+    from services.odometry.simulate import simulate_sequence
+
+    simulate_sequence(tmp_path, floor=str(KITTI_FRAME), path="random", seconds=1.0, seed=0)
+    camera = Camera.from_document(json.loads((tmp_path / "camera.json").read_text()))
+    truth = read_tum(tmp_path / "truth.tum")
+    vista = evaluate(run_odometry(tmp_path / "frames", camera, threads=2).trajectory, truth)
+    phase = evaluate(
+        run_odometry(tmp_path / "frames", camera, "phase", threads=2).trajectory, truth
+    )
+    assert vista.rmse_dx_mm < 0.05 and vista.rmse_dy_mm < 0.05 and vista.rmse_dtheta_deg < 0.05
+    assert vista.drift_percent < 0.2
+    assert phase.rmse_dy_mm > 3 * vista.rmse_dy_mm

@@ -55,6 +55,7 @@ class TrainResult:
     best_val_loss: float
     history: list[dict] = field(default_factory=list)
     seconds: float = 0.0
+    """Training time over every run that made this result (a resumed one included)."""
     val_rmse: list[float] = field(default_factory=list)
     """Per target column, with the best weights."""
     test_rmse: list[float] | None = None
@@ -168,7 +169,7 @@ def train(
         result = replace(saved["result"], model=model)
         best_state = saved["best_state"]
         say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
-    started = time.perf_counter()
+    started, earlier_s = time.perf_counter(), result.seconds
     for epoch in range(start_epoch, config.epochs):
         model.train()
         order = train_idx[
@@ -197,6 +198,7 @@ def train(
             result.best_val_loss, result.best_epoch = val_loss, epoch
             best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
         result.epochs_run = epoch + 1
+        result.seconds = earlier_s + time.perf_counter() - started
         per_epoch_s = (time.perf_counter() - started) / (epoch + 1 - start_epoch)
         left_min = per_epoch_s * (config.epochs - epoch - 1) / 60
         say(
@@ -222,7 +224,6 @@ def train(
             os.replace(partial, last)  # a kill mid-write leaves the previous one
     if best_state is not None:
         model.load_state_dict(best_state)
-    result.seconds += time.perf_counter() - started
     result.val_rmse = column_rmse(model, x[val_idx], y[val_idx], config.batch, device)
     if len(test_idx):
         result.test_rmse = column_rmse(model, x[test_idx], y[test_idx], config.batch, device)

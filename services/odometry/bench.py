@@ -4,8 +4,9 @@
    method's per-step RMSE, final error, ATE, drift, flagged pairs and pairs/s on this
    machine's cores; OE-Net also by the thesis's own protocol (the RMSE on the random 10 %
    of its training pairs it never trained on nor was chosen by).
-2. A sweep: every floor (the procedural ones, scikit-image's pictures and one picture no
-   model here was trained on), speeds 0.2–2 m/s, turns on the spot and fast arcs, motion
+2. A sweep: every floor (the procedural ones, scikit-image's pictures, one picture no
+   model here was trained on and, where ``../shared/data`` is, a real KITTI camera frame),
+   speeds 0.2–2 m/s, turns on the spot and fast arcs, motion
    blur, changing light and a moving shadow, the camera's height changing ± 5 mm.
 
 OE-Net is trained here, as ``vista odometry train`` does, on four circuits over other
@@ -38,6 +39,13 @@ from services.process import available_cores, prepare_process
 METHODS = ("vista", "phase", "oenet")
 UNSEEN_FLOOR = "moon"
 """scikit-image's lunar surface picture: used by no model here in training."""
+KITTI_FLOOR = "KITTI street photo"
+KITTI_FRAME = (
+    Path(__file__).resolve().parents[2].parent
+    / "shared/data/kitti-raw-2011_09_26/image_02/0000000000.png"
+)
+"""A real camera's frame (KITTI, CC BY-NC-SA 3.0) as a floor: a real sensor's texture and
+noise, road, cars and a nearly plain sky; in the sweep where the shared data is present."""
 TRAINING_SEEDS = (1, 2, 3, 4)
 TARGETS = {
     "oenet_rmse_dxy_mm": 0.13,
@@ -87,7 +95,12 @@ def _cruise(speed_mm_s: float, seconds: float = 4.0) -> tuple[Command, ...]:
 LOOP = Case("thesis-like circuit 28.6 m", "loop", path="loop", seconds=0.0)
 FLOORS = tuple(
     Case(f"floor {name}", "floor", floor=name)
-    for name in (*PROCEDURAL, *SAMPLE_IMAGES, UNSEEN_FLOOR)
+    for name in (
+        *PROCEDURAL,
+        *SAMPLE_IMAGES,
+        UNSEEN_FLOOR,
+        *((KITTI_FLOOR,) if KITTI_FRAME.is_file() else ()),
+    )
 )
 SWEEP = (
     *FLOORS,
@@ -112,6 +125,8 @@ def _floor_source(name: str) -> str:
         from skimage import data
 
         return str(Path(data.__file__).parent / "moon.png")
+    if name == KITTI_FLOOR:
+        return str(KITTI_FRAME)
     return name
 
 

@@ -158,7 +158,8 @@ def run(
     final = result.trajectory.pose[-1]
     typer.echo(
         f"{len(result.steps.motion)} pairs at {result.pairs_per_s:.0f} pairs/s, "
-        f"{result.flagged} flagged, {result.warned} warned; ends at x {final[0] / 1000:.3f} m, y {final[1] / 1000:.3f} m, "
+        f"{result.flagged} flagged, {result.warned} warned; "
+        f"ends at x {final[0] / 1000:.3f} m, y {final[1] / 1000:.3f} m, "
         f"θ {math.degrees(final[2]):.2f}° (1σ {result.sigma_xy_mm[-1]:.1f} mm)"
     )
     typer.echo(f"wrote {out}, {report}" + (f", {plot}" if plot else ""))
@@ -273,9 +274,8 @@ def bench_odometry(
         cases = tuple(c for c in SWEEP if any(word in c.name for word in only))
         loop = LOOP if "loop" in only else None
         if not cases and loop is None:
-            fail(
-                f"--only {only}: no case's name contains that; cases: loop, {', '.join(c.name for c in SWEEP)}"
-            )
+            names = ", ".join(c.name for c in SWEEP)
+            fail(f"--only {only}: no case's name contains that; cases: loop, {names}")
     run_odometry_bench(
         out, oenet_model=None if no_oenet else oenet_model, work=work, cases=cases, loop=loop
     )

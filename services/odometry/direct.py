@@ -34,14 +34,19 @@ CONVERGED_PX = (0.005, 0.02, 0.05)
 """A level is done when a step moves its points less than this (level pixels)."""
 HUBER = 1.345
 MIN_SHARPNESS = 0.1
+"""Below this the frames match barely worse one pixel off the found motion (noise matches
+noise anywhere: a plain floor has little to align on) — the warning ``LOW_TEXTURE``."""
 LOW_TEXTURE = "too little texture"
-"""The frames must match at least this much worse one pixel off the found motion (noise
-matches noise anywhere: a plain floor has nothing to align on)."""
 SHARPNESS_STRIDE = 3
 """The sharpness is measured on every third template pixel (4 000 of them)."""
 MAX_RESIDUAL = 12.0
-"""Grey levels RMS after alignment above which the frames do not match."""
+MAX_RESIDUAL_SHARE = 0.5
+"""The frames do not match when the grey levels left after alignment (RMS) pass both
+``MAX_RESIDUAL`` and this share of the template pixels' own spread: a floor of strong
+contrast leaves more after a right alignment (interpolation, blur) than a plain one."""
 MIN_OVERLAP = 0.5
+FLAT_RANGE = (0.5, 1.5)
+"""How far a lens's vignetting may take the light from its mean."""
 
 
 @dataclass
@@ -76,24 +81,27 @@ def _centre(shape: tuple[int, int]) -> np.ndarray:
 
 
 def flat_field(frames: list[np.ndarray]) -> np.ndarray:
-    """The light's fixed pattern over the frame (vignetting, a lamp's spot), mean 1: a
-    smooth surface (quadratic plus a fourth-power radial term) fitted to the mean of
-    ``frames``, whose texture averages out as the floor moves. The pattern stays while the
-    floor moves under it: left in, it pulls the heading a little at every frame."""
+    """The lens's fixed fall-off of light over the frame (vignetting), mean 1: a radial
+    surface a + b·r² + c·r⁴ about the centre fitted to the mean of ``frames``, whose
+    texture averages out as the floor moves, and kept within ``FLAT_RANGE``. The pattern
+    stays while the floor moves under it: left in, it pulls the heading a little at every
+    frame. Radial only: a freer surface took up the scene itself when the floor had moved
+    little or was a picture of strong contrast (a street photo's bright sky and dark road),
+    and dividing it out printed that scene on every frame."""
     mean = np.mean([f.astype(np.float32) for f in frames], axis=0)
     rows, cols = mean.shape
 
     def terms(y: np.ndarray, x: np.ndarray) -> list[np.ndarray]:
-        u, v = (x - (cols - 1) / 2) / cols, (y - (rows - 1) / 2) / cols
-        return [np.ones_like(u), u, v, u * u, u * v, v * v, (u * u + v * v) ** 2]
+        r2 = ((x - (cols - 1) / 2) ** 2 + (y - (rows - 1) / 2) ** 2) / cols**2
+        return [np.ones_like(r2), r2, r2 * r2]
 
     y, x = np.mgrid[0:rows:4, 0:cols:4].astype(np.float64)
     design = np.column_stack([t.ravel() for t in terms(y, x)])
     coefficients = np.linalg.lstsq(design, mean[::4, ::4].ravel(), rcond=None)[0]
     y, x = np.mgrid[0:rows, 0:cols].astype(np.float64)
     surface = sum(c * t for c, t in zip(coefficients, terms(y, x), strict=True))
-    surface = np.maximum(surface, 1e-3 * surface.max())
-    return (surface / surface.mean()).astype(np.float32)
+    surface = surface / surface.mean()
+    return np.clip(surface, *FLAT_RANGE).astype(np.float32)
 
 
 def _strongest(values: np.ndarray, count: int) -> np.ndarray:
@@ -135,7 +143,7 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
 
 def _sample(image: np.ndarray, xy: np.ndarray, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``image`` at R(θ)·xy + t (about its centre), and which samples fell inside (float32
-    throughout: a tenth of a pixel's precision is 10⁻⁵ of the frame's size)."""
+    coordinates: 10⁻⁴ pixel steps across a 640-pixel frame)."""
     c, s = np.cos(motion[2]), np.sin(motion[2])
     centre = _centre(image.shape)
     affine = np.array([[c, -s, motion[0] + centre[0]], [s, c, motion[1] + centre[1]]])
@@ -241,10 +249,11 @@ def align(
     )
     covariance = jac @ (residual**2 * np.linalg.pinv(hessian)) @ jac.T
     sharp = sharpness(template, image, motion)
+    contrast = float(np.std(template.values[0]))
     reason = None
     if overlap < MIN_OVERLAP:
         reason = "too little overlap (too fast)"
-    elif not residual < MAX_RESIDUAL:
+    elif not (residual < MAX_RESIDUAL or residual < MAX_RESIDUAL_SHARE * contrast):
         reason = "the frames do not match after alignment (a changed floor)"
     warning = LOW_TEXTURE if sharp < MIN_SHARPNESS else None
     return Alignment(result, covariance, residual, overlap, sharp, reason, warning)

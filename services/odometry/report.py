@@ -53,7 +53,7 @@ def run_document(run: OdometryRun) -> dict:
                     steps.motion,
                     steps.confidence,
                     steps.reasons,
-                    steps.warnings or [None] * len(steps.reasons),
+                    steps.warnings,
                     strict=True,
                 )
             )

@@ -63,8 +63,8 @@ class Steps:
     """Why a pair is flagged: its alignment failed (None: it did not)."""
     sigma: np.ndarray
     """(N−1, 3) the expected error of each motion: mm, mm, rad."""
-    warnings: list[str | None] | None = None
-    """Why a measured pair is less sure than usual (None: all as usual)."""
+    warnings: list[str | None]
+    """Why a measured pair is less sure than usual (None: as usual)."""
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ class OdometryRun:
 
     @property
     def warned(self) -> int:
-        return sum(w is not None for w in self.steps.warnings or ())
+        return sum(w is not None for w in self.steps.warnings)
 
 
 def frame_files(folder: Path) -> list[Path]:
@@ -128,7 +128,7 @@ def _phase_run(files: list[Path], camera: Camera, tick: Callable[[], None]) -> S
         reasons.append(None if pair.response >= MIN_RESPONSE else "the frames do not match")
         previous = frame
     sigma = np.tile([0.03, 0.03, np.radians(0.3)], (len(motion), 1))
-    return Steps(np.array(motion), np.array(confidence), reasons, sigma)
+    return Steps(np.array(motion), np.array(confidence), reasons, sigma, [None] * len(motion))
 
 
 def _implausible(motion_mm: np.ndarray, expected_mm: np.ndarray) -> bool:
@@ -213,7 +213,7 @@ def in_parts(
         np.concatenate([r.confidence for r in results]),
         [reason for r in results for reason in r.reasons],
         np.concatenate([r.sigma for r in results]),
-        [w for r in results for w in (r.warnings or [None] * len(r.reasons))],
+        [warning for r in results for warning in r.warnings],
     )
 
 
@@ -256,7 +256,8 @@ def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) ->
 
     motion = oenet_motions(model, read_frames(files, camera), camera, threads)
     sigma = np.tile(oenet_sigma(model, camera), (len(motion), 1))
-    return Steps(motion, np.ones(len(motion)), [None] * len(motion), sigma)
+    nothing = [None] * len(motion)
+    return Steps(motion, np.ones(len(motion)), nothing, sigma, nothing)
 
 
 def run_odometry(
