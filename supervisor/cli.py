@@ -11,6 +11,7 @@ import typer
 
 from contract.cli import fail
 from services.defects import cli as defects_cli
+from services.depth import cli as depth_cli
 from services.odometry import cli as odometry_cli
 from services.stitching import cli as stitching_cli
 from services.wording import counted
@@ -219,6 +220,7 @@ def bench_clients(
 stitching_cli.register(app, simulate_app, bench_app)
 defects_cli.register(app, simulate_app, bench_app)
 odometry_cli.register(app, bench_app)
+depth_cli.register(app, bench_app)
 
 if __name__ == "__main__":
     app()

@@ -1,0 +1,209 @@
+"""KITTI's formats, so users point vista at their own folders: depth PNGs, the raw layout's
+images and calibration, and poses in the odometry format.
+
+- Depth PNG (the depth benchmark's convention): uint16, metres × 256, 0 = no measurement.
+- A *drive* folder holds ``image_02/`` (left colour camera, ``*.png``; KITTI raw's
+  ``image_02/data/`` also works), optionally ``image_03/`` (right), ``depth/`` (or the depth
+  benchmark's ``proj_depth/groundtruth/image_02/``) and ``poses.txt``; its calibration is
+  ``calib.json`` (``K`` or ``P_rect_02``, optional ``baseline_m`` or ``P_rect_03``) or
+  KITTI's ``calib_cam_to_cam.txt``, in the folder or its parent (raw drives share their
+  date folder's).
+- ``poses.txt``: one line per frame, the 3 × 4 row-major pose of the left camera in the first
+  frame's camera frame (metres): ``cam0_T_cami``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.depth.camera import KITTI_BASELINE_M, Camera
+
+DEPTH_SCALE = 256.0
+MAX_STORED_M = 65535 / DEPTH_SCALE
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+def write_depth_png(path: Path, depth_m: np.ndarray) -> None:
+    """Depth (H, W) metres as KITTI's uint16 PNG; 0, negative, non-finite or beyond
+    ``MAX_STORED_M`` (256 m) is stored as 0 (no measurement)."""
+    import cv2
+
+    depth = np.asarray(depth_m, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"depth must be (H, W), got {depth.shape}")
+    valid = np.isfinite(depth) & (depth > 0) & (depth <= MAX_STORED_M)
+    stored = np.where(valid, np.rint(np.where(valid, depth, 0) * DEPTH_SCALE), 0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), stored.astype(np.uint16)):
+        raise ValueError(f"{path}: could not write the PNG")
+
+
+def read_depth_png(path: Path) -> np.ndarray:
+    """(H, W) float32 metres from a KITTI depth PNG (0 = no measurement)."""
+    import cv2
+
+    stored = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if stored is None:
+        raise ValueError(f"{path}: not a readable PNG")
+    if stored.dtype != np.uint16 or stored.ndim != 2:
+        raise ValueError(
+            f"{path}: a depth PNG is one 16-bit channel (KITTI: metres × 256), this one is "
+            f"{stored.dtype} with shape {stored.shape}"
+        )
+    return stored.astype(np.float32) / DEPTH_SCALE
+
+
+def read_image(path: Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB from a PNG or JPEG (grey, 16-bit and RGBA converted)."""
+    import cv2
+
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise ValueError(f"{path}: not a readable image")
+    if raw.dtype == np.uint16:
+        raw = (raw // 257).astype(np.uint8)
+    if raw.dtype != np.uint8:
+        raise ValueError(f"{path}: {raw.dtype} pixels (8- or 16-bit images only)")
+    if raw.ndim == 2:
+        return np.repeat(raw[..., None], 3, axis=2)
+    if raw.shape[2] == 4:
+        raw = raw[..., :3]
+    return np.ascontiguousarray(raw[..., ::-1])
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), np.ascontiguousarray(image[..., ::-1])):
+        raise ValueError(f"{path}: could not write the image")
+
+
+def _calib_txt(path: Path) -> dict[str, np.ndarray]:
+    values = {}
+    for line in path.read_text().splitlines():
+        key, _, rest = line.partition(":")
+        try:
+            values[key.strip()] = np.array([float(x) for x in rest.split()])
+        except ValueError:
+            continue  # calib_time and other non-numeric entries
+    return values
+
+
+def _camera_from(
+    projection_2: np.ndarray,
+    projection_3: np.ndarray | None,
+    size: tuple[int, int],
+    baseline_m: float | None,
+) -> Camera:
+    P2 = np.asarray(projection_2, dtype=np.float64).reshape(3, 4)
+    if baseline_m is None and projection_3 is not None:
+        P3 = np.asarray(projection_3, dtype=np.float64).reshape(3, 4)
+        baseline_m = float((P2[0, 3] - P3[0, 3]) / P2[0, 0])
+    return Camera(size[0], size[1], P2[:, :3], baseline_m if baseline_m else KITTI_BASELINE_M)
+
+
+def read_calibration(folder: Path, size: tuple[int, int]) -> Camera:
+    """The left camera of a drive whose images are ``size`` (width, height): from
+    ``calib.json`` or ``calib_cam_to_cam.txt`` in ``folder`` or its parent."""
+    for place in (folder, folder.parent):
+        json_path = place / "calib.json"
+        if json_path.is_file():
+            try:
+                data = json.loads(json_path.read_text())
+                if "K" in data:
+                    K = np.asarray(data["K"], dtype=np.float64)
+                    projection = np.hstack((K, np.zeros((3, 1))))
+                else:
+                    projection = np.asarray(data["P_rect_02"], dtype=np.float64)
+                return _camera_from(projection, data.get("P_rect_03"), size, data.get("baseline_m"))
+            except (KeyError, ValueError, TypeError) as exc:
+                raise ValueError(
+                    f"{json_path}: not a calibration (K or P_rect_02): {exc}"
+                ) from None
+        txt_path = place / "calib_cam_to_cam.txt"
+        if txt_path.is_file():
+            values = _calib_txt(txt_path)
+            if "P_rect_02" not in values or values["P_rect_02"].size != 12:
+                raise ValueError(f"{txt_path}: no P_rect_02 (3 × 4)")
+            return _camera_from(values["P_rect_02"], values.get("P_rect_03"), size, None)
+    raise ValueError(f"{folder}: no calib.json or calib_cam_to_cam.txt here or in its parent")
+
+
+def _images_in(folder: Path) -> list[Path]:
+    if (folder / "data").is_dir():
+        folder = folder / "data"
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+@dataclass(frozen=True)
+class Drive:
+    """A drive folder's frames, matched by name."""
+
+    folder: Path
+    camera: Camera
+    names: tuple[str, ...]
+    """Frame names (file stems), in order."""
+    left: tuple[Path, ...]
+    right: tuple[Path, ...] | None
+    depth: tuple[Path | None, ...] | None
+    """A depth PNG per frame (None where a frame has none), or None without depth."""
+    poses: np.ndarray | None
+    """(N, 4, 4) ``cam0_T_cami`` when the drive has poses.txt."""
+
+
+def read_drive(folder: Path) -> Drive:
+    """A drive folder (see the module's docstring); ValueError naming what is missing or
+    inconsistent."""
+    folder = Path(folder)
+    left_dir = folder / "image_02"
+    if not left_dir.is_dir():
+        raise ValueError(f"{folder}: no image_02/ folder (the left camera's images)")
+    left = _images_in(left_dir)
+    if not left:
+        raise ValueError(f"{left_dir}: no PNG or JPEG images")
+    names = tuple(p.stem for p in left)
+    first = read_image(left[0])
+    camera = read_calibration(folder, (first.shape[1], first.shape[0]))
+    right = None
+    if (folder / "image_03").is_dir():
+        by_name = {p.stem: p for p in _images_in(folder / "image_03")}
+        missing = [n for n in names if n not in by_name]
+        if missing:
+            raise ValueError(f"{folder / 'image_03'}: no right image for {missing[:3]}")
+        right = tuple(by_name[n] for n in names)
+    depth = None
+    for candidate in (folder / "depth", folder / "proj_depth" / "groundtruth" / "image_02"):
+        if candidate.is_dir():
+            by_name = {p.stem: p for p in candidate.glob("*.png")}
+            depth = tuple(by_name.get(n) for n in names)
+            break
+    poses = None
+    if (folder / "poses.txt").is_file():
+        poses = read_poses(folder / "poses.txt")
+        if len(poses) != len(names):
+            raise ValueError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(names)} frames")
+    return Drive(folder, camera, names, tuple(left), right, depth, poses)
+
+
+def write_poses(path: Path, cam0_T_cam: np.ndarray) -> None:
+    """(N, 4, 4) poses in KITTI's odometry format."""
+    rows = np.asarray(cam0_T_cam)[:, :3, :].reshape(len(cam0_T_cam), 12)
+    path.write_text("".join(" ".join(f"{v:.9e}" for v in row) + "\n" for row in rows))
+
+
+def read_poses(path: Path) -> np.ndarray:
+    """(N, 4, 4) poses from KITTI's odometry format."""
+    try:
+        rows = np.loadtxt(path, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not KITTI poses (12 numbers a line): {exc}") from None
+    if rows.shape[1] != 12 or not np.all(np.isfinite(rows)):
+        raise ValueError(f"{path}: a KITTI pose line is 12 finite numbers, got {rows.shape[1]}")
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    poses[:, :3, :] = rows.reshape(-1, 3, 4)
+    return poses

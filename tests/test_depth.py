@@ -1,0 +1,199 @@
+"""Monocular depth: the evaluation against hand-computed metrics, KITTI's formats, the
+simulator against its own truth, the commands and their errors."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from services.depth.camera import kitti_camera
+from services.depth.kitti import read_calibration, read_depth_png, read_drive, write_depth_png
+from services.depth.metrics import evaluate_image
+from services.depth.render import render
+from services.depth.scene import random_scene
+from supervisor.cli import app
+
+KITTI_RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26"
+SMALL = kitti_camera().resized(320, 96)
+
+
+def test_metrics_against_a_case_computed_by_hand() -> None:
+    gt = np.array([[2.0, 4.0], [0.0, 8.0]])  # the 0 is unmeasured
+    pred = np.array([[1.0, 4.0], [5.0, 10.0]])
+    got = evaluate_image(gt, pred, crop="none").errors
+    # valid pairs (2, 1), (4, 4), (8, 10)
+    assert got.abs_rel == pytest.approx((1 / 2 + 0 + 2 / 8) / 3)
+    assert got.sq_rel == pytest.approx((1 / 2 + 0 + 4 / 8) / 3)
+    assert got.rmse == pytest.approx(math.sqrt(5 / 3))
+    assert got.rmse_log == pytest.approx(math.sqrt((math.log(2) ** 2 + math.log(0.8) ** 2) / 3))
+    # ratios 2, 1, 1.25: 1.25 is not < 1.25, and 2 is not < 1.25³ = 1.953
+    assert (got.delta1, got.delta2, got.delta3) == pytest.approx((1 / 3, 2 / 3, 2 / 3))
+
+
+def test_metrics_median_scaling_clipping_resizing_and_crops() -> None:
+    gt = np.full((100, 100), 10.0)
+    scaled = evaluate_image(gt, np.full((100, 100), 20.0), crop="none", median_scaling=True)
+    assert scaled.scale == pytest.approx(0.5) and scaled.errors.abs_rel == pytest.approx(0)
+    far = evaluate_image(np.full((4, 4), 70.0), np.full((4, 4), 100.0), crop="none")
+    assert far.errors.abs_rel == pytest.approx(10 / 70)  # clipped to 80 m first
+    half = evaluate_image(gt, np.full((50, 50), 10.0), crop="none")  # resized to the truth
+    assert half.pixels == 100 * 100 and half.errors.rmse == pytest.approx(0)
+    # Garg's crop keeps rows 40–98 and columns 3–95 of a 100 × 100 image
+    assert evaluate_image(gt, gt, crop="garg").pixels == (99 - 40) * (96 - 3)
+    assert evaluate_image(gt, gt, crop="eigen").pixels == (91 - 33) * (96 - 3)
+    gt[:, :] = 0
+    with pytest.raises(ValueError, match="no ground-truth pixel"):
+        evaluate_image(gt, gt)
+
+
+def test_depth_png_round_trip_and_refusal(tmp_path: Path) -> None:
+    depth = np.array([[0.0, 1.0, 80.5], [300.0, np.nan, 3.14159]])
+    write_depth_png(tmp_path / "d.png", depth)
+    back = read_depth_png(tmp_path / "d.png")
+    assert back[0, 1] == 1.0 and back[0, 2] == 80.5
+    assert back[1, 2] == pytest.approx(3.14159, abs=1 / 512)
+    assert back[1, 0] == 0 and back[1, 1] == 0 and back[0, 0] == 0  # beyond 256 m, NaN, none
+    cv2.imwrite(str(tmp_path / "grey.png"), np.zeros((4, 4), np.uint8))
+    with pytest.raises(ValueError, match="16-bit"):
+        read_depth_png(tmp_path / "grey.png")
+
+
+@pytest.mark.skipif(not KITTI_RAW.is_dir(), reason="the shared KITTI sample is not here")
+def test_reads_the_real_kitti_drive() -> None:
+    drive = read_drive(KITTI_RAW)
+    assert len(drive.names) == 40 and drive.right is None and drive.poses is None
+    assert drive.camera.width == 1242 and drive.camera.height == 375
+    assert drive.camera.K[0, 0] == pytest.approx(721.5377)
+    depth = read_depth_png(drive.depth[0])
+    valid = depth > 0
+    assert 10_000 < valid.sum() < 30_000 and depth[valid].min() > 1 and depth.max() < 90
+
+
+def test_reads_kittis_calib_cam_to_cam(tmp_path: Path) -> None:
+    (tmp_path / "calib_cam_to_cam.txt").write_text(
+        "calib_time: 09-Jan-2012 13:57:47\n"
+        "P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01 0.000000e+00 "
+        "7.215377e+02 1.728540e+02 2.163791e-01 0.000000e+00 0.000000e+00 1.000000e+00 2.745884e-03\n"
+        "P_rect_03: 7.215377e+02 0.000000e+00 6.095593e+02 -3.395242e+02 0.000000e+00 "
+        "7.215377e+02 1.728540e+02 2.199936e+00 0.000000e+00 0.000000e+00 1.000000e+00 2.729905e-03\n"
+    )
+    drive = tmp_path / "2011_09_26_drive_0001_sync"
+    drive.mkdir()
+    camera = read_calibration(drive, (1242, 375))  # found in the date folder above
+    assert camera.K[0, 2] == pytest.approx(609.5593)
+    assert camera.baseline_m == pytest.approx(0.5327, abs=1e-4)
+    with pytest.raises(ValueError, match="no calib"):
+        read_calibration(tmp_path / "elsewhere" / "deeper", (1, 1))
+
+
+def test_simulated_road_depth_is_the_ground_plane() -> None:
+    scene = random_scene(4)
+    street_T_camera = np.eye(4)
+    street_T_camera[:3, 3] = (scene.ego_x_m, -1.65, 0.0)
+    depth = render(scene, SMALL, street_T_camera, noise_seed=None).depth_m
+    fy, cy = SMALL.K[1, 1], SMALL.K[1, 2]
+    rows = np.arange(SMALL.height)[:, None]
+    plane = np.where(rows > cy + 2, 1.65 * fy / np.maximum(rows - cy, 1e-9), 0)
+    # the bottom rows' centre (nothing parked in the camera's lane within 6 m) is road
+    centre = slice(SMALL.width // 2 - 10, SMALL.width // 2 + 10)
+    assert np.allclose(
+        depth[-6:, centre], np.broadcast_to(plane[-6:], (6, SMALL.width))[:, centre], rtol=1e-4
+    )
+    assert (depth[0] == 0).any()  # sky
+
+
+def test_simulated_stereo_pair_agrees_with_its_depth(tmp_path: Path) -> None:
+    """The right image warped into the left by the left's true depth matches it."""
+    scene = random_scene(11)
+    camera = kitti_camera().resized(621, 188)
+    street_T_left = np.eye(4)
+    street_T_left[:3, 3] = (scene.ego_x_m, -1.65, 0.0)
+    left_T_right = np.eye(4)
+    left_T_right[0, 3] = camera.baseline_m
+    left = render(scene, camera, street_T_left, noise_seed=None)
+    right = render(scene, camera, street_T_left @ left_T_right, noise_seed=None)
+    disparity = camera.K[0, 0] * camera.baseline_m / np.maximum(left.depth_m, 1e-6)
+    u = (np.arange(camera.width)[None, :] - disparity).astype(np.float32)
+    v = np.broadcast_to(np.arange(camera.height, dtype=np.float32)[:, None], u.shape)
+    warped = cv2.remap(right.image.astype(np.float32), u, np.ascontiguousarray(v), cv2.INTER_LINEAR)
+    seen = (left.depth_m > 0) & (u > 1)
+    error = np.abs(warped - left.image).mean(axis=2)[seen]
+    unwarped = np.abs(right.image.astype(np.float32) - left.image).mean(axis=2)[seen]
+    assert np.median(error) < 1.0 and np.mean(error) < 0.3 * np.mean(unwarped)
+
+
+def test_simulate_command_writes_kittis_layout(tmp_path: Path) -> None:
+    out = tmp_path / "drive"
+    result = CliRunner().invoke(
+        app,
+        [
+            "depth",
+            "simulate",
+            str(out),
+            "--frames",
+            "2",
+            "--stereo",
+            "--seed",
+            "3",
+            "--width",
+            "160",
+            "--height",
+            "48",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    drive = read_drive(out)
+    assert drive.names == ("0000000000", "0000000001") and drive.right is not None
+    assert drive.camera.width == 160 and drive.camera.K[0, 0] == pytest.approx(
+        721.5377 * 160 / 1242
+    )
+    calib = json.loads((out / "calib.json").read_text())
+    assert calib["baseline_m"] == pytest.approx(0.5327)
+    # poses: the first is the identity; the camera moves forward along its z (or stands still)
+    assert np.allclose(drive.poses[0], np.eye(4))
+    assert drive.poses[1][2, 3] >= 0 and abs(drive.poses[1][0, 3]) < 0.2
+    assert cv2.imread(str(drive.left[1])).shape == (48, 160, 3)
+    depth = read_depth_png(drive.depth[1])
+    assert depth.shape == (48, 160) and (depth > 0).mean() > 0.4
+
+
+def test_eval_command_writes_the_contract(tmp_path: Path) -> None:
+    gt, pred = tmp_path / "gt", tmp_path / "pred"
+    truth = np.full((20, 30), 10.0)
+    for k in range(3):
+        write_depth_png(gt / f"{k:06d}.png", truth)
+    write_depth_png(pred / "000000.png", truth * 1.1)
+    write_depth_png(pred / "000001.png", truth)
+    cv2.imwrite(str(pred / "000001.color.png"), np.zeros((20, 30, 3), np.uint8))
+    out = tmp_path / "eval.json"
+    result = CliRunner().invoke(
+        app, ["depth", "eval", str(pred), str(gt), "--crop", "none", "-o", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text())
+    assert set(data["metrics"]) == {
+        "abs_rel",
+        "sq_rel",
+        "rmse",
+        "rmse_log",
+        "delta1",
+        "delta2",
+        "delta3",
+    }
+    assert [i["name"] for i in data["images"]] == ["000000", "000001"] and data["missing"] == [
+        "000002"
+    ]
+    assert data["metrics"]["abs_rel"] == pytest.approx(0.05, abs=1e-3)
+    assert "1 ground-truth images had no prediction" in result.output
+    refused = CliRunner().invoke(app, ["depth", "eval", str(tmp_path), str(gt), "-o", str(out)])
+    assert refused.exit_code == 2 and "no prediction" in refused.output
+    refused = CliRunner().invoke(
+        app, ["depth", "eval", str(pred), str(gt), "--crop", "middle", "-o", str(out)]
+    )
+    assert refused.exit_code == 2 and "--crop 'middle'" in refused.output
