@@ -93,5 +93,254 @@ def evaluate(
     typer.echo(f"wrote {out}")
 
 
+def _config(epochs: int, batch: int, learning_rate: float, seed: int, threads: int, device: str):  # noqa: ANN202 - a DepthTrainConfig
+    from services.depth.training import DepthTrainConfig
+
+    return DepthTrainConfig(
+        epochs=epochs,
+        batch=batch,
+        learning_rate=learning_rate,
+        seed=seed,
+        threads=threads,
+        device=device,
+    )
+
+
+def _load(folders: list[Path], width: int, height: int):  # noqa: ANN202 - a FrameSet
+    from services.depth.data import load_frames
+
+    try:
+        return load_frames(folders, width, height)
+    except ValueError as exc:
+        fail(str(exc))
+
+
+def _echo_progress(fraction: float, message: str) -> None:
+    typer.echo(f"[{fraction * 100:5.1f} %] {message}")
+
+
+SIZE_HELP = "multiple of 32; Monodepth2 trains at 640 × 192, vista's CPU default is 320 × 96"
+
+
+@depth_app.command("train-teacher")
+def train_teacher_command(
+    data: list[Path] = typer.Argument(
+        ...,
+        help="Drive folders (image_02/, and image_03/, depth/, poses.txt as the supervision needs).",
+    ),
+    out: Path = typer.Option(..., "-o", "--out", help="TEACHER.onnx to write."),
+    supervision: str = typer.Option(
+        "depth", help="stereo, mono (pose network), both, or depth (ground truth)."
+    ),
+    width: int = typer.Option(320, min=32, max=4096, help=f"Training width ({SIZE_HELP})."),
+    height: int = typer.Option(96, min=32, max=4096, help="Training height."),
+    epochs: int = typer.Option(12, min=1, max=1000),
+    batch: int = typer.Option(8, min=1, max=512),
+    learning_rate: float = typer.Option(
+        3e-4, min=1e-7, max=1.0, help="Adam's step (cosine schedule)."
+    ),
+    seed: int = typer.Option(0, min=0),
+    threads: int = typer.Option(2, min=1, max=256),
+    device: str = typer.Option("auto", help="auto, cpu or cuda."),
+    checkpoints: Path = typer.Option(
+        None, help="Folder for per-epoch checkpoints (a rerun resumes)."
+    ),
+) -> None:
+    """Train Monodepth2's network (ResNet-18 encoder, 14.3 M parameters) as a teacher:
+    self-supervised from stereo, from video with a pose network, or both (photometric
+    L1 + SSIM with α = 0.85, edge-aware smoothness, per-pixel minimum reprojection,
+    auto-masking), or supervised by depth maps. Writes ONNX with its encoder and decoder
+    features as extra outputs (for vista's distillation) and the validation AbsRel."""
+    from services.depth.export import export_depth_model
+    from services.depth.teacher import SUPERVISIONS, train_teacher
+
+    if supervision not in SUPERVISIONS:
+        fail(f"--supervision {supervision!r}: one of {', '.join(SUPERVISIONS)}")
+    if width % 32 or height % 32:
+        fail(f"--width {width} --height {height}: both must be multiples of 32")
+    frames = _load(data, width, height)
+    typer.echo(
+        f"{len(frames)} frames from {len(data)} folder{'s' * (len(data) > 1)} at {width} × {height}"
+    )
+    try:
+        result = train_teacher(
+            frames,
+            supervision,
+            _config(epochs, batch, learning_rate, seed, threads, device),
+            checkpoint_dir=checkpoints,
+            progress=_echo_progress,
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    training = {
+        "supervision": supervision,
+        "epochs": epochs,
+        "best_epoch": result.fit.best_epoch,
+        "frames": result.split,
+        "seconds": round(result.fit.seconds, 1),
+        "history": result.fit.history,
+    }
+    metrics = {"val_abs_rel": result.val_abs_rel} if result.val_abs_rel is not None else {}
+    export_depth_model(
+        result.model,
+        out,
+        width=width,
+        height=height,
+        architecture="monodepth2-resnet18",
+        features=True,
+        extra={"training": training, "metrics": metrics},
+    )
+    score = (
+        f"validation AbsRel {result.val_abs_rel:.3f}"
+        if result.val_abs_rel is not None
+        else f"validation loss {result.fit.best_score:.4f}"
+    )
+    typer.echo(f"wrote {out} ({score}, best epoch {result.fit.best_epoch})")
+
+
+@depth_app.command("distill")
+def distill_command(
+    images: list[Path] = typer.Argument(
+        ...,
+        help="Image folders or drive folders (a right camera or poses add vista's photometric term).",
+    ),
+    teacher: Path = typer.Option(
+        ..., help="TEACHER.onnx: vista's, or any depth model with its spec JSON beside it."
+    ),
+    out: Path = typer.Option(..., "-o", "--out", help="STUDENT.onnx to write."),
+    method: str = typer.Option(
+        "vista",
+        help="thesis (L1 on the teacher's depth) or vista (log + gradients + feature hints + photometric).",
+    ),
+    width: int = typer.Option(320, min=32, max=4096, help=f"Training width ({SIZE_HELP})."),
+    height: int = typer.Option(96, min=32, max=4096, help="Training height."),
+    epochs: int = typer.Option(12, min=1, max=1000),
+    batch: int = typer.Option(8, min=1, max=512),
+    learning_rate: float = typer.Option(
+        3e-4, min=1e-7, max=1.0, help="Adam's step (cosine schedule)."
+    ),
+    seed: int = typer.Option(0, min=0),
+    threads: int = typer.Option(2, min=1, max=256),
+    device: str = typer.Option("auto", help="auto, cpu or cuda."),
+    checkpoints: Path = typer.Option(
+        None, help="Folder for per-epoch checkpoints (a rerun resumes)."
+    ),
+) -> None:
+    """Distil TEACHER into the student, DeepLabv3+ with MobileNetV2 (2.67 M parameters),
+    on the given images, by the thesis's L1 or vista's method; writes ONNX and the student's
+    AbsRel against the teacher on held-out images."""
+    from services.depth.distill import METHODS, distill
+    from services.depth.export import export_depth_model
+    from services.depth.models import DepthModel
+
+    if method not in METHODS:
+        fail(f"--method {method!r}: one of {', '.join(METHODS)}")
+    if width % 32 or height % 32:
+        fail(f"--width {width} --height {height}: both must be multiples of 32")
+    try:
+        model = DepthModel(teacher, threads)
+    except ValueError as exc:
+        fail(str(exc))
+    frames = _load(images, width, height)
+    typer.echo(
+        f"{len(frames)} frames at {width} × {height}; teacher {teacher} ({model.spec.width} × {model.spec.height})"
+    )
+    try:
+        result = distill(
+            model,
+            frames,
+            method,
+            _config(epochs, batch, learning_rate, seed, threads, device),
+            checkpoint_dir=checkpoints,
+            progress=_echo_progress,
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    training = {
+        "method": method,
+        "teacher": model.spec.metadata.get("architecture", teacher.name),
+        "hints": list(result.hints),
+        "photometric": result.photometric,
+        "epochs": epochs,
+        "best_epoch": result.fit.best_epoch,
+        "frames": result.split,
+        "seconds": round(result.fit.seconds, 1),
+        "history": result.fit.history,
+    }
+    metrics = {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher}
+    export_depth_model(
+        result.model,
+        out,
+        width=width,
+        height=height,
+        architecture="deeplabv3plus-mobilenetv2",
+        extra={"training": training, "metrics": metrics},
+    )
+    typer.echo(
+        f"wrote {out} (AbsRel against the teacher {result.val_abs_rel_to_teacher:.3f} on held-out images; hints: {', '.join(result.hints) or 'none'}; photometric: {result.photometric})"
+    )
+
+
+@depth_app.command("predict")
+def predict_command(
+    model_path: Path = typer.Argument(..., help="MODEL.onnx (vista's, or any with its spec JSON)."),
+    images_dir: Path = typer.Argument(
+        ..., help="Folder of PNG or JPEG images (or a drive folder: its image_02/)."
+    ),
+    out_dir: Path = typer.Option(
+        ..., "-o", "--out", help="Folder for NAME.png (uint16 m × 256), NAME.color.png, NAME.ply."
+    ),
+    int8: bool = typer.Option(
+        False,
+        "--int8",
+        help="Quantize to int8 first, calibrated on these images (kept as OUT/model.int8.onnx).",
+    ),
+    clouds: bool = typer.Option(
+        False, "--clouds", help="Also write each image's point cloud (PLY, mm, camera frame)."
+    ),
+    calib: Path = typer.Option(
+        None,
+        help="calib.json or calib_cam_to_cam.txt folder for the clouds (default: the drive's, else KITTI's camera).",
+    ),
+    threads: int = typer.Option(2, min=1, max=256, help="onnxruntime threads."),
+) -> None:
+    """Depth maps at each image's own size, in KITTI's convention, with colour previews."""
+    import numpy as np
+
+    from services.depth.data import image_files
+    from services.depth.kitti import read_calibration, read_image
+    from services.depth.models import DepthModel
+    from services.depth.predict import predict_folder, resize_for
+    from services.depth.quantize import quantize_int8
+
+    folder = images_dir / "image_02" if (images_dir / "image_02").is_dir() else images_dir
+    if not folder.is_dir():
+        fail(f"{images_dir}: no such folder")
+    paths = image_files(folder / "data" if (folder / "data").is_dir() else folder)
+    if not paths:
+        fail(f"{folder}: no PNG or JPEG images")
+    try:
+        model = DepthModel(model_path, threads)
+        camera = None
+        if clouds:
+            first = read_image(paths[0])
+            place = calib or (images_dir if folder != images_dir else None)
+            camera = read_calibration(place, (first.shape[1], first.shape[0])) if place else None
+        if int8:
+            sample = np.stack(
+                [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]
+            )
+            model = DepthModel(quantize_int8(model, sample, out_dir / "model.int8.onnx"), threads)
+        done = predict_folder(
+            model, paths, out_dir, camera=camera, clouds=clouds, progress=_echo_progress
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    mean_ms = 1000 * sum(p.seconds for p in done) / len(done)
+    typer.echo(
+        f"wrote {len(done)} depth maps to {out_dir} ({mean_ms:.0f} ms a frame at {model.spec.width} × {model.spec.height}{', int8' if int8 else ''})"
+    )
+
+
 def register(app: typer.Typer, bench_app: typer.Typer) -> None:
     app.add_typer(depth_app, name="depth")

@@ -97,8 +97,9 @@ def boxes(origin: np.ndarray, direction: np.ndarray, shapes: Boxes, time_s: floa
     t1 = (-half - o_local) / d_local
     t2 = (half - o_local) / d_local
     near = np.minimum(t1, t2)
-    t_near = near.max(axis=-1)
-    t_far = np.maximum(t1, t2).min(axis=-1)
+    far = np.maximum(t1, t2)
+    t_near = np.maximum(np.maximum(near[..., 0], near[..., 1]), near[..., 2])
+    t_far = np.minimum(np.minimum(far[..., 0], far[..., 1]), far[..., 2])
     hit = (t_near <= t_far) & (t_near > EPSILON_M)
     t_all = np.where(hit, t_near, np.inf)
     index = t_all.argmin(axis=1)
@@ -166,12 +167,14 @@ def ellipsoids(origin: np.ndarray, direction: np.ndarray, shapes: Ellipsoids) ->
     n, count = len(direction), len(shapes.radii_m)
     if count == 0:
         return _miss(n)
-    radii = shapes.radii_m.astype(np.float32)[None]
-    o = (origin[:, None, :] - shapes.centre_m.astype(np.float32)[None]) / radii
-    d = direction[:, None, :] / radii
-    a = (d * d).sum(-1)
-    b = 2 * (o * d).sum(-1)
-    c = (o * o).sum(-1) - 1
+    radii = shapes.radii_m.astype(np.float32)
+    centre = shapes.centre_m.astype(np.float32)
+    # per axis (small last axes reduce slowly in numpy: the three components are written out)
+    o = [(origin[:, k : k + 1] - centre[None, :, k]) / radii[None, :, k] for k in range(3)]
+    d = [direction[:, k : k + 1] / radii[None, :, k] for k in range(3)]
+    a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    b = 2 * (o[0] * d[0] + o[1] * d[1] + o[2] * d[2])
+    c = o[0] * o[0] + o[1] * o[1] + o[2] * o[2] - 1
     disc = b * b - 4 * a * c
     t_all = (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)
     t_all = np.where((disc > 0) & (t_all > EPSILON_M), t_all, np.inf)
@@ -179,10 +182,10 @@ def ellipsoids(origin: np.ndarray, direction: np.ndarray, shapes: Ellipsoids) ->
     rows = np.arange(n)
     t = t_all[rows, index]
     finite_t = np.where(np.isfinite(t), t, 0)[:, None]
-    local = o[rows, index] + finite_t * d[rows, index]
-    normal = local / radii[0, index]
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
     point = origin + finite_t * direction
+    local = (point - centre[index]) / radii[index]
+    normal = local / radii[index]
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
     u = point[:, 0] + 0.7 * point[:, 2]
     v = -point[:, 1] + 0.3 * point[:, 2]
     return Hit(t.astype(np.float32), index, normal.astype(np.float32), u, v, np.zeros(n, np.int64))

@@ -12,21 +12,23 @@ from __future__ import annotations
 import numpy as np
 
 _TABLE = 1024
+_LATTICE: list[np.ndarray] = []
 
 
-def _lattice(seed: int) -> np.ndarray:
-    """A seed's random values on a periodic lattice (``_TABLE`` × ``_TABLE``)."""
-    return np.random.default_rng([seed, 7]).random((_TABLE, _TABLE), dtype=np.float32)
-
-
-_LATTICES: dict[int, np.ndarray] = {}
+def _lattice() -> np.ndarray:
+    """Fixed random values on a periodic ``_TABLE`` × ``_TABLE`` lattice (made once)."""
+    if not _LATTICE:
+        _LATTICE.append(np.random.default_rng(7).random((_TABLE, _TABLE), dtype=np.float32))
+    return _LATTICE[0]
 
 
 def value_noise(u: np.ndarray, v: np.ndarray, seed: int) -> np.ndarray:
-    """Smooth noise in 0–1 with features one unit apart at points (u, v) (any shape)."""
-    lattice = _LATTICES.get(seed)
-    if lattice is None:
-        lattice = _LATTICES.setdefault(seed, _lattice(seed))
+    """Smooth noise in 0–1 with features one unit apart at points (u, v) (any shape); each
+    seed reads the shared lattice from its own offset."""
+    lattice = _lattice()
+    mixed = (int(seed) * 2654435761) % (1 << 32)
+    u = u + float(mixed % _TABLE)
+    v = v + float((mixed >> 10) % _TABLE)
     u0, v0 = np.floor(u), np.floor(v)
     fu, fv = (u - u0).astype(np.float32), (v - v0).astype(np.float32)
     fu, fv = fu * fu * (3 - 2 * fu), fv * fv * (3 - 2 * fv)

@@ -17,7 +17,6 @@ finished epoch. The weights kept are the best on the validation set.
 from __future__ import annotations
 
 import hashlib
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -117,6 +116,7 @@ def train(
     the targets' units: export that one (``model`` alone then answers standardised)."""
     import torch
 
+    from services.nn.checkpoint import load_checkpoint, save_checkpoint
     from services.nn.device import choose_device
 
     say = progress or (lambda fraction, message: None)
@@ -150,16 +150,8 @@ def train(
     result = TrainResult(model, 0, -1, float("inf"))
     best_state = None
     start_epoch = 0
-    last = checkpoint_dir / "last.pt" if checkpoint_dir else None
     run = _fingerprint(config, inputs, targets)
-    saved = (
-        torch.load(last, map_location=device, weights_only=False)
-        if last and last.exists()
-        else None
-    )
-    if saved is not None and saved.get("run") != run:
-        say(0.0, f"{last} is another run's checkpoint (other data or settings): starting afresh")
-        saved = None
+    saved = load_checkpoint(checkpoint_dir, run, say)
     if saved is not None:
         model.load_state_dict(saved["model"])
         optimiser.load_state_dict(saved["optimiser"])
@@ -206,10 +198,9 @@ def train(
             f"epoch {epoch + 1}/{config.epochs}: train {train_loss:.5f}, val {val_loss:.5f} "
             f"({per_epoch_s:.0f} s an epoch, about {left_min:.0f} min left)",
         )
-        if last is not None:
-            last.parent.mkdir(parents=True, exist_ok=True)
-            partial = last.with_suffix(".partial")
-            torch.save(
+        if checkpoint_dir is not None:
+            save_checkpoint(
+                checkpoint_dir,
                 {
                     "run": run,
                     "model": model.state_dict(),
@@ -219,9 +210,7 @@ def train(
                     "result": replace(result, model=None),
                     "best_state": best_state,
                 },
-                partial,
             )
-            os.replace(partial, last)  # a kill mid-write leaves the previous one
     if best_state is not None:
         model.load_state_dict(best_state)
     result.val_rmse = column_rmse(model, x[val_idx], y[val_idx], config.batch, device)

@@ -1,0 +1,142 @@
+"""Depth for a folder of images: each image resized to the model's input, the depth resized
+back to the image's own size and written in KITTI's convention, with a colour preview and,
+when asked, a point cloud.
+
+- ``NAME.png``: uint16, metres × 256 (0 = none), the input's size;
+- ``NAME.color.png``: inverse depth through the magma colour map (near bright);
+- ``NAME.ply``: the camera-frame cloud (x right, y down, z forward), float32 mm with the
+  image's colours, organised as the image's grid (NaN where there is no depth).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.depth.camera import Camera
+from services.depth.kitti import read_image, write_depth_png
+from services.depth.models import DepthModel
+
+CLOUD_MAX_DEPTH_M = 80.0
+"""Beyond this the cloud leaves a point out (KITTI's evaluation cap)."""
+
+
+@dataclass(frozen=True)
+class PredictedImage:
+    name: str
+    depth_path: Path
+    colour_path: Path
+    cloud_path: Path | None
+    width: int
+    height: int
+    seconds: float
+    """The model's run alone (resizing and files excluded)."""
+    median_depth_m: float
+
+
+def resize_for(model: DepthModel, image: np.ndarray) -> np.ndarray:
+    import cv2
+
+    spec = model.spec
+    if image.shape[:2] == (spec.height, spec.width):
+        return image
+    shrink = image.shape[1] > spec.width
+    return cv2.resize(
+        image,
+        (spec.width, spec.height),
+        interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR,
+    )
+
+
+def predict_image(model: DepthModel, image: np.ndarray) -> tuple[np.ndarray, float]:
+    """(H, W) depth in metres at the image's own size and the model's seconds."""
+    import cv2
+
+    started = time.perf_counter()
+    depth = model.predict(resize_for(model, image)[None]).depth_m[0]
+    seconds = time.perf_counter() - started
+    if depth.shape != image.shape[:2]:
+        depth = cv2.resize(depth, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_LINEAR)
+    return depth, seconds
+
+
+def colour_preview(depth_m: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 BGR: inverse depth scaled to its 95th percentile, magma."""
+    import cv2
+
+    inverse = np.where(depth_m > 0, 1 / np.maximum(depth_m, 1e-3), 0)
+    top = float(np.percentile(inverse, 95)) or 1.0
+    return cv2.applyColorMap(
+        np.clip(inverse / top * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_MAGMA
+    )
+
+
+def depth_cloud(depth_m: np.ndarray, camera: Camera, image: np.ndarray):  # noqa: ANN201 - a PointCloud
+    """The organised camera-frame cloud of a depth map (mm), coloured by ``image``."""
+    from services.pointcloud.ply import PointCloud
+
+    if camera.width != depth_m.shape[1] or camera.height != depth_m.shape[0]:
+        camera = camera.resized(depth_m.shape[1], depth_m.shape[0])
+    keep = (depth_m > 0) & (depth_m < CLOUD_MAX_DEPTH_M)
+    points = camera.rays() * np.where(keep, depth_m, np.nan)[..., None] * 1000.0
+    return PointCloud(
+        points=points.reshape(-1, 3).astype(np.float32),
+        colors=image.reshape(-1, 3).astype(np.uint8),
+        grid_shape=depth_m.shape,
+    )
+
+
+def predict_folder(
+    model: DepthModel,
+    images: list[Path],
+    out_dir: Path,
+    *,
+    camera: Camera | None = None,
+    clouds: bool = False,
+    progress: Callable[[float, str], None] | None = None,
+) -> list[PredictedImage]:
+    """Predict every image of ``images`` into ``out_dir`` (module docstring); clouds need
+    the ``camera`` (its K is scaled to each image's size)."""
+    import cv2
+
+    from services.depth.data import nominal_K
+    from services.pointcloud.ply import write_ply
+
+    say = progress or (lambda fraction, message: None)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = []
+    for k, path in enumerate(images):
+        image = read_image(path)
+        depth, seconds = predict_image(model, image)
+        name = path.stem
+        depth_path, colour_path = out_dir / f"{name}.png", out_dir / f"{name}.color.png"
+        write_depth_png(depth_path, depth)
+        cv2.imwrite(str(colour_path), colour_preview(depth))
+        cloud_path = None
+        if clouds:
+            height, width = depth.shape
+            lens = camera or Camera(width, height, nominal_K(width, height))
+            cloud_path = out_dir / f"{name}.ply"
+            write_ply(
+                cloud_path,
+                depth_cloud(depth, lens, image),
+                comments=("vista depth: camera frame x right, y down, z forward, mm",),
+            )
+        done.append(
+            PredictedImage(
+                name,
+                depth_path,
+                colour_path,
+                cloud_path,
+                image.shape[1],
+                image.shape[0],
+                seconds,
+                float(np.median(depth)),
+            )
+        )
+        say((k + 1) / len(images), f"{name}: {seconds * 1000:.0f} ms")
+    return done

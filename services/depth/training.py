@@ -1,0 +1,273 @@
+"""The depth networks' training loop: seeded batches with Monodepth2's augmentation, Adam on a
+cosine schedule, validation after every epoch choosing the weights kept, checkpoints written
+atomically and resumed only by the same run, progress with the time left.
+
+A *step* function turns a ``Batch`` into a loss and a few logged numbers; a *validate*
+function scores the current weights (lower is better). The teacher's and the student's
+training differ only in those two functions.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from services.depth.data import FrameSet
+
+if TYPE_CHECKING:
+    import torch
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass(frozen=True)
+class DepthTrainConfig:
+    epochs: int = 12
+    batch: int = 8
+    learning_rate: float = 3e-4
+    seed: int = 0
+    threads: int = 2
+    device: str = "auto"
+    val_fraction: float = 0.1
+    augment: bool = True
+    """Random horizontal flips and colour jitter of the network's input (Monodepth2's)."""
+
+
+@dataclass
+class Batch:
+    """Frames of one step as tensors (float 0–1 images)."""
+
+    index: object
+    """(B,) frame indices (torch long)."""
+    flipped: object
+    """(B,) bool: mirrored left–right."""
+    image: object
+    """(B, 3, H, W) what the losses compare (not colour-jittered)."""
+    network_input: object
+    """(B, 3, H, W) what the network sees (colour-jittered when augmenting)."""
+    K: object
+    right: object | None = None
+    right_T_cam: object | None = None
+    depth_m: object | None = None
+    previous: object | None = None
+    following: object | None = None
+    previous_T_cam: object | None = None
+    following_T_cam: object | None = None
+    extras: dict = field(default_factory=dict)
+
+
+@dataclass
+class FitResult:
+    best_epoch: int
+    best_score: float
+    history: list[dict]
+    seconds: float
+
+
+MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0]).astype(np.float32)
+
+
+def make_batch(
+    frames: FrameSet,
+    index: np.ndarray,
+    rng: np.random.Generator,
+    augment: bool,
+    device: torch.device,
+) -> Batch:
+    """The frames at ``index`` as a batch; when augmenting, each is mirrored with probability
+    ½ (images, depth, intrinsics, stereo side and poses alike) and its network input gets
+    random brightness, contrast and saturation (±20 %) and a hue-like channel gain (±5 %)."""
+    import torch
+
+    def tensor(array: np.ndarray, flip: np.ndarray) -> torch.Tensor:
+        array = array.copy()
+        array[flip] = array[flip][..., ::-1]
+        out = torch.from_numpy(np.ascontiguousarray(array))
+        return (out.float() / 255 if array.dtype == np.uint8 else out.float()).to(device)
+
+    count = len(index)
+    flip = rng.random(count) < 0.5 if augment else np.zeros(count, bool)
+    width = frames.images.shape[3]
+    K = frames.K[index].copy()
+    K[flip, 0, 2] = width - 1 - K[flip, 0, 2]
+
+    def mirrored(transforms: np.ndarray) -> np.ndarray:
+        out = transforms.copy()
+        out[flip] = MIRROR @ out[flip] @ MIRROR
+        return out
+
+    image = tensor(frames.images[index], flip)
+    batch = Batch(
+        index=torch.from_numpy(index),
+        flipped=torch.from_numpy(flip),
+        image=image,
+        network_input=_jitter(image, rng) if augment else image,
+        K=torch.from_numpy(K).to(device),
+    )
+    if frames.right is not None:
+        batch.right = tensor(frames.right[index], flip)
+        right_T_cam = np.tile(np.eye(4, dtype=np.float32), (count, 1, 1))
+        # the right camera sits one baseline along +x; mirrored, it is on the left
+        right_T_cam[:, 0, 3] = -frames.baseline_m[index] * np.where(flip, -1, 1)
+        batch.right_T_cam = torch.from_numpy(right_T_cam).to(device)
+    if frames.depth_m is not None:
+        batch.depth_m = tensor(frames.depth_m[index], flip)
+    previous, following = frames.previous[index], frames.following[index]
+    if (previous >= 0).all() and (following >= 0).all():
+        batch.previous = tensor(frames.images[previous], flip)
+        batch.following = tensor(frames.images[following], flip)
+        batch.previous_T_cam = torch.from_numpy(mirrored(frames.previous_T_cam[index])).to(device)
+        batch.following_T_cam = torch.from_numpy(mirrored(frames.following_T_cam[index])).to(device)
+    return batch
+
+
+def _jitter(image, rng: np.random.Generator):  # noqa: ANN001, ANN202 - torch tensors
+    import torch
+
+    count = image.shape[0]
+
+    def draw(spread: float, shape: tuple[int, ...]) -> torch.Tensor:
+        return torch.from_numpy(rng.uniform(1 - spread, 1 + spread, shape).astype(np.float32)).to(
+            image.device
+        )
+
+    out = image * draw(0.2, (count, 1, 1, 1))
+    mean = out.mean(dim=(1, 2, 3), keepdim=True)
+    out = (out - mean) * draw(0.2, (count, 1, 1, 1)) + mean
+    grey = out.mean(dim=1, keepdim=True)
+    out = (out - grey) * draw(0.2, (count, 1, 1, 1)) + grey
+    out = out * draw(0.05, (count, 3, 1, 1))
+    return out.clamp(0, 1)
+
+
+def fingerprint(config: DepthTrainConfig, frames: FrameSet, what: dict) -> str:
+    """What makes a checkpoint this run's: the settings, the data and the run's own terms."""
+    settings = {k: v for k, v in asdict(config).items() if k not in ("threads", "device", "epochs")}
+    digest = hashlib.sha256(
+        json.dumps({"settings": settings, "what": what}, sort_keys=True).encode()
+    )
+    digest.update(frames.images[:: max(1, len(frames) // 64)].tobytes())
+    digest.update(str(frames.images.shape).encode())
+    return digest.hexdigest()
+
+
+def fit(
+    modules: dict,
+    step: Callable[[Batch], tuple[object, dict]],
+    validate: Callable[[], float],
+    frames: FrameSet,
+    train_index: np.ndarray,
+    config: DepthTrainConfig,
+    *,
+    run: str,
+    checkpoint_dir: Path | None = None,
+    progress: Progress | None = None,
+) -> FitResult:
+    """Train every module of ``modules`` (name → torch module) on ``step``'s loss over
+    ``train_index`` for ``config.epochs``; keep the weights ``validate`` scores lowest."""
+    import torch
+
+    from services.nn.checkpoint import load_checkpoint, save_checkpoint
+    from services.nn.device import choose_device
+
+    say = progress or (lambda fraction, message: None)
+    device = choose_device(config.device)
+    torch.set_num_threads(config.threads)
+    parameters = [p for m in modules.values() for p in m.parameters()]
+    optimiser = torch.optim.Adam(parameters, lr=config.learning_rate)
+    steps_per_epoch = max(1, len(train_index) // config.batch)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
+        optimiser, T_max=config.epochs * steps_per_epoch
+    )
+    result = FitResult(-1, float("inf"), [], 0.0)
+    best_state = None
+    start_epoch = 0
+    saved = load_checkpoint(checkpoint_dir, run, say)
+    if saved is not None:
+        for name, module in modules.items():
+            module.load_state_dict(saved["modules"][name])
+        optimiser.load_state_dict(saved["optimiser"])
+        schedule.load_state_dict(saved["schedule"])
+        schedule.T_max = config.epochs * steps_per_epoch
+        start_epoch, result, best_state = saved["epoch"] + 1, saved["result"], saved["best_state"]
+        say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
+    started, earlier_s = time.perf_counter(), result.seconds
+    for epoch in range(start_epoch, config.epochs):
+        for module in modules.values():
+            module.train()
+        rng = np.random.default_rng([config.seed, 31, epoch])
+        order = rng.permutation(train_index)
+        totals: dict[str, float] = {}
+        for k in range(steps_per_epoch):
+            batch = make_batch(
+                frames,
+                order[k * config.batch : (k + 1) * config.batch],
+                rng,
+                config.augment,
+                device,
+            )
+            loss, logs = step(batch)
+            optimiser.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(parameters, 10.0)
+            optimiser.step()
+            schedule.step()
+            value = float(loss.detach())
+            if not np.isfinite(value):
+                raise ValueError(
+                    f"training diverged in epoch {epoch + 1}: lower the learning rate (now {config.learning_rate})"
+                )
+            for key, number in {"loss": value, **logs}.items():
+                totals[key] = totals.get(key, 0.0) + float(number) / steps_per_epoch
+            if k % 20 == 0:
+                say(
+                    (epoch + (k + 1) / steps_per_epoch) / config.epochs,
+                    f"epoch {epoch + 1}/{config.epochs}, step {k + 1}/{steps_per_epoch}: loss {value:.4f}",
+                )
+        for module in modules.values():
+            module.eval()
+        with torch.no_grad():
+            score = float(validate())
+        result.history.append(
+            {"epoch": epoch + 1, **{k: round(v, 6) for k, v in totals.items()}, "val": score}
+        )
+        if score < result.best_score:
+            result.best_score, result.best_epoch = score, epoch + 1
+            best_state = {
+                n: {k: v.detach().clone() for k, v in m.state_dict().items()}
+                for n, m in modules.items()
+            }
+        result.seconds = earlier_s + time.perf_counter() - started
+        per_epoch_s = (time.perf_counter() - started) / (epoch + 1 - start_epoch)
+        say(
+            (epoch + 1) / config.epochs,
+            f"epoch {epoch + 1}/{config.epochs}: loss {totals.get('loss', float('nan')):.4f}, "
+            f"validation {score:.4f} ({per_epoch_s:.0f} s an epoch, about "
+            f"{per_epoch_s * (config.epochs - epoch - 1) / 60:.0f} min left)",
+        )
+        if checkpoint_dir is not None:
+            save_checkpoint(
+                checkpoint_dir,
+                {
+                    "run": run,
+                    "modules": {n: m.state_dict() for n, m in modules.items()},
+                    "optimiser": optimiser.state_dict(),
+                    "schedule": schedule.state_dict(),
+                    "epoch": epoch,
+                    "result": result,
+                    "best_state": best_state,
+                },
+            )
+    if best_state is not None:
+        for name, module in modules.items():
+            module.load_state_dict(best_state[name])
+    for module in modules.values():
+        module.eval()
+    return result
