@@ -12,6 +12,7 @@ from sqlalchemy import func, select
 from supervisor.db import Base
 from supervisor.demo import TOLERANCES
 from tests.conftest import auth
+from tests.depthfiles import pack_drive, small_drive, tiny_depth_model
 from tests.plyfiles import ply_bytes
 from tests.sequences import pack, small_sequence
 
@@ -133,6 +134,9 @@ def seeded(client, tokens, tmp_path):
             "frames",
             pack(small_sequence(tmp_path / "seq", seconds=0.05), tmp_path / "seq.zip").read_bytes(),
         ),
+        ("drive", pack_drive(small_drive(tmp_path / "drive"), tmp_path / "drive.tgz").read_bytes()),
+        ("model", tiny_depth_model(tmp_path / "depth.onnx").read_bytes()),
+        ("image", (tmp_path / "drive" / "image_02" / "0000000000.png").read_bytes()),
     ):
         artifacts[kind] = client.post(
             f"/api/v1/inspections/{inspection['id']}/artifacts",

@@ -81,7 +81,7 @@ class Engine:
                     "supervisor.cli",
                     "worker",
                     "--queues",
-                    "scan,stitching,defects,odometry,training,test",
+                    "scan,stitching,defects,odometry,depth,training,test",
                 ],
                 env=env,
                 cwd=REPO,
@@ -538,6 +538,102 @@ def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_
     job = engine.wait(failed["jobs"][0]["id"], timeout=60)
     assert job["status"] == "failed", job
     assert f"Artifact {broken} (broken.zip): seq/frames/000002.png: not an image" in job["error"]
+
+
+def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
+    """A simulated drive uploaded as a tar.gz: `depth.train` builds a teacher from it, a
+    second `depth.train` distils a student from that teacher, `depth.predict` runs the
+    student on the drive and on a single image: depth PNGs at the images' size, previews,
+    camera-frame clouds and a report. A student without a teacher, and a drive without
+    calibration, are refused with what is missing."""
+    from services.depth.kitti import read_depth_png
+    from tests.depthfiles import pack_drive, small_drive
+
+    folder = small_drive(tmp_path / "drive")
+    engine = engine_factory()
+    drive = _upload(
+        engine, pack_drive(folder, tmp_path / "drive.tar.gz"), "drive", "application/gzip"
+    )
+    image = _upload(engine, folder / "image_02" / "0000000001.png", "image", "image/png")
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    uploaded = engine.http.get(f"{base}/{drive}").json()
+    assert uploaded["meta"] == {"frames": 3, "stereo": True, "depth": True, "poses": True}
+    small = {"width": 128, "height": 64, "epochs": 1, "batch": 2, "device": "cpu"}
+    run = engine.run(
+        [
+            {
+                "name": "teacher",
+                "kind": "depth.train",
+                "inputs": [drive],
+                "params": {**small, "network": "teacher", "supervision": "stereo"},
+            },
+            {
+                "name": "student",
+                "kind": "depth.train",
+                "inputs": [drive],
+                "after": ["teacher"],
+                "params": {**small, "network": "student"},
+            },
+            {
+                "name": "predict",
+                "kind": "depth.predict",
+                "inputs": [drive, image],
+                "after": ["student"],
+            },
+        ]
+    )
+    teacher, student, predict = [engine.wait(j["id"], timeout=300) for j in run["jobs"]]
+    assert [j["status"] for j in (teacher, student, predict)] == ["succeeded"] * 3, (
+        teacher,
+        student,
+        predict,
+    )
+    assert teacher["result"]["architecture"] == "monodepth2-resnet18"
+    assert student["result"]["architecture"] == "deeplabv3plus-mobilenetv2"
+    assert predict["result"]["images"] == 4
+    listed = engine.http.get(base, params={"limit": 200}).json()["items"]
+    made = {(a["job_id"], a["name"], a["kind"]) for a in listed}
+    assert {
+        (teacher["id"], "depth.onnx", "model"),
+        (student["id"], "training.json", "report"),
+    } <= made
+    assert {
+        (predict["id"], "drive-0000000002.depth.png", "depth"),
+        (predict["id"], "drive-0000000002.color.png", "plot"),
+        (predict["id"], "drive-0000000002.ply", "cloud"),
+        (predict["id"], "0000000001.depth.png", "depth"),
+        (predict["id"], "depth.json", "report"),
+    } <= made
+    depth_map = next(
+        a for a in listed if a["name"] == "0000000001.depth.png" and a["job_id"] == predict["id"]
+    )
+    saved = tmp_path / "got.png"
+    saved.write_bytes(engine.http.get(f"{base}/{depth_map['id']}/content").content)
+    depth = read_depth_png(saved)
+    assert depth.shape == (64, 128) and (depth > 0).all()
+
+    alone = engine.run(
+        [
+            {
+                "name": "student",
+                "kind": "depth.train",
+                "inputs": [drive],
+                "params": {**small, "network": "student"},
+            }
+        ]
+    )
+    refused = engine.wait(alone["jobs"][0]["id"], timeout=60)
+    assert (
+        refused["status"] == "failed" and "needs the teacher as a `model` input" in refused["error"]
+    )
+    (folder / "calib.json").unlink()
+    response = engine.http.post(
+        base,
+        params={"kind": "drive", "name": "nocalib.tar.gz"},
+        content=pack_drive(folder, tmp_path / "nocalib.tar.gz").read_bytes(),
+        headers={"content-type": "application/gzip"},
+    )
+    assert response.status_code == 422 and "no calib.json" in response.json()["detail"]
 
 
 def test_a_job_error_is_one_sentence_without_server_paths():

@@ -92,8 +92,10 @@ def load_frames(
 ) -> FrameSet:
     """Every frame of ``folders`` at (width, height); ValueError naming a bad folder or file."""
     say = progress or (lambda fraction, message: None)
-    if width % 32 or height % 32:
-        raise ValueError(f"{width} × {height}: network input sizes are multiples of 32")
+    if width % 32 or height % 32 or min(width, height) < 64:
+        raise ValueError(
+            f"{width} × {height}: network input sizes are multiples of 32, at least 64"
+        )
     images, rights, depths, Ks, baselines = [], [], [], [], []
     previous, following, before, after, posed, group, names = [], [], [], [], [], [], []
     for g, folder in enumerate(folders):

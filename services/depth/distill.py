@@ -54,7 +54,7 @@ class StudentResult:
     val_abs_rel_to_teacher: float
     hints: tuple[str, ...]
     photometric: str
-    """What the photometric term used: ``stereo``, ``video``, ``stereo+video`` or ``none``."""
+    """What vista's photometric term used: ``stereo``, ``video`` or ``none``."""
     split: dict[str, int]
 
 
@@ -148,13 +148,13 @@ def distill(
         for name, values in targets.features.items():
             modules[f"adapter_{name}"] = nn.Conv2d(channels[name], values.shape[2], 1)
             hints += (name,)
+    # the photometric term uses the right camera when every frame has one, else the
+    # neighbouring frames when poses are known (then only frames with both neighbours train)
     stereo = frames.right is not None
-    video = bool(frames.has_poses.all() and (frames.previous >= 0).any())
-    photometric = (
-        "+".join(p for p, present in (("stereo", stereo), ("video", video)) if present) or "none"
-    )
+    video = not stereo and bool(frames.has_poses.all() and (frames.previous >= 0).any())
+    photometric = "stereo" if stereo else "video" if video else "none"
     train_index, val_index = split_by_group(frames, config.val_fraction, config.seed)
-    if video:
+    if video and vista:
         train_index = train_index[((frames.previous >= 0) & (frames.following >= 0))[train_index]]
     if len(train_index) < config.batch:
         raise ValueError(
@@ -179,7 +179,7 @@ def distill(
         sources = []
         if stereo:
             sources.append((batch.right, batch.right_T_cam))
-        if video and batch.previous is not None:
+        if video:
             sources += [
                 (batch.previous, batch.previous_T_cam),
                 (batch.following, batch.following_T_cam),
@@ -187,7 +187,7 @@ def distill(
         if sources:
             loss, _ = self_supervised_loss(batch, out["depth"], out["disparity"], 0, sources)
             terms["photometric"] = PHOTOMETRIC_WEIGHT * loss
-        return sum(terms.values()), {k: float(v) for k, v in terms.items()}
+        return sum(terms.values()), {k: float(v.detach()) for k, v in terms.items()}
 
     def validate() -> float:
         return agreement(student, frames, targets, val_index)

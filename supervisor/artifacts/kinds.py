@@ -5,7 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-Format = Literal["ply", "ply-mesh", "json", "png", "glb", "archive", "onnx", "tum"]
+Format = Literal[
+    "ply", "ply-mesh", "json", "png", "glb", "archive", "onnx", "tum", "image", "depth-png", "drive"
+]
 
 
 @dataclass(frozen=True)
@@ -40,6 +42,18 @@ ARTIFACT_KINDS = {
         ),
         ArtifactKind(
             "trajectory", "tum", "A camera trajectory in the TUM format (t tx ty tz qx qy qz qw)."
+        ),
+        ArtifactKind("image", "image", "A camera image (PNG or JPEG)."),
+        ArtifactKind(
+            "depth",
+            "depth-png",
+            "A depth map in KITTI's convention: 16-bit grey PNG, metres × 256, 0 = none.",
+        ),
+        ArtifactKind(
+            "drive",
+            "drive",
+            "A camera drive in KITTI's layout as a zip or tar: image_02/ and its calibration "
+            "(calib.json or calib_cam_to_cam.txt), with image_03/, depth/, poses.txt as known.",
         ),
         ArtifactKind("other", None, "Any file kept with the inspection; no job reads it."),
     )

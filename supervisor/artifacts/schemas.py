@@ -10,6 +10,7 @@ MEDIA_TYPES = {
     "application/json": ".json",
     "application/octet-stream": "",
     "image/png": ".png",
+    "image/jpeg": ".jpg",
     "text/plain": ".txt",
     "text/csv": ".csv",
     "model/gltf-binary": ".glb",

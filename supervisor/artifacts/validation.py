@@ -49,6 +49,12 @@ def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> tup
         return PLY_MEDIA_TYPE, {"ply": _ply_meta(path, name, kind, mesh=form == "ply-mesh")}
     if form == "archive":
         return _sequence_meta(path, name, kind)
+    if form == "drive":
+        return _drive_meta(path, name, kind)
+    if form == "image":
+        return _image_meta(path, head, name, kind)
+    if form == "depth-png":
+        return "image/png", _depth_png_meta(path, name, kind)
     if form == "json":
         _check_json(path, name, kind)
     elif form == "onnx":
@@ -106,6 +112,63 @@ def _sequence_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
         "truth": found.truth_member is not None,
     }
     return found.media_type, meta
+
+
+def _drive_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
+    from services.archive import ArchiveError
+    from services.depth.drive_archive import inspect_drive
+
+    try:
+        found = inspect_drive(path)
+    except ArchiveError as exc:
+        raise Problem(422, f"{name} (kind={kind}) is not a drive: {exc}.") from exc
+    meta = {
+        "frames": found.frames,
+        "stereo": found.stereo,
+        "depth": found.depth,
+        "poses": found.poses,
+    }
+    return found.media_type, meta
+
+
+JPEG_MAGIC = b"\xff\xd8\xff"
+
+
+def _png_header(path: Path) -> tuple[int, int, int, int] | None:
+    """A PNG's (width, height, bit depth, colour type) from its IHDR chunk."""
+    with open(path, "rb") as handle:
+        head = handle.read(26)
+    if len(head) < 26 or not head.startswith(_MAGIC["png"][0]) or head[12:16] != b"IHDR":
+        return None
+    return (
+        int.from_bytes(head[16:20], "big"),
+        int.from_bytes(head[20:24], "big"),
+        head[24],
+        head[25],
+    )
+
+
+def _image_meta(path: Path, head: bytes, name: str, kind: str) -> tuple[str, dict]:
+    if head.startswith(JPEG_MAGIC):
+        return "image/jpeg", {}
+    header = _png_header(path)
+    if header is None:
+        raise Problem(422, f"{name} (kind={kind}) is neither a PNG nor a JPEG image.")
+    return "image/png", {"width": header[0], "height": header[1]}
+
+
+def _depth_png_meta(path: Path, name: str, kind: str) -> dict:
+    header = _png_header(path)
+    if header is None:
+        raise Problem(422, f"{name} (kind={kind}) does not start with the PNG signature.")
+    width, height, bits, colour = header
+    if bits != 16 or colour != 0:
+        raise Problem(
+            422,
+            f"{name} (kind={kind}) is a {bits}-bit PNG of colour type {colour}; a depth map is "
+            "16-bit grey (KITTI: metres × 256).",
+        )
+    return {"width": width, "height": height}
 
 
 def _model_meta(path: Path, name: str, kind: str) -> dict:

@@ -15,6 +15,7 @@ SERVICE_KIND_MODULES = (
     "services.stitching.kinds",
     "services.defects.kinds",
     "services.odometry.kinds",
+    "services.depth.kinds",
 )
 
 _KINDS: dict[str, JobKind] = {}

@@ -1,0 +1,429 @@
+"""``vista bench depth``: the teacher and both students side by side.
+
+1. Data: simulated stereo drives (three frames each) to train on, other simulated frames
+   held out, and — where ``../shared/data`` is — KITTI's 40 real frames with LiDAR depth.
+2. Models: the teacher (Monodepth2's network, supervised by the simulator's depth) and the
+   student distilled from it twice, by the thesis's L1 and by vista's method, on the same
+   frames; each is trained here unless already in the work folder (a rerun reuses them).
+3. Accuracy: monodepth2's seven metrics on the held-out simulated frames (metric, no crop)
+   and on KITTI (Garg's crop, median scaling, 80 m cap), for each model, the student in
+   int8 (calibrated on the frames it predicts) and a flat-road prior with no learning.
+4. Latency per 1024 × 320 frame on 1 and 2 threads: torch eager, onnxruntime fp32 and int8.
+
+The thesis's figures (Tables 5.2–5.3, KITTI Eigen split, i7-5820K) are printed beside.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from contract.bench import print_verdict, say, write_document
+from services.depth.camera import kitti_camera
+from services.depth.data import FrameSet, load_frames
+from services.depth.kitti import read_depth_png, read_drive, read_image
+from services.depth.metrics import METRICS, evaluate_image, mean_errors
+from services.depth.models import DepthModel
+from services.depth.training import DepthTrainConfig
+from services.process import available_cores, prepare_process
+
+KITTI_RAW = Path(__file__).resolve().parents[2].parent / "shared/data/kitti-raw-2011_09_26"
+TRAIN_SIZE = (320, 96)
+LATENCY_SIZE = (1024, 320)
+TRAIN_DRIVES, TEST_FRAMES = 1200, 120
+TEST_SEED = 900_000
+"""Held-out drives' seeds: far from the training drives' 0 … TRAIN_DRIVES."""
+TEACHER_EPOCHS, STUDENT_EPOCHS = 10, 10
+LATENCY_RUNS = 10
+THESIS = {
+    "student": {
+        "parameters": 2_643_281,
+        "s_1_core": 0.4231,
+        "s_6_cores": 0.1445,
+        "abs_rel": 0.110,
+        "rmse": 5.139,
+        "delta1": 0.863,
+    },
+    "teacher": {
+        "parameters": 14_849_936,
+        "s_1_core": 0.7365,
+        "s_6_cores": 0.2611,
+        "abs_rel": 0.105,
+        "rmse": 4.608,
+        "delta1": 0.876,
+    },
+}
+TARGETS = {
+    "student_parameters": 2_700_000,
+    "student_fp32_s_2_threads": 0.12,
+    "student_int8_s_2_threads": 0.07,
+    "student_abs_rel_over_teacher": 1.05,
+    "kitti_abs_rel_aim": 0.25,
+}
+
+
+@dataclass(frozen=True)
+class EvalSet:
+    name: str
+    images: list[np.ndarray]
+    """(H, W, 3) uint8 each, at their own size."""
+    truths: list[np.ndarray]
+    crop: str
+    median_scaling: bool
+    K: np.ndarray
+    """Intrinsics at the images' size (for the flat-road prior)."""
+
+
+def _sim_data(work: Path, drives: int, test_frames: int) -> tuple[list[Path], list[Path]]:
+    from services.depth.simulate import simulate_dataset
+
+    camera = kitti_camera().resized(*TRAIN_SIZE)
+    say(f"simulating {test_frames} held-out frames and {drives} training drives (kept in {work})")
+    test = simulate_dataset(
+        work / "sim" / "test",
+        drives=test_frames,
+        frames=1,
+        stereo=False,
+        seed=TEST_SEED,
+        camera=camera,
+    )
+    train = simulate_dataset(
+        work / "sim" / "train",
+        drives=drives,
+        frames=3,
+        stereo=True,
+        seed=0,
+        camera=camera,
+        progress=lambda m: say(m) if m.endswith("00/" + str(drives)) else None,
+    )
+    return train, test
+
+
+def _teacher(path: Path, frames: FrameSet, config: DepthTrainConfig, work: Path) -> None:
+    from services.depth.export import export_depth_model
+    from services.depth.teacher import train_teacher
+
+    say(
+        f"training the teacher ({config.epochs} epochs on {len(frames)} frames, supervised by depth)"
+    )
+    result = train_teacher(
+        frames,
+        "depth",
+        config,
+        checkpoint_dir=work / "checkpoints" / "teacher",
+        progress=lambda f, m: say(m),
+    )
+    training = {
+        "supervision": "depth",
+        "epochs": config.epochs,
+        "best_epoch": result.fit.best_epoch,
+        "frames": result.split,
+        "seconds": round(result.fit.seconds, 1),
+        "history": result.fit.history,
+    }
+    export_depth_model(
+        result.model,
+        path,
+        width=TRAIN_SIZE[0],
+        height=TRAIN_SIZE[1],
+        architecture="monodepth2-resnet18",
+        features=True,
+        extra={"training": training, "metrics": {"val_abs_rel": result.val_abs_rel}},
+    )
+
+
+def _students(
+    work: Path, teacher_path: Path, frames: FrameSet, config: DepthTrainConfig
+) -> dict[str, Path]:
+    from services.depth.distill import distill, teacher_targets
+    from services.depth.export import export_depth_model
+
+    paths = {method: work / f"student-{method}.onnx" for method in ("thesis", "vista")}
+    missing = [m for m, p in paths.items() if not p.is_file()]
+    if not missing:
+        return paths
+    teacher = DepthModel(teacher_path, available_cores())
+    say(f"running the teacher on {len(frames)} training frames and their mirror images")
+    targets = teacher_targets(teacher, frames, features=True)
+    for method in missing:
+        say(f"distilling the student by the {method} method ({config.epochs} epochs)")
+        result = distill(
+            teacher,
+            frames,
+            method,
+            config,
+            checkpoint_dir=work / "checkpoints" / f"student-{method}",
+            progress=lambda f, m: say(m),
+            targets=targets,
+        )
+        training = {
+            "method": method,
+            "teacher": "monodepth2-resnet18",
+            "hints": list(result.hints),
+            "photometric": result.photometric,
+            "epochs": config.epochs,
+            "best_epoch": result.fit.best_epoch,
+            "frames": result.split,
+            "seconds": round(result.fit.seconds, 1),
+            "history": result.fit.history,
+        }
+        export_depth_model(
+            result.model,
+            paths[method],
+            width=TRAIN_SIZE[0],
+            height=TRAIN_SIZE[1],
+            architecture="deeplabv3plus-mobilenetv2",
+            extra={
+                "training": training,
+                "metrics": {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher},
+            },
+        )
+    return paths
+
+
+def _eval_sets(test_drives: list[Path]) -> list[EvalSet]:
+    sets = []
+    images, truths = [], []
+    for folder in test_drives:
+        drive = read_drive(folder)
+        images.append(read_image(drive.left[0]))
+        truths.append(read_depth_png(drive.depth[0]))
+    K = kitti_camera().resized(*TRAIN_SIZE).K
+    sets.append(EvalSet("simulated, held out", images, truths, "none", False, K))
+    if KITTI_RAW.is_dir():
+        drive = read_drive(KITTI_RAW)
+        pairs = [
+            (p, d) for p, d in zip(drive.left, drive.depth or (), strict=False) if d is not None
+        ]
+        sets.append(
+            EvalSet(
+                "KITTI real",
+                [read_image(p) for p, _ in pairs],
+                [read_depth_png(d) for _, d in pairs],
+                "garg",
+                True,
+                drive.camera.K,
+            )
+        )
+    return sets
+
+
+def flat_road(
+    image: np.ndarray, K: np.ndarray, height_m: float = 1.65, far_m: float = 40.0
+) -> np.ndarray:
+    """The no-learning prior: the road plane below the horizon, ``far_m`` above it."""
+    rows = np.arange(image.shape[0], dtype=np.float64)[:, None]
+    below = rows - K[1, 2]
+    depth = np.where(below > 0, height_m * K[1, 1] / np.maximum(below, 1e-9), far_m)
+    return np.broadcast_to(np.minimum(depth, far_m), image.shape[:2]).astype(np.float32)
+
+
+def _score(predict, evalset: EvalSet) -> dict:  # noqa: ANN001 - image → depth at its size
+    results = [
+        evaluate_image(
+            truth, predict(image), crop=evalset.crop, median_scaling=evalset.median_scaling
+        )
+        for image, truth in zip(evalset.images, evalset.truths, strict=True)
+    ]
+    return mean_errors(results).to_json()
+
+
+def _accuracy(models: dict[str, Path], evalsets: list[EvalSet], work: Path) -> dict:
+    from services.depth.predict import predict_image, resize_for
+    from services.depth.quantize import quantize_int8
+
+    out: dict[str, dict] = {}
+    for evalset in evalsets:
+        say(f"accuracy on {evalset.name} ({len(evalset.images)} frames)")
+        rows = {"flat-road prior": _score(lambda image, K=evalset.K: flat_road(image, K), evalset)}
+        for name, path in models.items():
+            model = DepthModel(path, available_cores())
+            rows[name] = _score(lambda image, m=model: predict_image(m, image)[0], evalset)
+            if name.startswith("student-vista"):
+                sample = np.stack([resize_for(model, image) for image in evalset.images])
+                tag = "kitti" if "KITTI" in evalset.name else "sim"
+                int8 = DepthModel(
+                    quantize_int8(model, sample, work / f"{path.stem}.int8-{tag}.onnx"),
+                    available_cores(),
+                )
+                rows[f"{name} int8"] = _score(
+                    lambda image, m=int8: predict_image(m, image)[0], evalset
+                )
+        out[evalset.name] = rows
+    return out
+
+
+def _median_seconds(run, runs: int) -> float:  # noqa: ANN001 - a callable
+    run()
+    times = []
+    for _ in range(runs):
+        started = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - started)
+    return float(np.median(times))
+
+
+def _latency(calibration: list[np.ndarray], work: Path, runs: int) -> dict:
+    """Seconds per 1024 × 320 frame for each network, runtime and thread count."""
+    import cv2
+    import torch
+
+    from services.depth.export import export_depth_model
+    from services.depth.nets import Student, Teacher, parameters
+    from services.depth.quantize import quantize_int8
+
+    width, height = LATENCY_SIZE
+    frames = np.stack(
+        [cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA) for image in calibration]
+    )
+    table: dict[str, dict] = {}
+    for name, network in (("student", Student()), ("teacher", Teacher())):
+        say(f"latency of the {name} at {width} × {height}")
+        network.eval()
+        fp32 = work / f"latency-{name}.onnx"
+        export_depth_model(network, fp32, width=width, height=height, architecture=name)
+        int8 = quantize_int8(DepthModel(fp32, 1), frames, work / f"latency-{name}.int8.onnx")
+        row: dict[str, float | int] = {"parameters": parameters(network)}
+        x = torch.from_numpy(frames[:1].transpose(0, 3, 1, 2).astype(np.float32) / 255)
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            with torch.no_grad():
+                row[f"torch_s_{threads}"] = _median_seconds(lambda n=network, x=x: n(x), runs)
+            for kind, path in (("fp32", fp32), ("int8", int8)):
+                model = DepthModel(path, threads)
+                row[f"{kind}_s_{threads}"] = _median_seconds(
+                    lambda m=model: m.predict(frames[:1]), runs
+                )
+        table[name] = row
+    torch.set_num_threads(available_cores())
+    return table
+
+
+def _print_tables(accuracy: dict, latency: dict) -> None:
+    for setname, rows in accuracy.items():
+        print(f"\n### Accuracy: {setname}\n")
+        print("| model | " + " | ".join(METRICS) + " |")
+        print("|---|" + "---|" * len(METRICS))
+        for name, metrics in rows.items():
+            print(f"| {name} | " + " | ".join(f"{metrics[m]:.3f}" for m in METRICS) + " |")
+    print("\n| thesis, KITTI Eigen (Table 5.2) | abs_rel | rmse | delta1 |\n|---|---|---|---|")
+    for name, figures in THESIS.items():
+        print(
+            f"| {name} | {figures['abs_rel']:.3f} | {figures['rmse']:.3f} | {figures['delta1']:.3f} |"
+        )
+    print(f"\n### Latency per {LATENCY_SIZE[0]} × {LATENCY_SIZE[1]} frame, seconds\n")
+    print(
+        "| network | parameters | torch 1 | torch 2 | ORT fp32 1 | ORT fp32 2 | ORT int8 1 | ORT int8 2 | thesis 1 core | thesis 6 cores |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, row in latency.items():
+        thesis = THESIS[name]
+        cells = [
+            f"{row[k]:.3f}"
+            for k in ("torch_s_1", "torch_s_2", "fp32_s_1", "fp32_s_2", "int8_s_1", "int8_s_2")
+        ]
+        print(
+            f"| {name} | {row['parameters'] / 1e6:.2f} M | "
+            + " | ".join(cells)
+            + f" | {thesis['s_1_core']:.3f} | {thesis['s_6_cores']:.3f} |"
+        )
+
+
+def run_depth_bench(
+    out: Path,
+    *,
+    work: Path,
+    teacher: Path | None,
+    train_drives: int = TRAIN_DRIVES,
+    teacher_epochs: int = TEACHER_EPOCHS,
+    student_epochs: int = STUDENT_EPOCHS,
+    test_frames: int = TEST_FRAMES,
+    latency_runs: int = LATENCY_RUNS,
+    batch: int = 8,
+) -> dict:
+    """The whole bench (module docstring); returns the JSON document it writes."""
+    prepare_process()
+    work.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    train_drives_paths, test_drives = _sim_data(work, train_drives, test_frames)
+    frames = None
+    teacher_path = teacher or work / "teacher.onnx"
+    students_ready = all((work / f"student-{m}.onnx").is_file() for m in ("thesis", "vista"))
+    if not teacher_path.is_file() or not students_ready:
+        frames = load_frames(train_drives_paths, *TRAIN_SIZE)
+    if not teacher_path.is_file():
+        _teacher(
+            teacher_path,
+            frames,
+            DepthTrainConfig(epochs=teacher_epochs, batch=batch, threads=available_cores()),
+            work,
+        )
+    students_config = DepthTrainConfig(
+        epochs=student_epochs, batch=batch, threads=available_cores()
+    )
+    students = (
+        _students(work, teacher_path, frames, students_config)
+        if frames is not None
+        else {m: work / f"student-{m}.onnx" for m in ("thesis", "vista")}
+    )
+    models = {
+        "teacher": teacher_path,
+        "student-thesis": students["thesis"],
+        "student-vista": students["vista"],
+    }
+    evalsets = _eval_sets(test_drives)
+    accuracy = _accuracy(models, evalsets, work)
+    calibration = evalsets[-1].images
+    latency = _latency(calibration, work, latency_runs)
+    _print_tables(accuracy, latency)
+    sim = accuracy["simulated, held out"]
+    verdict = {
+        f"student ≤ {TARGETS['student_parameters'] / 1e6:.1f} M parameters": latency["student"][
+            "parameters"
+        ]
+        <= TARGETS["student_parameters"],
+        f"student fp32 ≤ {TARGETS['student_fp32_s_2_threads']} s on 2 threads": latency["student"][
+            "fp32_s_2"
+        ]
+        <= TARGETS["student_fp32_s_2_threads"],
+        f"student int8 ≤ {TARGETS['student_int8_s_2_threads']} s on 2 threads": latency["student"][
+            "int8_s_2"
+        ]
+        <= TARGETS["student_int8_s_2_threads"],
+        "student (vista) AbsRel within 5 % of the teacher's, held-out simulated": sim[
+            "student-vista"
+        ]["abs_rel"]
+        <= TARGETS["student_abs_rel_over_teacher"] * sim["teacher"]["abs_rel"],
+        "vista's distillation better than the thesis's L1 (AbsRel, held-out simulated)": sim[
+            "student-vista"
+        ]["abs_rel"]
+        < sim["student-thesis"]["abs_rel"],
+    }
+    if "KITTI real" in accuracy:
+        verdict[f"KITTI real AbsRel ≤ {TARGETS['kitti_abs_rel_aim']} (student, vista)"] = (
+            accuracy["KITTI real"]["student-vista"]["abs_rel"] <= TARGETS["kitti_abs_rel_aim"]
+        )
+    metadata = {name: DepthModel(path).spec.metadata for name, path in models.items()}
+    document = write_document(
+        out,
+        bench="depth",
+        targets=TARGETS,
+        thesis=THESIS,
+        accuracy=accuracy,
+        latency=latency,
+        models={
+            name: {
+                k: v
+                for k, v in meta.items()
+                if k in ("architecture", "parameters", "training", "metrics")
+            }
+            for name, meta in metadata.items()
+        },
+        seconds=round(time.perf_counter() - started, 1),
+        verdict=verdict,
+    )
+    print_verdict(verdict, out)
+    return document

@@ -1,0 +1,119 @@
+"""A drive in one file: a zip or tar of a KITTI-layout drive folder (``kitti.read_drive``) —
+``image_02/`` (or ``image_02/data/``), and as known ``image_03/``, ``depth/`` (or
+``proj_depth/groundtruth/image_02/``), ``calib.json`` or ``calib_cam_to_cam.txt`` and
+``poses.txt``, under any one top folder of the archive.
+
+Members are written under names of vista's choosing (the role's folder and the file's own
+base name, which must be plain: letters, digits, ``_``, ``-``, ``.``), never by the archive's
+paths; sizes are checked before anything is read (``services.archive``).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+from services.archive import ArchiveError, Member, check_total, media_type, opened, read_member
+
+HINT = "pack a drive folder with `tar czf drive.tar.gz -C DRIVE .` (image_02/ inside)"
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+MAX_MEMBER_BYTES = {"image": 256 << 20, "text": 64 << 20}
+ROLES = {
+    "image_02": "image_02",
+    "image_02/data": "image_02",
+    "image_03": "image_03",
+    "image_03/data": "image_03",
+    "depth": "depth",
+    "proj_depth/groundtruth/image_02": "depth",
+}
+TEXT_FILES = ("calib.json", "calib_cam_to_cam.txt", "poses.txt")
+PLAIN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+
+@dataclass(frozen=True)
+class DriveArchive:
+    form: str
+    files: dict[str, str]
+    """Member name → where it goes, relative to the drive folder."""
+    frames: int
+    stereo: bool
+    depth: bool
+    poses: bool
+    media_type: str
+
+
+def _plan(form: str, members: list[Member]) -> DriveArchive:
+    check_total(members)
+    roots = set()
+    for member in members:
+        parts = PurePosixPath(member.name).parts
+        if "image_02" in parts[:-1]:
+            roots.add(
+                PurePosixPath(*parts[: parts.index("image_02")])
+                if parts.index("image_02")
+                else PurePosixPath(".")
+            )
+    if not roots:
+        raise ArchiveError("no image_02/ folder of left-camera images in the archive")
+    if len(roots) > 1:
+        shown = ", ".join(sorted(str(r) for r in roots)[:3])
+        raise ArchiveError(
+            f"image_02/ appears under {len(roots)} folders ({shown}): one drive per archive"
+        )
+    root = roots.pop()
+    files: dict[str, str] = {}
+    for member in members:
+        path = PurePosixPath(member.name)
+        if root != PurePosixPath(".") and not path.is_relative_to(root):
+            continue
+        inside = path.relative_to(root) if root != PurePosixPath(".") else path
+        folder, name = str(inside.parent), inside.name
+        if folder == "." and name in TEXT_FILES:
+            files[member.name] = name
+        elif folder in ROLES and Path(name).suffix.lower() in IMAGE_SUFFIXES:
+            if not PLAIN.match(name):
+                raise ArchiveError(
+                    f"{member.name}: file names must be plain (letters, digits, _ - .)"
+                )
+            files[member.name] = f"{ROLES[folder]}/{name}"
+    targets = list(files.values())
+    frames = sum(t.startswith("image_02/") for t in targets)
+    if frames == 0:
+        raise ArchiveError("no PNG or JPEG image in image_02/")
+    if not any(t in ("calib.json", "calib_cam_to_cam.txt") for t in targets):
+        raise ArchiveError("no calib.json or calib_cam_to_cam.txt beside image_02/")
+    if len(set(targets)) != len(targets):
+        raise ArchiveError("two members land on the same file (image_02/ and image_02/data/ both?)")
+    return DriveArchive(
+        form,
+        files,
+        frames,
+        stereo=any(t.startswith("image_03/") for t in targets),
+        depth=any(t.startswith("depth/") for t in targets),
+        poses="poses.txt" in targets,
+        media_type="",
+    )
+
+
+def inspect_drive(path: Path) -> DriveArchive:
+    """What the archive holds, checked without extracting it; ArchiveError naming the problem."""
+    with opened(path, HINT) as (form, members, _):
+        plan = _plan(form, members)
+    return DriveArchive(**{**plan.__dict__, "media_type": media_type(path, form)})
+
+
+def extract_drive(path: Path, out_dir: Path) -> DriveArchive:
+    """The archive written as a drive folder at ``out_dir`` (read in the archive's order: a
+    compressed tar is one stream)."""
+    with opened(path, HINT) as (form, members, archive):
+        plan = _plan(form, members)
+        for member in members:
+            target = plan.files.get(member.name)
+            if target is None:
+                continue
+            limit = MAX_MEMBER_BYTES["text" if target in TEXT_FILES else "image"]
+            destination = out_dir / target
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            destination.write_bytes(read_member(form, archive, member, limit))
+    return plan

@@ -1,0 +1,267 @@
+"""Job handlers ``depth.train`` (drives or images in; a teacher or a student as an ONNX
+model and its training history out) and ``depth.predict`` (a model and images in; depth
+maps, previews, point clouds and a report out)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
+from contract.errors import JobInputError
+from services.archive import ArchiveError
+from services.depth.kinds import CLOUD, DEPTH_MAP, MODEL, PREDICT_REPORT, PREVIEW, TRAINING_REPORT
+from services.pointcloud.ply import PLY_MEDIA_TYPE
+
+ONNX_MEDIA_TYPE = "application/octet-stream"
+
+
+def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[InputArtifact, Path]]:
+    """Each drive archive unpacked to a drive folder; the images together in one folder
+    (``images/``, named by artifact so two uploads called alike stay apart)."""
+    from services.depth.drive_archive import extract_drive
+
+    out, images = [], ctx.workdir / "images"
+    for number, artifact in enumerate(artifacts):
+        if artifact.kind == "drive":
+            folder = ctx.workdir / f"drive-{number}"
+            try:
+                extract_drive(artifact.path, folder)
+            except ArchiveError as exc:
+                raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+            out.append((artifact, folder))
+        else:
+            images.mkdir(exist_ok=True)
+            suffix = (
+                Path(artifact.name).suffix.lower()
+                if Path(artifact.name).suffix.lower() in (".png", ".jpg", ".jpeg")
+                else ".png"
+            )
+            shutil.copyfile(
+                artifact.path, images / f"{artifact.id:08d}-{Path(artifact.name).stem}{suffix}"
+            )
+    if images.is_dir():
+        out.append((None, images))
+    return out
+
+
+def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
+    for artifact in artifacts:
+        message = message.replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
+    return message.replace(str(ctx.workdir), "the job's folder")
+
+
+def train_job(ctx: JobContext) -> dict:
+    from services.depth.data import load_frames
+    from services.depth.distill import distill
+    from services.depth.export import export_depth_model
+    from services.depth.models import DepthModel
+    from services.depth.teacher import train_teacher
+    from services.depth.training import DepthTrainConfig
+
+    params = ctx.params
+    data = inputs_of_kind(ctx, "drive", "image")
+    teachers = inputs_of_kind(ctx, "model")
+    if params.network == "student" and not teachers:
+        raise JobInputError(
+            "network student needs the teacher as a `model` input (a depth.train teacher's, or your own ONNX with vista's metadata)"
+        )
+    if params.network == "teacher" and teachers:
+        raise JobInputError(
+            "network teacher trains from the drives alone; leave the `model` input out"
+        )
+    ctx.progress(0.01, f"unpacking {len(data)} input{'s' * (len(data) > 1)}")
+    folders = _folders(ctx, data)
+    config = DepthTrainConfig(
+        epochs=params.epochs,
+        batch=params.batch,
+        learning_rate=params.learning_rate,
+        seed=params.seed,
+        threads=ctx.threads,
+        device=params.device,
+    )
+    say = lambda fraction, message: ctx.progress(0.1 + 0.85 * fraction, message)  # noqa: E731 - a one-line adapter
+    try:
+        frames = load_frames(
+            [folder for _, folder in folders],
+            params.width,
+            params.height,
+            progress=lambda f, m: ctx.progress(0.02 + 0.08 * f, m),
+        )
+        if params.network == "teacher":
+            result = train_teacher(
+                frames,
+                params.supervision,
+                config,
+                checkpoint_dir=ctx.workdir / "checkpoints",
+                progress=say,
+            )
+            training = {"network": "teacher", "supervision": params.supervision}
+            metrics = (
+                {"val_abs_rel": result.val_abs_rel}
+                if result.val_abs_rel is not None
+                else {"val_loss": result.fit.best_score}
+            )
+            architecture, features = "monodepth2-resnet18", True
+        else:
+            teacher = DepthModel(teachers[0].path, ctx.threads)
+            result = distill(
+                teacher,
+                frames,
+                params.method,
+                config,
+                checkpoint_dir=ctx.workdir / "checkpoints",
+                progress=say,
+            )
+            training = {
+                "network": "student",
+                "method": params.method,
+                "teacher": f"artifact {teachers[0].id} ({teachers[0].name})",
+                "hints": list(result.hints),
+                "photometric": result.photometric,
+            }
+            metrics = {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher}
+            architecture, features = "deeplabv3plus-mobilenetv2", False
+    except ValueError as exc:
+        raise JobInputError(_named(str(exc), ctx, data + teachers)) from exc
+    training.update(
+        {
+            "inputs": [f"artifact {a.id} ({a.name})" for a in data],
+            "width": params.width,
+            "height": params.height,
+            "epochs": params.epochs,
+            "best_epoch": result.fit.best_epoch,
+            "frames": result.split,
+            "seconds": round(result.fit.seconds, 1),
+            "history": result.fit.history,
+        }
+    )
+    path = ctx.workdir / MODEL.file_name()
+    ctx.progress(0.96, "exporting to ONNX")
+    export_depth_model(
+        result.model,
+        path,
+        width=params.width,
+        height=params.height,
+        architecture=architecture,
+        features=features,
+        extra={"training": training, "metrics": metrics},
+    )
+    ctx.add_artifact_file(
+        path,
+        kind=MODEL.kind,
+        name=path.name,
+        media_type=ONNX_MEDIA_TYPE,
+        meta={"architecture": architecture, "metrics": metrics},
+    )
+    ctx.add_artifact_json(
+        {"architecture": architecture, "training": training, "metrics": metrics},
+        kind=TRAINING_REPORT.kind,
+        name=TRAINING_REPORT.file_name(),
+    )
+    ctx.progress(1.0, f"{architecture}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
+    return {"architecture": architecture, **metrics}
+
+
+def predict_job(ctx: JobContext) -> dict:
+    import numpy as np
+
+    from services.depth.data import image_files
+    from services.depth.kitti import read_calibration, read_image
+    from services.depth.models import DepthModel
+    from services.depth.predict import predict_folder, resize_for
+    from services.depth.quantize import quantize_int8
+
+    model_input = one_input(ctx, "model", "the depth model")
+    images = inputs_of_kind(ctx, "image", "drive")
+    try:
+        model = DepthModel(model_input.path, ctx.threads)
+    except ValueError as exc:
+        raise JobInputError(_named(str(exc), ctx, [model_input])) from exc
+    ctx.progress(0.02, f"unpacking {len(images)} input{'s' * (len(images) > 1)}")
+    groups = _folders(ctx, images)
+    out = ctx.workdir / "out"
+    report = {
+        "model": model.spec.metadata.get("architecture", model_input.name),
+        "int8": ctx.params.int8,
+        "images": [],
+    }
+    try:
+        if ctx.params.int8:
+            paths = [
+                p
+                for _, folder in groups
+                for p in image_files(
+                    folder / "image_02" if (folder / "image_02").is_dir() else folder
+                )
+            ]
+            sample = np.stack(
+                [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]
+            )
+            model = DepthModel(
+                quantize_int8(model, sample, ctx.workdir / "model.int8.onnx"), ctx.threads
+            )
+        for number, (artifact, folder) in enumerate(groups):
+            drive = artifact is not None
+            paths = image_files(folder / "image_02") if drive else image_files(folder)
+            camera = None
+            if drive:
+                first = read_image(paths[0])
+                camera = read_calibration(folder, (first.shape[1], first.shape[0]))
+            target = out / f"group-{number}"
+            done = predict_folder(
+                model,
+                paths,
+                target,
+                camera=camera,
+                clouds=ctx.params.clouds,
+                progress=lambda f, m, n=number: ctx.progress(0.05 + 0.9 * (n + f) / len(groups), m),
+            )
+            for item in done:
+                stem = (
+                    f"{Path(artifact.name).name.split('.')[0]}-{item.name}"
+                    if drive
+                    else item.name.split("-", 1)[1]
+                )
+                ctx.add_artifact_file(
+                    item.depth_path,
+                    kind=DEPTH_MAP.kind,
+                    name=DEPTH_MAP.file_name(stem),
+                    media_type="image/png",
+                    meta={"width": item.width, "height": item.height, "unit": "m x 256"},
+                )
+                ctx.add_artifact_file(
+                    item.colour_path,
+                    kind=PREVIEW.kind,
+                    name=PREVIEW.file_name(stem),
+                    media_type="image/png",
+                )
+                if item.cloud_path is not None:
+                    ctx.add_artifact_file(
+                        item.cloud_path,
+                        kind=CLOUD.kind,
+                        name=CLOUD.file_name(stem),
+                        media_type=PLY_MEDIA_TYPE,
+                        meta={"frame": "camera (x right, y down, z forward)"},
+                    )
+                report["images"].append(
+                    {
+                        "name": stem,
+                        "seconds": round(item.seconds, 4),
+                        "median_depth_m": round(item.median_depth_m, 3),
+                        "width": item.width,
+                        "height": item.height,
+                    }
+                )
+    except ValueError as exc:
+        raise JobInputError(_named(str(exc), ctx, [model_input, *images])) from exc
+    ctx.add_artifact_json(report, kind=PREDICT_REPORT.kind, name=PREDICT_REPORT.file_name())
+    seconds = [i["seconds"] for i in report["images"]]
+    ctx.progress(
+        1.0, f"{len(seconds)} depth maps, {1000 * sum(seconds) / len(seconds):.0f} ms a frame"
+    )
+    return {
+        "images": len(seconds),
+        "mean_seconds": round(sum(seconds) / len(seconds), 4),
+        "int8": ctx.params.int8,
+    }

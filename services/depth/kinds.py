@@ -1,0 +1,92 @@
+"""Job kinds of the depth service (imported by the API: keep it light)."""
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from contract.kinds import Inputs, JobKind, Output
+
+TEACHER_EPOCHS = STUDENT_EPOCHS = 12
+
+
+class TrainParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    network: Literal["teacher", "student"] = Field(
+        "student",
+        description="teacher: Monodepth2's network trained on the drives; student: DeepLabv3+ "
+        "with MobileNetV2 distilled from the `model` input.",
+    )
+    supervision: Literal["stereo", "mono", "both", "depth"] = Field(
+        "depth",
+        description="A teacher's: stereo (image_03/), mono (video, pose network), both, or depth "
+        "(the drives' depth maps).",
+    )
+    method: Literal["thesis", "vista"] = Field(
+        "vista", description="A student's: the thesis's L1, or vista's distillation."
+    )
+    width: int = Field(320, ge=64, le=4096, multiple_of=32, description="Training width, px.")
+    height: int = Field(96, ge=64, le=4096, multiple_of=32, description="Training height, px.")
+    epochs: int = Field(TEACHER_EPOCHS, ge=1, le=10_000, description="Passes over the frames.")
+    batch: int = Field(8, ge=1, le=4096, description="Frames per step.")
+    learning_rate: float = Field(3e-4, gt=0, le=1, description="Adam's step (cosine schedule).")
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
+    )
+
+
+class PredictParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    int8: bool = Field(
+        False, description="Quantize the model to int8 first, calibrated on these images."
+    )
+    clouds: bool = Field(True, description="Write each image's point cloud (PLY, mm).")
+
+
+MODEL = Output("model", "depth.onnx")
+TRAINING_REPORT = Output("report", "training.json")
+DEPTH_MAP = Output("depth", "{stem}.depth.png", per_input=True)
+PREVIEW = Output("plot", "{stem}.color.png", per_input=True)
+CLOUD = Output("cloud", "{stem}.ply", per_input=True)
+PREDICT_REPORT = Output("report", "depth.json")
+
+DEPTH_TRAIN = JobKind(
+    name="depth.train",
+    queue="training",
+    handler="services.depth.jobs:train_job",
+    params=TrainParams,
+    description=(
+        "Trains a monocular depth network on `drive` archives (KITTI layout) or `image`s: a "
+        "teacher (Monodepth2's network, self-supervised by stereo or video or supervised by "
+        "depth) or a student (DeepLabv3+ MobileNetV2, 2.67 M parameters) distilled from a "
+        "teacher `model`; writes the ONNX `model` (its spec, training and validation in its "
+        "metadata) and the training's history."
+    ),
+    inputs=(
+        Inputs(("drive", "image"), "drives (zip or tar, KITTI layout) or images", max=None),
+        Inputs(("model",), "the teacher (network student only)", min=0),
+    ),
+    outputs=(MODEL, TRAINING_REPORT),
+)
+
+DEPTH_PREDICT = JobKind(
+    name="depth.predict",
+    queue="depth",
+    handler="services.depth.jobs:predict_job",
+    params=PredictParams,
+    description=(
+        "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "
+        "depth `model`: per image a KITTI depth PNG (uint16, metres × 256) at its own size, a "
+        "colour preview and the camera-frame point cloud (PLY, mm), and a report with each "
+        "image's time and median depth."
+    ),
+    inputs=(
+        Inputs(("model",), "a depth model (vista's, or ONNX with vista's metadata)"),
+        Inputs(("image", "drive"), "the images", max=None),
+    ),
+    outputs=(DEPTH_MAP, PREVIEW, CLOUD, PREDICT_REPORT),
+)
+
+KINDS = (DEPTH_TRAIN, DEPTH_PREDICT)
