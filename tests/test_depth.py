@@ -197,3 +197,222 @@ def test_eval_command_writes_the_contract(tmp_path: Path) -> None:
         app, ["depth", "eval", str(pred), str(gt), "--crop", "middle", "-o", str(out)]
     )
     assert refused.exit_code == 2 and "--crop 'middle'" in refused.output
+
+
+def test_warp_by_true_depth_reproduces_the_left_image() -> None:
+    """The photometric loss's warp: the simulated right image sampled where the left's
+    pixels land by their true depth is the left image (torch, as training uses it)."""
+    import torch
+
+    from services.depth.losses import photometric_error, ssim, warp
+
+    scene = random_scene(11)
+    camera = kitti_camera().resized(320, 96)
+    street_T_left = np.eye(4)
+    street_T_left[:3, 3] = (scene.ego_x_m, -1.65, 0.0)
+    left_T_right = np.eye(4)
+    left_T_right[0, 3] = camera.baseline_m
+    left = render(scene, camera, street_T_left, noise_seed=None)
+    right = render(scene, camera, street_T_left @ left_T_right, noise_seed=None)
+
+    def tensor(image: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(image.transpose(2, 0, 1)[None].astype(np.float32) / 255)
+
+    depth = torch.from_numpy(np.where(left.depth_m > 0, left.depth_m, 1000.0)[None, None])
+    K = torch.from_numpy(camera.K[None].astype(np.float32))
+    right_T_left = torch.from_numpy(np.linalg.inv(left_T_right)[None].astype(np.float32))
+    warped = warp(tensor(right.image), depth, K, right_T_left)
+    seen = torch.from_numpy((left.depth_m > 0)[None, None]) & (torch.arange(320) > 12)
+    error = photometric_error(warped, tensor(left.image))[seen]
+    unwarped = photometric_error(tensor(right.image), tensor(left.image))[seen]
+    assert error.median() < 0.02 and error.mean() < 0.4 * unwarped.mean()
+    assert torch.allclose(ssim(tensor(left.image), tensor(left.image)), torch.ones(1), atol=1e-4)
+
+
+def test_student_is_the_thesiss_size_and_its_onnx_matches_torch(tmp_path: Path) -> None:
+    import torch
+
+    from services.depth.export import export_depth_model
+    from services.depth.models import DepthModel
+    from services.depth.nets import Student, parameters
+
+    torch.manual_seed(0)
+    student = Student().eval()
+    assert 2_600_000 < parameters(student) <= 2_700_000  # the thesis's: 2 643 281
+    image = (np.random.default_rng(0).random((1, 64, 128, 3)) * 255).astype(np.uint8)
+    path = tmp_path / "student.onnx"
+    difference = export_depth_model(
+        student, path, width=128, height=64, architecture="deeplabv3plus-mobilenetv2"
+    )
+    assert difference < 1e-3
+    model = DepthModel(path)
+    with torch.no_grad():
+        expected = student(
+            torch.from_numpy(image.transpose(0, 3, 1, 2).astype(np.float32) / 255)
+        ).numpy()[:, 0]
+    got = model.predict(image).depth_m
+    assert got.shape == (1, 64, 128) and np.allclose(got, expected, rtol=1e-3)
+    assert model.spec.output_kind == "depth" and model.spec.metadata["parameters"] == parameters(
+        student
+    )
+
+
+def test_someone_elses_onnx_with_a_spec_beside_it(tmp_path: Path) -> None:
+    """A Monodepth2-like model answering sigmoid disparity, BGR in 0–255 with a mean, NHWC:
+    read by its side-car JSON and turned into metres."""
+    import torch
+
+    from services.depth.models import DepthModel
+    from services.nn.onnx_io import export_onnx
+
+    class Disparity(torch.nn.Module):
+        def forward(self, bgr: torch.Tensor) -> torch.Tensor:  # (N, H, W, 3) → (N, H, W, 1)
+            return torch.sigmoid(bgr[..., :1] / 100.0)
+
+    path = tmp_path / "theirs.onnx"
+    example = np.zeros((1, 8, 16, 3), np.float32)
+    export_onnx(Disparity(), example, path, {}, input_name="image", output_name="disp")
+    # export_onnx stamps vista's metadata; someone else's file has none
+    import onnx
+
+    proto = onnx.load_model(str(path))
+    del proto.metadata_props[:]
+    onnx.save_model(proto, str(path))
+    with pytest.raises(ValueError, match="needs its spec"):
+        DepthModel(path)
+    spec = {
+        "input": {
+            "width": 16,
+            "height": 8,
+            "range": 255,
+            "mean": [10, 0, 0],
+            "channels": "BGR",
+            "layout": "NHWC",
+        },
+        "output": {"kind": "sigmoid_disparity", "min_depth_m": 0.1, "max_depth_m": 100},
+    }
+    path.with_suffix(".json").write_text(json.dumps(spec))
+    model = DepthModel(path)
+    image = np.zeros((1, 8, 16, 3), np.uint8)
+    image[..., 2] = 110  # blue in RGB is the model's first (B) channel: (110 − 10) / 100 = 1
+    sigmoid = 1 / (1 + math.exp(-1.0))
+    expected = 1 / (1 / 100 + (1 / 0.1 - 1 / 100) * sigmoid)
+    assert np.allclose(model.predict(image).depth_m, expected, rtol=1e-5)
+    stamped = tmp_path / "stamped.onnx"
+    result = CliRunner().invoke(app, ["depth", "import", str(path), "-o", str(stamped)])
+    assert result.exit_code == 0, result.output
+    from services.nn.onnx_io import read_model
+
+    assert read_model(stamped).metadata["output"]["kind"] == "sigmoid_disparity"
+    assert np.allclose(DepthModel(stamped).predict(image).depth_m, expected, rtol=1e-5)
+    spec["output"]["kind"] = "inverse"
+    path.with_suffix(".json").write_text(json.dumps(spec))
+    with pytest.raises(ValueError, match="output.kind 'inverse'"):
+        DepthModel(path)
+    refused = CliRunner().invoke(app, ["depth", "import", str(path), "-o", str(stamped)])
+    assert refused.exit_code == 2 and "output.kind 'inverse'" in refused.output
+
+
+def test_drive_archives_unpack_to_kittis_layout_and_refuse_the_unsafe(tmp_path: Path) -> None:
+    import tarfile
+    import zipfile
+
+    from services.archive import ArchiveError
+    from services.depth.drive_archive import extract_drive, inspect_drive
+    from tests.depthfiles import pack_drive, small_drive
+
+    folder = small_drive(tmp_path / "drive", frames=2)
+    packed = pack_drive(folder, tmp_path / "drive.tar.gz")
+    found = inspect_drive(packed)
+    assert (found.frames, found.stereo, found.depth, found.poses) == (2, True, True, True)
+    assert found.media_type == "application/gzip"
+    extract_drive(packed, tmp_path / "out")
+    assert read_drive(tmp_path / "out").names == ("0000000000", "0000000001")
+    # a raw-style zip under a top folder, with a member trying to climb out
+    raw = tmp_path / "raw.zip"
+    with zipfile.ZipFile(raw, "w") as archive:
+        for path in sorted(folder.rglob("*")):
+            if path.is_file():
+                relative = path.relative_to(folder)
+                inside = f"2011_09_26_drive_0001_sync/{relative}"
+                if relative.parts[0] == "image_02":
+                    inside = f"2011_09_26_drive_0001_sync/image_02/data/{relative.name}"
+                archive.write(path, inside)
+        archive.writestr("2011_09_26_drive_0001_sync/image_02/../../../evil.png", b"x")
+    extract_drive(raw, tmp_path / "raw")
+    assert len(list((tmp_path / "raw" / "image_02").glob("*.png"))) == 2
+    assert not (tmp_path / "evil.png").exists() and not (tmp_path.parent / "evil.png").exists()
+    bare = tmp_path / "bare.tar"
+    with tarfile.open(bare, "w") as archive:
+        archive.add(folder / "image_02", arcname="image_02")
+    with pytest.raises(ArchiveError, match="no calib.json"):
+        inspect_drive(bare)
+    (tmp_path / "junk.tar").write_bytes(b"not an archive at all")
+    with pytest.raises(ArchiveError, match="not a zip or tar"):
+        inspect_drive(tmp_path / "junk.tar")
+
+
+def test_a_tiny_distillation_end_to_end(tmp_path: Path) -> None:
+    """A teacher trained on four simulated drives, a student distilled from it by each
+    method: the student moves towards the teacher, and its int8 copy stays close to it."""
+    import torch
+
+    from services.depth.data import load_frames
+    from services.depth.distill import agreement, distill, teacher_targets
+    from services.depth.export import export_depth_model
+    from services.depth.models import DepthModel
+    from services.depth.nets import Student
+    from services.depth.quantize import quantize_int8
+    from services.depth.teacher import train_teacher
+    from services.depth.training import DepthTrainConfig
+    from tests.depthfiles import small_drive
+
+    drives = [small_drive(tmp_path / f"d{k}", seed=k) for k in range(4)]
+    frames = load_frames(drives, 128, 64)
+    config = DepthTrainConfig(
+        epochs=2, batch=3, learning_rate=1e-3, threads=2, device="cpu", val_fraction=0.25
+    )
+    teacher = train_teacher(frames, "depth", config)
+    assert teacher.val_abs_rel is not None and teacher.fit.best_epoch >= 1
+    teacher_path = tmp_path / "teacher.onnx"
+    export_depth_model(
+        teacher.model,
+        teacher_path,
+        width=128,
+        height=64,
+        architecture="monodepth2-resnet18",
+        features=True,
+    )
+    model = DepthModel(teacher_path)
+    assert model.feature_names == ("encoder", "decoder")
+    targets = teacher_targets(model, frames, features=True)
+    assert targets.depth_m.shape == (12, 2, 64, 128) and set(targets.features) == {
+        "encoder",
+        "decoder",
+    }
+    torch.manual_seed(0)
+    untrained = agreement(Student().eval(), frames, targets, np.arange(len(frames)))
+    for method in ("thesis", "vista"):
+        result = distill(model, frames, method, replace_epochs(config, 10), targets=targets)
+        assert result.val_abs_rel_to_teacher < 0.85 * untrained, (
+            method,
+            result.val_abs_rel_to_teacher,
+            untrained,
+        )
+    assert result.hints == ("encoder", "decoder") and result.photometric == "stereo"
+    student_path = tmp_path / "student.onnx"
+    export_depth_model(
+        result.model, student_path, width=128, height=64, architecture="deeplabv3plus-mobilenetv2"
+    )
+    fp32 = DepthModel(student_path)
+    images = frames.images.transpose(0, 2, 3, 1)
+    int8 = DepthModel(quantize_int8(fp32, images, tmp_path / "student.int8.onnx"))
+    assert int8.spec.metadata["quantization"]["calibration_images"] == 12
+    a, b = fp32.predict(images).depth_m, int8.predict(images).depth_m
+    assert np.median(np.abs(a - b) / a) < 0.05  # int8 costs a few per cent at most
+
+
+def replace_epochs(config, epochs: int):
+    from dataclasses import replace
+
+    return replace(config, epochs=epochs)

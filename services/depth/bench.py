@@ -36,7 +36,7 @@ LATENCY_SIZE = (1024, 320)
 TRAIN_DRIVES, TEST_FRAMES = 1200, 120
 TEST_SEED = 900_000
 """Held-out drives' seeds: far from the training drives' 0 … TRAIN_DRIVES."""
-TEACHER_EPOCHS, STUDENT_EPOCHS = 10, 10
+TEACHER_EPOCHS, STUDENT_EPOCHS = 6, 8
 LATENCY_RUNS = 10
 THESIS = {
     "student": {

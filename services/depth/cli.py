@@ -342,6 +342,25 @@ def predict_command(
     )
 
 
+@depth_app.command("import")
+def import_command(
+    model_path: Path = typer.Argument(
+        ..., help="Your ONNX depth model, its spec JSON beside it (same stem)."
+    ),
+    out: Path = typer.Option(..., "-o", "--out", help="The copy to write, its spec inside."),
+) -> None:
+    """Copy a depth model of your own with its spec JSON written into the file as vista's
+    metadata, so that it can be uploaded as a `model` artifact (a `depth.train` student's
+    teacher, or `depth.predict`'s model)."""
+    from services.depth.models import stamp_spec
+
+    try:
+        spec = stamp_spec(model_path, out)
+    except ValueError as exc:
+        fail(str(exc))
+    typer.echo(f"wrote {out} ({spec.width} × {spec.height} in, {spec.output_kind} out)")
+
+
 def bench_depth(
     out: Path = typer.Option(Path("bench-results/depth.json"), help="Where to write the JSON."),
     work: Path = typer.Option(
@@ -355,8 +374,8 @@ def bench_depth(
     train_drives: int = typer.Option(
         1200, min=2, help="Simulated stereo drives of three frames to train on."
     ),
-    teacher_epochs: int = typer.Option(10, min=1),
-    student_epochs: int = typer.Option(10, min=1),
+    teacher_epochs: int = typer.Option(6, min=1),
+    student_epochs: int = typer.Option(8, min=1),
 ) -> None:
     """Teacher and students side by side: parameters; monodepth2's metrics on held-out
     simulated frames and on KITTI's real frames (with the int8 student and a flat-road

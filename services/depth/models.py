@@ -183,3 +183,23 @@ class DepthModel:
             for name, answer in zip(wanted[1:], answers[1:], strict=True):
                 maps[name].append(answer)
         return Prediction(np.concatenate(depths), {k: np.concatenate(v) for k, v in maps.items()})
+
+
+def stamp_spec(path: Path, out: Path) -> ModelSpec:
+    """Copy someone else's model to ``out`` with its side-car spec inside, as vista's
+    metadata (what a `model` artifact needs)."""
+    import onnx
+
+    from services.nn.onnx_io import METADATA_KEY
+
+    spec = read_spec(path)
+    proto = onnx.load_model(str(path))
+    kept = [p for p in proto.metadata_props if p.key != METADATA_KEY]
+    del proto.metadata_props[:]
+    proto.metadata_props.extend(kept)
+    entry = proto.metadata_props.add()
+    metadata = {"service": "depth", "architecture": f"imported {path.name}", **spec.metadata}
+    entry.key, entry.value = METADATA_KEY, json.dumps(metadata, sort_keys=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save_model(proto, str(out))
+    return read_spec(out)
