@@ -162,6 +162,12 @@ def test_oversize_upload_is_413_whether_declared_or_streamed(tmp_path, sqlite_ur
     assert _stored_files(runtime) == []
 
 
+EIGHT_BIT_PNG = (
+    b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x04\x00\x00\x00\x04\x08\x00\x00\x00\x00"
+)
+"""The start of a 4 × 4 8-bit grey PNG: its signature and IHDR chunk."""
+
+
 @pytest.mark.parametrize(
     ("kind", "media_type", "data", "phrase"),
     [
@@ -169,6 +175,9 @@ def test_oversize_upload_is_413_whether_declared_or_streamed(tmp_path, sqlite_ur
         ("frames", "application/zip", b"PK\x05\x06" + bytes(18), "needs at least 2 PNG frames"),
         ("model", "application/octet-stream", b"\x08\x07junk", "not a model vista can run"),
         ("trajectory", "text/plain", b"0 0 0 0 0 0 0 1\n0.1 1 2\n", "not a TUM trajectory"),
+        ("image", "image/png", b"GIF89a not a png", "neither a PNG nor a JPEG"),
+        ("depth", "image/png", EIGHT_BIT_PNG, "a depth map is 16-bit grey"),
+        ("drive", "application/gzip", b"\x1f\x8b not really", "not a drive"),
     ],
 )
 def test_sequences_models_and_trajectories_are_checked(
@@ -185,6 +194,32 @@ def test_sequences_models_and_trajectories_are_checked(
     )
     assert response.status_code == 422 and phrase in response.json()["detail"], response.text
     assert _stored_files(runtime) == []
+
+
+def test_images_and_depth_maps_are_kept_with_their_size(client, tokens, inspection, tmp_path):
+    import cv2
+    import numpy as np
+
+    depth = tmp_path / "d.png"
+    cv2.imwrite(str(depth), np.full((6, 10), 2560, np.uint16))
+    image = tmp_path / "i.jpg"
+    cv2.imwrite(str(image), np.zeros((6, 10, 3), np.uint8))
+    for path, kind, media_type, meta in (
+        (depth, "depth", "image/png", {"width": 10, "height": 6}),
+        (depth, "image", "image/png", {"width": 10, "height": 6}),
+        (image, "image", "image/jpeg", {}),
+    ):
+        created = _upload(
+            client,
+            tokens["inspector"],
+            inspection,
+            path.read_bytes(),
+            name=path.name,
+            kind=kind,
+            headers={"content-type": "application/octet-stream"},
+        )
+        assert created.status_code == 201, created.text
+        assert created.json()["media_type"] == media_type and created.json()["meta"] == meta
 
 
 def test_a_frame_sequence_is_kept_with_what_it_holds(client, tokens, inspection, tmp_path):

@@ -103,43 +103,22 @@ def _sim_data(work: Path, drives: int, test_frames: int) -> tuple[list[Path], li
 
 
 def _teacher(path: Path, frames: FrameSet, config: DepthTrainConfig, work: Path) -> None:
-    from services.depth.export import export_depth_model
-    from services.depth.teacher import train_teacher
+    from services.depth.teacher import save_teacher, train_teacher
 
     say(
         f"training the teacher ({config.epochs} epochs on {len(frames)} frames, supervised by depth)"
     )
+    checkpoints = work / "checkpoints" / "teacher"
     result = train_teacher(
-        frames,
-        "depth",
-        config,
-        checkpoint_dir=work / "checkpoints" / "teacher",
-        progress=lambda f, m: say(m),
+        frames, "depth", config, checkpoint_dir=checkpoints, progress=lambda f, m: say(m)
     )
-    training = {
-        "supervision": "depth",
-        "epochs": config.epochs,
-        "best_epoch": result.fit.best_epoch,
-        "frames": result.split,
-        "seconds": round(result.fit.seconds, 1),
-        "history": result.fit.history,
-    }
-    export_depth_model(
-        result.model,
-        path,
-        width=TRAIN_SIZE[0],
-        height=TRAIN_SIZE[1],
-        architecture="monodepth2-resnet18",
-        features=True,
-        extra={"training": training, "metrics": {"val_abs_rel": result.val_abs_rel}},
-    )
+    save_teacher(result, path, config, width=TRAIN_SIZE[0], height=TRAIN_SIZE[1])
 
 
 def _students(
     work: Path, teacher_path: Path, frames: FrameSet, config: DepthTrainConfig
 ) -> dict[str, Path]:
-    from services.depth.distill import distill, teacher_targets
-    from services.depth.export import export_depth_model
+    from services.depth.distill import distill, save_student, teacher_targets
 
     paths = {method: work / f"student-{method}.onnx" for method in ("thesis", "vista")}
     missing = [m for m, p in paths.items() if not p.is_file()]
@@ -150,36 +129,24 @@ def _students(
     targets = teacher_targets(teacher, frames, features=True)
     for method in missing:
         say(f"distilling the student by the {method} method ({config.epochs} epochs)")
+        checkpoints = work / "checkpoints" / f"student-{method}"
         result = distill(
             teacher,
             frames,
             method,
             config,
-            checkpoint_dir=work / "checkpoints" / f"student-{method}",
+            checkpoint_dir=checkpoints,
             progress=lambda f, m: say(m),
             targets=targets,
         )
-        training = {
-            "method": method,
-            "teacher": "monodepth2-resnet18",
-            "hints": list(result.hints),
-            "photometric": result.photometric,
-            "epochs": config.epochs,
-            "best_epoch": result.fit.best_epoch,
-            "frames": result.split,
-            "seconds": round(result.fit.seconds, 1),
-            "history": result.fit.history,
-        }
-        export_depth_model(
-            result.model,
+        architecture = teacher.spec.metadata.get("architecture", teacher_path.name)
+        save_student(
+            result,
             paths[method],
+            config,
             width=TRAIN_SIZE[0],
             height=TRAIN_SIZE[1],
-            architecture="deeplabv3plus-mobilenetv2",
-            extra={
-                "training": training,
-                "metrics": {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher},
-            },
+            teacher=architecture,
         )
     return paths
 

@@ -151,8 +151,7 @@ def train_teacher_command(
     L1 + SSIM with α = 0.85, edge-aware smoothness, per-pixel minimum reprojection,
     auto-masking), or supervised by depth maps. Writes ONNX with its encoder and decoder
     features as extra outputs (for vista's distillation) and the validation AbsRel."""
-    from services.depth.export import export_depth_model
-    from services.depth.teacher import SUPERVISIONS, train_teacher
+    from services.depth.teacher import SUPERVISIONS, save_teacher, train_teacher
 
     if supervision not in SUPERVISIONS:
         fail(f"--supervision {supervision!r}: one of {', '.join(SUPERVISIONS)}")
@@ -162,34 +161,14 @@ def train_teacher_command(
     typer.echo(
         f"{len(frames)} frames from {len(data)} folder{'s' * (len(data) > 1)} at {width} × {height}"
     )
+    config = _config(epochs, batch, learning_rate, seed, threads, device)
     try:
         result = train_teacher(
-            frames,
-            supervision,
-            _config(epochs, batch, learning_rate, seed, threads, device),
-            checkpoint_dir=checkpoints,
-            progress=_echo_progress,
+            frames, supervision, config, checkpoint_dir=checkpoints, progress=_echo_progress
         )
     except ValueError as exc:
         fail(str(exc))
-    training = {
-        "supervision": supervision,
-        "epochs": epochs,
-        "best_epoch": result.fit.best_epoch,
-        "frames": result.split,
-        "seconds": round(result.fit.seconds, 1),
-        "history": result.fit.history,
-    }
-    metrics = {"val_abs_rel": result.val_abs_rel} if result.val_abs_rel is not None else {}
-    export_depth_model(
-        result.model,
-        out,
-        width=width,
-        height=height,
-        architecture="monodepth2-resnet18",
-        features=True,
-        extra={"training": training, "metrics": metrics},
-    )
+    save_teacher(result, out, config, width=width, height=height)
     score = (
         f"validation AbsRel {result.val_abs_rel:.3f}"
         if result.val_abs_rel is not None
@@ -229,8 +208,7 @@ def distill_command(
     """Distil TEACHER into the student, DeepLabv3+ with MobileNetV2 (2.67 M parameters),
     on the given images, by the thesis's L1 or vista's method; writes ONNX and the student's
     AbsRel against the teacher on held-out images."""
-    from services.depth.distill import METHODS, distill
-    from services.depth.export import export_depth_model
+    from services.depth.distill import METHODS, distill, save_student
     from services.depth.models import DepthModel
 
     if method not in METHODS:
@@ -245,36 +223,20 @@ def distill_command(
     typer.echo(
         f"{len(frames)} frames at {width} × {height}; teacher {teacher} ({model.spec.width} × {model.spec.height})"
     )
+    config = _config(epochs, batch, learning_rate, seed, threads, device)
     try:
         result = distill(
-            model,
-            frames,
-            method,
-            _config(epochs, batch, learning_rate, seed, threads, device),
-            checkpoint_dir=checkpoints,
-            progress=_echo_progress,
+            model, frames, method, config, checkpoint_dir=checkpoints, progress=_echo_progress
         )
     except ValueError as exc:
         fail(str(exc))
-    training = {
-        "method": method,
-        "teacher": model.spec.metadata.get("architecture", teacher.name),
-        "hints": list(result.hints),
-        "photometric": result.photometric,
-        "epochs": epochs,
-        "best_epoch": result.fit.best_epoch,
-        "frames": result.split,
-        "seconds": round(result.fit.seconds, 1),
-        "history": result.fit.history,
-    }
-    metrics = {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher}
-    export_depth_model(
-        result.model,
+    save_student(
+        result,
         out,
+        config,
         width=width,
         height=height,
-        architecture="deeplabv3plus-mobilenetv2",
-        extra={"training": training, "metrics": metrics},
+        teacher=model.spec.metadata.get("architecture", teacher.name),
     )
     typer.echo(
         f"wrote {out} (AbsRel against the teacher {result.val_abs_rel_to_teacher:.3f} on held-out images; hints: {', '.join(result.hints) or 'none'}; photometric: {result.photometric})"

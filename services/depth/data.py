@@ -45,7 +45,6 @@ class FrameSet:
     """(N,) bool: the drive gave poses."""
     group: np.ndarray
     """(N,) which folder a frame came from (splits keep a drive together)."""
-    names: tuple[str, ...]
 
     def __len__(self) -> int:
         return len(self.images)
@@ -97,7 +96,7 @@ def load_frames(
             f"{width} × {height}: network input sizes are multiples of 32, at least 64"
         )
     images, rights, depths, Ks, baselines = [], [], [], [], []
-    previous, following, before, after, posed, group, names = [], [], [], [], [], [], []
+    previous, following, before, after, posed, group = [], [], [], [], [], []
     for g, folder in enumerate(folders):
         folder = Path(folder)
         if not folder.is_dir():
@@ -149,7 +148,6 @@ def load_frames(
                 after.append(np.eye(4))
             posed.append(poses is not None)
             group.append(g)
-            names.append(f"{folder.name}/{path.stem}")
         say((g + 1) / len(folders), f"loaded {folder} ({len(paths)} frames)")
     if not images:
         raise ValueError("no frames to load")
@@ -167,7 +165,6 @@ def load_frames(
         following_T_cam=np.stack(after).astype(np.float32),
         has_poses=np.array(posed),
         group=np.array(group),
-        names=tuple(names),
     )
 
 

@@ -234,3 +234,43 @@ def agreement(
         relative = np.abs(depth - goal) / np.where(valid, goal, 1)
         scores.append((relative * valid).sum(axis=(1, 2)) / np.maximum(valid.sum(axis=(1, 2)), 1))
     return float(np.concatenate(scores).mean()) if scores else float("nan")
+
+
+STUDENT_ARCHITECTURE = "deeplabv3plus-mobilenetv2"
+
+
+def save_student(
+    result: StudentResult,
+    path: Path,
+    config: DepthTrainConfig,
+    *,
+    width: int,
+    height: int,
+    teacher: str,
+    **extra: object,
+) -> dict:
+    """Export the student as ONNX with its training in the metadata; returns the metrics
+    written."""
+    from services.depth.export import export_depth_model
+    from services.depth.training import training_record
+
+    training = training_record(
+        result.fit,
+        config,
+        result.split,
+        method=result.method,
+        teacher=teacher,
+        hints=list(result.hints),
+        photometric=result.photometric,
+        **extra,
+    )
+    metrics = {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher}
+    export_depth_model(
+        result.model,
+        path,
+        width=width,
+        height=height,
+        architecture=STUDENT_ARCHITECTURE,
+        extra={"training": training, "metrics": metrics},
+    )
+    return metrics

@@ -53,11 +53,11 @@ def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str
 
 def train_job(ctx: JobContext) -> dict:
     from services.depth.data import load_frames
-    from services.depth.distill import distill
-    from services.depth.export import export_depth_model
+    from services.depth.distill import STUDENT_ARCHITECTURE, distill, save_student
     from services.depth.models import DepthModel
-    from services.depth.teacher import train_teacher
+    from services.depth.teacher import TEACHER_ARCHITECTURE, save_teacher, train_teacher
     from services.depth.training import DepthTrainConfig
+    from services.nn.onnx_io import read_model
 
     params = ctx.params
     data = inputs_of_kind(ctx, "drive", "image")
@@ -81,6 +81,9 @@ def train_job(ctx: JobContext) -> dict:
         device=params.device,
     )
     say = lambda fraction, message: ctx.progress(0.1 + 0.85 * fraction, message)  # noqa: E731 - a one-line adapter
+    path = ctx.workdir / MODEL.file_name()
+    inputs = [f"artifact {a.id} ({a.name})" for a in data]
+    size = {"width": params.width, "height": params.height}
     try:
         frames = load_frames(
             [folder for _, folder in folders],
@@ -96,13 +99,9 @@ def train_job(ctx: JobContext) -> dict:
                 checkpoint_dir=ctx.workdir / "checkpoints",
                 progress=say,
             )
-            training = {"network": "teacher", "supervision": params.supervision}
-            metrics = (
-                {"val_abs_rel": result.val_abs_rel}
-                if result.val_abs_rel is not None
-                else {"val_loss": result.fit.best_score}
-            )
-            architecture, features = "monodepth2-resnet18", True
+            ctx.progress(0.96, "exporting to ONNX")
+            metrics = save_teacher(result, path, config, **size, inputs=inputs)
+            architecture = TEACHER_ARCHITECTURE
         else:
             teacher = DepthModel(teachers[0].path, ctx.threads)
             result = distill(
@@ -113,40 +112,18 @@ def train_job(ctx: JobContext) -> dict:
                 checkpoint_dir=ctx.workdir / "checkpoints",
                 progress=say,
             )
-            training = {
-                "network": "student",
-                "method": params.method,
-                "teacher": f"artifact {teachers[0].id} ({teachers[0].name})",
-                "hints": list(result.hints),
-                "photometric": result.photometric,
-            }
-            metrics = {"val_abs_rel_to_teacher": result.val_abs_rel_to_teacher}
-            architecture, features = "deeplabv3plus-mobilenetv2", False
+            ctx.progress(0.96, "exporting to ONNX")
+            metrics = save_student(
+                result,
+                path,
+                config,
+                **size,
+                teacher=f"artifact {teachers[0].id} ({teachers[0].name})",
+                inputs=inputs,
+            )
+            architecture = STUDENT_ARCHITECTURE
     except ValueError as exc:
         raise JobInputError(_named(str(exc), ctx, data + teachers)) from exc
-    training.update(
-        {
-            "inputs": [f"artifact {a.id} ({a.name})" for a in data],
-            "width": params.width,
-            "height": params.height,
-            "epochs": params.epochs,
-            "best_epoch": result.fit.best_epoch,
-            "frames": result.split,
-            "seconds": round(result.fit.seconds, 1),
-            "history": result.fit.history,
-        }
-    )
-    path = ctx.workdir / MODEL.file_name()
-    ctx.progress(0.96, "exporting to ONNX")
-    export_depth_model(
-        result.model,
-        path,
-        width=params.width,
-        height=params.height,
-        architecture=architecture,
-        features=features,
-        extra={"training": training, "metrics": metrics},
-    )
     ctx.add_artifact_file(
         path,
         kind=MODEL.kind,
@@ -155,7 +132,7 @@ def train_job(ctx: JobContext) -> dict:
         meta={"architecture": architecture, "metrics": metrics},
     )
     ctx.add_artifact_json(
-        {"architecture": architecture, "training": training, "metrics": metrics},
+        read_model(path).metadata,  # the spec, the training with its history, the metrics
         kind=TRAINING_REPORT.kind,
         name=TRAINING_REPORT.file_name(),
     )

@@ -6,7 +6,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from contract.kinds import Inputs, JobKind, Output
 
-TEACHER_EPOCHS = STUDENT_EPOCHS = 12
+EPOCHS = 12
 
 
 class TrainParams(BaseModel):
@@ -27,7 +27,7 @@ class TrainParams(BaseModel):
     )
     width: int = Field(320, ge=64, le=4096, multiple_of=32, description="Training width, px.")
     height: int = Field(96, ge=64, le=4096, multiple_of=32, description="Training height, px.")
-    epochs: int = Field(TEACHER_EPOCHS, ge=1, le=10_000, description="Passes over the frames.")
+    epochs: int = Field(EPOCHS, ge=1, le=10_000, description="Passes over the frames.")
     batch: int = Field(8, ge=1, le=4096, description="Frames per step.")
     learning_rate: float = Field(3e-4, gt=0, le=1, description="Adam's step (cosine schedule).")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")

@@ -17,19 +17,6 @@ import numpy as np
 
 # materials
 ROAD, PAVEMENT, KERB, WALL, CAR, CABIN, TRUCK, CONCRETE, POLE, TRUNK, FOLIAGE = range(11)
-MATERIAL_NAMES = (
-    "road",
-    "pavement",
-    "kerb",
-    "wall",
-    "car",
-    "cabin",
-    "truck",
-    "concrete",
-    "pole",
-    "trunk",
-    "foliage",
-)
 
 WALL_COLOURS = np.array(
     [

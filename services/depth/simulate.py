@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,13 +26,6 @@ FPS = 10.0
 Progress = Callable[[str], None]
 
 
-@dataclass(frozen=True)
-class DriveMotion:
-    street_T_camera: np.ndarray
-    """(N, 4, 4) left camera poses in the street frame."""
-    speed_m_s: float
-
-
 def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """Camera orientation in the street frame: yaw about y (down), pitch about x, roll about z."""
     cy, sy = np.cos(yaw), np.sin(yaw)
@@ -45,9 +37,10 @@ def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     return about_y @ about_x @ about_z
 
 
-def drive_motion(seed: int, frames: int, ego_x_m: float, fps: float = FPS) -> DriveMotion:
-    """A seeded camera path down the street: height 1.5–1.8 m, pitch ±1.5°, roll ±0.7°,
-    0–14 m/s (a quarter of drives standing still), a slow yaw swing of ±2°."""
+def drive_motion(seed: int, frames: int, ego_x_m: float, fps: float = FPS) -> np.ndarray:
+    """(frames, 4, 4) left camera poses in the street frame along a seeded path: height
+    1.5–1.8 m, pitch ±1.5°, roll ±0.7°, 0–14 m/s (a quarter of drives standing still), a slow
+    yaw swing of ±2°."""
     rng = np.random.default_rng([seed, 77])
     height = KITTI_HEIGHT_M + rng.uniform(-0.15, 0.15)
     pitch, roll = np.radians(rng.uniform(-1.5, 1.5)), np.radians(rng.uniform(-0.7, 0.7))
@@ -63,7 +56,7 @@ def drive_motion(seed: int, frames: int, ego_x_m: float, fps: float = FPS) -> Dr
         bounce = np.radians(rng.normal(0, 0.1))
         poses[i, :3, :3] = _rotation(yaw[i], pitch + bounce, roll)
         poses[i, :3, 3] = (x[i], -height + rng.normal(0, 0.005), z[i])
-    return DriveMotion(poses, float(speed))
+    return poses
 
 
 def simulate_drive(
@@ -81,10 +74,10 @@ def simulate_drive(
         raise ValueError(f"--frames {frames}: a drive needs at least one frame")
     camera = camera or kitti_camera()
     scene = random_scene(seed, length_m=60.0 + frames * 14 / FPS + 100)
-    motion = drive_motion(seed, frames, scene.ego_x_m)
+    poses = drive_motion(seed, frames, scene.ego_x_m)
     left_T_right = np.eye(4)
     left_T_right[0, 3] = camera.baseline_m
-    for i, street_T_camera in enumerate(motion.street_T_camera):
+    for i, street_T_camera in enumerate(poses):
         name = f"{i:010d}"
         left = render(scene, camera, street_T_camera, time_s=i / FPS, noise_seed=2 * i)
         write_image(out_dir / "image_02" / f"{name}.png", left.image)
@@ -96,8 +89,7 @@ def simulate_drive(
             write_image(out_dir / "image_03" / f"{name}.png", right.image)
         if progress:
             progress(f"frame {i + 1}/{frames}")
-    first_inverse = np.linalg.inv(motion.street_T_camera[0])
-    write_poses(out_dir / "poses.txt", first_inverse @ motion.street_T_camera)
+    write_poses(out_dir / "poses.txt", np.linalg.inv(poses[0]) @ poses)
     calib = camera.to_json()
     (out_dir / "calib.json").write_text(json.dumps(calib, indent=1))
     return out_dir

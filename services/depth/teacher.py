@@ -32,6 +32,7 @@ from services.depth.training import (
 )
 
 SUPERVISIONS = ("stereo", "mono", "both", "depth")
+TEACHER_ARCHITECTURE = "monodepth2-resnet18"
 SMOOTHNESS = 1e-3
 GRADIENT_WEIGHT = 0.5
 TRUTH_RANGE_M = (0.1, 80.0)
@@ -241,3 +242,37 @@ def train_teacher(
     return TeacherResult(
         teacher, result, supervision, score, {"train": len(train_index), "val": len(val_index)}
     )
+
+
+def save_teacher(
+    result: TeacherResult,
+    path: Path,
+    config: DepthTrainConfig,
+    *,
+    width: int,
+    height: int,
+    **extra: object,
+) -> dict:
+    """Export the teacher as ONNX with its features and its training in the metadata;
+    returns the metrics written."""
+    from services.depth.export import export_depth_model
+    from services.depth.training import training_record
+
+    training = training_record(
+        result.fit, config, result.split, supervision=result.supervision, **extra
+    )
+    metrics = (
+        {"val_abs_rel": result.val_abs_rel}
+        if result.val_abs_rel is not None
+        else {"val_loss": result.fit.best_score}
+    )
+    export_depth_model(
+        result.model,
+        path,
+        width=width,
+        height=height,
+        architecture=TEACHER_ARCHITECTURE,
+        features=True,
+        extra={"training": training, "metrics": metrics},
+    )
+    return metrics

@@ -71,6 +71,21 @@ class FitResult:
     seconds: float
 
 
+def training_record(
+    result: FitResult, config: DepthTrainConfig, split: dict[str, int], **extra: object
+) -> dict:
+    """What a model's metadata says of its training: ``extra`` (supervision, method, …),
+    the epochs, the best, the frames, the time and each epoch's losses."""
+    return {
+        **extra,
+        "epochs": config.epochs,
+        "best_epoch": result.best_epoch,
+        "frames": split,
+        "seconds": round(result.seconds, 1),
+        "history": result.history,
+    }
+
+
 MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0]).astype(np.float32)
 
 
