@@ -7,7 +7,7 @@ top); they are taken in name order, numbers by value (``2.png`` before ``10.png`
 desktop's leftovers (``__MACOSX/``, ``._*``) are skipped. Nothing is extracted by the
 archive's own paths: the members are read and written under names of vista's choosing, so a
 member called ``../../etc/passwd`` cannot land outside the folder. Sizes are checked before
-anything is read: a tar's listing stops once its files pass ``MAX_ARCHIVE_BYTES``, and
+anything is read: a tar's listing stops once its files pass ``services.archive.MAX_ARCHIVE_BYTES``, and
 camera.json, truth.tum and each frame have limits of their own.
 """
 
