@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.depth.camera import kitti_camera
+from services.depth.camera import Camera, kitti_camera
 from services.depth.kitti import read_calibration, read_depth_png, read_drive, write_depth_png
 from services.depth.metrics import evaluate_image
 from services.depth.render import render
@@ -108,16 +109,22 @@ def test_simulated_road_depth_is_the_ground_plane() -> None:
     assert (depth[0] == 0).any()  # sky
 
 
-def test_simulated_stereo_pair_agrees_with_its_depth(tmp_path: Path) -> None:
-    """The right image warped into the left by the left's true depth matches it."""
+def _stereo_pair(camera: Camera):
+    """A noise-free simulated stereo pair of one street and the right camera's pose."""
     scene = random_scene(11)
-    camera = kitti_camera().resized(621, 188)
     street_T_left = np.eye(4)
     street_T_left[:3, 3] = (scene.ego_x_m, -1.65, 0.0)
     left_T_right = np.eye(4)
     left_T_right[0, 3] = camera.baseline_m
     left = render(scene, camera, street_T_left, noise_seed=None)
     right = render(scene, camera, street_T_left @ left_T_right, noise_seed=None)
+    return left, right, left_T_right
+
+
+def test_simulated_stereo_pair_agrees_with_its_depth(tmp_path: Path) -> None:
+    """The right image warped into the left by the left's true depth matches it."""
+    camera = kitti_camera().resized(621, 188)
+    left, right, _ = _stereo_pair(camera)
     disparity = camera.K[0, 0] * camera.baseline_m / np.maximum(left.depth_m, 1e-6)
     u = (np.arange(camera.width)[None, :] - disparity).astype(np.float32)
     v = np.broadcast_to(np.arange(camera.height, dtype=np.float32)[:, None], u.shape)
@@ -206,14 +213,8 @@ def test_warp_by_true_depth_reproduces_the_left_image() -> None:
 
     from services.depth.losses import photometric_error, ssim, warp
 
-    scene = random_scene(11)
     camera = kitti_camera().resized(320, 96)
-    street_T_left = np.eye(4)
-    street_T_left[:3, 3] = (scene.ego_x_m, -1.65, 0.0)
-    left_T_right = np.eye(4)
-    left_T_right[0, 3] = camera.baseline_m
-    left = render(scene, camera, street_T_left, noise_seed=None)
-    right = render(scene, camera, street_T_left @ left_T_right, noise_seed=None)
+    left, right, left_T_right = _stereo_pair(camera)
 
     def tensor(image: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(image.transpose(2, 0, 1)[None].astype(np.float32) / 255)
@@ -393,7 +394,7 @@ def test_a_tiny_distillation_end_to_end(tmp_path: Path) -> None:
     torch.manual_seed(0)
     untrained = agreement(Student().eval(), frames, targets, np.arange(len(frames)))
     for method in ("thesis", "vista"):
-        result = distill(model, frames, method, replace_epochs(config, 10), targets=targets)
+        result = distill(model, frames, method, replace(config, epochs=10), targets=targets)
         assert result.val_abs_rel_to_teacher < 0.85 * untrained, (
             method,
             result.val_abs_rel_to_teacher,
@@ -410,9 +411,3 @@ def test_a_tiny_distillation_end_to_end(tmp_path: Path) -> None:
     assert int8.spec.metadata["quantization"]["calibration_images"] == 12
     a, b = fp32.predict(images).depth_m, int8.predict(images).depth_m
     assert np.median(np.abs(a - b) / a) < 0.05  # int8 costs a few per cent at most
-
-
-def replace_epochs(config, epochs: int):
-    from dataclasses import replace
-
-    return replace(config, epochs=epochs)

@@ -120,6 +120,16 @@ def _echo_progress(fraction: float, message: str) -> None:
 
 
 SIZE_HELP = "multiple of 32; Monodepth2 trains at 640 × 192, vista's CPU default is 320 × 96"
+# the training options train-teacher and distill share
+WIDTH = typer.Option(320, min=64, max=4096, help=f"Training width ({SIZE_HELP}).")
+HEIGHT = typer.Option(96, min=64, max=4096, help="Training height.")
+EPOCHS = typer.Option(12, min=1, max=1000)
+BATCH = typer.Option(8, min=1, max=512)
+LEARNING_RATE = typer.Option(3e-4, min=1e-7, max=1.0, help="Adam's step (cosine schedule).")
+SEED = typer.Option(0, min=0)
+THREADS = typer.Option(2, min=1, max=256)
+DEVICE = typer.Option("auto", help="auto, cpu or cuda.")
+CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun resumes).")
 
 
 @depth_app.command("train-teacher")
@@ -132,19 +142,15 @@ def train_teacher_command(
     supervision: str = typer.Option(
         "depth", help="stereo, mono (pose network), both, or depth (ground truth)."
     ),
-    width: int = typer.Option(320, min=64, max=4096, help=f"Training width ({SIZE_HELP})."),
-    height: int = typer.Option(96, min=64, max=4096, help="Training height."),
-    epochs: int = typer.Option(12, min=1, max=1000),
-    batch: int = typer.Option(8, min=1, max=512),
-    learning_rate: float = typer.Option(
-        3e-4, min=1e-7, max=1.0, help="Adam's step (cosine schedule)."
-    ),
-    seed: int = typer.Option(0, min=0),
-    threads: int = typer.Option(2, min=1, max=256),
-    device: str = typer.Option("auto", help="auto, cpu or cuda."),
-    checkpoints: Path = typer.Option(
-        None, help="Folder for per-epoch checkpoints (a rerun resumes)."
-    ),
+    width: int = WIDTH,
+    height: int = HEIGHT,
+    epochs: int = EPOCHS,
+    batch: int = BATCH,
+    learning_rate: float = LEARNING_RATE,
+    seed: int = SEED,
+    threads: int = THREADS,
+    device: str = DEVICE,
+    checkpoints: Path = CHECKPOINTS,
 ) -> None:
     """Train Monodepth2's network (ResNet-18 encoder, 14.3 M parameters) as a teacher:
     self-supervised from stereo, from video with a pose network, or both (photometric
@@ -191,19 +197,15 @@ def distill_command(
         "vista",
         help="thesis (L1 on the teacher's depth) or vista (log + gradients + feature hints + photometric).",
     ),
-    width: int = typer.Option(320, min=64, max=4096, help=f"Training width ({SIZE_HELP})."),
-    height: int = typer.Option(96, min=64, max=4096, help="Training height."),
-    epochs: int = typer.Option(12, min=1, max=1000),
-    batch: int = typer.Option(8, min=1, max=512),
-    learning_rate: float = typer.Option(
-        3e-4, min=1e-7, max=1.0, help="Adam's step (cosine schedule)."
-    ),
-    seed: int = typer.Option(0, min=0),
-    threads: int = typer.Option(2, min=1, max=256),
-    device: str = typer.Option("auto", help="auto, cpu or cuda."),
-    checkpoints: Path = typer.Option(
-        None, help="Folder for per-epoch checkpoints (a rerun resumes)."
-    ),
+    width: int = WIDTH,
+    height: int = HEIGHT,
+    epochs: int = EPOCHS,
+    batch: int = BATCH,
+    learning_rate: float = LEARNING_RATE,
+    seed: int = SEED,
+    threads: int = THREADS,
+    device: str = DEVICE,
+    checkpoints: Path = CHECKPOINTS,
 ) -> None:
     """Distil TEACHER into the student, DeepLabv3+ with MobileNetV2 (2.67 M parameters),
     on the given images, by the thesis's L1 or vista's method; writes ONNX and the student's

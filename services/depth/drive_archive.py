@@ -11,7 +11,7 @@ paths; sizes are checked before anything is read (``services.archive``).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
 from services.archive import ArchiveError, Member, check_total, media_type, opened, read_member
@@ -100,7 +100,7 @@ def inspect_drive(path: Path) -> DriveArchive:
     """What the archive holds, checked without extracting it; ArchiveError naming the problem."""
     with opened(path, HINT) as (form, members, _):
         plan = _plan(form, members)
-    return DriveArchive(**{**plan.__dict__, "media_type": media_type(path, form)})
+    return replace(plan, media_type=media_type(path, form))
 
 
 def extract_drive(path: Path, out_dir: Path) -> DriveArchive:

@@ -13,7 +13,7 @@ import hashlib
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -60,7 +60,6 @@ class Batch:
     following: object | None = None
     previous_T_cam: object | None = None
     following_T_cam: object | None = None
-    extras: dict = field(default_factory=dict)
 
 
 @dataclass
