@@ -1,6 +1,6 @@
-"""The depth networks' training loop: seeded batches with Monodepth2's augmentation, Adam on a
-cosine schedule, validation after every epoch choosing the weights kept, checkpoints written
-atomically and resumed only by the same run, progress with the time left.
+"""The depth networks' training: seeded batches with Monodepth2's augmentation through the
+shared loop (``services.nn.fit``: Adam on a cosine schedule, validation after every epoch
+choosing the weights kept, checkpoints resumed only by the same run, progress).
 
 A *step* function turns a ``Batch`` into a loss and a few logged numbers; a *validate*
 function scores the current weights (lower is better). The teacher's and the student's
@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -20,11 +19,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from services.depth.data import FrameSet
+from services.nn.fit import FitResult, Progress
+from services.nn.fit import fit as shared_fit
 
 if TYPE_CHECKING:
     import torch
-
-Progress = Callable[[float, str], None]
 
 
 @dataclass(frozen=True)
@@ -60,14 +59,6 @@ class Batch:
     following: object | None = None
     previous_T_cam: object | None = None
     following_T_cam: object | None = None
-
-
-@dataclass
-class FitResult:
-    best_epoch: int
-    best_score: float
-    history: list[dict]
-    seconds: float
 
 
 def training_record(
@@ -184,108 +175,16 @@ def fit(
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
 ) -> FitResult:
-    """Train every module of ``modules`` (name → torch module) on ``step``'s loss over
-    ``train_index`` for ``config.epochs``; keep the weights ``validate`` scores lowest."""
+    """The shared loop (``services.nn.fit``) over batches of ``frames`` with Monodepth2's
+    augmentation, the network's input channels last."""
     import torch
 
-    from services.nn.checkpoint import load_checkpoint, save_checkpoint
-    from services.nn.device import choose_device
+    def batches(index: np.ndarray, rng: np.random.Generator, device: torch.device) -> Batch:
+        batch = make_batch(frames, index, rng, config.augment, device)
+        batch.network_input = batch.network_input.contiguous(memory_format=torch.channels_last)
+        return batch
 
-    say = progress or (lambda fraction, message: None)
-    device = choose_device(config.device)
-    torch.set_num_threads(config.threads)
-    for module in modules.values():
-        # images train about a fifth faster with their channels last on the CPU
-        module.to(device, memory_format=torch.channels_last)
-    parameters = [p for m in modules.values() for p in m.parameters()]
-    optimiser = torch.optim.Adam(parameters, lr=config.learning_rate)
-    steps_per_epoch = max(1, len(train_index) // config.batch)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
-        optimiser, T_max=config.epochs * steps_per_epoch
-    )
-    result = FitResult(-1, float("inf"), [], 0.0)
-    best_state = None
-    start_epoch = 0
-    saved = load_checkpoint(checkpoint_dir, run, say)
-    if saved is not None:
-        for name, module in modules.items():
-            module.load_state_dict(saved["modules"][name])
-        optimiser.load_state_dict(saved["optimiser"])
-        schedule.load_state_dict(saved["schedule"])
-        schedule.T_max = config.epochs * steps_per_epoch
-        start_epoch, result, best_state = saved["epoch"] + 1, saved["result"], saved["best_state"]
-        say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
-    started, earlier_s = time.perf_counter(), result.seconds
-    for epoch in range(start_epoch, config.epochs):
-        for module in modules.values():
-            module.train()
-        rng = np.random.default_rng([config.seed, 31, epoch])
-        order = rng.permutation(train_index)
-        totals: dict[str, float] = {}
-        for k in range(steps_per_epoch):
-            batch = make_batch(
-                frames,
-                order[k * config.batch : (k + 1) * config.batch],
-                rng,
-                config.augment,
-                device,
-            )
-            batch.network_input = batch.network_input.contiguous(memory_format=torch.channels_last)
-            loss, logs = step(batch)
-            optimiser.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(parameters, 10.0)
-            optimiser.step()
-            schedule.step()
-            value = float(loss.detach())
-            if not np.isfinite(value):
-                raise ValueError(
-                    f"training diverged in epoch {epoch + 1}: lower the learning rate (now {config.learning_rate})"
-                )
-            for key, number in {"loss": value, **logs}.items():
-                totals[key] = totals.get(key, 0.0) + float(number) / steps_per_epoch
-            if k % 20 == 0:
-                say(
-                    (epoch + (k + 1) / steps_per_epoch) / config.epochs,
-                    f"epoch {epoch + 1}/{config.epochs}, step {k + 1}/{steps_per_epoch}: loss {value:.4f}",
-                )
-        for module in modules.values():
-            module.eval()
-        with torch.no_grad():
-            score = float(validate())
-        result.history.append(
-            {"epoch": epoch + 1, **{k: round(v, 6) for k, v in totals.items()}, "val": score}
-        )
-        if score < result.best_score:
-            result.best_score, result.best_epoch = score, epoch + 1
-            best_state = {
-                n: {k: v.detach().clone() for k, v in m.state_dict().items()}
-                for n, m in modules.items()
-            }
-        result.seconds = earlier_s + time.perf_counter() - started
-        per_epoch_s = (time.perf_counter() - started) / (epoch + 1 - start_epoch)
-        say(
-            (epoch + 1) / config.epochs,
-            f"epoch {epoch + 1}/{config.epochs}: loss {totals.get('loss', float('nan')):.4f}, "
-            f"validation {score:.4f} ({per_epoch_s:.0f} s an epoch, about "
-            f"{per_epoch_s * (config.epochs - epoch - 1) / 60:.0f} min left)",
-        )
-        if checkpoint_dir is not None:
-            save_checkpoint(
-                checkpoint_dir,
-                {
-                    "run": run,
-                    "modules": {n: m.state_dict() for n, m in modules.items()},
-                    "optimiser": optimiser.state_dict(),
-                    "schedule": schedule.state_dict(),
-                    "epoch": epoch,
-                    "result": result,
-                    "best_state": best_state,
-                },
-            )
-    if best_state is not None:
-        for name, module in modules.items():
-            module.load_state_dict(best_state[name])
-    for module in modules.values():
-        module.to("cpu", memory_format=torch.contiguous_format).eval()
-    return result
+    return shared_fit(
+        modules, step, validate, train_index, batches, config,
+        run=run, checkpoint_dir=checkpoint_dir, progress=progress,
+    )  # fmt: skip

@@ -1,0 +1,126 @@
+"""How well a car detector does on labelled scans, by KITTI's rules where they apply.
+
+A detection is a true positive when its bird's-eye-view IoU with an unmatched labelled car
+is at least 0.5 (detections taken by score, greedily). Detections that overlap a van or a
+truck (KITTI's neighbouring classes) that much, or whose centre falls in a labelled
+DontCare region of the image, count neither way. Recall is over the cars within
+``near_m`` of the sensor (bird's-eye distance); precision over the detections in the
+camera's field of view (where KITTI labels anything).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from services.tracking import kitti
+from services.tracking.boxes import bev_iou
+from services.tracking.detections import Detections
+
+IOU_MATCH = 0.5
+NEIGHBOURS = ("Van", "Truck")
+
+
+@dataclass(frozen=True)
+class ScanTally:
+    cars_near: int
+    found_near: int
+    detections_in_view: int
+    true_positives: int
+    false_positives: int
+    ignored: int
+
+
+@dataclass(frozen=True)
+class DetectionScores:
+    scans: int
+    cars_near: int
+    found_near: int
+    recall_near: float | None
+    detections_in_view: int
+    true_positives: int
+    false_positives: int
+    precision_in_view: float | None
+    near_m: float
+    score_threshold: float
+
+    def document(self) -> dict:
+        return asdict(self)
+
+
+def in_view(boxes: np.ndarray, calibration: kitti.Calibration, size: tuple[int, int]) -> np.ndarray:
+    """(N,) bool: the boxes' centres project into the image and lie ahead of the camera."""
+    pixels, depth = calibration.velo_to_image(np.asarray(boxes)[:, :3])
+    width, height = size
+    return (
+        (depth > 0.5)
+        & (pixels[:, 0] >= 0)
+        & (pixels[:, 0] < width)
+        & (pixels[:, 1] >= 0)
+        & (pixels[:, 1] < height)
+    )
+
+
+def tally_scan(
+    detections: Detections,
+    labels: kitti.Labels,
+    calibration: kitti.Calibration,
+    *,
+    near_m: float = 40.0,
+    image_size: tuple[int, int] = (1242, 375),
+) -> ScanTally:
+    """Count one scan's matches (``detections`` already thresholded)."""
+    cars = kitti.camera_to_lidar(labels.of_type("Car").camera_box, calibration)
+    neighbours = kitti.camera_to_lidar(labels.of_type(*NEIGHBOURS).camera_box, calibration)
+    dont_care = labels.of_type(kitti.DONT_CARE).bbox
+    view = (
+        in_view(detections.boxes, calibration, image_size) if len(detections) else np.zeros(0, bool)
+    )
+    matched = np.zeros(len(cars), dtype=bool)
+    true_positive = np.zeros(len(detections), dtype=bool)
+    for index in np.argsort(-detections.scores):
+        if not len(cars):
+            break
+        overlap = np.where(matched, 0.0, bev_iou(cars, detections.boxes[index][None]))
+        best = int(overlap.argmax())
+        if overlap[best] >= IOU_MATCH:
+            matched[best] = True
+            true_positive[index] = True
+    ignored = np.zeros(len(detections), dtype=bool)
+    if len(neighbours) and len(detections):
+        ignored |= (bev_iou(detections.boxes[:, None], neighbours[None]) >= IOU_MATCH).any(axis=1)
+    if len(dont_care) and len(detections):
+        pixels, _ = calibration.velo_to_image(detections.boxes[:, :3])
+        inside = (
+            (pixels[:, None, 0] >= dont_care[None, :, 0]) & (pixels[:, None, 0] <= dont_care[None, :, 2])
+            & (pixels[:, None, 1] >= dont_care[None, :, 1]) & (pixels[:, None, 1] <= dont_care[None, :, 3])
+        )  # fmt: skip
+        ignored |= inside.any(axis=1)
+    ignored &= ~true_positive
+    near = np.hypot(cars[:, 0], cars[:, 1]) <= near_m if len(cars) else np.zeros(0, bool)
+    return ScanTally(
+        cars_near=int(near.sum()),
+        found_near=int((near & matched).sum()),
+        detections_in_view=int(view.sum()),
+        true_positives=int((view & true_positive).sum()),
+        false_positives=int((view & ~true_positive & ~ignored).sum()),
+        ignored=int((view & ignored).sum()),
+    )
+
+
+def combine(tallies: list[ScanTally], near_m: float, score_threshold: float) -> DetectionScores:
+    total = {key: sum(getattr(t, key) for t in tallies) for key in ScanTally.__dataclass_fields__}
+    judged = total["true_positives"] + total["false_positives"]
+    return DetectionScores(
+        scans=len(tallies),
+        cars_near=total["cars_near"],
+        found_near=total["found_near"],
+        recall_near=total["found_near"] / total["cars_near"] if total["cars_near"] else None,
+        detections_in_view=total["detections_in_view"],
+        true_positives=total["true_positives"],
+        false_positives=total["false_positives"],
+        precision_in_view=total["true_positives"] / judged if judged else None,
+        near_m=near_m,
+        score_threshold=score_threshold,
+    )

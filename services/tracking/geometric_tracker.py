@@ -1,0 +1,176 @@
+"""A fast tracker without learning: the target's point model registered to each scan.
+
+Each frame the motion model predicts the box; the scan's points around it (above the road)
+are matched to the target's point model by a trimmed point-to-point ICP in the ground
+plane (x, y, heading, with the height shifted by the matches' mean): each scan point to its
+nearest model point, the trim closing from 0.6 m to 0.25 m. The box moves by the
+registration; its size stays the given one.
+
+The confidence multiplies what would go wrong when the tracker drifts: the share of the
+box's points the model explains (within 0.2 m), whether there are enough of them, and
+whether the registration agrees with the motion model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.tracking.boxes import YAW, from_box_frame, wrap
+from services.tracking.tracker import MotionModel, PointModel, TrackStep, crop, in_box
+
+
+@dataclass(frozen=True)
+class GeometricConfig:
+    margin_m: float = 1.2
+    """How far around the predicted box the scan is searched."""
+    iterations: int = 12
+    trim_m: tuple[float, float] = (0.6, 0.25)
+    explained_m: float = 0.2
+    enough_points: int = 25
+    motion_scale_m: float = 1.0
+    """A registration this far from the prediction halves the confidence's motion term."""
+    learn_above: float = 0.45
+    """Frames with at least this confidence add their points to the model and their
+    motion to the velocity."""
+    search_m: float = 3.6
+    """How far a wide search looks: on the first frames (the target's velocity is unknown)
+    and after a frame the tracker did not trust."""
+    cell_m: float = 0.2
+
+
+def coarse_offset(
+    scan_local: np.ndarray, model: PointModel, radius_m: float, cell_m: float
+) -> np.ndarray:
+    """(dx, dy) within ``radius_m`` where the model's bird's-eye occupancy best overlaps
+    the scan's (both in the predicted box's frame): one FFT cross-correlation."""
+    from scipy.signal import correlate
+
+    reach = np.abs(model.points[:, :2]).max(axis=0) + radius_m
+    size = np.ceil(2 * reach / cell_m).astype(int) + 1
+
+    def raster(xy: np.ndarray) -> np.ndarray:
+        cells = np.floor((xy + reach) / cell_m).astype(int)
+        keep = ((cells >= 0) & (cells < size)).all(axis=1)
+        grid = np.zeros(size)
+        np.add.at(grid, (cells[keep, 0], cells[keep, 1]), 1.0)
+        return np.minimum(grid, 3.0)
+
+    score = correlate(
+        raster(scan_local[:, :2]), raster(model.points[:, :2]), mode="same", method="fft"
+    )
+    centre = size // 2
+    ij = np.stack(np.meshgrid(np.arange(size[0]), np.arange(size[1]), indexing="ij"), axis=-1)
+    offset = (ij - centre) * cell_m
+    score = np.where(np.linalg.norm(offset, axis=-1) <= radius_m, score, -np.inf)
+    best = np.unravel_index(int(np.argmax(score)), score.shape)
+    return offset[best]
+
+
+def register(
+    scan_local: np.ndarray,
+    model: PointModel,
+    config: GeometricConfig,
+    start: np.ndarray | None = None,
+) -> tuple[np.ndarray, int]:
+    """(dx, dy, dz, dθ) moving the predicted box onto the target, from the scan's points in
+    the predicted box's frame (starting at ``start``); and how many points matched at the end."""
+    pose = np.zeros(4) if start is None else start.astype(np.float64).copy()
+    matched = 0
+    trims = np.geomspace(config.trim_m[0], config.trim_m[1], config.iterations)
+    for trim in trims:
+        c, s = np.cos(pose[3]), np.sin(pose[3])
+        # scan points into the current estimate's box frame
+        shifted = scan_local - pose[:3]
+        canonical = np.column_stack(
+            [
+                c * shifted[:, 0] + s * shifted[:, 1],
+                -s * shifted[:, 0] + c * shifted[:, 1],
+                shifted[:, 2],
+            ]
+        )
+        distance, nearest = model.tree.query(canonical, distance_upper_bound=trim)
+        good = np.isfinite(distance)
+        matched = int(good.sum())
+        if matched < 5:
+            break
+        target = model.points[nearest[good]]  # in the box frame
+        source = scan_local[good]  # in the predicted box's frame
+        # the rigid motion (θ, t) with source ≈ R(θ) target + t, in the ground plane
+        target_mean, source_mean = target.mean(axis=0), source.mean(axis=0)
+        a, b = target[:, :2] - target_mean[:2], source[:, :2] - source_mean[:2]
+        theta = np.arctan2((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum(), (a * b).sum())
+        c, s = np.cos(theta), np.sin(theta)
+        rotated = np.array(
+            [c * target_mean[0] - s * target_mean[1], s * target_mean[0] + c * target_mean[1]]
+        )
+        new = np.array([*(source_mean[:2] - rotated), source_mean[2] - target_mean[2], theta])
+        change = np.abs(new - pose)
+        pose = new
+        if change[:3].max() < 0.002 and change[3] < 0.0005:
+            break
+    return pose, matched
+
+
+class GeometricTracker:
+    name = "geometric"
+
+    def __init__(self, config: GeometricConfig | None = None) -> None:
+        self.config = config or GeometricConfig()
+
+    def start(self, points: np.ndarray, box: np.ndarray) -> None:
+        self.box = np.asarray(box, dtype=np.float64).copy()
+        self.motion = MotionModel(self.box)
+        self.model = PointModel(in_box(points, self.box))
+        self.searching = 2  # frames of wide search left: the target's velocity is unknown
+
+    def step(self, points: np.ndarray, prev_T_cur: np.ndarray | None) -> TrackStep:
+        config = self.config
+        predicted = self.motion.advance(prev_T_cur)
+        wide = self.searching > 0
+        scan_local = crop(
+            points, predicted, config.search_m + config.margin_m if wide else config.margin_m
+        )
+        box, confidence, count = predicted.copy(), 0.0, 0
+        if len(scan_local) >= 5 and len(self.model.points) >= 5:
+            start = np.zeros(4)
+            if wide:
+                start[:2] = coarse_offset(scan_local, self.model, config.search_m, config.cell_m)
+            pose, _ = register(scan_local, self.model, config, start)
+            box = predicted.copy()
+            box[:3] = from_box_frame(pose[None, :3], predicted)[0]
+            box[YAW] = wrap(predicted[YAW] + pose[3])
+            target = in_box(points, box)
+            count = len(target)
+            confidence = self._confidence(target, np.linalg.norm(pose[:2]) if not wide else 0.0)
+        trusted = confidence >= config.learn_above
+        if trusted:
+            self.model.add(in_box(points, box))
+        self.motion.update(box, learn=trusted)
+        self.searching = self.searching - 1 if trusted else 1
+        self.box = box
+        return TrackStep(box, confidence, count, predicted)
+
+    def _confidence(self, target: np.ndarray, moved_m: float) -> float:
+        config = self.config
+        if not len(target):
+            return 0.0
+        distance, _ = self.model.tree.query(target, distance_upper_bound=config.explained_m)
+        explained = float(np.isfinite(distance).mean())
+        enough = min(1.0, len(target) / config.enough_points)
+        agrees = float(np.exp(-np.log(2) * (moved_m / config.motion_scale_m) ** 2))
+        return explained * np.sqrt(enough) * np.sqrt(agrees)
+
+    def reset(self, points: np.ndarray, box: np.ndarray) -> None:
+        self.box = np.asarray(box, dtype=np.float64).copy()
+        self.motion.update(self.box, learn=False)
+        self.model.add(in_box(points, self.box))
+        self.searching = 0
+
+    def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
+        target = in_box(points, box)
+        if len(target) < 3:
+            return 0.0
+        distance, _ = self.model.tree.query(target, distance_upper_bound=0.3)
+        return float(np.isfinite(distance).mean())

@@ -1,0 +1,143 @@
+"""A LiDAR sequence on disk, in any of the layouts users have:
+
+- vista's (``vista track simulate`` writes it): ``SEQ/velodyne/*.bin``, ``SEQ/calib.txt``,
+  and as known ``SEQ/label_02.txt`` and ``SEQ/poses.txt``;
+- a KITTI tracking download as it unpacks: ``SEQ_DIR`` is ``…/training/velodyne/0011``,
+  its calibration ``…/training/calib/0011.txt``, its labels ``…/training/label_02/0011.txt``;
+- a KITTI raw drive: ``velodyne_points/data/*.bin`` with the date folder's
+  ``calib_cam_to_cam.txt`` and ``calib_velo_to_cam.txt``, or vista's shared sample
+  (``velodyne/`` with ``calib.json``).
+
+Frames are numbered by their file names (``000042.bin`` is frame 42), as labels refer to
+them.
+
+Tracklets are the single-object benchmarks' (SC3D, P2B): one per labelled object and run
+of consecutive frames it is labelled in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.tracking import kitti
+
+
+@dataclass(frozen=True)
+class Sequence:
+    folder: Path
+    scans: dict[int, Path]
+    """Frame number → its ``.bin`` file."""
+    calibration: kitti.Calibration
+    labels: kitti.Labels | None
+    poses: np.ndarray | None
+    """(F, 4, 4) ``velo0_T_veloi`` per frame in file order (from ``poses.txt``), or None."""
+
+    @property
+    def frames(self) -> list[int]:
+        return sorted(self.scans)
+
+    def points(self, frame: int) -> np.ndarray:
+        return kitti.read_velodyne(self.scans[frame])
+
+    def ego_motion(self, previous: int, frame: int) -> np.ndarray | None:
+        """``prev_T_cur`` (4 × 4): the current scan's frame in the previous one's, from the
+        poses; None without poses."""
+        if self.poses is None:
+            return None
+        order = {f: i for i, f in enumerate(self.frames)}
+        return np.linalg.inv(self.poses[order[previous]]) @ self.poses[order[frame]]
+
+
+@dataclass(frozen=True)
+class Tracklet:
+    track_id: int
+    type: str
+    frames: list[int]
+    boxes: np.ndarray
+    """(F, 7) LiDAR boxes, one per frame."""
+
+
+def _scan_files(folder: Path) -> dict[int, Path]:
+    scans = {}
+    for path in sorted(folder.glob("*.bin")):
+        if path.stem.isdigit():
+            scans[int(path.stem)] = path
+    return scans
+
+
+def _first(*candidates: Path) -> Path | None:
+    return next((c for c in candidates if c.exists()), None)
+
+
+def open_sequence(folder: Path) -> Sequence:
+    """The sequence in ``folder`` (see the module's layouts); ValueError naming what is
+    missing."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: no such folder")
+    if (folder / "velodyne").is_dir():  # vista's layout, or the shared raw sample
+        scan_dir = folder / "velodyne"
+        calib = _first(folder / "calib.txt", folder / "calib.json")
+        labels = _first(folder / "label_02.txt")
+        poses = _first(folder / "poses.txt")
+    elif folder.parent.name == "velodyne":  # a KITTI tracking download
+        root, name = folder.parent.parent, folder.name
+        scan_dir = folder
+        calib = _first(root / "calib" / f"{name}.txt")
+        labels = _first(root / "label_02" / f"{name}.txt")
+        poses = _first(root / "poses" / f"{name}.txt")
+    elif (folder / "velodyne_points" / "data").is_dir():  # a KITTI raw drive
+        scan_dir = folder / "velodyne_points" / "data"
+        calib = _first(folder.parent / "calib_cam_to_cam.txt", folder / "calib_cam_to_cam.txt")
+        labels, poses = None, _first(folder / "poses.txt")
+    else:
+        raise ValueError(
+            f"{folder}: not a LiDAR sequence (velodyne/*.bin with calib.txt, a KITTI tracking "
+            "download's training/velodyne/NNNN, or a raw drive with velodyne_points/data)"
+        )
+    scans = _scan_files(scan_dir)
+    if not scans:
+        raise ValueError(f"{scan_dir}: no scans (NNNNNN.bin, float32 x y z reflectance)")
+    if calib is None:
+        raise ValueError(
+            f"{folder}: no calibration (calib.txt, calib/NNNN.txt or calib.json) was found"
+        )
+    calibration = kitti.read_calibration(calib)
+    read_labels = kitti.read_tracking_labels(labels) if labels else None
+    lidar = None
+    if poses is not None:
+        camera = kitti.read_poses(poses)
+        if len(camera) < len(scans):
+            raise ValueError(f"{poses}: {len(camera)} poses for {len(scans)} scans")
+        lidar = kitti.lidar_poses(camera[: len(scans)], calibration)
+    return Sequence(folder, scans, calibration, read_labels, lidar)
+
+
+def tracklets(
+    sequence: Sequence, types: tuple[str, ...] = ("Car",), min_frames: int = 2
+) -> list[Tracklet]:
+    """Every labelled object's runs of consecutive frames (of at least ``min_frames``)."""
+    if sequence.labels is None:
+        raise ValueError(f"{sequence.folder}: no labels (label_02.txt) to take tracklets from")
+    labels = sequence.labels.of_type(*types)
+    boxes = kitti.camera_to_lidar(labels.camera_box, sequence.calibration)
+    out = []
+    for track in np.unique(labels.track_id):
+        rows = np.flatnonzero(labels.track_id == track)
+        rows = rows[np.argsort(labels.frame[rows], kind="stable")]
+        frames = labels.frame[rows]
+        breaks = np.flatnonzero(np.diff(frames) != 1) + 1
+        for run in np.split(np.arange(len(rows)), breaks):
+            if len(run) >= min_frames:
+                out.append(
+                    Tracklet(
+                        int(track),
+                        labels.type[rows[run[0]]],
+                        [int(f) for f in frames[run]],
+                        boxes[rows[run]],
+                    )
+                )
+    return out

@@ -1,0 +1,155 @@
+"""What every single-object tracker here shares: the step it answers, the motion model it
+predicts with, and the point model it keeps of its target.
+
+The motion model is constant velocity in the world: with the ego car's poses (KITTI's
+``poses.txt``, or whatever moves the scans) the target's box lives in the first scan's
+frame, so the ego car's own motion is not mistaken for the target's; without them the
+world is the sensor's frame and the velocity is the relative one.
+
+The point model is the target's points in its box's frame (x along its heading, origin at
+its centre), merged in 10 cm voxels: the first frame's (the given box), then those of every
+frame the tracker trusted — the thesis's "model point cloud obtained by aggregating all
+cropped points" — capped at ``MODEL_POINTS``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from services.tracking.boxes import YAW, H, to_box_frame, transform_boxes, wrap
+
+VOXEL_M = 0.1
+MODEL_POINTS = 4000
+VELOCITY_GAIN = 0.5
+"""How much of a new frame's motion enters the velocity (an α filter)."""
+MAX_STEP_M = 4.0
+MAX_TURN_RAD = 0.35
+"""The most a car moves and turns in the world between two frames (40 m/s, 200°/s)."""
+
+
+@dataclass(frozen=True)
+class TrackStep:
+    box: np.ndarray
+    """(7,) the target's box in the current scan's frame."""
+    confidence: float
+    """0–1: how much the tracker trusts this frame's answer."""
+    points: int
+    """Returns inside the box."""
+    predicted: np.ndarray
+    """(7,) where the motion model expected the target."""
+
+
+class Tracker(Protocol):
+    name: str
+
+    def start(self, points: np.ndarray, box: np.ndarray) -> None:
+        """Begin on ``points`` (N, ≥3) with the target's ``box`` given."""
+        ...
+
+    def step(self, points: np.ndarray, prev_T_cur: np.ndarray | None) -> TrackStep:
+        """The target in the next scan; ``prev_T_cur`` the ego motion since the last one
+        (None: unknown)."""
+        ...
+
+    def reset(self, points: np.ndarray, box: np.ndarray) -> None:
+        """Take ``box`` (a detection's) as the target's in the current scan."""
+        ...
+
+    def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
+        """0–1: how much the points in ``box`` look like the target."""
+        ...
+
+
+class MotionModel:
+    """Constant velocity (x, y, heading) of the target's box in the world frame."""
+
+    def __init__(self, box: np.ndarray) -> None:
+        self.world_T_cur = np.eye(4)
+        self.world_box = np.asarray(box, dtype=np.float64).copy()
+        self.velocity = np.zeros(3)
+        """(vx, vy, yaw rate) per frame, world frame."""
+
+    def advance(self, prev_T_cur: np.ndarray | None) -> np.ndarray:
+        """Move the sensor by the ego motion and return the predicted box in its frame."""
+        if prev_T_cur is not None:
+            self.world_T_cur = self.world_T_cur @ prev_T_cur
+        predicted = self.world_box.copy()
+        predicted[:2] += self.velocity[:2]
+        predicted[YAW] = wrap(predicted[YAW] + self.velocity[2])
+        return transform_boxes(np.linalg.inv(self.world_T_cur), predicted)
+
+    def update(self, box: np.ndarray, *, learn: bool = True) -> None:
+        """The target's box in the current frame; ``learn``: let its motion enter the
+        velocity (not after a reset, whose jump is a correction, not a motion)."""
+        world = transform_boxes(self.world_T_cur, box)
+        if learn:
+            step = world[:2] - self.world_box[:2]
+            step *= min(1.0, MAX_STEP_M / max(float(np.linalg.norm(step)), 1e-9))
+            turn = np.clip(wrap(world[YAW] - self.world_box[YAW]), -MAX_TURN_RAD, MAX_TURN_RAD)
+            motion = np.array([*step, turn])
+            self.velocity = (1 - VELOCITY_GAIN) * self.velocity + VELOCITY_GAIN * motion
+        self.world_box = world
+
+
+def crop(points: np.ndarray, box: np.ndarray, margin_m: float, floor_m: float = 0.2) -> np.ndarray:
+    """(M, 3) the points within ``box`` grown by ``margin_m`` across and along it (and
+    0.3 m above), above its bottom by ``floor_m`` (the road under it), in the box's frame."""
+    box = np.asarray(box, dtype=np.float64)
+    reach = np.hypot(box[3], box[4]) / 2 + margin_m
+    near = (np.abs(points[:, 0] - box[0]) <= reach) & (np.abs(points[:, 1] - box[1]) <= reach)
+    local = to_box_frame(points[near], box)
+    half = box[3:6] / 2
+    keep = (
+        (np.abs(local[:, 0]) <= half[0] + margin_m)
+        & (np.abs(local[:, 1]) <= half[1] + margin_m)
+        & (local[:, 2] >= -half[2] + floor_m)
+        & (local[:, 2] <= half[2] + 0.3)
+    )
+    return local[keep]
+
+
+class PointModel:
+    """The target's accumulated points in its box frame (voxel means)."""
+
+    def __init__(self, first: np.ndarray) -> None:
+        self.points = _voxel_means(first)
+        self._tree = None
+
+    def add(self, local: np.ndarray) -> None:
+        if not len(local):
+            return
+        merged = _voxel_means(np.concatenate([self.points, local]))
+        if len(merged) > MODEL_POINTS:
+            merged = merged[
+                np.random.default_rng(len(merged)).choice(len(merged), MODEL_POINTS, replace=False)
+            ]
+        self.points = merged
+        self._tree = None
+
+    @property
+    def tree(self):  # noqa: ANN201 - a scipy cKDTree
+        from scipy.spatial import cKDTree
+
+        if self._tree is None:
+            self._tree = cKDTree(self.points if len(self.points) else np.zeros((1, 3)))
+        return self._tree
+
+
+def _voxel_means(points: np.ndarray) -> np.ndarray:
+    if not len(points):
+        return np.zeros((0, 3))
+    keys = np.floor(points / VOXEL_M).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse, points)
+    return sums / counts[:, None]
+
+
+def in_box(points: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """(M, 3) the points inside ``box`` (above the road under it), in the box's frame."""
+    local = crop(points, box, 0.05, floor_m=0.2)
+    return local[local[:, 2] <= box[H] / 2 + 0.05]
