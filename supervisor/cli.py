@@ -14,6 +14,7 @@ from services.defects import cli as defects_cli
 from services.depth import cli as depth_cli
 from services.odometry import cli as odometry_cli
 from services.stitching import cli as stitching_cli
+from services.tracking import cli as tracking_cli
 from services.wording import counted
 from supervisor.settings import get_settings
 
@@ -221,6 +222,7 @@ stitching_cli.register(app, simulate_app, bench_app)
 defects_cli.register(app, simulate_app, bench_app)
 odometry_cli.register(app, bench_app)
 depth_cli.register(app, bench_app)
+tracking_cli.register(app, bench_app)
 
 if __name__ == "__main__":
     app()

@@ -81,7 +81,7 @@ class Engine:
                     "supervisor.cli",
                     "worker",
                     "--queues",
-                    "scan,stitching,defects,odometry,depth,training,test",
+                    "scan,stitching,defects,odometry,depth,tracking,training,test",
                 ],
                 env=env,
                 cwd=REPO,
@@ -634,6 +634,61 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
         headers={"content-type": "application/gzip"},
     )
     assert response.status_code == 422 and "no calib.json" in response.json()["detail"]
+
+
+def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_path):
+    """A packed drive uploaded as `lidar`: `track` follows track 0 with resets and writes
+    TRACK.json, its plot and the evaluation; a run without the target, and a learned
+    detector without its model, are refused."""
+    from tests.lidarfiles import pack_sequence, small_drive
+
+    drive = small_drive(tmp_path / "drive")
+    engine = engine_factory()
+    sequence = _upload(
+        engine, pack_sequence(drive, tmp_path / "drive.tar.gz"), "lidar", "application/gzip"
+    )
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    assert engine.http.get(f"{base}/{sequence}").json()["meta"]["frames"] == 12
+    run = engine.run(
+        [
+            {
+                "name": "track",
+                "kind": "track",
+                "inputs": [sequence],
+                "params": {"track_id": 0, "reset": "adaptive:20"},
+            }
+        ]
+    )
+    job = engine.wait(run["jobs"][0]["id"], timeout=120)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["frames"] == 12 and job["result"]["success"] > 50
+    made = {
+        (a["name"], a["kind"])
+        for a in engine.http.get(base, params={"limit": 200}).json()["items"]
+        if a["job_id"] == job["id"]
+    }
+    assert made == {("track.json", "report"), ("track.png", "plot"), ("evaluation.json", "report")}
+    refused = engine.run(
+        [
+            {
+                "name": "t",
+                "kind": "track",
+                "inputs": [sequence],
+                "params": {"track_id": 0, "reset": "every:2", "detector": "learned"},
+            }
+        ]
+    )
+    failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
+    assert failed["status"] == "failed" and "learned detector is needed" in failed["error"]
+    response = engine.http.post(
+        f"/api/v1/inspections/{engine.inspection}/runs",
+        json={
+            "steps": [
+                {"name": "t", "kind": "track", "inputs": [sequence], "params": {"reset": "never"}}
+            ]
+        },
+    )
+    assert response.status_code == 422 and "track_id or by init_box" in response.text
 
 
 def test_a_job_error_is_one_sentence_without_server_paths():

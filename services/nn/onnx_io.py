@@ -38,11 +38,14 @@ def export_onnx(
     *,
     input_name: str = "input",
     output_name: str | tuple[str, ...] = "output",
+    free_axes: tuple[int, ...] = (0,),
 ) -> float:
-    """Write ``model`` to ``path`` (the batch size free) with ``metadata``; run the file in
-    onnxruntime on ``example`` and return the largest difference from torch's output
-    (ValueError when it exceeds ``TOLERANCE`` of the output's scale). A model answering a
-    tuple gets one name per output in ``output_name``, each checked."""
+    """Write ``model`` to ``path`` (the input's ``free_axes`` free: the batch by default;
+    a fully convolutional network may free its image's height and width) with
+    ``metadata``; run the file in onnxruntime on ``example`` and return the largest
+    difference from torch's output (ValueError when it exceeds ``TOLERANCE`` of the output's
+    scale). A model answering a tuple gets one name per output in ``output_name``, each
+    checked."""
     import onnx
     import torch
 
@@ -66,7 +69,7 @@ def export_onnx(
                 (tensor,),
                 input_names=[input_name],
                 output_names=list(names),
-                dynamic_shapes=({0: torch.export.Dim("batch")},),
+                dynamic_shapes=({axis: torch.export.Dim(f"axis{axis}") for axis in free_axes},),
                 dynamo=True,
                 verbose=False,
             )

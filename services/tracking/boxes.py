@@ -91,9 +91,15 @@ def from_box_frame(local: np.ndarray, box: np.ndarray) -> np.ndarray:
 
 def inside(points: np.ndarray, box: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
     """(N,) bool: the points within ``box`` grown by ``margin_m`` on every side."""
-    local = to_box_frame(points, box)
-    half = np.asarray(box, dtype=np.float64)[L:YAW] / 2 + margin_m
-    return (np.abs(local) <= half).all(axis=1)
+    box = np.asarray(box, dtype=np.float64)
+    reach = np.hypot(box[L], box[W]) / 2 + margin_m
+    near = np.flatnonzero(
+        (np.abs(points[:, 0] - box[X]) <= reach) & (np.abs(points[:, 1] - box[Y]) <= reach)
+    )
+    local = to_box_frame(points[near], box)
+    out = np.zeros(len(points), dtype=bool)
+    out[near] = (np.abs(local) <= box[L:YAW] / 2 + margin_m).all(axis=1)
+    return out
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

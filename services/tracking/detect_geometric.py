@@ -196,9 +196,13 @@ def detect_cars(
 
 
 class GeometricDetector:
-    """``detect_cars`` as the pipeline's detector branch."""
+    """``detect_cars`` as the pipeline's detector branch (boxes scored at least
+    ``threshold``)."""
 
     name = "geometric"
+
+    def __init__(self, threshold: float = 0.5) -> None:
+        self.threshold = threshold
 
     def detect(self, points: np.ndarray, region: np.ndarray | None = None) -> Detections:
         if region is not None:
@@ -210,4 +214,5 @@ class GeometricDetector:
                 & (points[:, 1] <= y1 + 2)
             )
             points = points[near]
-        return detect_cars(points, region=region)
+        found = detect_cars(points, region=region)
+        return found.select(found.scores >= self.threshold)

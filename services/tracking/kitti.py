@@ -96,13 +96,16 @@ class Calibration:
         return pixels, depth
 
 
-def _key_values(path: Path) -> dict[str, np.ndarray]:
+def _read_text(path: Path, what: str) -> str:
     try:
-        lines = path.read_text().splitlines()
+        return Path(path).read_text()
     except (OSError, UnicodeDecodeError) as exc:
-        raise KittiError(f"{path}: cannot read the calibration ({exc})") from None
+        raise KittiError(f"{path}: cannot read the {what} ({exc})") from None
+
+
+def _key_values(text: str, path: Path | str) -> dict[str, np.ndarray]:
     values = {}
-    for number, line in enumerate(lines, 1):
+    for number, line in enumerate(text.splitlines(), 1):
         if not line.strip():
             continue
         key, _, rest = line.replace(":", " ", 1).partition(" ")
@@ -116,7 +119,7 @@ def _key_values(path: Path) -> dict[str, np.ndarray]:
 
 
 def _shaped(
-    values: dict[str, np.ndarray], path: Path, key: str, shape: tuple[int, int]
+    values: dict[str, np.ndarray], path: Path | str, key: str, shape: tuple[int, int]
 ) -> np.ndarray:
     found = values[key]
     if found.size != shape[0] * shape[1]:
@@ -145,15 +148,24 @@ def read_calibration(path: Path) -> Calibration:
     path = Path(path)
     if path.suffix == ".json":
         return _read_calibration_json(path)
-    values = _key_values(path)
+    values = _key_values(_read_text(path, "calibration"), path)
     if path.name == "calib_cam_to_cam.txt":
         velo = path.with_name("calib_velo_to_cam.txt")
         if not velo.exists():
             raise KittiError(f"{path}: a raw drive's calibration needs {velo.name} beside it")
-        rigid = _key_values(velo)
+        rigid = _key_values(_read_text(velo, "calibration"), velo)
         values["Tr_velo_to_cam"] = np.column_stack(
             [_shaped(rigid, velo, "R", (3, 3)), _shaped(rigid, velo, "T", (3, 1))]
         ).ravel()
+    return _calibration(values, path)
+
+
+def parse_calibration(text: str, name: str) -> Calibration:
+    """An object or tracking calib file's text (``name`` for the errors)."""
+    return _calibration(_key_values(text, name), name)
+
+
+def _calibration(values: dict[str, np.ndarray], path: Path | str) -> Calibration:
     keys = {name: _pick(values, name) for name in ALIASES}
     missing = [ALIASES[name][0] for name, key in keys.items() if key is None]
     if missing:
@@ -248,11 +260,10 @@ def empty_labels() -> Labels:
     )  # fmt: skip
 
 
-def _parse_labels(path: Path, tracking: bool) -> Labels:
-    try:
-        lines = [line.split() for line in path.read_text().splitlines() if line.strip()]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise KittiError(f"{path}: cannot read the labels ({exc})") from None
+def parse_labels(text: str, path: Path | str, *, tracking: bool) -> Labels:
+    """Label lines (``label_02`` with ``tracking``, else ``label_2``); ``path`` names them
+    in the errors."""
+    lines = [line.split() for line in text.splitlines() if line.strip()]
     lead = 2 if tracking else 0
     expected = "frame track_id type …" if tracking else "type truncated …"
     rows = []
@@ -292,12 +303,12 @@ def _parse_labels(path: Path, tracking: bool) -> Labels:
 
 def read_object_labels(path: Path) -> Labels:
     """A ``label_2`` file (the object benchmark's: one scan)."""
-    return _parse_labels(Path(path), tracking=False)
+    return parse_labels(_read_text(path, "labels"), path, tracking=False)
 
 
 def read_tracking_labels(path: Path) -> Labels:
     """A ``label_02`` file (the tracking benchmark's: every frame of a sequence)."""
-    return _parse_labels(Path(path), tracking=True)
+    return parse_labels(_read_text(path, "labels"), path, tracking=True)
 
 
 def format_labels(labels: Labels, *, tracking: bool, decimals: int = 2) -> str:
@@ -396,10 +407,16 @@ def image_boxes(
 
 def read_poses(path: Path) -> np.ndarray:
     """(N, 4, 4) ``cam0_T_cami`` from an odometry-format ``poses.txt`` (12 numbers a line)."""
+    return parse_poses(_read_text(path, "poses"), path)
+
+
+def parse_poses(text: str, path: Path | str) -> np.ndarray:
+    """(N, 4, 4) from the text of an odometry-format poses file."""
     try:
-        rows = [line.split() for line in Path(path).read_text().splitlines() if line.strip()]
-        values = np.array(rows, dtype=np.float64)
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        values = np.array(
+            [line.split() for line in text.splitlines() if line.strip()], dtype=np.float64
+        )
+    except ValueError as exc:
         raise KittiError(f"{path}: not KITTI poses (12 numbers a line): {exc}") from None
     if values.ndim != 2 or values.shape[1] != 12 or not np.isfinite(values).all():
         raise KittiError(

@@ -5,8 +5,7 @@ a turn at 10 Hz, 1.73 m above the road.
 The sensor turns while the car moves, as KITTI's raw scans do (not motion-compensated): a
 firing's time is its azimuth's share of the turn around the frame's time (the camera's
 trigger, when the beams face forward), and every point is given in the sensor's frame at
-its own firing. Moving objects are cast at their poses at each of ``SECTORS`` slices of the
-turn. A return is kept with its material's and the range's odds (glass and foliage drop
+its own firing. A moving object is cast in its own frame with its pose at each firing. A return is kept with its material's and the range's odds (glass and foliage drop
 most, far and grazing returns fade); its range is noisy and its reflectance falls with the
 angle of incidence.
 """
@@ -26,7 +25,6 @@ ELEVATIONS_DEG = np.concatenate([UPPER_DEG, LOWER_DEG])
 COLUMNS = 2048
 SCAN_PERIOD_S = 0.1
 MOUNT_HEIGHT_M = 1.73
-SECTORS = 8
 
 
 @dataclass(frozen=True)
@@ -106,18 +104,51 @@ def _cast(scene, origins: np.ndarray, directions: np.ndarray, threads: int) -> d
     }
 
 
+class Mover:
+    """A moving object's mesh in its own frame, in a ray-casting scene of its own (built
+    once): each firing is cast in the object's frame at the firing's time."""
+
+    def __init__(self, index: int, mesh: Mesh) -> None:
+        import open3d as o3d
+
+        self.index = index
+        self.materials = mesh.materials
+        self.radius_m = float(
+            np.linalg.norm(mesh.vertices - mesh.vertices.mean(axis=0), axis=1).max()
+        )
+        self.centre = mesh.vertices.mean(axis=0)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(
+            o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+            o3d.core.Tensor(mesh.triangles.astype(np.uint32)),
+        )
+
+
+def _window_columns(model: LidarModel, centre_sensor: np.ndarray, radius_m: float) -> np.ndarray:
+    """The columns whose beams may meet an object of ``radius_m`` around ``centre_sensor``
+    (the sensor's frame), with room for its motion during the turn."""
+    distance = float(np.hypot(centre_sensor[0], centre_sensor[1]))
+    if distance <= radius_m + 3.0:
+        return np.arange(model.columns)
+    azimuth = np.arctan2(centre_sensor[1], centre_sensor[0])
+    half = np.arcsin(min(1.0, (radius_m + 3.0) / distance))
+    first = (np.pi - (azimuth + half)) / (2 * np.pi) * model.columns - 0.5
+    last = (np.pi - (azimuth - half)) / (2 * np.pi) * model.columns - 0.5
+    return np.arange(int(np.floor(first)), int(np.ceil(last)) + 1) % model.columns
+
+
 def scan(
     model: LidarModel,
     world: StaticWorld,
     world_T_sensor: Callable[[np.ndarray], np.ndarray],
-    moving: Callable[[float], list[tuple[int, Mesh]]],
+    moving: list[tuple[Mover, Callable[[np.ndarray], np.ndarray]]],
     rng: np.random.Generator,
     *,
     threads: int = 2,
 ) -> Scan:
     """One turn of the sensor. ``world_T_sensor(offsets_s)`` gives (K, 4, 4) poses at time
-    offsets from the frame's; ``moving(offset_s)`` the moving objects' (index, mesh placed
-    in the world) at an offset."""
+    offsets from the frame's; ``moving`` the moving objects with a function giving their
+    ``world_T_object`` (K, 4, 4) at time offsets."""
     import open3d as o3d
 
     local, offset = model.directions()
@@ -138,30 +169,30 @@ def scan(
     material[rows] = _materials(world.materials, geometry, static["primitive_ids"][rows])
     obj[rows] = world.object_of_geometry[geometry]
     normals = static["primitive_normals"].astype(np.float64)
-    sector = (column * SECTORS) // columns
-    for part in range(SECTORS):
-        sector_offset = ((part + 0.5) / SECTORS - 0.5) * model.period_s
-        placed = moving(sector_offset)
-        if not placed:
-            continue
-        scene = o3d.t.geometry.RaycastingScene()
-        owner, owner_materials = [], []
-        for index, mesh in placed:
-            scene.add_triangles(
-                o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                o3d.core.Tensor(mesh.triangles.astype(np.uint32)),
-            )
-            owner.append(index)
-            owner_materials.append(mesh.materials)
-        picked = np.flatnonzero(sector == part)
-        hits = _cast(scene, origins[picked], directions[picked], threads)
+    sensor_from_world = np.linalg.inv(poses[columns // 2])
+    rings = len(model.elevations_deg)
+    for mover, world_T_object in moving:
+        now = world_T_object(np.zeros(1))[0]
+        centre = (
+            sensor_from_world[:3, :3] @ (now[:3, :3] @ mover.centre + now[:3, 3])
+            + sensor_from_world[:3, 3]
+        )
+        cols = _window_columns(model, centre, mover.radius_m)
+        object_poses = world_T_object(offset[cols])  # (C, 4, 4) at each column's firing
+        picked = (np.arange(rings)[:, None] * columns + cols[None, :]).ravel()
+        pose = np.tile(object_poses, (rings, 1, 1))
+        rotation_t = np.swapaxes(pose[:, :3, :3], 1, 2)
+        ray_origin = np.einsum("rij,rj->ri", rotation_t, origins[picked] - pose[:, :3, 3])
+        ray_direction = np.einsum("rij,rj->ri", rotation_t, directions[picked])
+        hits = _cast(mover.scene, ray_origin, ray_direction, threads)
         closer = hits["t_hit"] < t_hit[picked]
         chosen = picked[closer]
-        geometry = hits["geometry_ids"][closer].astype(np.int64)
         t_hit[chosen] = hits["t_hit"][closer]
-        normals[chosen] = hits["primitive_normals"][closer]
-        material[chosen] = _materials(owner_materials, geometry, hits["primitive_ids"][closer])
-        obj[chosen] = np.asarray(owner)[geometry]
+        normals[chosen] = np.einsum(
+            "rij,rj->ri", pose[closer, :3, :3], hits["primitive_normals"][closer]
+        )
+        material[chosen] = mover.materials[hits["primitive_ids"][closer]]
+        obj[chosen] = mover.index
     return _returns(model, local, directions, t_hit, material, obj, normals, rng)
 
 

@@ -247,6 +247,26 @@ def random_car(rng: np.random.Generator, shape: str | None = None) -> tuple[str,
     return shape, car(shape, rng.uniform(l0, l1), rng.uniform(w0, w1), rng.uniform(h0, h1))
 
 
+def truck(rng: np.random.Generator) -> Mesh:
+    """A lorry (KITTI's Truck): a cab and a cargo box on six wheels, 6.5–10 m long."""
+    length, width = rng.uniform(6.5, 10.0), rng.uniform(2.3, 2.55)
+    cab_length, height = 2.2, rng.uniform(2.9, 3.7)
+    wheel = 0.5
+    cargo = box(length - cab_length - 0.3, width, height - 0.9, "paint").placed(
+        _translation(-(cab_length + 0.3) / 2, 0, 0.9)
+    )
+    cab = box(cab_length, width, 2.1, "paint").placed(
+        _translation((length - cab_length) / 2, 0, 0.8)
+    )
+    screen = box(0.05, width * 0.8, 0.8, "glass").placed(_translation(length / 2, 0, 1.9))
+    wheels = [
+        _wheel(wheel, 0.3).placed(_translation(x * length, side * (width / 2 - 0.2), wheel))
+        for x in (-0.35, -0.2, 0.38)
+        for side in (-1, 1)
+    ]
+    return _centred(merge(cargo, cab, screen, *wheels))
+
+
 def pedestrian(rng: np.random.Generator) -> Mesh:
     """Legs, a torso, arms and a head: 1.55–1.95 m tall, facing x."""
     height = rng.uniform(1.55, 1.95)
@@ -283,9 +303,22 @@ def cyclist(rng: np.random.Generator) -> Mesh:
     return _centred(merge(*wheels, frame, seated))
 
 
+def shrub(rng: np.random.Generator) -> Mesh:
+    """Two to five lumps of foliage grown together, 0.5–3.5 m across."""
+    lumps = []
+    for _ in range(int(rng.integers(2, 6))):
+        lump = blob(rng.uniform(0.3, 1.1), rng, "foliage", 0.35)
+        shift = _translation(rng.uniform(-1.0, 1.0), rng.uniform(-0.8, 0.8), rng.uniform(-0.2, 0.4))
+        lumps.append(lump.placed(shift))
+    mesh = merge(*lumps)
+    vertices = mesh.vertices.copy()
+    vertices[:, 2] = np.maximum(vertices[:, 2], 0.0)
+    return _centred(Mesh(vertices, mesh.triangles, mesh.materials))
+
+
 def tree(rng: np.random.Generator) -> Mesh:
-    trunk_height = rng.uniform(1.8, 3.5)
-    crown = rng.uniform(1.2, 2.8)
+    trunk_height = rng.uniform(1.2, 3.5)
+    crown = rng.uniform(1.0, 3.2)
     return merge(
         cylinder(rng.uniform(0.1, 0.25), trunk_height + crown * 0.5, "bark", 8),
         blob(crown, rng, "foliage").placed(_translation(0, 0, trunk_height)),

@@ -124,7 +124,9 @@ def track(
         ):
             started = time.perf_counter()
             detections = detector.detect(points, search_window(step.box))
-            chosen = associate(detections, step.box, partial(tracker.appearance, points))
+            chosen = associate(
+                detections, step.box, partial(tracker.appearance, points), step.confidence
+            )
             if chosen.box is not None:
                 tracker.reset(points, chosen.box)
                 box, confidence, reset = chosen.box, max(confidence, chosen.score), True

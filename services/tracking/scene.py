@@ -116,23 +116,32 @@ class Agent:
     lift_m: float = 0.0
     """Height above the road (pavements)."""
     shape: str = ""
+    yaw_offset: float = 0.0
+    """Turned from the direction of travel (cars parked across the road's direction)."""
+
+    def poses(self, road: Road, frames: np.ndarray) -> np.ndarray:
+        """(K, 4, 4) world_T_object at (fractional) frames."""
+        frames = np.atleast_1d(np.asarray(frames, dtype=np.float64))
+        index = np.arange(len(self.s))
+        s = np.interp(frames, index, self.s)
+        d = np.interp(frames, index, self.d)
+        xy, z, heading = road.pose(s, d)
+        step = np.interp(frames + 0.5, index, self.s) - np.interp(frames - 0.5, index, self.s)
+        swerve = np.interp(frames + 0.5, index, self.d) - np.interp(frames - 0.5, index, self.d)
+        yaw = heading + (0.0 if self.direction > 0 else np.pi) + self.yaw_offset
+        # moving: face where it goes (a lane change turns it a little)
+        yaw = yaw + np.where(
+            np.abs(step) > 0.05, np.arctan2(swerve * self.direction, np.abs(step)), 0.0
+        )
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        out = np.tile(np.eye(4), (len(frames), 1, 1))
+        out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s_, s_, c
+        out[:, :3, 3] = np.column_stack([xy, z + self.lift_m])
+        return out
 
     def pose(self, road: Road, frame: float) -> np.ndarray:
         """world_T_object (4, 4) at a (fractional) frame."""
-        index = np.arange(len(self.s))
-        s = np.interp(frame, index, self.s)
-        d = np.interp(frame, index, self.d)
-        xy, z, heading = road.pose(s, d)
-        step = np.interp(frame + 0.5, index, self.s) - np.interp(frame - 0.5, index, self.s)
-        swerve = np.interp(frame + 0.5, index, self.d) - np.interp(frame - 0.5, index, self.d)
-        yaw = heading + (0.0 if self.direction > 0 else np.pi)
-        if abs(step) > 0.05:  # moving: face where it goes (a lane change turns it a little)
-            yaw += np.arctan2(swerve * self.direction, abs(step))
-        c, s_ = np.cos(yaw), np.sin(yaw)
-        out = np.eye(4)
-        out[:3, :3] = [[c, -s_, 0], [s_, c, 0], [0, 0, 1]]
-        out[:3, 3] = (xy[0], xy[1], z + self.lift_m)
-        return out
+        return self.poses(road, np.array([frame]))[0]
 
 
 @dataclass
@@ -235,7 +244,9 @@ def _placed(mesh: Mesh, road: Road, s: float, d: float, yaw_offset: float, lift:
     return mesh.placed(pose)
 
 
-def _roadside(road: Road, length: float, rng: np.random.Generator) -> list[Mesh]:
+def _roadside(
+    road: Road, length: float, lots: dict[int, list[tuple[float, float]]], rng: np.random.Generator
+) -> list[Mesh]:
     """Road, markings, kerbs, pavements, terrain and what stands beyond the kerbs."""
     parts = []
     right, left = -road.edge(-1), road.edge(1)
@@ -270,21 +281,35 @@ def _roadside(road: Road, length: float, rng: np.random.Generator) -> list[Mesh]
                 4.0,
             )
         )
-        parts.extend(_beyond(road, length, side, abs(edge) + pavement, rng))
+        parts.extend(_beyond(road, length, side, abs(edge) + pavement, lots[side], rng))
     return parts
 
 
+def _free(s0: float, s1: float, taken: list[tuple[float, float]]) -> bool:
+    return all(s1 <= a or s0 >= b for a, b in taken)
+
+
 def _beyond(
-    road: Road, length: float, side: int, start_d: float, rng: np.random.Generator
+    road: Road,
+    length: float,
+    side: int,
+    start_d: float,
+    lots: list[tuple[float, float]],
+    rng: np.random.Generator,
 ) -> list[Mesh]:
-    """Buildings with gaps, or hedges and fences; trees, poles and bushes along the kerb."""
+    """What stands beyond a pavement: buildings with gaps, hedges, fences, stretches of
+    woodland and embankments (outside the parking ``lots``); trees, poles, bushes, bins and
+    bollards along the kerb."""
     parts = []
     s = rng.uniform(-10, 5)
-    urban = rng.uniform() < 0.65
+    urban = rng.uniform() < 0.6
     while s < length:
         span = rng.uniform(8, 40)
         setback = rng.uniform(0.0, 5.0)
-        if urban and rng.uniform() < 0.8:
+        roll = rng.uniform()
+        if not _free(s, s + span, lots):
+            pass
+        elif urban and roll < 0.65:
             depth, height = rng.uniform(8, 15), rng.uniform(5, 18)
             building = meshes.box(span, depth, height, "wall")
             parts.append(
@@ -297,15 +322,36 @@ def _beyond(
                     KERB_M,
                 )
             )
-        elif rng.uniform() < 0.5:
+        elif roll < 0.72:
             hedge = meshes.box(span, rng.uniform(0.6, 1.2), rng.uniform(0.8, 2.0), "foliage")
             parts.append(
                 _placed(hedge, road, s + span / 2, side * (start_d + setback + 0.5), 0.0, KERB_M)
             )
-        else:
+        elif roll < 0.78:
             fence = meshes.box(span, 0.05, rng.uniform(1.0, 1.8), "metal")
             parts.append(
                 _placed(fence, road, s + span / 2, side * (start_d + setback), 0.0, KERB_M)
+            )
+        else:  # woodland: bushes and trees of every size, a few metres deep
+            for _ in range(int(span * rng.uniform(0.3, 0.8))):
+                at, off = s + rng.uniform(0, span), side * (start_d + rng.uniform(0.5, 12.0))
+                plant = (
+                    meshes.tree(rng)
+                    if rng.uniform() < 0.35
+                    else meshes.blob(rng.uniform(0.3, 1.6), rng, "foliage", 0.35)
+                )
+                parts.append(_placed(plant, road, at, off, 0.0, KERB_M))
+        if rng.uniform() < 0.15 and _free(s, s + span, lots):  # an embankment rising away
+            rise = rng.uniform(1.0, 4.0)
+            parts.append(
+                _ribbon(
+                    road,
+                    s,
+                    s + span,
+                    (side * (start_d + setback + 1.0), side * (start_d + setback + 14.0)),
+                    (KERB_M, KERB_M + rise),
+                    "terrain",
+                )
             )
         s += span + rng.uniform(2, 15)
     kerb = start_d - 0.4
@@ -327,10 +373,43 @@ def _beyond(
             parts.append(
                 _placed(bush, road, at, side * (start_d + rng.uniform(0.5, 3.0)), 0.0, KERB_M)
             )
+        elif roll < 0.085:
+            bin_ = meshes.box(
+                rng.uniform(0.5, 1.2), rng.uniform(0.5, 0.8), rng.uniform(0.9, 1.4), "wall"
+            )
+            parts.append(
+                _placed(
+                    bin_, road, at, side * (kerb - rng.uniform(0.0, 1.5)), rng.uniform(0, 3), KERB_M
+                )
+            )
+        elif roll < 0.12:
+            bollard = meshes.cylinder(0.08, rng.uniform(0.6, 1.0), "metal", 6)
+            parts.append(_placed(bollard, road, at, side * (kerb + 0.2), 0.0, KERB_M))
     return parts
 
 
-def _vehicle(rng: np.random.Generator, shape: str | None = None) -> tuple[str, str, Mesh]:
+def _lots(
+    road: Road, length: float, rng: np.random.Generator
+) -> dict[int, list[tuple[float, float]]]:
+    """Stretches (s0, s1) of each side where a car park lies beyond the pavement."""
+    lots: dict[int, list[tuple[float, float]]] = {-1: [], 1: []}
+    for side in (-1, 1):
+        s = rng.uniform(0, 80)
+        while s < length:
+            if rng.uniform() < 0.25:
+                span = rng.uniform(15, 50)
+                lots[side].append((s, s + span))
+                s += span
+            s += rng.uniform(40, 120)
+    return lots
+
+
+def _vehicle(
+    rng: np.random.Generator, shape: str | None = None, trucks: float = 0.0
+) -> tuple[str, str, Mesh]:
+    """A random vehicle: KITTI's type, its shape and mesh (a lorry with chance ``trucks``)."""
+    if shape is None and rng.uniform() < trucks:
+        return "Truck", "truck", meshes.truck(rng)
     shape, mesh = meshes.random_car(rng, shape)
     return ("Van" if shape == "van" else "Car"), shape, mesh
 
@@ -381,7 +460,8 @@ def random_street(frames: int, cars: int, rng: np.random.Generator, fps: float =
         swerve = np.full(frames, d)
         agents.append(Agent(kind, mesh, positions[:, k], swerve, directions[k], shape=shape))
     moving = [True] * len(agents)
-    agents_static = _parked(road, length, rng)
+    lots = _lots(road, length, rng)
+    agents_static = _parked(road, length, lots, rng)
     agents += agents_static
     moving += [False] * len(agents_static)
     walkers = _walkers(road, length, frames, fps, rng)
@@ -390,7 +470,7 @@ def random_street(frames: int, cars: int, rng: np.random.Generator, fps: float =
     ego_d = road.lane_offset(ego_lane, 1)
     return Street(
         road,
-        _roadside(road, length, rng),
+        _roadside(road, length, lots, rng),
         agents,
         positions[:, 0],
         ego_d,
@@ -416,31 +496,46 @@ def _spread(starts: np.ndarray, group: np.ndarray, keep: int) -> np.ndarray:
     return out
 
 
-def _parked(road: Road, length: float, rng: np.random.Generator) -> list[Agent]:
+def _parked(
+    road: Road, length: float, lots: dict[int, list[tuple[float, float]]], rng: np.random.Generator
+) -> list[Agent]:
+    """Cars parked along the parking lanes, and side by side in the car parks."""
     agents = []
     for side, index in ((-1, 0), (1, 1)):
-        if not road.parking[index]:
-            continue
-        d = side * (road.edge(side) - PARKING_M / 2)
-        s = rng.uniform(0, 8)
-        while s < length - 5:
-            if rng.uniform() < 0.7:
-                kind, shape, mesh = _vehicle(rng)
-                facing = 1 if side < 0 or rng.uniform() < 0.3 else -1
-                at = np.full(1, s + mesh.box_size[0] / 2)
-                agents.append(
-                    Agent(
-                        kind,
-                        mesh,
-                        at,
-                        np.full(1, d + rng.uniform(-0.15, 0.15)),
-                        facing,
-                        shape=shape,
+        if road.parking[index]:
+            d = side * (road.edge(side) - PARKING_M / 2)
+            s = rng.uniform(0, 8)
+            while s < length - 5:
+                if rng.uniform() < 0.7:
+                    kind, shape, mesh = _vehicle(rng)
+                    facing = 1 if side < 0 or rng.uniform() < 0.3 else -1
+                    at = np.full(1, s + mesh.box_size[0] / 2)
+                    offset = np.full(1, d + rng.uniform(-0.15, 0.15))
+                    agents.append(Agent(kind, mesh, at, offset, facing, shape=shape))
+                    s += mesh.box_size[0] + rng.uniform(0.8, 2.5)
+                else:
+                    s += rng.uniform(5, 12)
+        outer = road.edge(side) + road.pavement_m[index]
+        for s0, s1 in lots[side]:
+            for row in range(int(rng.integers(1, 3))):
+                d = side * (outer + 3.0 + row * 5.5)
+                for at in np.arange(s0 + 1.5, s1 - 1.5, rng.uniform(2.5, 3.0)):
+                    if rng.uniform() < 0.35:
+                        continue
+                    kind, shape, mesh = _vehicle(rng)
+                    turn = float(rng.choice([-1, 1]) * np.pi / 2 + rng.normal(0, 0.05))
+                    agents.append(
+                        Agent(
+                            kind,
+                            mesh,
+                            np.full(1, at),
+                            np.full(1, d),
+                            1,
+                            lift_m=KERB_M,
+                            shape=shape,
+                            yaw_offset=turn,
+                        )
                     )
-                )
-                s += mesh.box_size[0] + rng.uniform(0.8, 2.5)
-            else:
-                s += rng.uniform(5, 12)
     return agents
 
 

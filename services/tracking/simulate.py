@@ -17,13 +17,14 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from services.tracking import kitti, lidar
 from services.tracking.boxes import YAW, H, L, W, corners, to_box_frame, wrap
-from services.tracking.scene import Street, random_street
+from services.tracking.scene import Agent, Road, Street, random_street
 
 FPS = 10.0
 IMAGE_SIZE = (1242, 375)
@@ -191,6 +192,14 @@ def _labels(rows: list[tuple]) -> kitti.Labels:
     )
 
 
+def _agent_poses(agent: Agent, road: Road, frame: int, offsets_s: np.ndarray) -> np.ndarray:
+    return agent.poses(road, frame + offsets_s * FPS)
+
+
+def _sensor_poses_at(street: Street, frame: int, offsets_s: np.ndarray) -> np.ndarray:
+    return sensor_poses(street, frame + offsets_s * FPS)
+
+
 def simulate_sequence(
     out_dir: Path,
     *,
@@ -221,26 +230,21 @@ def simulate_sequence(
     calibration = kitti_calibration()
     out_dir = Path(out_dir)
     (out_dir / "velodyne").mkdir(parents=True, exist_ok=True)
-    movers = np.flatnonzero(street.moving)
+    movers = {i: lidar.Mover(i, street.agents[i].mesh) for i in np.flatnonzero(street.moving)}
     label_rows, point_counts = [], []
     for frame in range(frames):
         sensor = sensor_poses(street, np.array([float(frame)]))[0]
         near = [
-            i for i in movers
-            if np.linalg.norm(street.agents[i].pose(road, frame)[:2, 3] - sensor[:2, 3]) < MOVING_RANGE_M
-        ]  # fmt: skip
-
-        def moving(offset_s: float, frame: int = frame, near: list = near) -> list:
-            at = frame + offset_s * FPS
-            return [
-                (i, street.agents[i].mesh.placed(street.agents[i].pose(road, at))) for i in near
-            ]
-
+            (mover, partial(_agent_poses, street.agents[i], road, frame))
+            for i, mover in movers.items()
+            if np.linalg.norm(street.agents[i].pose(road, frame)[:2, 3] - sensor[:2, 3])
+            < MOVING_RANGE_M
+        ]
         scan = lidar.scan(
             model,
             world,
-            lambda offsets, frame=frame: sensor_poses(street, frame + offsets * FPS),
-            moving,
+            partial(_sensor_poses_at, street, frame),
+            near,
             rng,
             threads=threads,
         )

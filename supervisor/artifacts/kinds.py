@@ -6,7 +6,18 @@ from dataclasses import dataclass
 from typing import Literal
 
 Format = Literal[
-    "ply", "ply-mesh", "json", "png", "glb", "archive", "onnx", "tum", "image", "depth-png", "drive"
+    "ply",
+    "ply-mesh",
+    "json",
+    "png",
+    "glb",
+    "archive",
+    "onnx",
+    "tum",
+    "image",
+    "depth-png",
+    "drive",
+    "lidar",
 ]
 
 
@@ -54,6 +65,12 @@ ARTIFACT_KINDS = {
             "drive",
             "A camera drive in KITTI's layout as a zip or tar: image_02/ and its calibration "
             "(calib.json or calib_cam_to_cam.txt), with image_03/, depth/, poses.txt as known.",
+        ),
+        ArtifactKind(
+            "lidar",
+            "lidar",
+            "A LiDAR sequence in KITTI's formats as a zip or tar: velodyne/NNNNNN.bin and "
+            "calib.txt, with label_02.txt and poses.txt as known.",
         ),
         ArtifactKind("other", None, "Any file kept with the inspection; no job reads it."),
     )

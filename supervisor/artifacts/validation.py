@@ -51,6 +51,8 @@ def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> tup
         return _sequence_meta(path, name, kind)
     if form == "drive":
         return _drive_meta(path, name, kind)
+    if form == "lidar":
+        return _lidar_meta(path, name, kind)
     if form == "image":
         return _image_meta(path, head, name, kind)
     if form == "depth-png":
@@ -126,6 +128,23 @@ def _drive_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
         "frames": found.frames,
         "stereo": found.stereo,
         "depth": found.depth,
+        "poses": found.poses,
+    }
+    return found.media_type, meta
+
+
+def _lidar_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
+    from services.archive import ArchiveError
+    from services.tracking.lidar_archive import inspect_lidar
+
+    try:
+        found = inspect_lidar(path)
+    except ArchiveError as exc:
+        raise Problem(422, f"{name} (kind={kind}) is not a LiDAR sequence: {exc}.") from exc
+    meta = {
+        "frames": found.frames,
+        "labels": found.labels,
+        "tracks": found.tracks,
         "poses": found.poses,
     }
     return found.media_type, meta

@@ -16,6 +16,7 @@ SERVICE_KIND_MODULES = (
     "services.defects.kinds",
     "services.odometry.kinds",
     "services.depth.kinds",
+    "services.tracking.kinds",
 )
 
 _KINDS: dict[str, JobKind] = {}

@@ -1,0 +1,323 @@
+"""``vista track …``: the LiDAR car-tracking service's commands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from contract.cli import fail
+from services.tracking.kinds import DETECTOR_EPOCHS, SIAMESE_EPOCHS
+
+# Heavy imports (numpy, open3d, torch, onnxruntime) stay inside the commands.
+
+track_app = typer.Typer(
+    help="3D single-car tracking on LiDAR (thesis 5.1): simulate KITTI-format drives, detect "
+    "cars, track one with detector resets, evaluate by One-Pass Evaluation.",
+    no_args_is_help=True,
+)
+
+
+@track_app.command("simulate")
+def simulate(
+    out_dir: Path = typer.Argument(..., help="The sequence folder to write."),
+    frames: int = typer.Option(300, min=1, max=100_000, help="Frames (10 Hz)."),
+    cars: int = typer.Option(8, min=1, max=200, help="Moving cars (the first leads the ego car)."),
+    seed: int = typer.Option(0, min=0, help="Random seed (street, traffic, sensor noise)."),
+    threads: int = typer.Option(2, min=1, max=256, help="Ray-casting threads."),
+) -> None:
+    """Simulate a drive seen by a 64-beam spinning LiDAR (HDL-64E geometry as KITTI mounted
+    it: 64 rings from +2° to −24.9°, 2 048 firings a turn, 10 Hz, range noise, dropout,
+    reflectance) ray-cast with Open3D down a random street: cars of four shapes (sedan,
+    hatchback, SUV, van) parked and driving, lorries, pedestrians, cyclists, buildings,
+    hedges, trees, poles; the ego car follows the first car for the whole drive. Writes
+    KITTI tracking's formats: velodyne/NNNNNN.bin, calib.txt, label_02.txt (objects the
+    camera sees within 80 m), poses.txt (camera poses, odometry format), and
+    simulation.json (each track's shape)."""
+    from services.tracking.simulate import simulate_sequence
+
+    with typer.progressbar(length=frames, label="ray casting") as bar:
+        summary = simulate_sequence(
+            out_dir,
+            frames=frames,
+            cars=cars,
+            seed=seed,
+            threads=threads,
+            progress=lambda _: bar.update(1),
+        )
+    typer.echo(
+        f"wrote {summary.frames} scans ({summary.points_per_scan:,.0f} points each on average), "
+        f"{summary.labels} labels of {summary.tracks} tracks to {out_dir} in {summary.seconds:.0f} s"
+    )
+
+
+TRACKER = typer.Option(
+    "geometric",
+    help="geometric (point-model registration) or siamese (SC3D, needs --siamese-model).",
+)
+DETECTOR = typer.Option(
+    "geometric",
+    help="geometric (ground, clusters, L-shape boxes) or learned (needs --detector-model).",
+)
+SIAMESE_MODEL = typer.Option(
+    None, help="The Siamese tracker's ONNX encoder (vista track train siamese)."
+)
+DETECTOR_MODEL = typer.Option(
+    None, help="The learned detector's ONNX model (vista track train detector)."
+)
+THREADS = typer.Option(2, min=1, max=256, help="Threads for the networks.")
+
+
+def _echo_progress(fraction: float, message: str) -> None:
+    typer.echo(f"[{fraction * 100:5.1f} %] {message}")
+
+
+@track_app.command("run")
+def run(
+    sequence: Path = typer.Argument(
+        ...,
+        help="A sequence folder: vista's (velodyne/, calib.txt), a KITTI tracking download's training/velodyne/NNNN, or a raw drive.",
+    ),
+    out: Path = typer.Option(..., "-o", "--out", help="TRACK.json to write."),
+    track_id: int = typer.Option(
+        None, help="Track this labelled object (label_02's track id) over its frames."
+    ),
+    init_box: str = typer.Option(
+        None, help="Or start from this box: 'h w l x y z ry' (KITTI camera frame, metres, radians)."
+    ),
+    start_frame: int = typer.Option(
+        None, help="With --init-box: the frame it is in (default the first)."
+    ),
+    end_frame: int = typer.Option(
+        None, help="With --init-box: the last frame to track (default the last)."
+    ),
+    reset: str = typer.Option(
+        "never",
+        help="never, every:N (the thesis's fixed frequency 1/N) or adaptive[:BUDGET] (percent of frames, default 10).",
+    ),
+    tracker: str = TRACKER,
+    detector: str = DETECTOR,
+    siamese_model: Path = SIAMESE_MODEL,
+    detector_model: Path = DETECTOR_MODEL,
+    plot: Path = typer.Option(
+        None, help="PNG: the target's path, its confidence and the detector's runs."
+    ),
+    threads: int = THREADS,
+) -> None:
+    """Track one car through a LiDAR sequence: the tracker each frame, the detector when the
+    reset policy says so (the target picked among its cars by distance, size and look).
+    TRACK.json has per frame the box in the camera frame (h w l x y z ry) and in the LiDAR
+    frame, the confidence, the points in the box, whether the detector ran and reset it;
+    and the detector's cost (% of frames) and the frames per second."""
+    import json
+
+    from services.tracking.kitti import KittiError
+    from services.tracking.report import plot_run
+    from services.tracking.run import parse_camera_box, run_tracking
+
+    try:
+        box = parse_camera_box(init_box) if init_box is not None else None
+        with typer.progressbar(length=1, label="tracking") as bar:
+
+            def advance(done: int, total: int) -> None:
+                bar.length = max(total, 1)
+                bar.update(1)
+
+            document = run_tracking(
+                sequence, track_id=track_id, init_box=box, start_frame=start_frame, end_frame=end_frame,
+                tracker=tracker, detector=detector, reset=reset, siamese_model=siamese_model,
+                detector_model=detector_model, threads=threads, progress=advance,
+            )  # fmt: skip
+    except (ValueError, KittiError) as exc:
+        fail(str(exc))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(document, indent=1) + "\n")
+    if plot is not None:
+        plot_run(document, plot)
+    frames = document["frames"]
+    typer.echo(
+        f"{len(frames)} frames, detector on {document['detector_runs']} ({document['detector_cost_percent']:.1f} %), "
+        f"{sum(f['reset'] for f in frames)} resets, mean confidence {sum(f['confidence'] for f in frames) / len(frames):.2f}, "
+        f"{document['fps']:.0f} frames/s; wrote {out}"
+    )
+
+
+@track_app.command("eval")
+def evaluate(
+    sequence: Path = typer.Argument(..., help="The labelled sequence the runs tracked in."),
+    tracks: list[Path] = typer.Argument(..., help="TRACK.json files (vista track run)."),
+    out: Path = typer.Option(..., "-o", "--out", help="EVAL.json to write."),
+    plot: Path = typer.Option(None, help="PNG of the success and precision curves."),
+) -> None:
+    """One-Pass Evaluation as SC3D and P2B compute it: per frame the 3D IoU with the label
+    and the centre distance; Success = area under the share of frames with IoU ≥ t (t over
+    0–1), Precision = area under the share with error ≤ e (e over 0–2 m), pooled over the
+    runs' frames, in percent; each run's own figures beside."""
+    import json
+
+    from services.tracking.kitti import KittiError
+    from services.tracking.report import plot_ope, read_track
+    from services.tracking.run import evaluate_runs
+
+    try:
+        documents = [(str(path), read_track(path)) for path in tracks]
+        result = evaluate_runs(sequence, documents)
+    except (ValueError, KittiError) as exc:
+        fail(str(exc))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result.document(), indent=1) + "\n")
+    if plot is not None:
+        plot_ope({"pooled": result.pooled}, plot)
+    typer.echo(
+        f"{result.pooled.tracklets} run(s), {result.pooled.frames} frames: Success {result.pooled.success:.2f}, "
+        f"Precision {result.pooled.precision:.2f}; wrote {out}"
+    )
+
+
+@track_app.command("detect")
+def detect(
+    scan: Path = typer.Argument(
+        ..., help="A scan (.bin), or a folder of them (a KITTI object velodyne/)."
+    ),
+    calib: Path = typer.Option(
+        ..., help="Its calibration file, or the folder of them (calib/NNNNNN.txt)."
+    ),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="label_2 file to write (a folder when SCAN is one)."
+    ),
+    detector: str = DETECTOR,
+    detector_model: Path = DETECTOR_MODEL,
+    threshold: float = typer.Option(
+        None, min=0.0, max=1.0, help="Lowest score kept (default: the detector's own)."
+    ),
+    labels: Path = typer.Option(
+        None, help="label_2 folder (or file) to score the detections against."
+    ),
+    threads: int = THREADS,
+) -> None:
+    """Cars in LiDAR scans as KITTI label_2 lines (type Car, truncation and occlusion −1,
+    alpha, the 2D box in image 2, h w l, the bottom centre x y z in the rectified camera
+    frame, rotation_y, the score as the 16th field) — the cars in the camera's view, as
+    KITTI's labels are. With --labels, their recall within 40 m (BEV IoU ≥ 0.5) and precision
+    in the camera's view."""
+    from services.tracking.detect import detect_files
+
+    try:
+        summary = detect_files(
+            scan,
+            calib,
+            out,
+            detector=detector,
+            model=detector_model,
+            threshold=threshold,
+            labels=labels,
+            threads=threads,
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    typer.echo(summary)
+
+
+train_app = typer.Typer(help="Train the tracking service's networks.", no_args_is_help=True)
+track_app.add_typer(train_app, name="train")
+DATA = typer.Argument(
+    ...,
+    help="Labelled sequence folders (vista track simulate, KITTI tracking) or KITTI object folders (velodyne/, calib/, label_2/).",
+)
+CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun resumes).")
+
+
+@train_app.command("detector")
+def train_detector_command(
+    data: list[Path] = DATA,
+    out: Path = typer.Option(..., "-o", "--out", help="DETECTOR.onnx to write."),
+    epochs: int = typer.Option(DETECTOR_EPOCHS, min=1, max=1000),
+    batch: int = typer.Option(8, min=1, max=256),
+    learning_rate: float = typer.Option(
+        2e-3, min=1e-6, max=1.0, help="Adam's step (cosine schedule)."
+    ),
+    frame_step: int = typer.Option(2, min=1, max=1000, help="Every n-th frame of a sequence."),
+    window: int = typer.Option(
+        224, min=64, max=2048, help="Training window, cells of 0.2 m (a multiple of 16)."
+    ),
+    seed: int = typer.Option(0, min=0),
+    threads: int = THREADS,
+    device: str = typer.Option("auto", help="auto, cpu or cuda."),
+    checkpoints: Path = CHECKPOINTS,
+) -> None:
+    """Train the BEV car detector (PIXOR/CenterPoint-style, 0.62 M parameters) on labelled
+    scans and export it as ONNX; prints its recall and precision on the held-out scans."""
+    from services.tracking.detector_training import DetectorTrainConfig, train_detector
+
+    if window % 16:
+        fail(f"--window {window}: a multiple of 16 cells")
+    config = DetectorTrainConfig(
+        epochs=epochs,
+        batch=batch,
+        learning_rate=learning_rate,
+        seed=seed,
+        threads=threads,
+        device=device,
+        window_cells=window,
+        frame_step=frame_step,
+    )
+    try:
+        metadata = train_detector(
+            data, out, config, checkpoint_dir=checkpoints, progress=_echo_progress
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    scores = metadata["validation"]
+    typer.echo(
+        f"validation: recall within 40 m {scores.get('recall_near')}, precision in view {scores.get('precision_in_view')}; wrote {out}"
+    )
+
+
+@train_app.command("siamese")
+def train_siamese_command(
+    data: list[Path] = DATA,
+    out: Path = typer.Option(..., "-o", "--out", help="SIAMESE.onnx to write (the encoder)."),
+    epochs: int = typer.Option(SIAMESE_EPOCHS, min=1, max=1000),
+    batch: int = typer.Option(64, min=2, max=4096),
+    samples: int = typer.Option(
+        6000, min=16, max=10_000_000, help="Model–candidate pairs an epoch."
+    ),
+    learning_rate: float = typer.Option(
+        1e-3, min=1e-6, max=1.0, help="Adam's step (cosine schedule)."
+    ),
+    seed: int = typer.Option(0, min=0),
+    threads: int = THREADS,
+    device: str = typer.Option("auto", help="auto, cpu or cuda."),
+    checkpoints: Path = CHECKPOINTS,
+) -> None:
+    """Train SC3D's Siamese PointNet on the car tracklets of labelled sequences (cosine
+    similarity regressed to a Gaussian of the candidate's offset, with the shape-completion
+    regulariser) and export its encoder as ONNX."""
+    from services.tracking.siamese import SiameseTrainConfig, train_siamese
+
+    if any((folder / "label_2").is_dir() for folder in data):
+        fail(
+            "the Siamese tracker learns from tracklets: give sequences with label_02, not object folders"
+        )
+    config = SiameseTrainConfig(
+        epochs=epochs,
+        batch=batch,
+        samples_per_epoch=samples,
+        learning_rate=learning_rate,
+        seed=seed,
+        threads=threads,
+        device=device,
+    )
+    try:
+        metadata = train_siamese(
+            data, out, config, checkpoint_dir=checkpoints, progress=_echo_progress
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    typer.echo(
+        f"validation similarity MSE {metadata['training']['validation_similarity_mse']}; wrote {out}"
+    )
+
+
+def register(app: typer.Typer, bench_app: typer.Typer) -> None:
+    app.add_typer(track_app, name="track")

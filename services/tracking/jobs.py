@@ -1,0 +1,180 @@
+"""Job handlers ``track`` (a LiDAR sequence and the target in; TRACK.json, its plot and, with
+labels, the evaluation out) and ``track.train`` (labelled sequences in; an ONNX model and its
+training history out)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
+from contract.errors import JobInputError
+from services.archive import ArchiveError
+from services.tracking.kinds import (
+    DETECTOR_EPOCHS,
+    EVALUATION,
+    MODEL,
+    SIAMESE_EPOCHS,
+    TRACK_PLOT,
+    TRACK_REPORT,
+    TRAINING_REPORT,
+)
+
+ONNX_MEDIA_TYPE = "application/octet-stream"
+
+
+def _unpacked(ctx: JobContext, artifact: InputArtifact, folder: Path) -> Path:
+    from services.tracking.lidar_archive import extract_lidar
+
+    try:
+        extract_lidar(artifact.path, folder)
+    except ArchiveError as exc:
+        raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+    return folder
+
+
+def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
+    for artifact in artifacts:
+        message = message.replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
+    return message.replace(str(ctx.workdir), "the job's folder")
+
+
+def _models(models: list[InputArtifact]) -> dict[str, InputArtifact]:
+    """The model inputs by architecture."""
+    from services.nn.onnx_io import read_model
+
+    found = {}
+    for artifact in models:
+        try:
+            architecture = read_model(artifact.path).metadata.get("architecture")
+        except ValueError as exc:
+            raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+        if architecture in found:
+            raise JobInputError(f"two `model` inputs are {architecture} models; give one")
+        found[architecture] = artifact
+    return found
+
+
+def track_job(ctx: JobContext) -> dict:
+    from services.tracking.detect_learned import ARCHITECTURE as DETECTOR
+    from services.tracking.kitti import KittiError
+    from services.tracking.report import plot_run
+    from services.tracking.run import evaluate_runs, run_tracking
+    from services.tracking.siamese import ARCHITECTURE as SIAMESE
+
+    params = ctx.params
+    sequence = one_input(ctx, "lidar", "the LiDAR sequence")
+    models = _models(inputs_of_kind(ctx, "model"))
+    needed = {SIAMESE} if params.tracker == "siamese" else set()
+    if params.detector == "learned" and params.reset != "never":
+        needed.add(DETECTOR)
+    for architecture in needed - set(models):
+        what = (
+            "the Siamese tracker's encoder" if architecture == SIAMESE else "the learned detector"
+        )
+        raise JobInputError(
+            f"{what} is needed as a `model` input (a track.train {architecture} model)"
+        )
+    for architecture in set(models) - needed:
+        raise JobInputError(
+            f"the {architecture} model input is not used by these params; leave it out"
+        )
+    ctx.progress(0.01, f"unpacking {sequence.name}")
+    folder = _unpacked(ctx, sequence, ctx.workdir / "sequence")
+    try:
+        document = run_tracking(
+            folder,
+            track_id=params.track_id,
+            init_box=np.array(params.init_box) if params.init_box is not None else None,
+            start_frame=params.start_frame,
+            end_frame=params.end_frame,
+            tracker=params.tracker,
+            detector=params.detector,
+            reset=params.reset,
+            siamese_model=models[SIAMESE].path if SIAMESE in models else None,
+            detector_model=models[DETECTOR].path if DETECTOR in models else None,
+            threads=ctx.threads,
+            progress=lambda done, total: ctx.progress(
+                0.05 + 0.85 * done / max(total, 1), f"frame {done}/{total}"
+            ),
+        )
+    except (ValueError, KittiError) as exc:
+        raise JobInputError(_named(str(exc), ctx, [sequence, *models.values()])) from exc
+    document["sequence"] = f"artifact {sequence.id} ({sequence.name})"
+    ctx.progress(0.92, "writing TRACK.json and the plot")
+    ctx.add_artifact_json(document, kind=TRACK_REPORT.kind, name=TRACK_REPORT.file_name())
+    plot = ctx.workdir / TRACK_PLOT.file_name()
+    plot_run(document, plot)
+    ctx.add_artifact_file(plot, kind=TRACK_PLOT.kind, name=plot.name, media_type="image/png")
+    frames = document["frames"]
+    summary = {
+        "frames": len(frames),
+        "detector_runs": document["detector_runs"],
+        "detector_cost_percent": document["detector_cost_percent"],
+        "resets": sum(f["reset"] for f in frames),
+        "fps": document["fps"],
+    }
+    if (folder / "label_02.txt").exists():
+        try:
+            evaluation = evaluate_runs(folder, [("track.json", document)]).document()
+        except ValueError as exc:
+            evaluation = {"unmeasured": str(exc)}
+        ctx.add_artifact_json(evaluation, kind=EVALUATION.kind, name=EVALUATION.file_name())
+        if "ope" in evaluation:
+            summary |= {
+                "success": evaluation["ope"]["success"],
+                "precision": evaluation["ope"]["precision"],
+            }
+    ctx.progress(1.0, f"{len(frames)} frames, detector on {document['detector_runs']}")
+    return summary
+
+
+def train_job(ctx: JobContext) -> dict:
+    from services.tracking.detector_training import DetectorTrainConfig, train_detector
+    from services.tracking.siamese import SiameseTrainConfig, train_siamese
+
+    params = ctx.params
+    sequences = inputs_of_kind(ctx, "lidar")
+    if not sequences:
+        raise JobInputError("track.train needs labelled `lidar` sequences")
+    folders = []
+    for number, artifact in enumerate(sequences):
+        ctx.progress(0.05 * number / len(sequences), f"unpacking {artifact.name}")
+        folder = _unpacked(ctx, artifact, ctx.workdir / f"sequence-{number}")
+        if not (folder / "label_02.txt").exists():
+            raise JobInputError(
+                f"artifact {artifact.id} ({artifact.name}) has no label_02.txt: nothing to learn from"
+            )
+        folders.append(folder)
+    settings = {"seed": params.seed, "threads": ctx.threads, "device": params.device}
+    if params.learning_rate is not None:
+        settings["learning_rate"] = params.learning_rate
+    model = ctx.workdir / MODEL.file_name()
+    options = {
+        "checkpoint_dir": ctx.workdir / "checkpoints",
+        "progress": lambda fraction, message: ctx.progress(0.05 + 0.93 * fraction, message),
+        "sources": [f"artifact {a.id} ({a.name})" for a in sequences],
+    }
+    try:
+        if params.network == "detector":
+            config = DetectorTrainConfig(epochs=params.epochs or DETECTOR_EPOCHS, **settings)
+            metadata = train_detector(folders, model, config, **options)
+        else:
+            config = SiameseTrainConfig(epochs=params.epochs or SIAMESE_EPOCHS, **settings)
+            metadata = train_siamese(folders, model, config, **options)
+    except ValueError as exc:
+        raise JobInputError(_named(str(exc), ctx, sequences)) from exc
+    ctx.add_artifact_file(
+        model,
+        kind=MODEL.kind,
+        name=model.name,
+        media_type=ONNX_MEDIA_TYPE,
+        meta={"architecture": metadata["architecture"], "parameters": metadata["parameters"]},
+    )
+    ctx.add_artifact_json(metadata, kind=TRAINING_REPORT.kind, name=TRAINING_REPORT.file_name())
+    ctx.progress(1.0, f"{metadata['architecture']} trained")
+    return {
+        "architecture": metadata["architecture"],
+        "best_epoch": metadata["training"]["best_epoch"],
+    }

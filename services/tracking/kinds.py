@@ -1,0 +1,123 @@
+"""Job kinds of the tracking service (imported by the API: keep it light)."""
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from contract.kinds import Inputs, JobKind, Output
+
+DETECTOR_EPOCHS = 12
+SIAMESE_EPOCHS = 20
+
+SEQUENCE = Inputs(
+    ("lidar",),
+    "a LiDAR sequence: a zip or tar of velodyne/NNNNNN.bin and calib.txt (label_02.txt, poses.txt as known)",
+)
+
+
+class TrackParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    track_id: int | None = Field(
+        None, ge=0, description="Track this labelled object (label_02's track id)."
+    )
+    init_box: list[float] | None = Field(
+        None,
+        min_length=7,
+        max_length=7,
+        description="Or start from this KITTI camera box: h, w, l, x, y, z (metres), rotation_y (radians).",
+    )
+    start_frame: int | None = Field(
+        None, ge=0, description="With init_box: the frame it is in (default the first)."
+    )
+    end_frame: int | None = Field(
+        None, ge=0, description="With init_box: the last frame (default the last)."
+    )
+    reset: str = Field(
+        "never",
+        pattern=r"^(never|every:[1-9]\d*|adaptive(:\d+(\.\d+)?)?)$",
+        description="never, every:N (the thesis's fixed frequency 1/N) or adaptive[:BUDGET] (percent of frames).",
+    )
+    tracker: Literal["geometric", "siamese"] = Field(
+        "geometric",
+        description="geometric: point-model registration; siamese: SC3D (needs a `model` input).",
+    )
+    detector: Literal["geometric", "learned"] = Field(
+        "geometric",
+        description="geometric: clusters and L-shape boxes; learned: the BEV network (needs a `model` input).",
+    )
+
+    @model_validator(mode="after")
+    def _one_target(self) -> "TrackParams":
+        if (self.track_id is None) == (self.init_box is None):
+            raise ValueError("give the target by track_id or by init_box (one of them)")
+        if self.init_box is not None and min(self.init_box[:3]) <= 0:
+            raise ValueError("init_box's h, w and l must be positive")
+        return self
+
+
+class TrainParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    network: Literal["detector", "siamese"] = Field(
+        "detector", description="detector: the BEV car detector; siamese: SC3D's PointNet encoder."
+    )
+    epochs: int | None = Field(
+        None,
+        ge=1,
+        le=10_000,
+        description=f"Passes (default {DETECTOR_EPOCHS} for the detector, {SIAMESE_EPOCHS} for the Siamese).",
+    )
+    learning_rate: float | None = Field(
+        None, gt=0, le=1, description="Adam's step (default the network's)."
+    )
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, sampling.")
+    device: Literal["auto", "cpu", "cuda"] = Field(
+        "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
+    )
+
+
+TRACK_REPORT = Output("report", "track.json")
+TRACK_PLOT = Output("plot", "track.png")
+EVALUATION = Output("report", "evaluation.json")
+MODEL = Output("model", "tracking.onnx")
+TRAINING_REPORT = Output("report", "training.json")
+
+TRACK = JobKind(
+    name="track",
+    queue="tracking",
+    handler="services.tracking.jobs:track_job",
+    params=TrackParams,
+    description=(
+        "Tracks one car through a `lidar` sequence (thesis 5.1): the tracker every frame, the "
+        "detector when the reset policy says so; writes TRACK.json (each frame's box in the "
+        "camera and LiDAR frames, confidence, whether the detector ran), a plot, and with the "
+        "sequence's labels the One-Pass Evaluation (Success, Precision)."
+    ),
+    inputs=(
+        SEQUENCE,
+        Inputs(
+            ("model",),
+            "the Siamese encoder and/or the learned detector, as the params need",
+            min=0,
+            max=2,
+        ),
+    ),
+    outputs=(TRACK_REPORT, TRACK_PLOT, EVALUATION),
+)
+
+TRACK_TRAIN = JobKind(
+    name="track.train",
+    queue="training",
+    handler="services.tracking.jobs:train_job",
+    params=TrainParams,
+    description=(
+        "Trains the learned car detector or SC3D's Siamese encoder on labelled `lidar` "
+        "sequences and writes it as an ONNX `model` (its metadata: architecture, data, "
+        "validation) with the training's history."
+    ),
+    inputs=(Inputs(("lidar",), "labelled LiDAR sequences (label_02.txt)", max=None),),
+    outputs=(MODEL, TRAINING_REPORT),
+)
+
+KINDS = (TRACK, TRACK_TRAIN)

@@ -1,0 +1,142 @@
+"""A LiDAR sequence in one file: a zip or tar (plain, gzip, bzip2 or xz) of a sequence folder
+as ``vista track simulate`` writes it — ``velodyne/NNNNNN.bin`` and ``calib.txt`` (a KITTI
+tracking or object calib file), and as known ``label_02.txt`` and ``poses.txt`` — under any
+one top folder of the archive.
+
+Checked before anything is kept: the scans' names (digits, ``.bin``) and sizes (whole
+16-byte points, at most ``MAX_SCAN_BYTES`` each), the calibration, the labels and the poses
+parsed. Members are written under names of vista's choosing, never by the archive's paths
+(``services.archive``).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from services.archive import ArchiveError, Member, check_total, media_type, opened, read_member
+from services.tracking import kitti
+
+HINT = "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt poses.txt`"
+MAX_SCAN_BYTES = 64 << 20
+MAX_TEXT_BYTES = 256 << 20
+SCAN = re.compile(r"^\d{1,10}\.bin$")
+TEXT_FILES = ("calib.txt", "label_02.txt", "poses.txt")
+
+
+@dataclass(frozen=True)
+class LidarArchive:
+    form: str
+    scans: dict[str, str]
+    """Member name → ``velodyne/NNNNNN.bin``."""
+    texts: dict[str, str]
+    """Member name → calib.txt, label_02.txt or poses.txt."""
+    frames: int
+    labels: int
+    """Label lines (0: none)."""
+    tracks: int
+    poses: bool
+    media_type: str = "application/x-tar"
+
+
+def _root(path: PurePosixPath) -> PurePosixPath:
+    """The folder holding a member's ``velodyne/``."""
+    return PurePosixPath(*path.parts[: path.parts.index("velodyne")])
+
+
+def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
+    check_total(members)
+    roots = {
+        _root(PurePosixPath(m.name))
+        for m in members
+        if "velodyne" in PurePosixPath(m.name).parts[:-1]
+    }
+    if not roots:
+        raise ArchiveError("no velodyne/ folder of scans (NNNNNN.bin) in the archive")
+    if len(roots) > 1:
+        raise ArchiveError(
+            f"velodyne/ appears under {len(roots)} folders: one sequence per archive"
+        )
+    root = roots.pop()
+    scans, texts = {}, {}
+    for member in members:
+        path = PurePosixPath(member.name)
+        if not path.is_relative_to(root):
+            continue
+        inside = path.relative_to(root)
+        if inside.parts[:1] == ("velodyne",) and len(inside.parts) == 2 and inside.suffix == ".bin":
+            if not SCAN.match(inside.name):
+                raise ArchiveError(
+                    f"{member.name}: a scan is named by its frame number (000042.bin)"
+                )
+            if member.size % kitti.POINT_BYTES or member.size > MAX_SCAN_BYTES:
+                raise ArchiveError(
+                    f"{member.name}: {member.size:,} bytes is not a scan (16-byte points, at most {MAX_SCAN_BYTES >> 20} MiB)"
+                )
+            scans[member.name] = f"velodyne/{int(inside.stem):06d}.bin"
+        elif len(inside.parts) == 1 and inside.name in TEXT_FILES:
+            texts[member.name] = inside.name
+    if not scans:
+        raise ArchiveError("velodyne/ holds no scans (NNNNNN.bin)")
+    if len(set(scans.values())) != len(scans):
+        raise ArchiveError("two scans have the same frame number")
+    if "calib.txt" not in texts.values():
+        raise ArchiveError(
+            "no calib.txt beside velodyne/ (KITTI's calibration: P2, R_rect, Tr_velo_cam)"
+        )
+    parsed = {}
+    for name, target in texts.items():
+        text = read_member(
+            form, archive, next(m for m in members if m.name == name), MAX_TEXT_BYTES
+        )
+        try:
+            parsed[target] = text.decode()
+        except UnicodeDecodeError:
+            raise ArchiveError(f"{name} is not text") from None
+    try:
+        kitti.parse_calibration(parsed["calib.txt"], "calib.txt")
+        labels = (
+            kitti.parse_labels(parsed["label_02.txt"], "label_02.txt", tracking=True)
+            if "label_02.txt" in parsed
+            else None
+        )
+        poses = (
+            kitti.parse_poses(parsed["poses.txt"], "poses.txt") if "poses.txt" in parsed else None
+        )
+    except kitti.KittiError as exc:
+        raise ArchiveError(str(exc)) from None
+    if poses is not None and len(poses) < len(scans):
+        raise ArchiveError(f"poses.txt has {len(poses)} poses for {len(scans)} scans")
+    return LidarArchive(
+        form,
+        scans,
+        texts,
+        frames=len(scans),
+        labels=len(labels) if labels is not None else 0,
+        tracks=len(np.unique(labels.track_id)) if labels is not None else 0,
+        poses=poses is not None,
+    )
+
+
+def inspect_lidar(path: Path) -> LidarArchive:
+    """What the archive holds, checked without extracting it; ArchiveError naming the problem."""
+    with opened(path, HINT) as (form, members, archive):
+        plan = _plan(form, members, archive)
+    return replace(plan, media_type=media_type(path, form))
+
+
+def extract_lidar(path: Path, out_dir: Path) -> LidarArchive:
+    """The archive written as a sequence folder at ``out_dir`` (read in the archive's order)."""
+    with opened(path, HINT) as (form, members, archive):
+        plan = _plan(form, members, archive)
+        targets = {**plan.scans, **plan.texts}
+        (out_dir / "velodyne").mkdir(parents=True, exist_ok=True)
+        for member in members:
+            target = targets.get(member.name)
+            if target is not None:
+                limit = MAX_SCAN_BYTES if target.endswith(".bin") else MAX_TEXT_BYTES
+                (out_dir / target).write_bytes(read_member(form, archive, member, limit))
+    return plan

@@ -1,0 +1,363 @@
+"""The thesis's tracker branch: SC3D's Siamese shape matching (Giancola, Zarzar and Ghanem,
+"Leveraging Shape Completion for 3D Siamese Tracking", CVPR 2019), trained here.
+
+A PointNet encodes the points of a box, in the box's frame, into a latent vector. The
+target's model is the points of the first frame's box and of the previous frame's answer
+(SC3D's model: the first and the previous); each frame, 147 candidate boxes are searched
+exhaustively around the motion model's prediction (7 × 7 offsets 0.5 m apart, three
+headings 5° apart), each candidate's points encoded, and the candidate whose latent is
+closest to the model's by cosine similarity is the answer. Training regresses the cosine
+similarity of model and candidate to a Gaussian of the candidate's offset from the truth,
+with SC3D's shape-completion regulariser: a decoder rebuilds the target's complete shape
+(all of its tracklet's points) from the model's latent (Chamfer distance).
+
+The confidence is the best candidate's similarity, 0–1.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from services.nn.fit import Progress
+from services.tracking.boxes import YAW, from_box_frame, wrap
+from services.tracking.kinds import SIAMESE_EPOCHS
+from services.tracking.sequence import open_sequence, tracklets
+from services.tracking.tracker import MotionModel, TrackStep, crop, in_box
+
+ARCHITECTURE = "sc3d-pointnet"
+POINTS = 256
+"""Points a box is sampled to (SC3D: 2 048; 256 keep 147 candidates a frame fast on a CPU)."""
+COMPLETE_POINTS = 512
+OFFSETS_M = np.arange(-1.5, 1.51, 0.5)
+TURNS_RAD = np.radians([-5.0, 0.0, 5.0])
+SIGMA_M, SIGMA_RAD = 0.5, np.radians(10.0)
+MARGIN_M = 2.2
+"""Points kept around each true box for training (the widest candidate offset and more)."""
+
+
+def sample_points(local: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """(count, 3): ``local`` points drawn (repeated when fewer; zeros when none)."""
+    if not len(local):
+        return np.zeros((count, 3), dtype=np.float32)
+    pick = rng.choice(len(local), count, replace=len(local) < count)
+    return local[pick].astype(np.float32)
+
+
+def candidate_poses() -> np.ndarray:
+    """(147, 3) offsets (dx, dy in the box's frame, metres; dθ radians) of the search."""
+    dx, dy, turn = np.meshgrid(OFFSETS_M, OFFSETS_M, TURNS_RAD, indexing="ij")
+    return np.column_stack([dx.ravel(), dy.ravel(), turn.ravel()])
+
+
+def points_in_candidates(
+    local: np.ndarray, size: np.ndarray, poses: np.ndarray, count: int, rng: np.random.Generator
+) -> np.ndarray:
+    """(K, count, 3): each candidate's points in its own frame, drawn to ``count``, from
+    ``local`` (M, 3) points in a reference box's frame; candidates are ``poses`` (K, 3)
+    relative to that box, all of ``size`` (l, w, h)."""
+    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+    dx = local[None, :, 0] - poses[:, 0:1]
+    dy = local[None, :, 1] - poses[:, 1:2]
+    x, y = c * dx + s * dy, -s * dx + c * dy
+    z = np.broadcast_to(local[None, :, 2], x.shape)
+    half = size / 2
+    within = (np.abs(x) <= half[0]) & (np.abs(y) <= half[1]) & (np.abs(z) <= half[2])
+    # draw ``count`` of each candidate's points: random keys, the points outside last
+    keys = np.where(within, rng.uniform(size=within.shape), 2.0)
+    order = np.argsort(keys, axis=1)
+    inside_count = within.sum(axis=1)
+    slots = np.arange(count)[None, :] % np.maximum(inside_count, 1)[:, None]
+    chosen = np.take_along_axis(order, slots, axis=1)
+    out = np.stack([np.take_along_axis(v, chosen, axis=1) for v in (x, y, z)], axis=-1)
+    return np.where(inside_count[:, None, None] > 0, out, 0.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class SiameseTrainConfig:
+    epochs: int = SIAMESE_EPOCHS
+    batch: int = 64
+    learning_rate: float = 1e-3
+    seed: int = 0
+    threads: int = 2
+    device: str = "auto"
+    samples_per_epoch: int = 6000
+    completion_weight: float = 1.0
+    val_fraction: float = 0.1
+
+
+@dataclass(frozen=True)
+class TrackletData:
+    """A tracklet's points around each true box (its frame), and its complete shape."""
+
+    crops: list[np.ndarray]
+    """Per frame (M, 3) float32 points within ``MARGIN_M`` of the true box, in its frame."""
+    size: np.ndarray
+    complete: np.ndarray
+    group: str
+
+
+def tracklet_data(folders: list[Path], progress: Progress | None = None) -> list[TrackletData]:
+    """Every car tracklet of the labelled sequences in ``folders`` with at least two frames
+    whose true box holds points."""
+    say = progress or (lambda fraction, message: None)
+    out = []
+    for number, folder in enumerate(folders):
+        sequence = open_sequence(Path(folder))
+        if sequence.labels is None:
+            raise ValueError(
+                f"{folder}: a sequence without labels (label_02.txt): nothing to learn from"
+            )
+        found = tracklets(sequence, ("Car",), min_frames=2)
+        needed = sorted({f for t in found for f in t.frames})
+        by_frame: dict[int, np.ndarray] = {f: sequence.points(f)[:, :3] for f in needed}
+        for tracklet in found:
+            crops = [
+                crop(by_frame[f], box, MARGIN_M, floor_m=0.2).astype(np.float32)
+                for f, box in zip(tracklet.frames, tracklet.boxes, strict=True)
+            ]
+            half = tracklet.boxes[0][3:6] / 2
+            inner = [c[(np.abs(c) <= half).all(axis=1)] for c in crops]
+            if sum(len(c) >= 2 for c in inner) < 2:
+                continue
+            complete = np.concatenate(inner)
+            complete = complete[
+                np.random.default_rng(0).choice(
+                    len(complete), min(len(complete), 4096), replace=False
+                )
+            ]
+            out.append(TrackletData(crops, tracklet.boxes[0][3:6].copy(), complete, str(folder)))
+        say((number + 1) / len(folders), f"{folder}: {len(found)} car tracklets")
+    return out
+
+
+def _inner(data: TrackletData, frame: int) -> np.ndarray:
+    points = data.crops[frame]
+    return points[(np.abs(points) <= data.size / 2).all(axis=1)]
+
+
+def training_sample(data: TrackletData, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """(model (3, N), candidate (3, N), complete (3, M), score) for a random frame of a
+    tracklet: the model of its first and previous frames, a candidate box offset from the
+    truth (half close, half as far as the search reaches)."""
+    usable = [t for t in range(1, len(data.crops)) if len(_inner(data, t)) >= 2]
+    frame = int(rng.choice(usable))
+    model = np.concatenate([_inner(data, 0), _inner(data, frame - 1)])
+    if rng.uniform() < 0.5:
+        offset = np.array([rng.normal(0, 0.3), rng.normal(0, 0.3), rng.normal(0, np.radians(4))])
+    else:
+        offset = np.array(
+            [
+                rng.uniform(-1.7, 1.7),
+                rng.uniform(-1.7, 1.7),
+                rng.uniform(-np.radians(12), np.radians(12)),
+            ]
+        )
+    candidate = points_in_candidates(data.crops[frame], data.size, offset[None], POINTS, rng)[0]
+    score = np.exp(
+        -0.5 * (np.hypot(offset[0], offset[1]) / SIGMA_M) ** 2 - 0.5 * (offset[2] / SIGMA_RAD) ** 2
+    )
+    return (
+        sample_points(model, POINTS, rng).T,
+        candidate.T,
+        sample_points(data.complete, COMPLETE_POINTS, rng).T,
+        np.float32(score),
+    )
+
+
+def chamfer(a, b):  # noqa: ANN001, ANN201 - torch tensors (B, 3, N), (B, 3, M)
+    """Mean squared distance of each point to the other set's nearest, both ways (m²)."""
+    import torch
+
+    distance = torch.cdist(a.transpose(1, 2), b.transpose(1, 2)) ** 2
+    return distance.min(dim=2).values.mean() + distance.min(dim=1).values.mean()
+
+
+def train_siamese(
+    folders: list[Path],
+    out: Path,
+    config: SiameseTrainConfig,
+    *,
+    checkpoint_dir: Path | None = None,
+    progress: Progress | None = None,
+    sources: list[str] | None = None,
+) -> dict:
+    """Train the encoder (and its shape decoder) on the car tracklets of ``folders``; export
+    the encoder to ``out`` (ONNX with its metadata) and return the metadata."""
+    import torch
+
+    from services.nn.fit import fit
+    from services.nn.onnx_io import export_onnx
+    from services.tracking.datasets import split_groups
+    from services.tracking.nets import PointEncoder, ShapeDecoder
+
+    say = progress or (lambda fraction, message: None)
+    data = tracklet_data(folders, lambda f, m: say(0.05 * f, m))
+    if len(data) < 2:
+        raise ValueError(
+            f"{len(data)} usable car tracklet(s) in {', '.join(map(str, folders))}: training needs at least 2"
+        )
+    train_tracklets, val_tracklets = split_groups(
+        data, [d.group for d in data], config.val_fraction, config.seed, block=4
+    )
+    torch.manual_seed(config.seed)
+    encoder, decoder = PointEncoder(), ShapeDecoder(points=COMPLETE_POINTS)
+
+    def batch(index: np.ndarray, rng: np.random.Generator, device) -> tuple:  # noqa: ANN001 - a torch device
+        chosen = train_tracklets[rng.integers(0, len(train_tracklets), len(index))]
+        samples = [training_sample(data[i], rng) for i in chosen]
+        return tuple(
+            torch.from_numpy(np.stack([s[k] for s in samples])).to(device) for k in range(4)
+        )
+
+    def step(batch: tuple) -> tuple:
+        model, candidate, complete, score = batch
+        z_model, z_candidate = encoder(model), encoder(candidate)
+        similarity = torch.nn.functional.cosine_similarity(z_model, z_candidate)
+        match = torch.nn.functional.mse_loss(similarity, score)
+        completion = chamfer(decoder(z_model), complete)
+        return match + config.completion_weight * completion, {
+            "match": float(match.detach()),
+            "completion": float(completion.detach()),
+        }
+
+    rng = np.random.default_rng(config.seed + 7)
+    fixed = [training_sample(data[int(rng.choice(val_tracklets))], rng) for _ in range(512)]
+    val_batch = tuple(torch.from_numpy(np.stack([s[k] for s in fixed])) for k in range(4))
+
+    def validate() -> float:
+        model, candidate, _, score = val_batch
+        similarity = torch.nn.functional.cosine_similarity(encoder(model), encoder(candidate))
+        return float(torch.nn.functional.mse_loss(similarity, score))
+
+    run = hashlib.sha256(
+        json.dumps(
+            {
+                "config": {
+                    k: v
+                    for k, v in asdict(config).items()
+                    if k not in ("threads", "device", "epochs")
+                },
+                "data": sources or [str(f) for f in folders],
+                "tracklets": len(data),
+            },
+            sort_keys=True,
+        ).encode()
+    ).hexdigest()
+    result = fit(
+        {"encoder": encoder, "decoder": decoder}, step, validate, np.arange(config.samples_per_epoch), batch, config,
+        run=run, checkpoint_dir=checkpoint_dir, progress=lambda f, m: say(0.05 + 0.93 * f, m), channels_last=False,
+    )  # fmt: skip
+    metadata = {
+        "architecture": ARCHITECTURE,
+        "input": {
+            "name": "points",
+            "points": POINTS,
+            "layout": "(B, 3, N) x y z in the box's frame, metres",
+        },
+        "search": {"offsets_m": OFFSETS_M.tolist(), "turns_deg": np.degrees(TURNS_RAD).tolist()},
+        "parameters": sum(p.numel() for p in encoder.parameters()),
+        "training": {
+            "data": sources or [str(f) for f in folders],
+            "tracklets": {"train": len(train_tracklets), "val": len(val_tracklets)},
+            "epochs": config.epochs,
+            "best_epoch": result.best_epoch,
+            "validation_similarity_mse": round(result.best_score, 5),
+            "seconds": round(result.seconds, 1),
+            "history": result.history,
+            "command": "vista track train siamese",
+        },
+    }
+    export_onnx(
+        encoder.eval(),
+        np.zeros((2, 3, POINTS), np.float32),
+        out,
+        metadata,
+        input_name="points",
+        output_name="latent",
+    )
+    say(1.0, f"wrote {out}")
+    return metadata
+
+
+class SiameseTracker:
+    """SC3D's tracker on an ONNX encoder of ``ARCHITECTURE``."""
+
+    name = "siamese"
+
+    def __init__(self, model: Path, *, threads: int = 1, seed: int = 0) -> None:
+        from services.nn.onnx_io import read_model, session
+
+        found = read_model(Path(model))
+        if found.metadata.get("architecture") != ARCHITECTURE:
+            raise ValueError(
+                f"{model}: a {found.metadata.get('architecture')!r} model, not the Siamese tracker's "
+                f"encoder ({ARCHITECTURE}); build one with `vista track train siamese`"
+            )
+        self.session = session(Path(model), threads=threads)
+        self.poses = candidate_poses()
+        self.rng = np.random.default_rng(seed)
+
+    def _encode(self, points: np.ndarray) -> np.ndarray:
+        """(K, latent) unit vectors of (K, N, 3) point sets."""
+        (latent,) = self.session.run(
+            None, {"points": np.ascontiguousarray(points.transpose(0, 2, 1))}
+        )
+        return latent / np.maximum(np.linalg.norm(latent, axis=1, keepdims=True), 1e-9)
+
+    def _model_latent(self) -> np.ndarray:
+        model = np.concatenate([self.first, self.previous])
+        return self._encode(sample_points(model, POINTS, self.rng)[None])[0]
+
+    def start(self, points: np.ndarray, box: np.ndarray) -> None:
+        self.box = np.asarray(box, dtype=np.float64).copy()
+        self.motion = MotionModel(self.box)
+        self.first = in_box(points, self.box)
+        self.previous = self.first
+        self.latent = self._model_latent()
+
+    def step(self, points: np.ndarray, prev_T_cur: np.ndarray | None) -> TrackStep:
+        predicted = self.motion.advance(prev_T_cur)
+        local = crop(points, predicted, MARGIN_M)
+        box, confidence = predicted.copy(), 0.0
+        if len(local):
+            sets = points_in_candidates(local, predicted[3:6], self.poses, POINTS, self.rng)
+            similarity = self._encode(sets) @ self.latent
+            empty = ~(np.abs(sets).sum(axis=(1, 2)) > 0)
+            similarity = np.where(empty, -1.0, similarity)
+            best = int(similarity.argmax())
+            dx, dy, turn = self.poses[best]
+            box[:3] = from_box_frame(np.array([[dx, dy, 0.0]]), predicted)[0]
+            box[YAW] = wrap(predicted[YAW] + turn)
+            confidence = float(np.clip(similarity[best], 0.0, 1.0))
+        target = in_box(points, box)
+        if len(target):
+            self.previous = target
+            self.latent = self._model_latent()
+        self.motion.update(box)
+        self.box = box
+        return TrackStep(box, confidence, len(target), predicted)
+
+    def reset(self, points: np.ndarray, box: np.ndarray) -> None:
+        self.box = np.asarray(box, dtype=np.float64).copy()
+        self.motion.update(self.box, learn=False)
+        target = in_box(points, self.box)
+        if len(target):
+            self.previous = target
+            self.latent = self._model_latent()
+
+    def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
+        target = in_box(points, box)
+        if len(target) < 3:
+            return 0.0
+        return float(
+            np.clip(
+                self._encode(sample_points(target, POINTS, self.rng)[None])[0] @ self.latent,
+                0.0,
+                1.0,
+            )
+        )
