@@ -6,8 +6,8 @@ The sensor turns while the car moves, as KITTI's raw scans do (not motion-compen
 firing's time is its azimuth's share of the turn around the frame's time (the camera's
 trigger, when the beams face forward), and every point is given in the sensor's frame at
 its own firing. A moving object is cast in its own frame with its pose at each firing. A return is kept with its material's and the range's odds (glass and foliage drop
-most, far and grazing returns fade); its range is noisy and its reflectance falls with the
-angle of incidence.
+most, far and grazing returns fade); its range is noisy, its reflectance falls a little with
+the angle of incidence, and dark surfaces (car paint) often read 0, as KITTI's do.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.meshes import DROPOUT, REFLECTANCE, Mesh
+from services.tracking.meshes import DARK, DROPOUT, REFLECTANCE, Mesh
 
 UPPER_DEG = np.linspace(2.0, -8.33, 32)
 LOWER_DEG = np.linspace(-8.83, -24.9, 32)
@@ -220,7 +220,7 @@ def _returns(
     hit = np.isfinite(t_hit) & (material >= 0)
     reflectance = np.where(hit, REFLECTANCE[np.maximum(material, 0)], 0.0)
     incidence = np.abs(np.einsum("ri,ri->r", normals, directions))
-    reach = 45.0 + 75.0 * reflectance  # dark paint fades long before a white sign
+    reach = 55.0 + 75.0 * reflectance  # dark paint fades long before a white sign
     range_m = t_hit + rng.normal(0.0, model.range_noise_m, len(t_hit))
     fading = np.clip(range_m / reach, 0, 1) ** 4 + np.where(incidence < 0.12, 0.5, 0.0)
     lost = np.where(hit, DROPOUT[np.maximum(material, 0)], 1.0) + model.base_dropout + fading
@@ -232,7 +232,8 @@ def _returns(
     )
     rays = np.flatnonzero(keep)
     intensity = (
-        reflectance[rays] * (0.35 + 0.65 * incidence[rays]) * rng.uniform(0.85, 1.15, len(rays))
+        reflectance[rays] * (0.7 + 0.3 * incidence[rays]) * rng.uniform(0.75, 1.25, len(rays))
     )
+    intensity[rng.uniform(size=len(rays)) < DARK[material[rays]]] = 0.0
     points = np.column_stack([local[rays] * range_m[rays, None], np.clip(intensity, 0, 0.99)])
     return Scan(points.astype(np.float32), obj[rays], rays)

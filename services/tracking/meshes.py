@@ -13,28 +13,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# materials: (reflectance 0–1, probability that a return is lost)
+# materials: (reflectance 0–1, probability that a return is lost, share of returns KITTI's
+# Velodyne reports at reflectance 0). Read off KITTI's scans: car paint is dark (over half
+# its returns at 0), the road about 0.27, walls and plants 0.2–0.3 with many zeros.
 MATERIALS = {
-    "paint": (0.30, 0.04),
-    "glass": (0.08, 0.75),
-    "tyre": (0.06, 0.10),
-    "light": (0.85, 0.02),
-    "plate": (0.95, 0.01),
-    "road": (0.22, 0.02),
-    "marking": (0.70, 0.01),
-    "kerb": (0.30, 0.02),
-    "sidewalk": (0.32, 0.02),
-    "terrain": (0.18, 0.05),
-    "wall": (0.35, 0.02),
-    "metal": (0.45, 0.03),
-    "bark": (0.25, 0.05),
-    "foliage": (0.30, 0.35),
-    "cloth": (0.25, 0.05),
-    "skin": (0.30, 0.05),
+    "paint": (0.12, 0.04, 0.55),
+    "glass": (0.05, 0.75, 0.60),
+    "tyre": (0.05, 0.10, 0.50),
+    "light": (0.55, 0.02, 0.30),
+    "road": (0.30, 0.02, 0.07),
+    "marking": (0.70, 0.01, 0.0),
+    "kerb": (0.32, 0.02, 0.05),
+    "sidewalk": (0.33, 0.02, 0.05),
+    "terrain": (0.30, 0.05, 0.10),
+    "wall": (0.32, 0.02, 0.20),
+    "metal": (0.45, 0.03, 0.25),
+    "bark": (0.25, 0.05, 0.30),
+    "foliage": (0.35, 0.35, 0.30),
+    "cloth": (0.25, 0.05, 0.30),
+    "skin": (0.30, 0.05, 0.20),
 }
 MATERIAL_NAMES = tuple(MATERIALS)
 REFLECTANCE = np.array([MATERIALS[name][0] for name in MATERIAL_NAMES])
 DROPOUT = np.array([MATERIALS[name][1] for name in MATERIAL_NAMES])
+DARK = np.array([MATERIALS[name][2] for name in MATERIAL_NAMES])
 CAR_SHAPES = ("sedan", "hatchback", "suv", "van")
 
 
@@ -211,10 +213,9 @@ def car(shape: str, length_m: float, width_m: float, height_m: float) -> Mesh:
     kinds[glass_band, 6] = material("glass")  # the right ones
     sloped = (np.diff(top) < -0.05 * height_m) | (np.diff(top) > 0.05 * height_m)
     kinds[sloped & glass_band, 3:6] = material("glass")  # windscreen and rear window
-    # the ends painted, with lamps at the shoulders' corners and a plate low in the middle
+    # the ends painted, with lamps at the shoulders' corners
     ends = np.full(10, material("paint"))
     ends[[1, 7]] = material("light")
-    ends[9] = material("plate")
     body = _ring_mesh(sections, kinds, ends)
     wheel_x = (np.array([0.18, 0.82]) - 0.5) * length_m
     wheels = [

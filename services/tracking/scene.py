@@ -42,6 +42,17 @@ class Road:
     parking: tuple[bool, bool]
     """A parking lane on the right, on the left."""
     pavement_m: tuple[float, float]
+    barriers: tuple[str, str] = ("", "")
+    """A rural road's edges, right and left: "guardrail", "concrete", "verge" (urban: "")."""
+
+    @property
+    def rural(self) -> bool:
+        return bool(self.barriers[0])
+
+    def pitch(self, s: np.ndarray) -> np.ndarray:
+        """The road's slope along s (radians, positive rising)."""
+        grade = np.gradient(self.ground_z, self.s)
+        return np.arctan(np.interp(np.asarray(s, dtype=np.float64), self.s, grade))
 
     def edge(self, side: int) -> float:
         """|d| of the kerb on the right (side −1) or the left (+1)."""
@@ -61,8 +72,27 @@ class Road:
         return np.stack([x, y], axis=-1), np.interp(s, self.s, self.ground_z), heading
 
 
+def placements(
+    xy: np.ndarray, z: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, lift_m: float = 0.0
+) -> np.ndarray:
+    """(K, 4, 4) world_T_object of things standing on the road at (xy, z): turned by ``yaw``
+    about the vertical, tilted by ``pitch`` (nose up) about their own y axis, their origin
+    ``lift_m`` up their own z axis."""
+    count = len(yaw)
+    cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    out = np.tile(np.eye(4), (count, 1, 1))
+    # Rz(yaw) · Ry(−pitch): x forward and up the slope, z the slope's normal
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = cy * cp, -sy, -cy * sp
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = sy * cp, cy, -sy * sp
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = sp, 0.0, cp
+    out[:, :3, 3] = np.column_stack([xy, z]) + lift_m * out[:, :3, 2]
+    return out
+
+
 def random_road(length_m: float, rng: np.random.Generator) -> Road:
-    """Straights and arcs (radius 120–500 m) and a gentle rise and fall (≤ 1.2 %)."""
+    """Straights and arcs (radius 120–500 m), slopes of up to ±5 % (things on the road tilt
+    with it), an urban street (pavements, parking) or a rural road (a guard rail, a concrete
+    barrier or a verge at each edge)."""
     s = np.arange(0.0, length_m + STEP_M, STEP_M)
     curvature = np.zeros_like(s)
     start = 0.0
@@ -82,12 +112,20 @@ def random_road(length_m: float, rng: np.random.Generator) -> Road:
             np.concatenate([[0.0], np.cumsum(np.sin(heading[:-1]) * STEP_M)]),
         ]
     )
-    period = rng.uniform(250, 600)
-    ground_z = (
-        rng.uniform(0.0, 0.012)
-        * period
-        / (2 * np.pi)
-        * np.sin(2 * np.pi * s / period + rng.uniform(0, 6.3))
+    grade = sum(
+        rng.uniform(0.0, amplitude)
+        * np.sin(2 * np.pi * s / rng.uniform(*period) + rng.uniform(0, 6.3))
+        for amplitude, period in ((0.035, (300, 700)), (0.015, (80, 200)))
+    )
+    ground_z = np.concatenate([[0.0], np.cumsum(grade[:-1] * STEP_M)])
+    rural = rng.uniform() < 0.35
+    barriers = (
+        tuple(
+            str(rng.choice(["guardrail", "concrete", "verge"], p=[0.45, 0.2, 0.35]))
+            for _ in range(2)
+        )
+        if rural
+        else ("", "")
     )
     return Road(
         s,
@@ -95,8 +133,9 @@ def random_road(length_m: float, rng: np.random.Generator) -> Road:
         heading,
         ground_z,
         lanes=int(rng.choice([1, 2], p=[0.55, 0.45])),
-        parking=(bool(rng.uniform() < 0.6), bool(rng.uniform() < 0.4)),
-        pavement_m=(rng.uniform(2.0, 4.5), rng.uniform(2.0, 4.5)),
+        parking=(bool(rng.uniform() < 0.6) and not rural, bool(rng.uniform() < 0.4) and not rural),
+        pavement_m=(0.0, 0.0) if rural else (rng.uniform(2.0, 4.5), rng.uniform(2.0, 4.5)),
+        barriers=barriers,
     )
 
 
@@ -133,11 +172,8 @@ class Agent:
         yaw = yaw + np.where(
             np.abs(step) > 0.05, np.arctan2(swerve * self.direction, np.abs(step)), 0.0
         )
-        c, s_ = np.cos(yaw), np.sin(yaw)
-        out = np.tile(np.eye(4), (len(frames), 1, 1))
-        out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s_, s_, c
-        out[:, :3, 3] = np.column_stack([xy, z + self.lift_m])
-        return out
+        pitch = road.pitch(s) * np.cos(yaw - heading)  # nose down when facing downhill
+        return placements(xy, z, yaw, pitch, self.lift_m)
 
     def pose(self, road: Road, frame: float) -> np.ndarray:
         """world_T_object (4, 4) at a (fractional) frame."""
@@ -236,12 +272,8 @@ def _ribbon(
 
 
 def _placed(mesh: Mesh, road: Road, s: float, d: float, yaw_offset: float, lift: float) -> Mesh:
-    xy, z, heading = road.pose(np.array(s), np.array(d))
-    yaw = float(heading) + yaw_offset
-    pose = np.eye(4)
-    pose[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
-    pose[:3, 3] = (xy[0], xy[1], float(z) + lift)
-    return mesh.placed(pose)
+    xy, z, heading = road.pose(np.array([s]), np.array([d]))
+    return mesh.placed(placements(xy, z, heading + yaw_offset, np.zeros(1), lift)[0])
 
 
 def _roadside(
@@ -265,6 +297,11 @@ def _roadside(
         d = side * road.lanes * LANE_WIDTH_M
         parts.append(_ribbon(road, 0, length, (d - 0.08, d + 0.08), (0.01, 0.01), "marking"))
     for side, edge in ((-1, right), (1, left)):
+        if road.rural:
+            parts.extend(
+                _rural_edge(road, length, side, abs(edge), road.barriers[0 if side < 0 else 1], rng)
+            )
+            continue
         pavement = road.pavement_m[0 if side < 0 else 1]
         parts.append(_ribbon(road, 0, length, (edge, edge), (0.0, KERB_M), "kerb"))
         parts.append(
@@ -285,6 +322,27 @@ def _roadside(
     return parts
 
 
+def _rural_edge(
+    road: Road, length: float, side: int, edge_m: float, barrier: str, rng: np.random.Generator
+) -> list[Mesh]:
+    """A rural road's edge: a verge of grass, then a guard rail (a steel band on posts), a
+    concrete barrier or nothing, and beyond it fields, hedges, woods and embankments."""
+    verge = rng.uniform(0.3, 2.5)
+    parts = [_ribbon(road, 0, length, (side * edge_m, side * 55.0), (0.0, 0.0), "terrain", 4.0)]
+    at = side * (edge_m + verge)
+    if barrier == "guardrail":
+        parts.append(_ribbon(road, 0, length, (at, at), (0.45, 0.75), "metal"))
+        post = meshes.box(0.12, 0.12, 0.75, "metal")
+        parts += [
+            _placed(post, road, s, at + side * 0.1, 0.0, 0.0)
+            for s in np.arange(rng.uniform(0, 2), length, rng.uniform(2.0, 4.0))
+        ]
+    elif barrier == "concrete":
+        parts.append(_ribbon(road, 0, length, (at, at), (0.0, rng.uniform(0.8, 1.1)), "wall"))
+    parts.extend(_beyond(road, length, side, edge_m + verge + 0.5, [], rng, urban=False))
+    return parts
+
+
 def _free(s0: float, s1: float, taken: list[tuple[float, float]]) -> bool:
     return all(s1 <= a or s0 >= b for a, b in taken)
 
@@ -296,13 +354,15 @@ def _beyond(
     start_d: float,
     lots: list[tuple[float, float]],
     rng: np.random.Generator,
+    *,
+    urban: bool | None = None,
 ) -> list[Mesh]:
-    """What stands beyond a pavement: buildings with gaps, hedges, fences, stretches of
-    woodland and embankments (outside the parking ``lots``); trees, poles, bushes, bins and
-    bollards along the kerb."""
+    """What stands beyond a pavement: buildings with gaps (in town), hedges, fences,
+    stretches of woodland and embankments (outside the parking ``lots``); trees, poles,
+    bushes, bins and bollards along the kerb."""
     parts = []
     s = rng.uniform(-10, 5)
-    urban = rng.uniform() < 0.6
+    urban = rng.uniform() < 0.6 if urban is None else urban
     while s < length:
         span = rng.uniform(8, 40)
         setback = rng.uniform(0.0, 5.0)
@@ -460,7 +520,7 @@ def random_street(frames: int, cars: int, rng: np.random.Generator, fps: float =
         swerve = np.full(frames, d)
         agents.append(Agent(kind, mesh, positions[:, k], swerve, directions[k], shape=shape))
     moving = [True] * len(agents)
-    lots = _lots(road, length, rng)
+    lots = {-1: [], 1: []} if road.rural else _lots(road, length, rng)
     agents_static = _parked(road, length, lots, rng)
     agents += agents_static
     moving += [False] * len(agents_static)
@@ -475,7 +535,11 @@ def random_street(frames: int, cars: int, rng: np.random.Generator, fps: float =
         positions[:, 0],
         ego_d,
         np.array(moving),
-        notes={"lanes": road.lanes, "length_m": round(length, 1)},
+        notes={
+            "lanes": road.lanes,
+            "length_m": round(length, 1),
+            "edges": list(road.barriers) if road.rural else "urban",
+        },
     )
 
 
@@ -542,13 +606,14 @@ def _parked(
 def _walkers(
     road: Road, length: float, frames: int, fps: float, rng: np.random.Generator
 ) -> list[Agent]:
-    """Pedestrians on the pavements (some standing) and cyclists in the bike lanes."""
+    """Pedestrians on the pavements or a rural road's verges (some standing) and cyclists
+    in the bike lanes."""
     time = np.arange(frames) / fps
     agents = []
-    for _ in range(int(length / 25)):
+    for _ in range(int(length / (60 if road.rural else 25))):
         side = int(rng.choice([-1, 1]))
-        pavement = road.pavement_m[0 if side < 0 else 1]
-        d = side * (road.edge(side) + rng.uniform(0.4, pavement - 0.4))
+        pavement = road.pavement_m[0 if side < 0 else 1] if not road.rural else 1.2
+        d = side * (road.edge(side) + rng.uniform(0.3, pavement - 0.3))
         direction = int(rng.choice([-1, 1]))
         speed = 0.0 if rng.uniform() < 0.25 else rng.uniform(0.9, 1.7)
         s = rng.uniform(0, length) + direction * speed * time
@@ -559,7 +624,7 @@ def _walkers(
                 s,
                 np.full(frames, d),
                 direction,
-                lift_m=KERB_M,
+                lift_m=0.0 if road.rural else KERB_M,
             )
         )
     for _ in range(int(length / 120)):

@@ -24,7 +24,7 @@ import numpy as np
 
 from services.tracking import kitti, lidar
 from services.tracking.boxes import YAW, H, L, W, corners, to_box_frame, wrap
-from services.tracking.scene import Agent, Road, Street, random_street
+from services.tracking.scene import Agent, Road, Street, placements, random_street
 
 FPS = 10.0
 IMAGE_SIZE = (1242, 375)
@@ -68,22 +68,13 @@ class SimulationSummary:
     seconds: float
 
 
-def _yaw_pose(xy: np.ndarray, z: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    count = len(yaw)
-    out = np.tile(np.eye(4), (count, 1, 1))
-    c, s = np.cos(yaw), np.sin(yaw)
-    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
-    out[:, :3, 3] = np.column_stack([xy, z])
-    return out
-
-
 def sensor_poses(street: Street, frames: np.ndarray) -> np.ndarray:
     """(K, 4, 4) world_T_sensor at (fractional) frames: on the ego car's lane, 1.73 m up,
-    facing along the road."""
+    facing along the road and tilted with its slope."""
     index = np.arange(len(street.ego_s))
     s = np.interp(frames, index, street.ego_s)
     xy, z, heading = street.road.pose(s, np.full_like(s, street.ego_d))
-    return _yaw_pose(xy, z + lidar.MOUNT_HEIGHT_M, heading)
+    return placements(xy, z, heading, street.road.pitch(s), lidar.MOUNT_HEIGHT_M)
 
 
 def _object_boxes(street: Street, frame: int, visible: np.ndarray) -> np.ndarray:
