@@ -1,4 +1,5 @@
-"""How every `vista` command refuses: a red sentence on stderr and exit status 2."""
+"""How every `vista` command refuses (a red sentence on stderr and exit status 2) and
+reports a long task's progress."""
 
 from __future__ import annotations
 
@@ -10,3 +11,8 @@ import typer
 def fail(message: str) -> NoReturn:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
+
+
+def echo_progress(fraction: float, message: str) -> None:
+    """A training's or a batch's progress line: ``[ 42.0 %] message``."""
+    typer.echo(f"[{fraction * 100:5.1f} %] {message}")

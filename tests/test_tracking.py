@@ -483,3 +483,21 @@ def test_lidar_archives_unpack_and_refuse_the_unsafe(drive: Path, tmp_path: Path
         archive.add(drive / "velodyne" / "000000.bin", arcname="s/velodyne/000000.bin")
     with pytest.raises(ArchiveError, match="no calib.txt"):
         inspect_lidar(nocalib)
+
+
+def test_the_bench_sweep_scores_each_policy(drive: Path) -> None:
+    """The bench's reset sweep on the small drive: one row per policy with its cost — every
+    frame after the first for every:1, none for never — and OPE scores."""
+    from services.tracking.bench import _workload, sweep
+    from services.tracking.detect_geometric import GeometricDetector
+    from services.tracking.geometric_tracker import GeometricTracker
+
+    work = _workload([drive], min_frames=10)
+    assert work.tracklets and all(len(t.frames) >= 10 for _, t in work.tracklets)
+    rows = sweep(work, GeometricTracker, GeometricDetector(), ("every:1", "never"))
+    frames = sum(len(t.frames) for _, t in work.tracklets)
+    assert [r["reset"] for r in rows] == ["every:1", "never"]
+    assert rows[0]["cost_percent"] == pytest.approx(
+        100 * (frames - len(work.tracklets)) / frames, abs=0.01
+    )
+    assert rows[1]["cost_percent"] == 0 and 0 < rows[1]["success"] <= 100

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail
+from contract.cli import echo_progress, fail
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
 
@@ -115,10 +115,6 @@ def _load(folders: list[Path], width: int, height: int):  # noqa: ANN202 - a Fra
         fail(str(exc))
 
 
-def _echo_progress(fraction: float, message: str) -> None:
-    typer.echo(f"[{fraction * 100:5.1f} %] {message}")
-
-
 SIZE_HELP = "multiple of 32; Monodepth2 trains at 640 × 192, vista's CPU default is 320 × 96"
 # the training options train-teacher and distill share
 WIDTH = typer.Option(320, min=64, max=4096, help=f"Training width ({SIZE_HELP}).")
@@ -170,7 +166,7 @@ def train_teacher_command(
     config = _config(epochs, batch, learning_rate, seed, threads, device)
     try:
         result = train_teacher(
-            frames, supervision, config, checkpoint_dir=checkpoints, progress=_echo_progress
+            frames, supervision, config, checkpoint_dir=checkpoints, progress=echo_progress
         )
     except ValueError as exc:
         fail(str(exc))
@@ -228,7 +224,7 @@ def distill_command(
     config = _config(epochs, batch, learning_rate, seed, threads, device)
     try:
         result = distill(
-            model, frames, method, config, checkpoint_dir=checkpoints, progress=_echo_progress
+            model, frames, method, config, checkpoint_dir=checkpoints, progress=echo_progress
         )
     except ValueError as exc:
         fail(str(exc))
@@ -296,7 +292,7 @@ def predict_command(
             )
             model = DepthModel(quantize_int8(model, sample, out_dir / "model.int8.onnx"), threads)
         done = predict_folder(
-            model, paths, out_dir, camera=camera, clouds=clouds, progress=_echo_progress
+            model, paths, out_dir, camera=camera, clouds=clouds, progress=echo_progress
         )
     except ValueError as exc:
         fail(str(exc))

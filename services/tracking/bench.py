@@ -36,6 +36,9 @@ REAL_OBJECTS = Path(__file__).resolve().parents[2].parent / "shared/data/kitti-o
 TRAIN_DRIVES, TRAIN_FRAMES, TRAIN_SEED = 40, 60, 1000
 TEST_DRIVES, TEST_FRAMES, TEST_SEED = 4, 400, 900_000
 MIN_TRACKLET = 20
+FRAMES_PER_DRIVE = 2000
+"""Each test drive's longest car tracklets are evaluated until this many frames (the sweep
+runs the Siamese tracker a dozen times over them)."""
 FIXED = (
     "every:1",
     "every:2",
@@ -114,41 +117,43 @@ def _models(
 
     detector = detector or work / "detector.onnx"
     siamese = siamese or work / "siamese.onnx"
-    if not detector.is_file():
-        say(f"training the learned detector on {len(train)} drives (kept as {detector})")
-        train_detector(
-            train,
-            detector,
-            DetectorTrainConfig(),
-            checkpoint_dir=work / "checkpoints" / "detector",
-            progress=lambda f, m: say(m),
-        )
-    if not siamese.is_file():
-        say(
-            f"training the Siamese encoder on {len(train)} drives' car tracklets (kept as {siamese})"
-        )
-        train_siamese(
-            train,
-            siamese,
-            SiameseTrainConfig(),
-            checkpoint_dir=work / "checkpoints" / "siamese",
-            progress=lambda f, m: say(m),
-        )
+    for path, name, train_network, config in (
+        (detector, "detector", train_detector, DetectorTrainConfig()),
+        (siamese, "siamese", train_siamese, SiameseTrainConfig()),
+    ):
+        if not path.is_file():
+            say(
+                f"training the {name} network on {len(train)} drives ({config.epochs} epochs; kept as {path})"
+            )
+            train_network(
+                train,
+                path,
+                config,
+                checkpoint_dir=work / "checkpoints" / name,
+                progress=lambda f, m: say(m),
+            )
     return detector, siamese
 
 
-def _workload(test: list[Path]) -> Workload:
-    sequences = [open_sequence(folder) for folder in test]
-    chosen = [
-        (k, t)
-        for k, s in enumerate(sequences)
-        for t in tracklets(s, ("Car",), min_frames=MIN_TRACKLET)
+def _longest(sequence: Sequence, min_frames: int) -> list[Tracklet]:
+    """The sequence's longest car tracklets (of at least ``min_frames``) until
+    ``FRAMES_PER_DRIVE`` frames, in track order."""
+    found = sorted(
+        tracklets(sequence, ("Car",), min_frames=min_frames), key=lambda t: -len(t.frames)
+    )
+    lengths = np.cumsum([len(t.frames) for t in found])
+    kept = [
+        t
+        for t, total in zip(found, lengths, strict=True)
+        if total - len(t.frames) < FRAMES_PER_DRIVE
     ]
-    scans = {
-        (k, f): sequences[k].points(f)[:, :3].copy()
-        for k, s in enumerate(sequences)
-        for f in s.frames
-    }
+    return sorted(kept, key=lambda t: (t.track_id, t.frames[0]))
+
+
+def _workload(test: list[Path], min_frames: int = MIN_TRACKLET) -> Workload:
+    sequences = [open_sequence(folder) for folder in test]
+    chosen = [(k, t) for k, s in enumerate(sequences) for t in _longest(s, min_frames)]
+    scans = {(k, f): sequences[k].points(f) for k, s in enumerate(sequences) for f in s.frames}
     return Workload(sequences, chosen, scans)
 
 

@@ -1,12 +1,15 @@
 """A LiDAR scan as a bird's-eye-view image for the learned detector: 0.2 m cells over a
-window of the ground plane (rows along x, columns along y), twelve channels a cell —
+window of the ground plane (rows along x, columns along y), eleven channels a cell —
 
 - 0–7: whether any return falls in each 0.5 m slice of height from 2.5 m below the sensor
   to 1.5 m above it (a car's outline, its roof, what stands over it);
 - 8: the highest return's height, scaled to 0–1 over the same span;
-- 9: the returns' mean reflectance;
-- 10: how many returns, log-scaled (1 at 64);
-- 11: the cell's distance from the sensor / 80 m (how sparse a car there looks).
+- 9: how many returns, log-scaled (1 at 64);
+- 10: the cell's distance from the sensor / 80 m (how sparse a car there looks).
+
+Reflectance is left out on purpose: each sensor scales it its own way, and a detector
+trained on simulated scans learned "dark is a car" from it (KITTI's car paint reads mostly
+0), which real roads and walls — often 0 too — then contradicted.
 
 The full view is KITTI's detection range, x 0–70.4 m and y ±40 m (352 × 400 cells); a
 window is any part of the plane, its sides multiples of ``ALIGN`` cells so that the
@@ -20,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 CELL_M = 0.2
-CHANNELS = 12
+CHANNELS = 11
 SLICES = 8
 Z_LOW_M, Z_HIGH_M = -2.5, 1.5
 ALIGN = 16
@@ -61,7 +64,7 @@ class Window:
 
 
 def encode(points: np.ndarray, window: Window) -> np.ndarray:
-    """(12, rows, cols) float32 image of points (N, 4: x y z reflectance, metres)."""
+    """(11, rows, cols) float32 image of points (N, ≥3: x y z …, metres)."""
     row = np.floor((points[:, 0] - window.x0_m) / CELL_M).astype(np.int64)
     col = np.floor((points[:, 1] - window.y0_m) / CELL_M).astype(np.int64)
     z = points[:, 2]
@@ -73,7 +76,7 @@ def encode(points: np.ndarray, window: Window) -> np.ndarray:
         & (z >= Z_LOW_M)
         & (z < Z_HIGH_M)
     )
-    row, col, z, reflectance = row[keep], col[keep], z[keep], points[keep, 3]
+    row, col, z = row[keep], col[keep], z[keep]
     cells = window.rows * window.cols
     flat = row * window.cols + col
     image = np.zeros((CHANNELS, cells), dtype=np.float32)
@@ -86,9 +89,7 @@ def encode(points: np.ndarray, window: Window) -> np.ndarray:
     seen = np.isfinite(top)
     image[8, seen] = (top[seen] - Z_LOW_M) / (Z_HIGH_M - Z_LOW_M)
     count = np.bincount(flat, minlength=cells).astype(np.float32)
-    total = np.bincount(flat, weights=reflectance, minlength=cells)
-    image[9, seen] = total[seen] / count[seen]
-    image[10] = np.log1p(count) / np.log(65.0)
+    image[9] = np.log1p(count) / np.log(65.0)
     xs, ys = window.cell_centres()
-    image[11] = (np.hypot(xs[:, None], ys[None, :]) / RANGE_SCALE_M).ravel()
+    image[10] = (np.hypot(xs[:, None], ys[None, :]) / RANGE_SCALE_M).ravel()
     return image.reshape(CHANNELS, window.rows, window.cols)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail
+from contract.cli import echo_progress, fail
 from services.tracking.kinds import DETECTOR_EPOCHS, SIAMESE_EPOCHS
 
 # Heavy imports (numpy, open3d, torch, onnxruntime) stay inside the commands.
@@ -66,10 +66,6 @@ DETECTOR_MODEL = typer.Option(
     None, help="The learned detector's ONNX model (vista track train detector)."
 )
 THREADS = typer.Option(2, min=1, max=256, help="Threads for the networks.")
-
-
-def _echo_progress(fraction: float, message: str) -> None:
-    typer.echo(f"[{fraction * 100:5.1f} %] {message}")
 
 
 @track_app.command("run")
@@ -263,7 +259,7 @@ def train_detector_command(
     )
     try:
         metadata = train_detector(
-            data, out, config, checkpoint_dir=checkpoints, progress=_echo_progress
+            data, out, config, checkpoint_dir=checkpoints, progress=echo_progress
         )
     except ValueError as exc:
         fail(str(exc))
@@ -310,7 +306,7 @@ def train_siamese_command(
     )
     try:
         metadata = train_siamese(
-            data, out, config, checkpoint_dir=checkpoints, progress=_echo_progress
+            data, out, config, checkpoint_dir=checkpoints, progress=echo_progress
         )
     except ValueError as exc:
         fail(str(exc))

@@ -2,9 +2,10 @@
 
 Each frame the motion model predicts the box; the scan's points around it (above the road)
 are matched to the target's point model by a trimmed point-to-point ICP in the ground
-plane (x, y, heading, with the height shifted by the matches' mean): each scan point to its
-nearest model point, the trim closing from 0.6 m to 0.25 m. The box moves by the
-registration; its size stays the given one.
+plane (x, y, heading): each scan point to its nearest model point, the trim closing from
+0.6 m to 0.25 m. The box moves by the registration, its heading turned at most 0.1 rad a
+frame and drawn towards the direction of travel when the target moves; its height follows
+the road under it; its size stays the given one.
 
 The confidence multiplies what would go wrong when the tracker drifts: the share of the
 box's points the model explains (within 0.2 m), whether there are enough of them, and
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.boxes import YAW, from_box_frame, wrap
+from services.tracking.boxes import YAW, H, L, Z, from_box_frame, inside, wrap
 from services.tracking.tracker import MotionModel, PointModel, TrackStep, crop, in_box
 
 
@@ -38,6 +39,12 @@ class GeometricConfig:
     """How far a wide search looks: on the first frames (the target's velocity is unknown)
     and after a frame the tracker did not trust."""
     cell_m: float = 0.2
+    max_turn_rad: float = 0.1
+    """The most the registration may turn the box in a frame."""
+    moving_m: float = 0.15
+    """Above this much motion a frame (1.5 m/s) a car heads where it goes."""
+    height_gain: float = 0.3
+    """The share of the road's height change under the target taken each frame."""
 
 
 def coarse_offset(
@@ -68,6 +75,21 @@ def coarse_offset(
     return offset[best]
 
 
+def road_offset(points: np.ndarray, box: np.ndarray) -> float:
+    """How far the road around a box lies above its bottom (metres; 0 when too few returns
+    say): the low tenth of the returns within a metre of its footprint and a metre of its
+    bottom. The road, not the registration, sets a box's height — a partial view's points
+    would pull it up or down."""
+    grown = box.copy()
+    grown[L:H] += 2.0
+    grown[Z] = box[Z] - box[H] / 2
+    grown[H] = 2.0
+    near = points[inside(points, grown), 2]
+    if len(near) < 10:
+        return 0.0
+    return float(np.percentile(near, 10) - (box[Z] - box[H] / 2))
+
+
 def register(
     scan_local: np.ndarray,
     model: PointModel,
@@ -75,7 +97,9 @@ def register(
     start: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """(dx, dy, dz, dθ) moving the predicted box onto the target, from the scan's points in
-    the predicted box's frame (starting at ``start``); and how many points matched at the end."""
+    the predicted box's frame (starting at ``start``); and how many points matched at the
+    end. (dz is the matches' mean height difference; the tracker takes its height from the
+    road instead.)"""
     pose = np.zeros(4) if start is None else start.astype(np.float64).copy()
     matched = 0
     trims = np.geomspace(config.trim_m[0], config.trim_m[1], config.iterations)
@@ -138,9 +162,11 @@ class GeometricTracker:
             if wide:
                 start[:2] = coarse_offset(scan_local, self.model, config.search_m, config.cell_m)
             pose, _ = register(scan_local, self.model, config, start)
+            pose[2] = 0.0
             box = predicted.copy()
             box[:3] = from_box_frame(pose[None, :3], predicted)[0]
-            box[YAW] = wrap(predicted[YAW] + pose[3])
+            box[YAW] = self._heading(predicted[YAW], pose[3])
+            box[Z] += config.height_gain * road_offset(points, box)
             target = in_box(points, box)
             count = len(target)
             confidence = self._confidence(target, np.linalg.norm(pose[:2]) if not wide else 0.0)
@@ -151,6 +177,19 @@ class GeometricTracker:
         self.searching = self.searching - 1 if trusted else 1
         self.box = box
         return TrackStep(box, confidence, count, predicted)
+
+    def _heading(self, predicted_rad: float, turn_rad: float) -> float:
+        """The registration's heading, turned at most ``max_turn_rad``, drawn towards the
+        direction of travel as the target moves faster (a car does not slide sideways)."""
+        config = self.config
+        registered = predicted_rad + np.clip(turn_rad, -config.max_turn_rad, config.max_turn_rad)
+        speed, travel = self.motion.travel()
+        if speed <= config.moving_m:
+            return float(wrap(predicted_rad + 0.5 * (registered - predicted_rad)))
+        if abs(wrap(travel - registered)) > np.pi / 2:  # reversing, or the box's back is its front
+            travel += np.pi
+        weight = min(0.7, (speed - config.moving_m) / 0.5)
+        return float(wrap(registered + weight * wrap(travel - registered)))
 
     def _confidence(self, target: np.ndarray, moved_m: float) -> float:
         config = self.config

@@ -18,6 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from services.tracking.association import associate, search_window
+from services.tracking.boxes import inside
 from services.tracking.detections import Detections
 from services.tracking.resets import AdaptiveGate, ResetPolicy
 from services.tracking.tracker import Tracker, TrackStep
@@ -101,8 +102,9 @@ def track(
     started = time.perf_counter()
     tracker.start(points, np.asarray(init_box, dtype=np.float64))
     result.tracker_s += time.perf_counter() - started
+    given = np.asarray(init_box, dtype=np.float64)
     result.frames.append(
-        FrameResult(frame, np.asarray(init_box, float), 1.0, len(points), False, False)
+        FrameResult(frame, given, 1.0, int(inside(points, given).sum()), False, False)
     )
     index = 0
     while True:

@@ -36,8 +36,10 @@ COMPLETE_POINTS = 512
 OFFSETS_M = np.arange(-1.5, 1.51, 0.5)
 TURNS_RAD = np.radians([-5.0, 0.0, 5.0])
 SIGMA_M, SIGMA_RAD = 0.5, np.radians(10.0)
-MARGIN_M = 2.2
-"""Points kept around each true box for training (the widest candidate offset and more)."""
+MARGIN_M = 2.0
+"""Points kept around a box: the widest candidate offset (1.5 m) and a turn's reach."""
+SEARCH_POINTS = 1200
+"""The search draws its candidates' points from at most this many around the prediction."""
 
 
 def sample_points(local: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -67,10 +69,17 @@ def points_in_candidates(
     z = np.broadcast_to(local[None, :, 2], x.shape)
     half = size / 2
     within = (np.abs(x) <= half[0]) & (np.abs(y) <= half[1]) & (np.abs(z) <= half[2])
-    # draw ``count`` of each candidate's points: random keys, the points outside last
+    # draw ``count`` of each candidate's points: random keys, the points outside last; the
+    # ``count`` smallest keys (a partition, not a sort), in key order, repeated when short
     keys = np.where(within, rng.uniform(size=within.shape), 2.0)
-    order = np.argsort(keys, axis=1)
-    inside_count = within.sum(axis=1)
+    if keys.shape[1] > count:
+        smallest = np.argpartition(keys, count - 1, axis=1)[:, :count]
+    else:
+        smallest = np.broadcast_to(np.arange(keys.shape[1]), keys.shape)
+    order = np.take_along_axis(
+        smallest, np.argsort(np.take_along_axis(keys, smallest, axis=1), axis=1), axis=1
+    )
+    inside_count = np.minimum(within.sum(axis=1), order.shape[1])
     slots = np.arange(count)[None, :] % np.maximum(inside_count, 1)[:, None]
     chosen = np.take_along_axis(order, slots, axis=1)
     out = np.stack([np.take_along_axis(v, chosen, axis=1) for v in (x, y, z)], axis=-1)
@@ -323,6 +332,8 @@ class SiameseTracker:
     def step(self, points: np.ndarray, prev_T_cur: np.ndarray | None) -> TrackStep:
         predicted = self.motion.advance(prev_T_cur)
         local = crop(points, predicted, MARGIN_M)
+        if len(local) > SEARCH_POINTS:
+            local = local[self.rng.choice(len(local), SEARCH_POINTS, replace=False)]
         box, confidence = predicted.copy(), 0.0
         if len(local):
             sets = points_in_candidates(local, predicted[3:6], self.poses, POINTS, self.rng)

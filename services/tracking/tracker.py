@@ -7,13 +7,14 @@ frame, so the ego car's own motion is not mistaken for the target's; without the
 world is the sensor's frame and the velocity is the relative one.
 
 The point model is the target's points in its box's frame (x along its heading, origin at
-its centre), merged in 10 cm voxels: the first frame's (the given box), then those of every
-frame the tracker trusted — the thesis's "model point cloud obtained by aggregating all
-cropped points" — capped at ``MODEL_POINTS``.
+its centre), merged in 10 cm voxels: the first frame's (the given box) and those of the
+last frames the tracker trusted — the thesis's "model point cloud obtained by aggregating
+the cropped points", kept to a window so that its errors do not accumulate.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -23,6 +24,7 @@ from services.tracking.boxes import YAW, H, to_box_frame, transform_boxes, wrap
 
 VOXEL_M = 0.1
 MODEL_POINTS = 4000
+RECENT_FRAMES = 10
 VELOCITY_GAIN = 0.5
 """How much of a new frame's motion enters the velocity (an α filter)."""
 MAX_STEP_M = 4.0
@@ -81,6 +83,13 @@ class MotionModel:
         predicted[YAW] = wrap(predicted[YAW] + self.velocity[2])
         return transform_boxes(np.linalg.inv(self.world_T_cur), predicted)
 
+    def travel(self) -> tuple[float, float]:
+        """(metres a frame, heading in the current sensor's frame) of the target's motion."""
+        speed = float(np.hypot(*self.velocity[:2]))
+        heading_world = float(np.arctan2(self.velocity[1], self.velocity[0]))
+        sensor_yaw = float(np.arctan2(self.world_T_cur[1, 0], self.world_T_cur[0, 0]))
+        return speed, float(wrap(heading_world - sensor_yaw))
+
     def update(self, box: np.ndarray, *, learn: bool = True) -> None:
         """The target's box in the current frame; ``learn``: let its motion enter the
         velocity (not after a reset, whose jump is a correction, not a motion)."""
@@ -112,16 +121,21 @@ def crop(points: np.ndarray, box: np.ndarray, margin_m: float, floor_m: float = 
 
 
 class PointModel:
-    """The target's accumulated points in its box frame (voxel means)."""
+    """The target's points in its box frame (voxel means): the first frame's and those of
+    the last ``RECENT_FRAMES`` frames added — old frames leave, so a small error of one
+    frame cannot build up in the model."""
 
     def __init__(self, first: np.ndarray) -> None:
-        self.points = _voxel_means(first)
+        self.first = _voxel_means(first)
+        self.recent: deque[np.ndarray] = deque(maxlen=RECENT_FRAMES)
+        self.points = self.first
         self._tree = None
 
     def add(self, local: np.ndarray) -> None:
         if not len(local):
             return
-        merged = _voxel_means(np.concatenate([self.points, local]))
+        self.recent.append(local)
+        merged = _voxel_means(np.concatenate([self.first, *self.recent]))
         if len(merged) > MODEL_POINTS:
             merged = merged[
                 np.random.default_rng(len(merged)).choice(len(merged), MODEL_POINTS, replace=False)
