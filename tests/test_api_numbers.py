@@ -13,6 +13,8 @@ from supervisor.db import Base
 from supervisor.demo import TOLERANCES
 from tests.conftest import auth
 from tests.depthfiles import pack_drive, small_drive, tiny_depth_model
+from tests.lidarfiles import pack_sequence
+from tests.lidarfiles import small_drive as small_lidar_drive
 from tests.plyfiles import ply_bytes
 from tests.sequences import pack, small_sequence
 
@@ -29,6 +31,11 @@ BAD_NUMBERS = (
 )
 NOT_JSON = {("POST", "/api/v1/inspections/{inspection_id}/artifacts")}
 """Bodies that are files, not JSON documents (their checks are in test_api_artifacts)."""
+REQUIRED_PARAMS = {
+    "track": ({"track_id": 0}, {"init_box": [1.5, 1.6, 3.9, 0.0, 1.7, 10.0, 0.0]}),
+}
+"""The params a job kind cannot run without (all others have defaults), in each of the
+ways it takes them: each way's numbers are checked on a body holding it."""
 MARKER = [[1.0, 0.0, 0.0, 10.0], [0.0, 1.0, 0.0, 20.0], [0.0, 0.0, 1.0, 30.0], [0, 0, 0, 1.0]]
 
 
@@ -137,6 +144,12 @@ def seeded(client, tokens, tmp_path):
         ("drive", pack_drive(small_drive(tmp_path / "drive"), tmp_path / "drive.tgz").read_bytes()),
         ("model", tiny_depth_model(tmp_path / "depth.onnx").read_bytes()),
         ("image", (tmp_path / "drive" / "image_02" / "0000000000.png").read_bytes()),
+        (
+            "lidar",
+            pack_sequence(
+                small_lidar_drive(tmp_path / "lidar", frames=2), tmp_path / "lidar.tar.gz"
+            ).read_bytes(),
+        ),
     ):
         artifacts[kind] = client.post(
             f"/api/v1/inspections/{inspection['id']}/artifacts",
@@ -202,8 +215,16 @@ def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens
     for kind in kinds:
         paths = _number_paths(kind["params_schema"], kind["params_schema"])
         inputs = [seeded["artifacts"][spec["kinds"][0]] for spec in kind["inputs"] if spec["min"]]
-        step = {"name": "s", "kind": kind["name"], "inputs": inputs, "params": {}}
-        body = {"steps": [step]}
-        steps = [("steps", 0, "params", *path) for path in paths]
-        checked += _refuses_every_bad_number(client, runtime, ("POST", url, headers), body, steps)
+        variants = REQUIRED_PARAMS.get(kind["name"], ({},))
+        exclusive = set().union(*variants)
+        for params in variants:
+            step = {"name": "s", "kind": kind["name"], "inputs": inputs, "params": params}
+            steps = [
+                ("steps", 0, "params", *path)
+                for path in paths
+                if path[0] in params or path[0] not in exclusive
+            ]
+            checked += _refuses_every_bad_number(
+                client, runtime, ("POST", url, headers), {"steps": [step]}, steps
+            )
     assert checked > 100

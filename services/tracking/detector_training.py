@@ -2,7 +2,8 @@
 export.
 
 Each step takes random windows (``window_cells`` square, 0.2 m cells) of the scans' front
-views, each scan mirrored, turned (±10°) and scaled (±5 %) at random. A car's centre is a
+views, each scan mirrored, turned (±10°) and scaled (±5 %) at random and thinned (up to a
+third of its returns dropped). A car's centre is a
 Gaussian peak in the 0.8 m heatmap (CenterNet's focal loss, α = 2, β = 4), and the cell
 under it learns the offset, height, log size and doubled heading (L1). The loss looks only
 where the labels speak: inside the camera's field of view (KITTI labels nothing outside it),
@@ -122,6 +123,8 @@ def sample(item: LabelledScan, rng: np.random.Generator, window_cells: int, augm
     seen = np.array([inside(points, box).sum() >= MIN_RETURNS for box in item.cars], dtype=bool)
     cars, ignored = item.cars[seen], np.concatenate([item.ignored, item.cars[~seen]])
     transform = _similarity(rng, augment)
+    if augment:  # a sparser sensor, or a darker day: up to a third of the returns lost
+        points = points[rng.uniform(size=len(points)) < rng.uniform(0.67, 1.0)]
     moved = points.copy()
     moved[:, :2] = points[:, :2] @ transform.T
     size_m = window_cells * CELL_M

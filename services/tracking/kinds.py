@@ -1,6 +1,6 @@
 """Job kinds of the tracking service (imported by the API: keep it light)."""
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -8,6 +8,10 @@ from contract.kinds import Inputs, JobKind, Output
 
 DETECTOR_EPOCHS = 12
 SIAMESE_EPOCHS = 20
+
+MAX_FRAME = 10_000_000
+BoxNumber = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
+"""A box's size (m), position (m) or rotation (rad): finite and within 10 km."""
 
 SEQUENCE = Inputs(
     ("lidar",),
@@ -19,19 +23,19 @@ class TrackParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     track_id: int | None = Field(
-        None, ge=0, description="Track this labelled object (label_02's track id)."
+        None, ge=0, le=2**31 - 1, description="Track this labelled object (label_02's track id)."
     )
-    init_box: list[float] | None = Field(
+    init_box: list[BoxNumber] | None = Field(
         None,
         min_length=7,
         max_length=7,
         description="Or start from this KITTI camera box: h, w, l, x, y, z (metres), rotation_y (radians).",
     )
     start_frame: int | None = Field(
-        None, ge=0, description="With init_box: the frame it is in (default the first)."
+        None, ge=0, le=MAX_FRAME, description="With init_box: the frame it is in (default the first)."
     )
     end_frame: int | None = Field(
-        None, ge=0, description="With init_box: the last frame (default the last)."
+        None, ge=0, le=MAX_FRAME, description="With init_box: the last frame (default the last)."
     )
     reset: str = Field(
         "never",

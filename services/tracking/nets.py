@@ -1,7 +1,7 @@
 """The tracking service's networks, in plain torch.
 
 - ``BevDetector``: a bird's-eye-view car detector in the manner of PIXOR and CenterPoint —
-  a three-stage convolutional backbone over the eleven-channel BEV image (``bev``), one
+  a three-stage convolutional backbone over the twelve-channel BEV image (``bev``), one
   top-down merge back to a quarter of its resolution (0.8 m cells), and per cell a centre
   heatmap (one class: Car), the centre's offset within the cell, its height, the box's log
   size and the heading's sine and cosine.
@@ -29,7 +29,7 @@ def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
 
 
 class BevDetector(nn.Module):
-    """(B, 11, H, W) BEV images (H, W multiples of 16) → (B, 9, H/4, W/4): heatmap logit,
+    """(B, 12, H, W) BEV images (H, W multiples of 16) → (B, 9, H/4, W/4): heatmap logit,
     offset (cells), z (m), log size (l, w, h in m), sin and cos of the heading."""
 
     def __init__(self, width: int = 32) -> None:
