@@ -32,7 +32,10 @@ class TrackParams(BaseModel):
         description="Or start from this KITTI camera box: h, w, l, x, y, z (metres), rotation_y (radians).",
     )
     start_frame: int | None = Field(
-        None, ge=0, le=MAX_FRAME, description="With init_box: the frame it is in (default the first)."
+        None,
+        ge=0,
+        le=MAX_FRAME,
+        description="With init_box: the frame it is in (default the first).",
     )
     end_frame: int | None = Field(
         None, ge=0, le=MAX_FRAME, description="With init_box: the last frame (default the last)."
