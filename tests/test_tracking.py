@@ -253,6 +253,27 @@ def test_reset_policies_parse_and_keep_their_budget() -> None:
     assert 8 <= sum(spent) <= 12  # an idle budget is still spent, as refreshes
 
 
+def test_bev_cells_hold_the_heights_counts_and_height_over_the_local_floor() -> None:
+    from services.tracking.bev import CHANNELS, Window, encode
+
+    window = Window(0.0, 0.0, 32, 32)  # 6.4 m square, 0.2 m cells
+    xs, ys = np.meshgrid(np.arange(0.1, 6.4, 0.2), np.arange(0.1, 6.4, 0.2), indexing="ij")
+    slope = 0.1 * xs.ravel()  # the ground climbs 10 %
+    ground = np.stack([xs.ravel(), ys.ravel(), -1.7 + slope, np.zeros(xs.size)], axis=1)
+    pillar = np.array([[3.1, 3.1, z, 0.0] for z in (-1.39, -0.89, -0.19)])  # over x = 3.1
+    image = encode(np.concatenate([ground, pillar]), window)
+    assert image.shape == (CHANNELS, 32, 32)
+    row = col = 15  # the pillar's cell
+    assert image[9, row, col] == pytest.approx(np.log1p(4) / np.log(65.0))
+    assert image[8, row, col] == pytest.approx((-0.19 + 2.5) / 4.0)
+    assert image[:8, row, col].sum() == 3  # the ground's slice and the pillar's three
+    # over the local floor: 1.4 m above the lowest return within 2 m (x = 1.1: z -1.59)
+    assert image[11, row, col] == pytest.approx((-0.19 + 1.59) / 3.0, abs=1e-6)
+    assert image[11, 0, 0] == 0.0 and image[11, 31, 31] == pytest.approx(0.2 / 3.0, abs=1e-6)
+    empty = encode(np.zeros((0, 4), np.float32), window)  # a window with nothing in it
+    assert not empty[:10].any() and not empty[11].any()
+
+
 def test_learned_detector_decodes_a_peak_into_its_box() -> None:
     from services.tracking.bev import STRIDE, Window
     from services.tracking.detect_learned import decode

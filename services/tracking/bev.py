@@ -93,7 +93,7 @@ def encode(points: np.ndarray, window: Window) -> np.ndarray:
     # each cell's lowest and highest return: sorted by cell, then by height
     order = np.lexsort((z, flat))
     occupied, first = np.unique(flat[order], return_index=True)
-    last = np.append(first[1:], len(order)) - 1
+    last = np.append(first[1:], len(order))[: len(first)] - 1  # none when no point is in
     top, lowest = np.full(cells, -np.inf), np.full(cells, np.inf)
     top[occupied], lowest[occupied] = z[order[last]], z[order[first]]
     seen = np.isfinite(top)
