@@ -37,6 +37,17 @@ def _real(scan: int) -> tuple[np.ndarray, kitti.Calibration, kitti.Labels]:
 # --- overlaps and One-Pass Evaluation, by hand --------------------------------------------
 
 
+def test_detection_ratios_carry_their_wilson_interval() -> None:
+    from services.tracking.detection_eval import ratio_text, wilson_interval
+
+    assert wilson_interval(8, 10) == pytest.approx((0.490, 0.943), abs=1e-3)  # textbook case
+    assert wilson_interval(0, 2) == pytest.approx((0.0, 0.658), abs=1e-3)
+    assert wilson_interval(3, 0) is None
+    assert "low confidence" in ratio_text(0, 2)  # two cars measure nothing
+    assert "low confidence" not in ratio_text(393, 418)
+    assert ratio_text(0, 0).startswith("unmeasured")
+
+
 def test_overlaps_against_cases_computed_by_hand() -> None:
     cube = np.array([0, 0, 0, 1, 1, 1, 0.0])
     assert iou_3d(cube, cube) == pytest.approx(1.0)
@@ -266,7 +277,7 @@ def test_bev_cells_hold_the_heights_counts_and_height_over_the_local_floor() -> 
     row = col = 15  # the pillar's cell
     assert image[9, row, col] == pytest.approx(np.log1p(4) / np.log(65.0))
     assert image[8, row, col] == pytest.approx((-0.19 + 2.5) / 4.0)
-    assert image[:8, row, col].sum() == 3  # the ground's slice and the pillar's three
+    assert image[:8, row, col].sum() == 3  # the pillar's three slices, its foot the ground's
     # over the local floor: 1.4 m above the lowest return within 2 m (x = 1.1: z -1.59)
     assert image[11, row, col] == pytest.approx((-0.19 + 1.59) / 3.0, abs=1e-6)
     assert image[11, 0, 0] == 0.0 and image[11, 31, 31] == pytest.approx(0.2 / 3.0, abs=1e-6)

@@ -8,7 +8,7 @@ window of the ground plane (rows along x, columns along y), twelve channels a ce
 - 10: the cell's distance from the sensor / 80 m (how sparse a car there looks);
 - 11: the highest return's height above the lowest return within ``FLOOR_M`` around —
   the height over the local ground, the same on a slope or an embankment as on the flat
-  (divided by 3 m, at most 1).
+  (divided by ``FLOOR_SCALE_M`` = 3 m, at most 1).
 
 Reflectance is left out on purpose: each sensor scales it its own way, and a detector
 trained on simulated scans learned "dark is a car" from it (KITTI's car paint reads mostly
@@ -34,6 +34,7 @@ STRIDE = 4
 """The network's output cell is STRIDE input cells (0.8 m)."""
 RANGE_SCALE_M = 80.0
 FLOOR_M = 4.2
+FLOOR_SCALE_M = 3.0
 FULL_VIEW = (0.0, -40.0, 70.4, 40.0)
 
 
@@ -106,5 +107,5 @@ def encode(points: np.ndarray, window: Window) -> np.ndarray:
     floor = minimum_filter(
         lowest.reshape(window.rows, window.cols), size=side, mode="nearest"
     ).ravel()
-    image[11, seen] = np.clip((top[seen] - floor[seen]) / 3.0, 0.0, 1.0)
+    image[11, seen] = np.clip((top[seen] - floor[seen]) / FLOOR_SCALE_M, 0.0, 1.0)
     return image.reshape(CHANNELS, window.rows, window.cols)

@@ -94,8 +94,5 @@ def detect_files(
     summary = f"{written} cars in view written to {out}"
     if tallies:
         scores = combine(tallies, 40.0, the_detector.threshold)
-        summary += (
-            f"; against the labels: recall within 40 m {scores.found_near}/{scores.cars_near}, "
-            f"precision in view {scores.true_positives}/{scores.true_positives + scores.false_positives}"
-        )
+        summary += f"; against the labels: {scores.describe()}"
     return summary

@@ -5,7 +5,8 @@ is at least 0.5 (detections taken by score, greedily). Detections that overlap a
 truck (KITTI's neighbouring classes) that much, or whose centre falls in a labelled
 DontCare region of the image, count neither way. Recall is over the cars within
 ``near_m`` of the sensor (bird's-eye distance); precision over the detections in the
-camera's field of view (where KITTI labels anything).
+camera's field of view (where KITTI labels anything). Each comes with its 95 % Wilson
+interval: on a handful of cars a ratio says little, and the interval says how little.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from services.tracking.boxes import bev_iou
 from services.tracking.detections import Detections
 
 IOU_MATCH = 0.5
+TRUSTED_WIDTH = 0.3
+"""A ratio whose 95 % interval is wider than this is marked low-confidence."""
 NEIGHBOURS = ("Van", "Truck")
 
 
@@ -44,9 +47,42 @@ class DetectionScores:
     precision_in_view: float | None
     near_m: float
     score_threshold: float
+    recall_interval: tuple[float, float] | None
+    precision_interval: tuple[float, float] | None
 
     def document(self) -> dict:
         return asdict(self)
+
+    def describe(self) -> str:
+        """ "recall within 40 m 3/4 = 0.75 (95 % 0.30–0.95), precision in view …"."""
+        judged = self.true_positives + self.false_positives
+        return (
+            f"recall within {self.near_m:.0f} m {ratio_text(self.found_near, self.cars_near)}, "
+            f"precision in view {ratio_text(self.true_positives, judged)}"
+        )
+
+
+def ratio_text(hits: int, total: int) -> str:
+    """hits/total with its 95 % interval, marked low-confidence when the interval is too
+    wide to trust, or unmeasured when there is nothing to count."""
+    interval = wilson_interval(hits, total)
+    if interval is None:
+        return "unmeasured (nothing to count)"
+    low, high = interval
+    warning = ", low confidence: too few to measure" if high - low > TRUSTED_WIDTH else ""
+    return f"{hits}/{total} = {hits / total:.2f} (95 % {low:.2f}–{high:.2f}{warning})"
+
+
+def wilson_interval(hits: int, total: int, z: float = 1.96) -> tuple[float, float] | None:
+    """The 95 % Wilson score interval of the ratio hits/total (None when total is 0)."""
+    if total == 0:
+        return None
+    ratio = hits / total
+    centre = (ratio + z * z / (2 * total)) / (1 + z * z / total)
+    half = (
+        z * np.sqrt(ratio * (1 - ratio) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+    )
+    return round(float(centre - half), 3), round(float(centre + half), 3)
 
 
 def in_view(boxes: np.ndarray, calibration: kitti.Calibration, size: tuple[int, int]) -> np.ndarray:
@@ -123,4 +159,6 @@ def combine(tallies: list[ScanTally], near_m: float, score_threshold: float) -> 
         precision_in_view=total["true_positives"] / judged if judged else None,
         near_m=near_m,
         score_threshold=score_threshold,
+        recall_interval=wilson_interval(total["found_near"], total["cars_near"]),
+        precision_interval=wilson_interval(total["true_positives"], judged),
     )
