@@ -8,6 +8,7 @@ from pathlib import Path
 
 REAL_OBJECTS = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-object-sample"
 REAL_DRIVE = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26"
+REAL_LABELLED_DRIVE = REAL_DRIVE.with_name("kitti-raw-2011_09_26_drive_0048")
 
 
 def small_drive(folder: Path, *, frames: int = 12, cars: int = 3, seed: int = 3) -> Path:

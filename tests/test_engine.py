@@ -637,9 +637,9 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
 
 
 def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_path):
-    """A packed drive uploaded as `lidar`: `track` follows track 0 with resets and writes
-    TRACK.json, its plot and the evaluation; a run without the target, and a learned
-    detector without its model, are refused."""
+    """A packed drive uploaded as `lidar`: `track` follows track 0 with resets by the
+    shipped detector and writes TRACK.json, its plot and the evaluation; a run without the
+    target, and a Siamese tracker without its encoder, are refused."""
     from tests.lidarfiles import pack_sequence, small_drive
 
     drive = small_drive(tmp_path / "drive")
@@ -674,12 +674,12 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
                 "name": "t",
                 "kind": "track",
                 "inputs": [sequence],
-                "params": {"track_id": 0, "reset": "every:2", "detector": "learned"},
+                "params": {"track_id": 0, "tracker": "siamese"},
             }
         ]
     )
     failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
-    assert failed["status"] == "failed" and "learned detector is needed" in failed["error"]
+    assert failed["status"] == "failed" and "encoder is needed" in failed["error"]
     response = engine.http.post(
         f"/api/v1/inspections/{engine.inspection}/runs",
         json={

@@ -72,6 +72,46 @@ def test_onnx_export_matches_torch_and_carries_metadata(tmp_path) -> None:
         read_model(tmp_path / "junk.onnx")
 
 
+def test_a_model_file_fills_its_network_with_batch_norms_folded(tmp_path) -> None:
+    """A network with trained batch norms exported, then read back into the same network
+    with them folded: the same answers, exported again the same file's answers (how a
+    shipped model is fine-tuned)."""
+    from torch import nn
+
+    from services.nn.onnx_io import fold_batch_norms, load_onnx_weights
+
+    def network() -> nn.Module:
+        return nn.Sequential(
+            nn.Sequential(nn.Conv2d(3, 8, 3, padding=1, bias=False), nn.BatchNorm2d(8), nn.ReLU()),
+            nn.Sequential(nn.ConvTranspose2d(8, 4, 2, stride=2, bias=False), nn.BatchNorm2d(4)),
+            nn.Conv2d(4, 2, 1),
+        )
+
+    torch.manual_seed(0)
+    trained = network()
+    for norm in (m for m in trained.modules() if isinstance(m, nn.BatchNorm2d)):
+        norm.running_mean.uniform_(-1, 1)
+        norm.running_var.uniform_(0.5, 2)
+        norm.weight.data.uniform_(0.5, 1.5)
+        norm.bias.data.uniform_(-0.5, 0.5)
+    trained.eval()
+    x = np.random.default_rng(0).random((2, 3, 16, 16), dtype=np.float32)
+    export_onnx(trained, x, tmp_path / "a.onnx", {}, free_axes=(0, 2, 3))
+    folded = fold_batch_norms(network())
+    load_onnx_weights(folded, tmp_path / "a.onnx")
+    folded.eval()
+    with torch.no_grad():
+        expected = trained(torch.from_numpy(x)).numpy()
+        assert np.abs(folded(torch.from_numpy(x)).numpy() - expected).max() < 1e-5
+    export_onnx(folded, x, tmp_path / "b.onnx", {}, free_axes=(0, 2, 3))
+    again = fold_batch_norms(network())
+    load_onnx_weights(again, tmp_path / "b.onnx")
+    with torch.no_grad():
+        assert np.abs(again.eval()(torch.from_numpy(x)).numpy() - expected).max() < 1e-5
+    with pytest.raises(ValueError, match="another network"):
+        load_onnx_weights(fold_batch_norms(nn.Sequential(nn.Conv2d(3, 5, 3))), tmp_path / "a.onnx")
+
+
 def test_device_choice() -> None:
     assert choose_device("cpu").type == "cpu"
     assert choose_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")

@@ -222,7 +222,7 @@ def test_geometric_detector_finds_the_near_real_car_and_tracking_holds_on_a_real
 
 
 def test_association_takes_the_near_car_of_the_targets_size_and_turns_it() -> None:
-    from services.tracking.association import associate
+    from services.tracking.association import associate, reset_box
     from services.tracking.detections import Detections
 
     tracked = np.array([20.0, 0.0, -0.9, 4.2, 1.8, 1.5, 0.1])
@@ -235,13 +235,76 @@ def test_association_takes_the_near_car_of_the_targets_size_and_turns_it() -> No
     )
     chosen = associate(Detections(boxes, np.array([0.9, 0.9, 0.95]), np.zeros(3, int)), tracked)
     assert chosen.index == 0
-    np.testing.assert_allclose(chosen.box[[3, 4, 5]], tracked[[3, 4, 5]])  # the target's size
-    assert chosen.box[6] == pytest.approx(0.1)  # turned to the tracker's heading
-    assert chosen.box[2] - chosen.box[5] / 2 == pytest.approx(-0.8 - 1.6 / 2)  # on its bottom
+    placed = reset_box(boxes[0], tracked)
+    np.testing.assert_allclose(placed[[3, 4, 5]], tracked[[3, 4, 5]])  # the target's size
+    assert placed[6] == pytest.approx(0.1)  # turned to the tracker's heading
+    assert placed[2] - placed[5] / 2 == pytest.approx(-0.8 - 1.6 / 2)  # on its bottom
     # a tracker sure of itself takes no detection 2 m off; an unsure one does
     off = Detections(boxes[:1] + [2.0, 0, 0, 0, 0, 0, 0], np.array([0.9]), np.zeros(1, int))
     assert associate(off, tracked, confidence=1.0).index is None
     assert associate(off, tracked, confidence=0.0).index == 0
+
+
+def test_a_reset_fuses_by_confidence_and_refuses_a_shape_the_target_does_not_explain() -> None:
+    """A sure tracker keeps nearly its own box, a lost one takes nearly the detection's, a
+    tracker unsure for a frame or two still trusts its prediction; the given size moves
+    little; a detection whose returns the target's shape does not explain is not the
+    target."""
+    from services.tracking.association import associate, fuse
+    from services.tracking.detections import Detections
+
+    tracked = np.array([20.0, 0.0, -0.9, 4.2, 1.8, 1.5, 0.1])
+    detection = np.array([21.0, 0.5, -0.8, 4.6, 1.9, 1.6, 0.2 + np.pi])
+    sure = fuse(tracked, 1.0, detection, 0.8)
+    lost = fuse(tracked, 0.0, detection, 0.8, unsure_frames=10)
+    assert abs(sure[0] - 20.0) < 0.2 and abs(lost[0] - 21.0) < 0.1
+    assert sure[6] == pytest.approx(0.1, abs=0.02) and lost[6] == pytest.approx(0.2, abs=0.01)
+    assert abs(fuse(tracked, 0.0, detection, 0.8, unsure_frames=1)[0] - 20.0) < 0.3
+    assert abs(lost[3] - 4.2) < 0.2  # the given length, nudged
+    boxes = Detections(detection[None], np.array([0.9]), np.zeros(1, int))
+    assert associate(boxes, tracked, lambda box: 0.1, confidence=0.0).index is None
+    assert associate(boxes, tracked, lambda box: 0.9, confidence=0.0).index == 0
+    far = Detections((detection + [8.0, 0, 0, 0, 0, 0, 0])[None], np.array([0.9]), np.zeros(1, int))
+    assert associate(far, tracked, confidence=0.0).index is None
+    assert associate(far, tracked, confidence=0.0, unsure_frames=10).index == 0  # lost a while
+
+
+def test_the_motion_model_learns_where_a_lost_target_went() -> None:
+    """Relocated after four frames it could not see the target, the motion model takes the
+    way from the last trusted box as the velocity; right after trusted frames a relocation
+    is a correction and leaves the velocity alone."""
+    from services.tracking.tracker import MotionModel
+
+    model = MotionModel(np.array([10.0, 0, -1, 4, 1.8, 1.5, 0]))
+    for _ in range(4):
+        predicted = model.advance(None)
+        model.update(predicted, learn=False)
+    model.relocate(np.array([6.0, 0, -1, 4, 1.8, 1.5, 0]))
+    assert model.velocity[:2] == pytest.approx([-1.0, 0.0])
+    assert model.advance(None)[0] == pytest.approx(5.0)
+    model.update(np.array([5.0, 0, -1, 4, 1.8, 1.5, 0]))
+    model.relocate(np.array([5.3, 0, -1, 4, 1.8, 1.5, 0]))
+    assert model.velocity[0] == pytest.approx(-1.0)
+
+
+def test_ego_motion_from_the_scans_matches_the_drives_poses(drive: Path) -> None:
+    """Each simulated scan registered to the one before: the motion within a tenth of a
+    metre of the simulation's poses as a rule (a street's walls say little about the motion
+    along them, and cars driving with the sensor pull it towards standing still), never
+    more than 0.35 m, the heading within 0.3°."""
+    from services.tracking.egomotion import EgoMotion
+    from services.tracking.sequence import open_sequence
+
+    sequence = open_sequence(drive)
+    estimate = EgoMotion()
+    assert estimate(sequence.points(0)) is None
+    errors = []
+    for previous, frame in zip(sequence.frames, sequence.frames[1:], strict=False):
+        found, truth = estimate(sequence.points(frame)), sequence.ego_motion(previous, frame)
+        errors.append(np.linalg.norm(found[:2, 3] - truth[:2, 3]))
+        turn = np.arctan2(found[1, 0], found[0, 0]) - np.arctan2(truth[1, 0], truth[0, 0])
+        assert abs(np.degrees(turn)) < 0.3
+    assert np.median(errors) < 0.1 and max(errors) < 0.35, errors
 
 
 def test_reset_policies_parse_and_keep_their_budget() -> None:
@@ -434,7 +497,7 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
         (["--track-id", "0", "--init-box", " ".join(map(str, given))], "either by --track-id"),
         (["--track-id", "0", "--reset", "every:0"], "every:N needs a whole N"),
         (["--track-id", "0", "--tracker", "siamese"], "needs its encoder"),
-        (["--track-id", "0", "--reset", "every:3", "--detector", "learned"], "needs its model"),
+        (["--track-id", "0", "--detector-model", str(tmp_path / "no.onnx")], "no such model file"),
     ):
         refused = runner.invoke(
             app, ["track", "run", str(drive), *arguments, "-o", str(tmp_path / "x.json")]
@@ -520,11 +583,11 @@ def test_lidar_archives_unpack_and_refuse_the_unsafe(drive: Path, tmp_path: Path
 def test_the_bench_sweep_scores_each_policy(drive: Path) -> None:
     """The bench's reset sweep on the small drive: one row per policy with its cost — every
     frame after the first for every:1, none for never — and OPE scores."""
-    from services.tracking.bench import _workload, sweep
+    from services.tracking.bench import simulated_workload, sweep
     from services.tracking.detect_geometric import GeometricDetector
     from services.tracking.geometric_tracker import GeometricTracker
 
-    work = _workload([drive], min_frames=10)
+    work = simulated_workload([drive], min_frames=10)
     assert work.tracklets and all(len(t.frames) >= 10 for _, t in work.tracklets)
     rows = sweep(work, GeometricTracker, GeometricDetector(), ("every:1", "never"))
     frames = sum(len(t.frames) for _, t in work.tracklets)

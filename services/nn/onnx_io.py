@@ -118,3 +118,52 @@ def read_model(path: Path) -> ModelFile:
         if entry.key == METADATA_KEY:
             return ModelFile(path, json.loads(entry.value))
     raise ValueError(f"{path}: an ONNX model without vista's metadata (not built by vista)")
+
+
+def fold_batch_norms(module):  # noqa: ANN001, ANN201 - a torch.nn.Module, changed in place
+    """Each convolution followed by a batch norm in a ``Sequential`` becomes one convolution
+    with a bias (the batch norm an identity): the network as its ONNX export computes it,
+    which ``load_onnx_weights`` can fill and a fine-tuning run can train without batch
+    statistics (a few scans make poor ones)."""
+    from torch import nn
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+    for sequential in [m for m in module.modules() if isinstance(m, nn.Sequential)]:
+        for index in range(len(sequential) - 1):
+            conv, norm = sequential[index], sequential[index + 1]
+            if isinstance(conv, nn.Conv2d | nn.ConvTranspose2d | nn.Conv1d) and isinstance(
+                norm, nn.BatchNorm2d | nn.BatchNorm1d
+            ):
+                sequential[index] = fuse_conv_bn_eval(
+                    conv.eval(), norm.eval(), transpose=isinstance(conv, nn.ConvTranspose2d)
+                )
+                sequential[index + 1] = nn.Identity()
+    return module
+
+
+def load_onnx_weights(module, path: Path) -> None:  # noqa: ANN001 - a torch.nn.Module
+    """Fill ``module`` (batch norms folded, ``fold_batch_norms``) with the weights of the
+    ONNX file it was exported to: each layer's weight and bias by the layer's name;
+    ValueError when the file does not fit the network."""
+    import onnx
+    import torch
+    from onnx import numpy_helper
+    from torch import nn
+
+    proto = onnx.load_model(str(path))
+    stored = {i.name: numpy_helper.to_array(i) for i in proto.graph.initializer}
+    for name, layer in module.named_modules():
+        if not isinstance(layer, nn.Conv2d | nn.ConvTranspose2d | nn.Conv1d | nn.Linear):
+            continue
+        weight = stored.get(f"{name}.weight")
+        bias = stored.get(f"{name}.bias", stored.get(f"{name}.weight_bias"))
+        if weight is None or weight.shape != tuple(layer.weight.shape):
+            raise ValueError(f"{path}: no weights of the shape of layer {name!r}: another network")
+        with torch.no_grad():
+            layer.weight.copy_(torch.from_numpy(weight.copy()))
+            if layer.bias is not None:
+                layer.bias.copy_(
+                    torch.from_numpy(bias.copy())
+                    if bias is not None
+                    else torch.zeros_like(layer.bias)
+                )

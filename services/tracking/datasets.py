@@ -1,13 +1,16 @@
-"""Labelled LiDAR data for training, from the folders users have: sequences (any layout of
-``sequence``: vista's simulations, a KITTI tracking download's ``training/velodyne/NNNN``)
-and KITTI object-benchmark folders (``velodyne/``, ``calib/``, ``label_2/`` with one file a
-scan).
+"""Labelled LiDAR data for training and checking, from the folders users have:
+
+- sequences (any layout of ``sequence``: vista's simulations, a KITTI tracking download's
+  ``training/velodyne/NNNN``, a drive labelled in the object format);
+- KITTI object-benchmark folders: ``velodyne/``, ``calib/`` and ``label_2/`` with one file
+  a scan.
 """
 
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -22,18 +25,35 @@ NEIGHBOURS = ("Van", "Truck")
 class LabelledScan:
     path: Path
     calibration: kitti.Calibration
-    cars: np.ndarray
-    """(N, 7) the scan's cars (KITTI's Car), LiDAR boxes."""
-    ignored: np.ndarray
-    """(M, 7) vans and trucks: a detector is neither rewarded nor punished there."""
+    labels: kitti.Labels
+    """The scan's label rows (cars, their neighbours, DontCare regions …)."""
     group: str
     """The sequence (or folder) it comes from: a split keeps a group's neighbours together."""
 
+    @cached_property
+    def cars(self) -> np.ndarray:
+        """(N, 7) the scan's cars (KITTI's Car), LiDAR boxes."""
+        return kitti.camera_to_lidar(self.labels.of_type("Car").camera_box, self.calibration)
 
-def _boxes(labels: kitti.Labels, calibration: kitti.Calibration) -> tuple[np.ndarray, np.ndarray]:
-    cars = kitti.camera_to_lidar(labels.of_type("Car").camera_box, calibration)
-    ignored = kitti.camera_to_lidar(labels.of_type(*NEIGHBOURS).camera_box, calibration)
-    return cars, ignored
+    @cached_property
+    def ignored(self) -> np.ndarray:
+        """(M, 7) vans and trucks: a detector is neither rewarded nor punished there."""
+        return kitti.camera_to_lidar(self.labels.of_type(*NEIGHBOURS).camera_box, self.calibration)
+
+    @cached_property
+    def objects(self) -> np.ndarray:
+        """(K, 7) every labelled object's LiDAR box (cars, vans, people, cyclists, misc)."""
+        rows = np.asarray(self.labels.type, dtype=object) != kitti.DONT_CARE
+        return kitti.camera_to_lidar(self.labels.select(rows).camera_box, self.calibration)
+
+    @cached_property
+    def dont_care(self) -> np.ndarray:
+        """(K, 4) image regions the annotators left unlabelled (left, top, right, bottom)."""
+        return self.labels.of_type(kitti.DONT_CARE).bbox
+
+    @property
+    def name(self) -> str:
+        return f"{Path(self.group).name}/{self.path.stem}"
 
 
 def _object_folder(folder: Path) -> list[LabelledScan]:
@@ -43,17 +63,18 @@ def _object_folder(folder: Path) -> list[LabelledScan]:
         calib = folder / "calib" / f"{label.stem}.txt"
         if scan.exists() and calib.exists():
             calibration = kitti.read_calibration(calib)
-            cars, ignored = _boxes(kitti.read_object_labels(label), calibration)
-            out.append(LabelledScan(scan, calibration, cars, ignored, str(folder)))
+            out.append(
+                LabelledScan(scan, calibration, kitti.read_object_labels(label), str(folder))
+            )
     return out
 
 
 def labelled_scans(folders: list[Path], frame_step: int = 1) -> list[LabelledScan]:
-    """Every labelled scan of ``folders`` (a sequence's every ``frame_step``-th frame);
-    ValueError naming a folder without labels."""
+    """Every labelled scan of ``folders`` (a sequence's every ``frame_step``-th labelled
+    frame); ValueError naming a folder without labels."""
     out: list[LabelledScan] = []
     for folder in map(Path, folders):
-        if (folder / "label_2").is_dir():
+        if (folder / "label_2").is_dir() and (folder / "calib").is_dir():
             found = _object_folder(folder)
             if not found:
                 raise ValueError(
@@ -64,14 +85,17 @@ def labelled_scans(folders: list[Path], frame_step: int = 1) -> list[LabelledSca
         sequence = open_sequence(folder)
         if sequence.labels is None:
             raise ValueError(
-                f"{folder}: a sequence without labels (label_02.txt): nothing to learn from"
+                f"{folder}: a sequence without labels (label_02.txt or label_2/): nothing to learn from"
             )
         labels = sequence.labels
-        for frame in sequence.frames[::frame_step]:
-            cars, ignored = _boxes(labels.select(labels.frame == frame), sequence.calibration)
+        labelled = [f for f in sequence.frames if (labels.frame == f).any()]
+        for frame in labelled[::frame_step]:
             out.append(
                 LabelledScan(
-                    sequence.scans[frame], sequence.calibration, cars, ignored, str(folder)
+                    sequence.scans[frame],
+                    sequence.calibration,
+                    labels.select(labels.frame == frame),
+                    str(folder),
                 )
             )
     return out

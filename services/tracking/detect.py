@@ -54,7 +54,11 @@ def _pairs(
             label = (
                 labels / f"{path.stem}.txt" if labels is not None and labels.is_dir() else labels
             )
+            if label is not None and not label.exists():
+                label = None  # a drive labelled every other frame: its other scans are not scored
             pairs.append((path, calibration, out / f"{path.stem}.txt", label))
+        if labels is not None and all(pair[3] is None for pair in pairs):
+            raise ValueError(f"--labels {labels}: no label file is named as a scan is")
         return pairs
     if not scan.exists():
         raise ValueError(f"{scan}: no such scan")
@@ -68,7 +72,7 @@ def detect_files(
     calib: Path,
     out: Path,
     *,
-    detector: str = "geometric",
+    detector: str = "learned",
     model: Path | None = None,
     threshold: float | None = None,
     labels: Path | None = None,
@@ -94,5 +98,5 @@ def detect_files(
     summary = f"{written} cars in view written to {out}"
     if tallies:
         scores = combine(tallies, 40.0, the_detector.threshold)
-        summary += f"; against the labels: {scores.describe()}"
+        summary += f"; against the labels of {len(tallies)} scans: {scores.describe()}"
     return summary

@@ -1,6 +1,6 @@
 """A car detector without learning: the ground removed, what stands on it clustered in a
-bird's-eye-view grid, a box fitted to each cluster's L shape, and the boxes a car could be
-kept with a score.
+bird's-eye-view grid, a box fitted to each cluster's L shape, and each cluster scored by
+how much its shape is a car's.
 
 The box fit is search-based (Zhang et al., "Efficient L-shape fitting for vehicle
 detection using laser scanners", 2017, its area criterion): every heading in 1° steps over
@@ -8,6 +8,18 @@ a quarter turn spans a rectangle around the points, and the smallest is kept. A 
 sides are hidden from the sensor, so a rectangle shorter than a car is grown away from the
 sensor to a car's size. A cluster too long or too wide for a car (a car beside a wall, a
 kerb, a rail) loses its dominant straight line and is clustered again.
+
+The score multiplies what tells a car from the rest of a street (``car_likeness``):
+
+- its seen length and width within a car's;
+- its returns against what a car at that range gives (a few stray returns are not a car);
+- its roof height: cars stand 1.2–1.85 m; hedges, walls, embankments and lorries rise
+  higher (what rises past ``MAX_HEIGHT_M`` is cut off and would otherwise pass for a roof);
+- nothing above it: returns 2.3–4 m over its cells belong to a tree, a wall or a building;
+- returns near the road (bumpers, sills, wheels 0.25–0.5 m up) — a canopy, a sign or a
+  wall's top floats; a car hidden behind another shows none, so it only lowers the score;
+- smooth surfaces: body panels are planes within a 0.3 m voxel, foliage scatters the beams
+  (the median of the voxels' smallest covariance eigenvalue over their sum).
 """
 
 from __future__ import annotations
@@ -25,9 +37,14 @@ MAX_HEIGHT_M = 2.8
 HEADINGS = np.radians(np.arange(0.0, 90.0, 1.0))
 CAR_LENGTH_M = (3.2, 5.6)
 CAR_WIDTH_M = (1.4, 2.1)
-CAR_HEIGHT_M = (1.1, 2.1)
 TYPICAL_CAR_M = (4.0, 1.7)
 MIN_POINTS = 10
+ROOF_M = (1.2, 1.85)
+OVERHEAD_M = (2.3, 4.0)
+LOW_M = 0.5
+SURFACE_VOXEL_M = 0.3
+SMOOTH = 0.015
+"""Surface variation of body panels (foliage's is several times this)."""
 EXPECTED_RETURNS = 100_000.0
 """A car's returns at distance d (m) are about this / d² (KITTI's HDL-64E: ~670 at 13 m,
 ~70 at 35 m)."""
@@ -83,10 +100,8 @@ def _box(points: np.ndarray, bottom_m: float) -> tuple[np.ndarray, float]:
         [centre[0] + c * middle[0] - s * middle[1], centre[1] + s * middle[0] + c * middle[1],
          bottom_m + height / 2, length, width, height, np.arctan2(np.sin(yaw), np.cos(yaw))]
     )  # fmt: skip
-    plausible = (
-        _within(seen[long_axis], 0.0, CAR_LENGTH_M[1], 0.6)
-        * _within(seen[1 - long_axis], 0.0, CAR_WIDTH_M[1] + 0.2, 0.3)
-        * _within(height, *CAR_HEIGHT_M, 0.25)
+    plausible = _within(seen[long_axis], 0.0, CAR_LENGTH_M[1], 0.6) * _within(
+        seen[1 - long_axis], 0.0, CAR_WIDTH_M[1] + 0.2, 0.3
     )
     return box, plausible
 
@@ -151,6 +166,51 @@ def _split(
     ]
 
 
+def _cell_keys(xy: np.ndarray) -> np.ndarray:
+    cells = np.floor(xy / CELL_M).astype(np.int64)
+    return cells[:, 0] * 1_000_003 + cells[:, 1]
+
+
+def surface_variation(points: np.ndarray) -> float:
+    """The median over ``SURFACE_VOXEL_M`` voxels (of at least 5 returns) of the smallest
+    eigenvalue of their returns' covariance over the sum of the three: 0 on a plane, ⅓ in a
+    scattering volume; NaN when no voxel has enough returns."""
+    keys = np.floor(points / SURFACE_VOXEL_M).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    _, inverse, counts = np.unique(
+        (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2],
+        return_inverse=True,
+        return_counts=True,
+    )
+    inverse = inverse.ravel()
+    enough = counts >= 5
+    if not enough.any():
+        return float("nan")
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse, points)
+    spread = points - (sums / counts[:, None])[inverse]
+    covariance = np.zeros((len(counts), 3, 3))
+    np.add.at(covariance, inverse, spread[:, :, None] * spread[:, None, :])
+    values = np.linalg.eigvalsh(covariance[enough] / counts[enough, None, None])
+    return float(np.median(values[:, 0] / np.maximum(values.sum(axis=1), 1e-12)))
+
+
+def car_likeness(heights_m: np.ndarray, overhead_share: float, variation: float) -> float:
+    """0–1: how much a cluster's shape is a car's (see the module's note), from its returns'
+    heights over the road (M,), the share of them under returns 2.3–4 m up, and its
+    ``surface_variation``."""
+    roof = _within(float(np.percentile(heights_m, 98)), *ROOF_M, 0.35)
+    clear = 1.0 / (1.0 + 3.0 * overhead_share)
+    low = 0.4 + 0.6 * min(1.0, float((heights_m < LOW_M).mean()) / 0.1)
+    smooth = (
+        1.0
+        if not np.isfinite(variation)
+        else float(np.clip(1 - (variation - SMOOTH) / 0.035, 0.3, 1))
+    )
+    return roof * clear * low * smooth
+
+
 def detect_cars(
     points: np.ndarray, ground: Ground | None = None, *, region: np.ndarray | None = None
 ) -> Detections:
@@ -167,6 +227,8 @@ def detect_cars(
     standing, above = xyz[keep], height[keep]
     if len(standing) < 5:
         return empty_detections()
+    overhead = (height > OVERHEAD_M[0]) & (height < OVERHEAD_M[1])
+    overhead_cells = np.unique(_cell_keys(xyz[overhead, :2]))
     rng = np.random.default_rng(0)
     pieces = [
         piece
@@ -185,6 +247,10 @@ def detect_cars(
         expected = EXPECTED_RETURNS / max(distance, 5.0) ** 2
         density = min(1.0, len(members) / (0.5 * expected))
         score = plausible * density
+        if score <= 0.05:
+            continue
+        under = np.isin(_cell_keys(cluster[:, :2]), overhead_cells).mean()
+        score *= car_likeness(above[members], float(under), surface_variation(cluster))
         if score <= 0.05:
             continue
         boxes.append(box)

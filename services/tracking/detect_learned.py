@@ -19,6 +19,9 @@ from services.tracking.boxes import bev_iou
 from services.tracking.detections import Detections, empty_detections
 
 ARCHITECTURE = "bev-centre"
+DEFAULT_MODEL = Path(__file__).with_name("models") / "detector.onnx"
+"""The detector vista ships (built by ``vista track train detector``: see the README), used
+when no model is given."""
 THRESHOLD = 0.3
 MAX_DETECTIONS = 60
 NMS_IOU = 0.2
@@ -62,11 +65,12 @@ def _suppress(boxes: np.ndarray, scores: np.ndarray) -> np.ndarray:
 
 
 class LearnedDetector:
-    """The pipeline's learned detector branch: an ONNX model file of ``ARCHITECTURE``."""
+    """The pipeline's learned detector branch: an ONNX model file of ``ARCHITECTURE``, its
+    boxes kept from the score its metadata gives (or ``threshold``)."""
 
     name = "learned"
 
-    def __init__(self, model: Path, *, threads: int = 1, threshold: float = THRESHOLD) -> None:
+    def __init__(self, model: Path, *, threads: int = 1, threshold: float | None = None) -> None:
         from services.nn.onnx_io import read_model, session
 
         found = read_model(Path(model))
@@ -76,7 +80,9 @@ class LearnedDetector:
                 f"({ARCHITECTURE}); build one with `vista track train detector`"
             )
         self.metadata = found.metadata
-        self.threshold = threshold
+        self.threshold = float(
+            threshold if threshold is not None else found.metadata.get("threshold", THRESHOLD)
+        )
         self.session = session(Path(model), threads=threads)
 
     def detect(self, points: np.ndarray, region: np.ndarray | None = None) -> Detections:

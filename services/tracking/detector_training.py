@@ -1,20 +1,27 @@
 """Training the learned car detector (``nets.BevDetector``) on labelled scans, and its ONNX
-export.
+export — from scratch, or fine-tuning a model already trained (the shipped one, say) on
+the user's own labelled scans.
 
 Each step takes random windows (``window_cells`` square, 0.2 m cells) of the scans' front
-views, each scan mirrored, turned (±10°) and scaled (±5 %) at random and thinned (up to a
-third of its returns dropped). A car's centre is a
-Gaussian peak in the 0.8 m heatmap (CenterNet's focal loss, α = 2, β = 4), and the cell
-under it learns the offset, height, log size and doubled heading (L1). The loss looks only
-where the labels speak: inside the camera's field of view (KITTI labels nothing outside it),
-and not at vans and trucks (neither car nor background) nor at cars with fewer than three
-returns (nothing to see).
+views. A scan first receives cars cut from other training scans (``paste``: ground-truth
+sampling, at plausible places where the labels speak, occlusion respected), then is
+mirrored, turned (±10°) and scaled (±5 %) at random and thinned (up to a third of its
+returns dropped). A car's centre is a Gaussian peak in the 0.8 m heatmap (CenterNet's focal
+loss, α = 2, β = 4), and the cell under it learns the offset, height, log size and doubled
+heading (L1). The loss looks only where the labels speak: inside the camera's field of
+view (KITTI labels nothing outside it) and outside its DontCare regions, and not at vans
+and trucks (neither car nor background) nor at cars with fewer than three returns
+(nothing to see).
+
+Fine-tuning starts from the model file's own weights with its batch norms folded into the
+convolutions (a few scans make poor batch statistics) and a smaller step.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -26,17 +33,21 @@ from services.tracking.bev import CELL_M, CHANNELS, FULL_VIEW, STRIDE, Window, e
 from services.tracking.boxes import YAW, inside
 from services.tracking.datasets import LabelledScan, data_fingerprint, labelled_scans, split_groups
 from services.tracking.detect_learned import ARCHITECTURE, THRESHOLD
-from services.tracking.kinds import DETECTOR_EPOCHS
+from services.tracking.ground import Ground, estimate_ground
+from services.tracking.kinds import DETECTOR_EPOCHS, DETECTOR_LEARNING_RATE
+from services.tracking.paste import CutCar, cut_cars, paste_cars
 
-IMAGE_WIDTH = 1242
+IMAGE_SIZE = (1242, 375)
 MIN_RETURNS = 3
+BANK_SCANS = 400
+"""Cars are cut from at most this many scans of each source (a simulated set has thousands)."""
 
 
 @dataclass(frozen=True)
 class DetectorTrainConfig:
     epochs: int = DETECTOR_EPOCHS
     batch: int = 8
-    learning_rate: float = 2e-3
+    learning_rate: float = DETECTOR_LEARNING_RATE
     seed: int = 0
     threads: int = 2
     device: str = "auto"
@@ -44,6 +55,61 @@ class DetectorTrainConfig:
     frame_step: int = 2
     val_fraction: float = 0.1
     augment: bool = True
+    paste: int = 8
+    """The most cars pasted into a training scan (0: none)."""
+    windows_per_epoch: int = 512
+    """An epoch is at least this many windows: a few scans are seen many times, each time
+    with other cars pasted, mirrored, turned and thinned."""
+    initial: str | None = None
+    """A model file of this architecture to fine-tune (None: train from scratch)."""
+    threshold: float | None = None
+    """The score from which the model's boxes are kept (in its metadata); None: the fine-tuned
+    model's own, or ``THRESHOLD``."""
+
+
+@dataclass(frozen=True)
+class TrainingData:
+    items: list[LabelledScan]
+    cars: list[CutCar]
+    """The cars pasted into training scans: cut from the training scans themselves and from
+    any other sources given."""
+    weights: np.ndarray | None
+    """How likely each car is drawn: the training scans' own cars as a whole as likely as
+    the other sources' (a few real cars are not drowned by thousands of simulated ones)."""
+    grounds: dict[Path, Ground]
+    """Each scan's ground, estimated once."""
+
+    def ground(self, item: LabelledScan) -> Ground:
+        if item.path not in self.grounds:
+            self.grounds[item.path] = estimate_ground(kitti.read_velodyne(item.path))
+        return self.grounds[item.path]
+
+
+def labels_speak(xy: np.ndarray, item: LabelledScan) -> np.ndarray:
+    """(N,) bool: ground-plane places (N, 2) the scan's labels cover — seen by camera 2 at a
+    car's mid-height, and not in a DontCare region of its image."""
+    points = np.column_stack([xy, np.full(len(xy), -0.9)])
+    pixels, depth = item.calibration.velo_to_image(points)
+    seen = (depth > 0.5) & (pixels[:, 0] >= 0) & (pixels[:, 0] < IMAGE_SIZE[0])
+    for left, top, right, bottom in item.dont_care:
+        seen &= ~(
+            (pixels[:, 0] >= left)
+            & (pixels[:, 0] <= right)
+            & (pixels[:, 1] >= top)
+            & (pixels[:, 1] <= bottom)
+        )
+    return seen
+
+
+def car_bank(items: list[LabelledScan], seed: int) -> list[CutCar]:
+    """Cars with their returns, cut from (at most ``BANK_SCANS`` of) ``items``."""
+    rng = np.random.default_rng(seed)
+    chosen = rng.permutation(len(items))[:BANK_SCANS]
+    return [
+        car
+        for index in sorted(chosen)
+        for car in cut_cars(kitti.read_velodyne(items[index].path), items[index].cars)
+    ]
 
 
 def _similarity(rng: np.random.Generator, augment: bool) -> np.ndarray:
@@ -65,13 +131,6 @@ def _moved_boxes(boxes: np.ndarray, transform: np.ndarray) -> np.ndarray:
     heading = np.column_stack([np.cos(boxes[:, YAW]), np.sin(boxes[:, YAW])]) @ transform.T
     out[:, YAW] = np.arctan2(heading[:, 1], heading[:, 0])
     return out
-
-
-def _in_view(xy: np.ndarray, calibration: kitti.Calibration) -> np.ndarray:
-    """(N,) bool: ground-plane points (N, 2) at a car's mid-height seen by camera 2."""
-    points = np.column_stack([xy, np.full(len(xy), -0.9)])
-    pixels, depth = calibration.velo_to_image(points)
-    return (depth > 0.5) & (pixels[:, 0] >= 0) & (pixels[:, 0] < IMAGE_WIDTH)
 
 
 def targets(
@@ -117,11 +176,27 @@ def _footprint(box: np.ndarray, gx: np.ndarray, gy: np.ndarray, margin_m: float)
     )
 
 
-def sample(item: LabelledScan, rng: np.random.Generator, window_cells: int, augment: bool) -> tuple:
-    """One training window of a scan: (image, heatmap, mask, centres, values)."""
+def sample(
+    item: LabelledScan,
+    rng: np.random.Generator,
+    window_cells: int,
+    augment: bool,
+    data: TrainingData | None = None,
+    paste: int = 0,
+) -> tuple:
+    """One training window of a scan: (image, heatmap, mask, centres, values); with
+    ``data`` and ``paste``, up to that many of its cars pasted in first."""
     points = kitti.read_velodyne(item.path)
-    seen = np.array([inside(points, box).sum() >= MIN_RETURNS for box in item.cars], dtype=bool)
-    cars, ignored = item.cars[seen], np.concatenate([item.ignored, item.cars[~seen]])
+    cars = item.cars
+    if augment and data is not None and paste > 0:
+        points, pasted = paste_cars(
+            points, item.objects, data.ground(item), data.cars, rng,
+            int(rng.integers(0, paste + 1)), lambda centres: labels_speak(centres[:, :2], item),
+            data.weights,
+        )  # fmt: skip
+        cars = np.concatenate([cars, pasted])
+    seen = np.array([inside(points, box).sum() >= MIN_RETURNS for box in cars], dtype=bool)
+    cars, ignored = cars[seen], np.concatenate([item.ignored, cars[~seen]])
     transform = _similarity(rng, augment)
     if augment:  # a sparser sensor, or a darker day: up to a third of the returns lost
         points = points[rng.uniform(size=len(points)) < rng.uniform(0.67, 1.0)]
@@ -137,7 +212,7 @@ def sample(item: LabelledScan, rng: np.random.Generator, window_cells: int, augm
     window = Window.around((x0, y0, x0 + size_m - 1e-6, y0 + size_m - 1e-6))
     xs, ys = window.cell_centres(STRIDE)
     grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
-    looked = _in_view(grid @ np.linalg.inv(transform).T, item.calibration).reshape(len(xs), len(ys))
+    looked = labels_speak(grid @ np.linalg.inv(transform).T, item).reshape(len(xs), len(ys))
     heat, mask, centres, values = targets(
         _moved_boxes(cars, transform), _moved_boxes(ignored, transform), window, looked
     )
@@ -168,7 +243,7 @@ def detector_loss(output, heat, mask, centres, values):  # noqa: ANN001, ANN201 
 
 
 def _batch(
-    items: list[LabelledScan],
+    data: TrainingData,
     index: np.ndarray,
     rng: np.random.Generator,
     config: DetectorTrainConfig,
@@ -177,7 +252,9 @@ def _batch(
 ) -> tuple:
     import torch
 
-    samples = [sample(items[i], rng, config.window_cells, augment) for i in index]
+    samples = [
+        sample(data.items[i], rng, config.window_cells, augment, data, config.paste) for i in index
+    ]
     images = torch.from_numpy(np.stack([s[0] for s in samples])).to(device)
     heat = torch.from_numpy(np.stack([s[1] for s in samples])).to(device)
     mask = torch.from_numpy(np.stack([s[2] for s in samples])).to(device)
@@ -190,36 +267,91 @@ def _batch(
     return images.contiguous(memory_format=torch.channels_last), heat, mask, centres, values
 
 
+def _shares(own: int, others: int) -> np.ndarray | None:
+    """Draw weights giving each half of the bank (own, others) half the draws."""
+    if not own or not others:
+        return None
+    return np.concatenate([np.full(own, 0.5 / own), np.full(others, 0.5 / others)])
+
+
+def detector_network(initial: Path | None = None):  # noqa: ANN201 - a torch module
+    """A fresh ``BevDetector``, or the one in the model file ``initial`` (its batch norms
+    folded into its convolutions, as the file holds it)."""
+    from services.nn.onnx_io import fold_batch_norms, load_onnx_weights, read_model
+    from services.tracking.nets import BevDetector
+
+    if initial is None:
+        return BevDetector()
+    found = read_model(Path(initial))
+    if found.metadata.get("architecture") != ARCHITECTURE:
+        raise ValueError(
+            f"{initial}: a {found.metadata.get('architecture')!r} model, not vista's car detector "
+            f"({ARCHITECTURE}): nothing to fine-tune"
+        )
+    network = fold_batch_norms(BevDetector())
+    load_onnx_weights(network, Path(initial))
+    return network
+
+
 def train_detector(
     folders: list[Path],
     out: Path,
     config: DetectorTrainConfig,
     *,
+    validate_on: list[Path] | None = None,
+    paste_from: list[Path] | None = None,
+    licence: str | None = None,
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
     sources: list[str] | None = None,
+    command: str = "vista track train detector",
 ) -> dict:
-    """Train on the labelled scans of ``folders``, export to ``out`` (ONNX with its
-    metadata) and return the metadata."""
+    """Train on the labelled scans of ``folders`` (fine-tune ``config.initial`` when given),
+    export to ``out`` (ONNX with its metadata) and return the metadata. Validation is on the
+    labelled scans of ``validate_on`` (held out by the user) or else on a share of
+    ``folders``' (whole runs of a drive; the best epoch on them is kept — on held-out scans,
+    the last, so that nothing is chosen on them); cars are pasted from the training scans
+    and from ``paste_from``'s. ``licence`` is the training data's, as the metadata should
+    say it; ``command`` what built the model."""
     import torch
 
     from services.nn.fit import fit
     from services.nn.onnx_io import export_onnx
-    from services.tracking.nets import BevDetector
 
-    items = labelled_scans(folders, config.frame_step)
-    if len(items) < 2:
-        raise ValueError(f"{len(items)} labelled scan(s) found: training needs at least 2")
-    train_index, val_index = split_groups(
-        items, [i.group for i in items], config.val_fraction, config.seed
-    )
-    torch.manual_seed(config.seed)
-    network = BevDetector()
     say = progress or (lambda fraction, message: None)
+    items = labelled_scans(folders, config.frame_step)
+    if validate_on:
+        held_out = labelled_scans(validate_on, 1)
+        train_index = np.arange(len(items))
+        val_index = np.arange(len(items), len(items) + len(held_out))
+        items = items + held_out
+    else:
+        train_index, val_index = split_groups(
+            items, [i.group for i in items], config.val_fraction, config.seed
+        )
+    if len(train_index) < 1 or len(val_index) < 1:
+        raise ValueError(
+            f"{len(items)} labelled scan(s) found: training needs at least one to learn from "
+            "and one to validate on"
+        )
+    torch.manual_seed(config.seed)
+    network = detector_network(Path(config.initial) if config.initial else None)
+    threshold = config.threshold
+    if threshold is None:
+        threshold = _origin(Path(config.initial))["threshold"] if config.initial else THRESHOLD
+    say(0.0, "cutting cars to paste" if config.paste else "reading the labels")
+    extra = labelled_scans(paste_from, config.frame_step) if paste_from else []
+    training = [items[i] for i in train_index]
+    own = car_bank(training, config.seed) if config.paste else []
+    others = car_bank(extra, config.seed) if config.paste else []
+    data = TrainingData(items, own + others, _shares(len(own), len(others)), {})
     say(
         0.0,
-        f"{len(train_index)} scans to train on, {len(val_index)} to validate ({sum(len(i.cars) for i in items)} cars)",
+        f"{len(train_index)} scans to train on ({sum(len(i.cars) for i in training)} cars, "
+        f"{len(data.cars)} to paste), {len(val_index)} to validate",
     )
+    held_out = [items[i] for i in val_index]
+    before = _validation_scores(network.eval(), held_out, threshold) if config.initial else None
     modules = {"detector": network}
 
     def step(batch: tuple) -> tuple:
@@ -227,7 +359,7 @@ def train_detector(
         return detector_loss(network(images), *truth)
 
     validation = [
-        _batch(items, np.array([i]), np.random.default_rng(i), config, "cpu", augment=False)
+        _batch(data, np.array([i]), np.random.default_rng(i), config, "cpu", augment=False)
         for i in val_index[:64]
     ]
 
@@ -242,18 +374,20 @@ def train_detector(
                     for k, v in asdict(config).items()
                     if k not in ("threads", "device", "epochs")
                 },
-                "data": data_fingerprint([i.path for i in items]),
+                "data": data_fingerprint([i.path for i in items + extra]),
             },
             sort_keys=True,
         ).encode()
     ).hexdigest()
+    epoch_index = np.resize(train_index, max(len(train_index), config.windows_per_epoch))
     result = fit(
-        modules, step, validate, train_index,
-        lambda index, rng, device: _batch(items, index, rng, config, device, config.augment),
+        modules, step, validate, epoch_index,
+        lambda index, rng, device: _batch(data, index, rng, config, device, config.augment),
         config, run=run, checkpoint_dir=checkpoint_dir, progress=progress,
+        keep_best=not validate_on,
     )  # fmt: skip
     network.eval()
-    scores = _validation_scores(network, [items[i] for i in val_index])
+    scores = _validation_scores(network, held_out, threshold)
     metadata = {
         "architecture": ARCHITECTURE,
         "input": {
@@ -263,18 +397,28 @@ def train_detector(
             "output_stride": STRIDE,
             "layout": "NCHW, H and W multiples of 16",
         },
-        "threshold": THRESHOLD,
+        "threshold": threshold,
         "parameters": sum(p.numel() for p in network.parameters()),
         "training": {
-            "data": sources or [str(f) for f in folders],
+            "data": sources or [_shown(f) for f in folders],
+            "validated_on": [_shown(f) for f in validate_on or []],
+            "cars_pasted_from": [_shown(f) for f in paste_from or []],
+            "licence": licence,
+            "fine_tuned_from": _origin(Path(config.initial)) if config.initial else None,
             "scans": {"train": len(train_index), "val": len(val_index)},
+            "seed": config.seed,
             "epochs": config.epochs,
             "best_epoch": result.best_epoch,
             "seconds": round(result.seconds, 1),
             "history": result.history,
-            "command": "vista track train detector",
+            "command": command,
         },
-        "validation": scores,
+        "validation": {
+            "scan_names": [item.name for item in held_out],
+            "held_out": bool(validate_on),
+            **scores,
+            **({"before_fine_tuning": before} if before is not None else {}),
+        },
     }
     example = encode(np.zeros((1, 4), np.float32), Window.around((0, -12.8, 25.6, 12.8)))[None]
     export_onnx(
@@ -284,9 +428,30 @@ def train_detector(
     return metadata
 
 
-def _validation_scores(network, items: list[LabelledScan]) -> dict:  # noqa: ANN001 - a torch module
+def _shown(folder: Path) -> str:
+    """A folder as the metadata names it: relative to the working folder when it is near
+    (``../shared/data/…``, ``bench-results/…``), else as given."""
+    relative = os.path.relpath(Path(folder).resolve())
+    return relative if relative.count("..") <= 2 else str(folder)
+
+
+def _origin(initial: Path) -> dict:
+    """What a fine-tuned model started from: the file and what its metadata says of it."""
+    from services.nn.onnx_io import read_model
+
+    metadata = read_model(initial).metadata
+    training = metadata.get("training", {})
+    return {
+        "file": initial.name,
+        "data": training.get("data"),
+        "licence": training.get("licence"),
+        "threshold": metadata.get("threshold", THRESHOLD),
+    }
+
+
+def _validation_scores(network, items: list[LabelledScan], threshold: float) -> dict:  # noqa: ANN001 - a torch module
     """Recall of cars within 40 m and precision in the camera's view on the validation
-    scans' full views, at the default threshold."""
+    scans' full views, at ``threshold``."""
     import torch
 
     from services.tracking.detect_learned import decode
@@ -298,23 +463,5 @@ def _validation_scores(network, items: list[LabelledScan]) -> dict:  # noqa: ANN
         points = kitti.read_velodyne(item.path)
         with torch.no_grad():
             output = network(torch.from_numpy(encode(points, window)[None]))[0].numpy()
-        found = decode(output, window)
-        labels = _as_labels(item)
-        tallies.append(tally_scan(found, labels, item.calibration))
-    return combine(tallies, 40.0, THRESHOLD).document() if tallies else {}
-
-
-def _as_labels(item: LabelledScan) -> kitti.Labels:
-    boxes = np.concatenate([item.cars, item.ignored])
-    count = len(boxes)
-    return kitti.Labels(
-        frame=np.zeros(count, int),
-        track_id=np.full(count, -1),
-        type=("Car",) * len(item.cars) + ("Van",) * len(item.ignored),
-        truncated=np.zeros(count),
-        occluded=np.zeros(count, int),
-        alpha=np.zeros(count),
-        bbox=np.zeros((count, 4)),
-        camera_box=kitti.lidar_to_camera(boxes, item.calibration),
-        score=np.full(count, np.nan),
-    )
+        tallies.append(tally_scan(decode(output, window, threshold), item.labels, item.calibration))
+    return combine(tallies, 40.0, threshold).document() if tallies else {}

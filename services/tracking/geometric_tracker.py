@@ -10,6 +10,9 @@ the road under it; its size stays the given one.
 The confidence multiplies what would go wrong when the tracker drifts: the share of the
 box's points the model explains (within 0.2 m), whether there are enough of them, and
 whether the registration agrees with the motion model.
+
+A target hidden in its given frame (no returns in its box) is followed by the motion model
+alone until returns appear where it predicts it: its point model starts there.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.boxes import YAW, H, L, Z, from_box_frame, inside, wrap
+from services.tracking.boxes import YAW, H, L, W, Z, from_box_frame, inside, wrap
+from services.tracking.correlation import best_shift
 from services.tracking.tracker import MotionModel, PointModel, TrackStep, crop, in_box
 
 
@@ -45,34 +49,33 @@ class GeometricConfig:
     """Above this much motion a frame (1.5 m/s) a car heads where it goes."""
     height_gain: float = 0.3
     """The share of the road's height change under the target taken each frame."""
+    registered_points: int = 1500
+    """At most this many of the scan's points (a random, fixed choice) are registered and
+    scored: a car a few metres away returns 20 000, and a tenth of them place it as well."""
+
+
+def nearby(points: np.ndarray, box: np.ndarray, reach_m: float) -> np.ndarray:
+    """The points (N, ≥3) within ``reach_m`` + the box's half diagonal of its centre along x
+    and y: what every later step of a frame looks at, cut from the scan once."""
+    reach = reach_m + np.hypot(box[L], box[W]) / 2
+    return points[
+        (np.abs(points[:, 0] - box[0]) <= reach) & (np.abs(points[:, 1] - box[1]) <= reach)
+    ]
+
+
+def thinned(points: np.ndarray, most: int) -> np.ndarray:
+    """At most ``most`` of ``points``: a fixed random choice (the same scan gives the same)."""
+    if len(points) <= most:
+        return points
+    return points[np.random.default_rng(len(points)).choice(len(points), most, replace=False)]
 
 
 def coarse_offset(
     scan_local: np.ndarray, model: PointModel, radius_m: float, cell_m: float
 ) -> np.ndarray:
     """(dx, dy) within ``radius_m`` where the model's bird's-eye occupancy best overlaps
-    the scan's (both in the predicted box's frame): one FFT cross-correlation."""
-    from scipy.signal import correlate
-
-    reach = np.abs(model.points[:, :2]).max(axis=0) + radius_m
-    size = np.ceil(2 * reach / cell_m).astype(int) + 1
-
-    def raster(xy: np.ndarray) -> np.ndarray:
-        cells = np.floor((xy + reach) / cell_m).astype(int)
-        keep = ((cells >= 0) & (cells < size)).all(axis=1)
-        grid = np.zeros(size)
-        np.add.at(grid, (cells[keep, 0], cells[keep, 1]), 1.0)
-        return np.minimum(grid, 3.0)
-
-    score = correlate(
-        raster(scan_local[:, :2]), raster(model.points[:, :2]), mode="same", method="fft"
-    )
-    centre = size // 2
-    ij = np.stack(np.meshgrid(np.arange(size[0]), np.arange(size[1]), indexing="ij"), axis=-1)
-    offset = (ij - centre) * cell_m
-    score = np.where(np.linalg.norm(offset, axis=-1) <= radius_m, score, -np.inf)
-    best = np.unravel_index(int(np.argmax(score)), score.shape)
-    return offset[best]
+    the scan's (both in the predicted box's frame)."""
+    return best_shift(scan_local[:, :2], model.points[:, :2], radius_m, cell_m)
 
 
 def road_offset(points: np.ndarray, box: np.ndarray) -> float:
@@ -153,15 +156,22 @@ class GeometricTracker:
         config = self.config
         predicted = self.motion.advance(prev_T_cur)
         wide = self.searching > 0
-        scan_local = crop(
-            points, predicted, config.search_m + config.margin_m if wide else config.margin_m
-        )
+        radius = config.search_m + config.margin_m if wide else config.margin_m
+        points = nearby(points, predicted, radius + 2.5)
+        scan_local = crop(points, predicted, radius)
         box, confidence, count = predicted.copy(), 0.0, 0
+        if len(self.model.points) < config.enough_points:
+            # hidden when it was given: its shape starts where the motion model puts it
+            seen = in_box(points, predicted)
+            if len(seen) >= config.enough_points:
+                self.model = PointModel(seen)
         if len(scan_local) >= 5 and len(self.model.points) >= 5:
             start = np.zeros(4)
             if wide:
                 start[:2] = coarse_offset(scan_local, self.model, config.search_m, config.cell_m)
-            pose, _ = register(scan_local, self.model, config, start)
+            pose, _ = register(
+                thinned(scan_local, config.registered_points), self.model, config, start
+            )
             pose[2] = 0.0
             box = predicted.copy()
             box[:3] = from_box_frame(pose[None, :3], predicted)[0]
@@ -170,9 +180,9 @@ class GeometricTracker:
             target = in_box(points, box)
             count = len(target)
             confidence = self._confidence(target, np.linalg.norm(pose[:2]) if not wide else 0.0)
+            if confidence >= config.learn_above:
+                self.model.add(target)
         trusted = confidence >= config.learn_above
-        if trusted:
-            self.model.add(in_box(points, box))
         self.motion.update(box, learn=trusted)
         self.searching = self.searching - 1 if trusted else 1
         self.box = box
@@ -195,7 +205,9 @@ class GeometricTracker:
         config = self.config
         if not len(target):
             return 0.0
-        distance, _ = self.model.tree.query(target, distance_upper_bound=config.explained_m)
+        distance, _ = self.model.tree.query(
+            thinned(target, config.registered_points), distance_upper_bound=config.explained_m
+        )
         explained = float(np.isfinite(distance).mean())
         enough = min(1.0, len(target) / config.enough_points)
         agrees = float(np.exp(-np.log(2) * (moved_m / config.motion_scale_m) ** 2))
@@ -203,13 +215,17 @@ class GeometricTracker:
 
     def reset(self, points: np.ndarray, box: np.ndarray) -> None:
         self.box = np.asarray(box, dtype=np.float64).copy()
-        self.motion.update(self.box, learn=False)
+        self.motion.relocate(self.box)
         self.model.add(in_box(points, self.box))
         self.searching = 0
 
     def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
+        if len(self.model.points) < self.config.enough_points:
+            return 1.0  # too little of the target seen yet to tell it from another car
         target = in_box(points, box)
         if len(target) < 3:
             return 0.0
-        distance, _ = self.model.tree.query(target, distance_upper_bound=0.3)
+        distance, _ = self.model.tree.query(
+            thinned(target, self.config.registered_points), distance_upper_bound=0.3
+        )
         return float(np.isfinite(distance).mean())

@@ -14,6 +14,8 @@ from services.archive import ArchiveError
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
     EVALUATION,
+    FINE_TUNE_EPOCHS,
+    FINE_TUNE_LEARNING_RATE,
     MODEL,
     SIAMESE_EPOCHS,
     TRACK_PLOT,
@@ -67,8 +69,9 @@ def track_job(ctx: JobContext) -> dict:
     sequence = one_input(ctx, "lidar", "the LiDAR sequence")
     models = _models(inputs_of_kind(ctx, "model"))
     needed = {SIAMESE} if params.tracker == "siamese" else set()
-    if params.detector == "learned" and params.reset != "never":
-        needed.add(DETECTOR)
+    usable = needed | (
+        {DETECTOR} if params.detector == "learned" and params.reset != "never" else set()
+    )
     for architecture in needed - set(models):
         what = (
             "the Siamese tracker's encoder" if architecture == SIAMESE else "the learned detector"
@@ -76,7 +79,7 @@ def track_job(ctx: JobContext) -> dict:
         raise JobInputError(
             f"{what} is needed as a `model` input (a track.train {architecture} model)"
         )
-    for architecture in set(models) - needed:
+    for architecture in set(models) - usable:
         raise JobInputError(
             f"the {architecture} model input is not used by these params; leave it out"
         )
@@ -130,6 +133,26 @@ def track_job(ctx: JobContext) -> dict:
     return summary
 
 
+def _starting_detector(ctx: JobContext, params: object) -> str | None:
+    """The detector a fine-tuning starts from (None: from scratch)."""
+    from services.tracking.detect_learned import DEFAULT_MODEL
+
+    given = inputs_of_kind(ctx, "model")
+    if not params.fine_tune:
+        if given:
+            raise JobInputError("a `model` input is only used with fine_tune: leave it out")
+        return None
+    if params.network != "detector":
+        raise JobInputError("fine_tune applies to the detector, not to the Siamese encoder")
+    if given:
+        return str(given[0].path)
+    if not DEFAULT_MODEL.is_file():
+        raise JobInputError(
+            "this installation lacks vista's shipped detector: give a `model` input"
+        )
+    return str(DEFAULT_MODEL)
+
+
 def train_job(ctx: JobContext) -> dict:
     from services.tracking.detector_training import DetectorTrainConfig, train_detector
     from services.tracking.siamese import SiameseTrainConfig, train_siamese
@@ -148,8 +171,11 @@ def train_job(ctx: JobContext) -> dict:
             )
         folders.append(folder)
     settings = {"seed": params.seed, "threads": ctx.threads, "device": params.device}
+    start = _starting_detector(ctx, params)
     if params.learning_rate is not None:
         settings["learning_rate"] = params.learning_rate
+    elif start is not None:
+        settings["learning_rate"] = FINE_TUNE_LEARNING_RATE
     model = ctx.workdir / MODEL.file_name()
     options = {
         "checkpoint_dir": ctx.workdir / "checkpoints",
@@ -158,7 +184,8 @@ def train_job(ctx: JobContext) -> dict:
     }
     try:
         if params.network == "detector":
-            config = DetectorTrainConfig(epochs=params.epochs or DETECTOR_EPOCHS, **settings)
+            epochs = params.epochs or (FINE_TUNE_EPOCHS if start else DETECTOR_EPOCHS)
+            config = DetectorTrainConfig(epochs=epochs, initial=start, **settings)
             metadata = train_detector(folders, model, config, **options)
         else:
             config = SiameseTrainConfig(epochs=params.epochs or SIAMESE_EPOCHS, **settings)

@@ -7,6 +7,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from contract.kinds import Inputs, JobKind, Output
 
 DETECTOR_EPOCHS = 12
+DETECTOR_LEARNING_RATE = 2e-3
+FINE_TUNE_EPOCHS = 10
+FINE_TUNE_LEARNING_RATE = 5e-4
 SIAMESE_EPOCHS = 20
 
 MAX_FRAME = 10_000_000
@@ -41,7 +44,7 @@ class TrackParams(BaseModel):
         None, ge=0, le=MAX_FRAME, description="With init_box: the last frame (default the last)."
     )
     reset: str = Field(
-        "never",
+        "adaptive:10",
         pattern=r"^(never|every:[1-9]\d*|adaptive(:\d+(\.\d+)?)?)$",
         description="never, every:N (the thesis's fixed frequency 1/N) or adaptive[:BUDGET] (percent of frames).",
     )
@@ -50,8 +53,8 @@ class TrackParams(BaseModel):
         description="geometric: point-model registration; siamese: SC3D (needs a `model` input).",
     )
     detector: Literal["geometric", "learned"] = Field(
-        "geometric",
-        description="geometric: clusters and L-shape boxes; learned: the BEV network (needs a `model` input).",
+        "learned",
+        description="learned: the BEV network — vista's shipped model, or a `model` input; geometric: clusters and L-shape boxes scored by shape.",
     )
 
     @model_validator(mode="after")
@@ -79,6 +82,10 @@ class TrainParams(BaseModel):
         None, gt=0, le=1, description="Adam's step (default the network's)."
     )
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, sampling.")
+    fine_tune: bool = Field(
+        False,
+        description="detector only: fine-tune a model — a `model` input, or else vista's shipped detector — on the sequences instead of training from scratch.",
+    )
     device: Literal["auto", "cpu", "cuda"] = Field(
         "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
     )
@@ -123,7 +130,10 @@ TRACK_TRAIN = JobKind(
         "sequences and writes it as an ONNX `model` (its metadata: architecture, data, "
         "validation) with the training's history."
     ),
-    inputs=(Inputs(("lidar",), "labelled LiDAR sequences (label_02.txt)", max=None),),
+    inputs=(
+        Inputs(("lidar",), "labelled LiDAR sequences (label_02.txt)", max=None),
+        Inputs(("model",), "with fine_tune: the detector to start from", min=0, max=1),
+    ),
     outputs=(MODEL, TRAINING_REPORT),
 )
 

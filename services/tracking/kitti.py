@@ -19,7 +19,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -251,6 +251,27 @@ class Labels:
 
     def of_type(self, *types: str) -> Labels:
         return self.select(np.isin(np.asarray(self.type, dtype=object), types))
+
+    def with_frame(self, frame: int) -> Labels:
+        """The rows, all in ``frame``."""
+        return replace(self, frame=np.full(len(self), frame, dtype=int))
+
+    def with_track_ids(self, track_id: np.ndarray) -> Labels:
+        return replace(self, track_id=np.asarray(track_id, dtype=int))
+
+
+def concatenate_labels(parts: list[Labels]) -> Labels:
+    """The rows of ``parts`` in order, as one ``Labels``."""
+    if not parts:
+        return empty_labels()
+    return Labels(
+        *(
+            tuple(t for part in parts for t in part.type)
+            if name == "type"
+            else np.concatenate([getattr(part, name) for part in parts])
+            for name in Labels.__dataclass_fields__
+        )
+    )
 
 
 def empty_labels() -> Labels:

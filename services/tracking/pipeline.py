@@ -3,8 +3,9 @@ policy choosing when the detector re-initialises the tracker.
 
 On a frame the policy gives to the detector, the detector looks in a window around where
 the tracker last had the target (``association.search_window``), the association picks the
-target among its cars, and the tracker is reset to it; when no detection is the target,
-the tracker's own answer stands.
+target among its cars, and the tracker is reset to the detection fused with its own box by
+their confidences (``association.fuse``); when no detection is the target, the tracker's
+own answer stands.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ from typing import Protocol
 
 import numpy as np
 
-from services.tracking.association import associate, search_window
+from services.tracking.association import associate, fuse, search_window
 from services.tracking.boxes import inside
 from services.tracking.detections import Detections
-from services.tracking.resets import AdaptiveGate, ResetPolicy
+from services.tracking.resets import UNSURE_BELOW, AdaptiveGate, ResetPolicy
 from services.tracking.tracker import Tracker, TrackStep
 
 Progress = Callable[[int, int], None]
@@ -43,7 +44,7 @@ class FrameResult:
     points: int
     detector_ran: bool
     reset: bool
-    """The detector's box replaced the tracker's."""
+    """The detector's box was fused into the tracker's."""
 
 
 @dataclass
@@ -106,7 +107,7 @@ def track(
     result.frames.append(
         FrameResult(frame, given, 1.0, int(inside(points, given).sum()), False, False)
     )
-    index = 0
+    index, unsure_frames = 0, 0
     while True:
         started = time.perf_counter()
         item = next(iterator, None)
@@ -120,6 +121,7 @@ def track(
         step: TrackStep = tracker.step(points, prev_T_cur)
         result.tracker_s += time.perf_counter() - started
         box, confidence, ran, reset = step.box, step.confidence, False, False
+        unsure_frames = unsure_frames + 1 if step.confidence < UNSURE_BELOW else 0
         if scheduled or (
             gate is not None
             and gate.decide(step, float(np.linalg.norm(step.box[:2] - step.predicted[:2])))
@@ -127,11 +129,22 @@ def track(
             started = time.perf_counter()
             detections = detector.detect(points, search_window(step.box))
             chosen = associate(
-                detections, step.box, partial(tracker.appearance, points), step.confidence
+                detections,
+                step.box,
+                partial(tracker.appearance, points),
+                step.confidence,
+                unsure_frames,
             )
-            if chosen.box is not None:
-                tracker.reset(points, chosen.box)
-                box, confidence, reset = chosen.box, max(confidence, chosen.score), True
+            if chosen.index is not None:
+                box = fuse(
+                    step.box,
+                    step.confidence,
+                    detections.boxes[chosen.index],
+                    chosen.score,
+                    unsure_frames,
+                )
+                tracker.reset(points, box)
+                confidence, reset, unsure_frames = max(confidence, chosen.score), True, 0
             result.detector_s += time.perf_counter() - started
             ran = True
         result.frames.append(FrameResult(frame, box, float(confidence), step.points, ran, reset))

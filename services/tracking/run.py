@@ -45,14 +45,17 @@ def make_detector(name: str, model: Path | None, threads: int = 1) -> Detector:
 
         return GeometricDetector()
     if name == "learned":
-        if model is None:
-            raise ValueError(
-                "the learned detector needs its model: --detector-model DETECTOR.onnx (build one "
-                "with `vista track train detector DATA… -o DETECTOR.onnx`)"
-            )
-        from services.tracking.detect_learned import LearnedDetector
+        from services.tracking.detect_learned import DEFAULT_MODEL, LearnedDetector
 
-        return LearnedDetector(model, threads=threads)
+        if model is None and not DEFAULT_MODEL.is_file():
+            raise ValueError(
+                f"this installation lacks vista's shipped detector ({DEFAULT_MODEL}): give "
+                "--detector-model DETECTOR.onnx (build one with `vista track train detector`) "
+                "or use --detector geometric"
+            )
+        if model is not None and not Path(model).is_file():
+            raise ValueError(f"--detector-model {model}: no such model file")
+        return LearnedDetector(model or DEFAULT_MODEL, threads=threads)
     raise ValueError(f"detector {name!r}: known detectors are {', '.join(DETECTORS)}")
 
 
@@ -124,13 +127,22 @@ def find_target(
 
 
 def scan_stream(
-    sequence: Sequence, frames: list[int]
+    sequence: Sequence, frames: list[int], scans: dict[int, np.ndarray] | None = None
 ) -> Iterator[tuple[int, np.ndarray, np.ndarray | None]]:
-    """(frame, points, ego motion since the previous frame) in order."""
+    """(frame, points, ego motion since the previous frame) in order: the motion from the
+    sequence's poses, or estimated from the scans when it has none (``egomotion``); the
+    points from ``scans`` when given (read once), else from disk."""
+    from services.tracking.egomotion import EgoMotion
+
+    estimate = EgoMotion() if sequence.poses is None else None
     previous = None
     for frame in frames:
-        points = sequence.points(frame)
-        yield frame, points, None if previous is None else sequence.ego_motion(previous, frame)
+        points = scans[frame] if scans is not None else sequence.points(frame)
+        if estimate is not None:
+            motion = estimate(points)
+        else:
+            motion = None if previous is None else sequence.ego_motion(previous, frame)
+        yield frame, points, motion
         previous = frame
 
 
@@ -142,8 +154,8 @@ def run_tracking(
     start_frame: int | None = None,
     end_frame: int | None = None,
     tracker: str = "geometric",
-    detector: str = "geometric",
-    reset: str = "never",
+    detector: str = "learned",
+    reset: str = "adaptive:10",
     siamese_model: Path | None = None,
     detector_model: Path | None = None,
     threads: int = 1,

@@ -355,7 +355,7 @@ class SiameseTracker:
 
     def reset(self, points: np.ndarray, box: np.ndarray) -> None:
         self.box = np.asarray(box, dtype=np.float64).copy()
-        self.motion.update(self.box, learn=False)
+        self.motion.relocate(self.box)
         target = in_box(points, self.box)
         if len(target):
             self.previous = target

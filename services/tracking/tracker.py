@@ -73,6 +73,10 @@ class MotionModel:
         self.world_box = np.asarray(box, dtype=np.float64).copy()
         self.velocity = np.zeros(3)
         """(vx, vy, yaw rate) per frame, world frame."""
+        self.trusted_box = self.world_box.copy()
+        """The last box whose motion was learnt (world frame)."""
+        self.unsure_frames = 0
+        """Frames since then."""
 
     def advance(self, prev_T_cur: np.ndarray | None) -> np.ndarray:
         """Move the sensor by the ego motion and return the predicted box in its frame."""
@@ -92,7 +96,7 @@ class MotionModel:
 
     def update(self, box: np.ndarray, *, learn: bool = True) -> None:
         """The target's box in the current frame; ``learn``: let its motion enter the
-        velocity (not after a reset, whose jump is a correction, not a motion)."""
+        velocity (a frame the tracker trusts)."""
         world = transform_boxes(self.world_T_cur, box)
         if learn:
             step = world[:2] - self.world_box[:2]
@@ -100,6 +104,22 @@ class MotionModel:
             turn = np.clip(wrap(world[YAW] - self.world_box[YAW]), -MAX_TURN_RAD, MAX_TURN_RAD)
             motion = np.array([*step, turn])
             self.velocity = (1 - VELOCITY_GAIN) * self.velocity + VELOCITY_GAIN * motion
+            self.trusted_box, self.unsure_frames = world, 0
+        else:
+            self.unsure_frames += 1
+        self.world_box = world
+
+    def relocate(self, box: np.ndarray) -> None:
+        """A reset's box for the current frame. Right after trusted frames its jump is a
+        correction, not a motion; after two or more frames the tracker was unsure of, the
+        way from the last trusted box is the target's motion over them (a car lost while
+        the sensor drove past it comes back moving as it does)."""
+        world = transform_boxes(self.world_T_cur, box)
+        if self.unsure_frames >= 2:
+            step = (world[:2] - self.trusted_box[:2]) / self.unsure_frames
+            step *= min(1.0, MAX_STEP_M / max(float(np.linalg.norm(step)), 1e-9))
+            self.velocity = np.array([*step, 0.0])
+        self.trusted_box, self.unsure_frames = world, 0
         self.world_box = world
 
 
@@ -123,19 +143,20 @@ def crop(points: np.ndarray, box: np.ndarray, margin_m: float, floor_m: float = 
 class PointModel:
     """The target's points in its box frame (voxel means): the first frame's and those of
     the last ``RECENT_FRAMES`` frames added — old frames leave, so a small error of one
-    frame cannot build up in the model."""
+    frame cannot build up in the model. Each frame is reduced to its voxels once, as it is
+    added."""
 
     def __init__(self, first: np.ndarray) -> None:
-        self.first = _voxel_means(first)
-        self.recent: deque[np.ndarray] = deque(maxlen=RECENT_FRAMES)
-        self.points = self.first
+        self.first = _Voxels.of(first)
+        self.recent: deque[_Voxels] = deque(maxlen=RECENT_FRAMES)
+        self.points = self.first.means()
         self._tree = None
 
     def add(self, local: np.ndarray) -> None:
         if not len(local):
             return
-        self.recent.append(local)
-        merged = _voxel_means(np.concatenate([self.first, *self.recent]))
+        self.recent.append(_Voxels.of(local))
+        merged = _Voxels.merge([self.first, *self.recent]).means()
         if len(merged) > MODEL_POINTS:
             merged = merged[
                 np.random.default_rng(len(merged)).choice(len(merged), MODEL_POINTS, replace=False)
@@ -152,15 +173,43 @@ class PointModel:
         return self._tree
 
 
-def _voxel_means(points: np.ndarray) -> np.ndarray:
-    if not len(points):
-        return np.zeros((0, 3))
-    keys = np.floor(points / VOXEL_M).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    sums = np.zeros((len(counts), 3))
-    np.add.at(sums, inverse, points)
-    return sums / counts[:, None]
+VOXEL_SPAN = 1 << 20
+"""Voxel indices are offset into 0 … VOXEL_SPAN along each axis (±52 km of 10 cm voxels)."""
+
+
+@dataclass(frozen=True)
+class _Voxels:
+    """Points summed per ``VOXEL_M`` voxel: the voxels' keys (V,), sums (V, 3) and counts (V,)."""
+
+    keys: np.ndarray
+    sums: np.ndarray
+    counts: np.ndarray
+
+    @classmethod
+    def of(cls, points: np.ndarray) -> _Voxels:
+        cells = np.floor(np.asarray(points, dtype=np.float64)[:, :3] / VOXEL_M).astype(np.int64)
+        cells += VOXEL_SPAN // 2
+        keys = (cells[:, 0] * VOXEL_SPAN + cells[:, 1]) * VOXEL_SPAN + cells[:, 2]
+        return cls._summed(keys, np.asarray(points, dtype=np.float64)[:, :3], np.ones(len(keys)))
+
+    @classmethod
+    def merge(cls, parts: list[_Voxels]) -> _Voxels:
+        return cls._summed(
+            np.concatenate([p.keys for p in parts]),
+            np.concatenate([p.sums for p in parts]),
+            np.concatenate([p.counts for p in parts]),
+        )
+
+    @classmethod
+    def _summed(cls, keys: np.ndarray, sums: np.ndarray, counts: np.ndarray) -> _Voxels:
+        unique, inverse = np.unique(keys, return_inverse=True)
+        total = np.column_stack(
+            [np.bincount(inverse, sums[:, k], minlength=len(unique)) for k in range(3)]
+        )
+        return cls(unique, total.reshape(-1, 3), np.bincount(inverse, counts, len(unique)))
+
+    def means(self) -> np.ndarray:
+        return self.sums / np.maximum(self.counts, 1)[:, None]
 
 
 def in_box(points: np.ndarray, box: np.ndarray) -> np.ndarray:

@@ -1,0 +1,151 @@
+"""How vista's shipped car detector is built (``vista track train default-detector``), seeded,
+from data this repository reproduces:
+
+1. ``SIM_DRIVES`` simulated drives of ``SIM_FRAMES`` frames (``vista track simulate``,
+   seeds ``SIM_SEED`` …), kept in the work folder;
+2. a detector trained on them alone (``vista track train detector``: the simulator-only
+   model, kept for contrast);
+3. that detector fine-tuned on KITTI's labelled object scans (``../shared/data/
+   kitti-object-sample``) with cars pasted from them and from the simulated drives, and
+   validated on a real drive it never saw (``../shared/data/kitti-raw-2011_09_26_drive_0048``,
+   nothing chosen on it): the shipped model, whose metadata says so and carries KITTI's
+   licence (CC BY-NC-SA 3.0). Its boxes are kept from ``THRESHOLD``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+from services.tracking.detector_training import DetectorTrainConfig, train_detector
+from services.tracking.kinds import FINE_TUNE_EPOCHS, FINE_TUNE_LEARNING_RATE
+
+SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+REAL_TRAIN = SHARED_DATA / "kitti-object-sample"
+REAL_HELD_OUT = SHARED_DATA / "kitti-raw-2011_09_26_drive_0048"
+KITTI_LICENCE = (
+    "trained on KITTI Vision Benchmark scans (Geiger, Lenz, Stiller, Urtasun; KIT and TTI), "
+    "CC BY-NC-SA 3.0: non-commercial use, attribution, share alike"
+)
+SIM_DRIVES, SIM_FRAMES, SIM_SEED = 40, 60, 1000
+THRESHOLD = 0.4
+"""Chosen by re-running step 3 in three folds on the object scans (``bench_real``): recall
+within 40 m and precision in view of the folds' held-out scans were 0.84 / 0.64 from 0.3,
+0.80 / 0.74 from 0.4 and 0.76 / 0.80 from 0.5; 0.4 is the one that met both targets."""
+
+Say = Callable[[str], None]
+
+
+def simulated_drives(
+    folder: Path, count: int = SIM_DRIVES, frames: int = SIM_FRAMES, say: Say | None = None
+) -> list[Path]:
+    """The training drives (simulated where missing): ``folder/dSEED``."""
+    from services.tracking.simulate import simulate_sequence
+
+    drives = []
+    for k in range(count):
+        drive = folder / f"d{SIM_SEED + k}"
+        if not (drive / "poses.txt").is_file():
+            simulate_sequence(drive, frames=frames, cars=4 + k % 8, seed=SIM_SEED + k)
+            if say:
+                say(f"  simulated drive {k + 1}/{count}")
+        drives.append(drive)
+    return drives
+
+
+def simulator_only(
+    drives: list[Path], out: Path, config: DetectorTrainConfig, work: Path, say: Say
+) -> Path:
+    """The detector trained on simulated drives alone (kept: trained once)."""
+    if not out.is_file():
+        say(
+            f"training the simulator-only detector on {len(drives)} drives ({config.epochs} epochs)"
+        )
+        train_detector(
+            drives,
+            out,
+            config,
+            checkpoint_dir=work / "checkpoints" / out.stem,
+            progress=lambda fraction, message: say(f"  {message}"),
+        )
+    return out
+
+
+def fine_tuned(
+    base: Path,
+    real: list[Path],
+    out: Path,
+    *,
+    validate_on: list[Path] | None,
+    paste_from: list[Path],
+    seed: int,
+    work: Path,
+    say: Say,
+    epochs: int = FINE_TUNE_EPOCHS,
+    windows: int = 512,
+    command: str = "vista track train default-detector",
+) -> dict:
+    """``base`` fine-tuned on the labelled scans of ``real`` (the metadata)."""
+    config = DetectorTrainConfig(
+        epochs=epochs,
+        learning_rate=FINE_TUNE_LEARNING_RATE,
+        seed=seed,
+        windows_per_epoch=windows,
+        initial=str(base),
+        threshold=THRESHOLD,
+    )
+    say(f"fine-tuning {base.name} on {', '.join(p.name for p in real)}")
+    return train_detector(
+        real,
+        out,
+        config,
+        validate_on=validate_on,
+        paste_from=paste_from,
+        licence=KITTI_LICENCE,
+        checkpoint_dir=work / "checkpoints" / out.stem,
+        progress=lambda fraction, message: say(f"  {message}"),
+        command=command,
+    )
+
+
+def build_default_detector(
+    work: Path,
+    out: Path,
+    *,
+    real: Path = REAL_TRAIN,
+    held_out: Path = REAL_HELD_OUT,
+    seed: int = 0,
+    drives: int = SIM_DRIVES,
+    frames: int = SIM_FRAMES,
+    base_config: DetectorTrainConfig | None = None,
+    tune_epochs: int = FINE_TUNE_EPOCHS,
+    tune_windows: int = 512,
+    say: Say = print,
+) -> dict:
+    """Steps 1–3 of the module's note; the shipped model's metadata. Each step's result is
+    kept in ``work`` and reused."""
+    for folder in (real, held_out):
+        if not folder.is_dir():
+            raise ValueError(f"{folder}: no such folder (the real labelled scans the model needs)")
+    say(f"simulating what {work / 'train'} lacks ({drives} drives of {frames} frames)")
+    sim = simulated_drives(work / "train", drives, frames, say)
+    base = simulator_only(
+        sim,
+        work / "detector-sim.onnx",
+        replace(base_config or DetectorTrainConfig(), seed=seed),
+        work,
+        say,
+    )
+    return fine_tuned(
+        base,
+        [real],
+        out,
+        validate_on=[held_out],
+        paste_from=sim,
+        seed=seed,
+        work=work,
+        say=say,
+        epochs=tune_epochs,
+        windows=tune_windows,
+    )
