@@ -689,6 +689,22 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
         },
     )
     assert response.status_code == 422 and "track_id or by init_box" in response.text
+    for params, phrase in (
+        ({"network": "siamese", "fine_tune": True}, "fine_tune applies to the detector"),
+        ({"network": "detector"}, "only used with fine_tune"),
+    ):
+        model = [] if "siamese" in params.values() else [_shipped_detector(engine)]
+        refused = engine.run(
+            [{"name": "t", "kind": "track.train", "inputs": [sequence, *model], "params": params}]
+        )
+        failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
+        assert failed["status"] == "failed" and phrase in failed["error"].lower(), failed
+
+
+def _shipped_detector(engine: Engine) -> int:
+    from services.tracking.detect_learned import DEFAULT_MODEL
+
+    return _upload(engine, DEFAULT_MODEL, "model", "application/octet-stream")
 
 
 def test_a_job_error_is_one_sentence_without_server_paths():

@@ -8,17 +8,15 @@ tracked shape does not explain is another object, however near), the one with th
 quality × a Gaussian of its distance from the tracker's box (σ = ``SIGMA_M``) is the target.
 The gate narrows as the tracker grows sure of itself — from ``GATE_M`` at confidence 0 to
 ``SURE_GATE_M`` at 1 — so a detector run on a frame the tracker was sure of only corrects
-its box, and cannot hand the target over to a neighbouring car; and it widens by
-``LOST_GROWTH_M`` for every frame the tracker has been unsure of in a row (up to
-``LOST_GATE_M``), since a target lost for a while is wherever it went meanwhile (a parked
-car the sensor drives past moves a metre a frame in the sensor's frame).
+its box, and cannot hand the target over to a neighbouring car.
 
 **Fusion.** A reset does not throw the tracker's box away: each of the two is a
 measurement with its own uncertainty — the detection's centre ``DETECTOR_SIGMA_M`` / its
-quality; the tracker's ``TRACKER_SIGMA_M`` / its confidence, or, when it has been unsure
-for only a few frames, its prediction's: ``TRACKER_SIGMA_M`` growing by ``DRIFT_M`` a frame
-since the last box it trusted (a target it cannot see for a moment is still where the
-motion model puts it) — and the reset box is their inverse-variance mean: the centre, the bottom, the heading (the detection's or its
+quality; the tracker's its own ``sigma_m`` (how well it places a box it is sure of) / its
+confidence, or, when it has been unsure for only a few frames, its prediction's: that
+growing by ``DRIFT_M`` a frame since the last box it trusted (a target it cannot see for a
+moment is still where the motion model puts it) — and the reset box is their
+inverse-variance mean: the centre, the bottom, the heading (the detection's or its
 reverse, whichever is nearer the tracker's: a box's front and back look alike) and the
 size, for which the target's given size counts as a measurement of ``SIZE_SIGMA_M``. A
 tracker that is sure keeps nearly its own box; a lost one takes nearly the detection's.
@@ -36,16 +34,12 @@ from services.tracking.detections import Detections
 
 GATE_M = 3.0
 SURE_GATE_M = 1.0
-LOST_GROWTH_M = 0.8
-LOST_GATE_M = 12.0
 SIGMA_M = 1.2
 ACCEPT = 0.2
 EXPLAINED = 0.35
 """The least share of a detection's returns the target's point model must explain."""
 WINDOW_M = 12.0
 """Half the side of the bird's-eye window around the target the detector searches."""
-TRACKER_SIGMA_M = 0.15
-"""A sure tracker's centre error (m); its heading error is this over 1 m, in radians."""
 DETECTOR_SIGMA_M = 0.3
 """A sure detection's centre error (m)."""
 DRIFT_M = 0.15
@@ -92,14 +86,15 @@ def fuse(
     detection: np.ndarray,
     quality: float,
     unsure_frames: int = 0,
+    sigma_m: float = 0.15,
 ) -> np.ndarray:
     """The reset box (see the module's note): the tracker's box (given size) at its
-    confidence (0–1), unsure of it for ``unsure_frames`` in a row, and a detection at its
-    quality (0–1)."""
+    confidence (0–1), unsure of it for ``unsure_frames`` in a row, placed to ``sigma_m``
+    when sure, and a detection at its quality (0–1)."""
     tracked = np.asarray(tracked, dtype=np.float64)
     tracker_sigma = min(
-        TRACKER_SIGMA_M / max(confidence, LEAST_WEIGHT),
-        float(np.hypot(TRACKER_SIGMA_M, DRIFT_M * unsure_frames)),
+        sigma_m / max(confidence, LEAST_WEIGHT),
+        float(np.hypot(sigma_m, DRIFT_M * unsure_frames)),
     )
     tracker_weight = tracker_sigma**-2
     detector_weight = (max(quality, LEAST_WEIGHT) / DETECTOR_SIGMA_M) ** 2
@@ -122,20 +117,16 @@ def associate(
     tracked: np.ndarray,
     appearance: Callable[[np.ndarray], float] | None = None,
     confidence: float = 0.0,
-    unsure_frames: int = 0,
 ) -> Association:
     """Pick the target among ``detections`` given the tracker's box ``tracked`` (whose size
-    is the target's), how sure the tracker is of it (0–1) and for how many frames in a row
-    it has been unsure, and ``appearance``: the share of a box's returns the target's shape
-    explains (None when the tracker keeps no shape)."""
+    is the target's), how sure the tracker is of it (0–1), and ``appearance``: the share of
+    a box's returns the target's shape explains (None when the tracker keeps no shape)."""
     if not len(detections):
         return Association(None, 0.0)
     distance = np.linalg.norm(detections.boxes[:, :2] - tracked[:2], axis=1)
     footprint = detections.boxes[:, L] * detections.boxes[:, W] / (tracked[L] * tracked[W])
     quality = detections.scores * np.exp(-np.abs(np.log(footprint)))
     gate = GATE_M + (SURE_GATE_M - GATE_M) * float(np.clip(confidence, 0.0, 1.0))
-    if unsure_frames > 0:
-        gate = max(gate, min(LOST_GATE_M, GATE_M + LOST_GROWTH_M * (unsure_frames - 1)))
     candidates = np.flatnonzero((distance <= gate) & (quality >= ACCEPT))
     if appearance is not None and len(candidates):
         explained = np.array(
@@ -144,7 +135,6 @@ def associate(
         candidates = candidates[explained >= EXPLAINED]
     if not len(candidates):
         return Association(None, 0.0)
-    sigma = max(SIGMA_M, gate / 2.5)
-    ranking = quality[candidates] * np.exp(-0.5 * (distance[candidates] / sigma) ** 2)
+    ranking = quality[candidates] * np.exp(-0.5 * (distance[candidates] / SIGMA_M) ** 2)
     best = int(candidates[ranking.argmax()])
     return Association(best, float(quality[best]))

@@ -112,18 +112,20 @@ def run(
     threads: int = THREADS,
 ) -> None:
     """Track one car through a LiDAR sequence: the tracker each frame, the detector when the
-    reset policy says so (the target picked among its cars by distance, size and look).
+    reset policy says so (the target picked among its cars by distance, size and the shape
+    the tracker keeps of it, its box fused with the tracker's by their confidences); the
+    ego motion from the sequence's poses, or from its scans when it has none.
     TRACK.json has per frame the box in the camera frame (h w l x y z ry) and in the LiDAR
     frame, the confidence, the points in the box, whether the detector ran and reset it;
     and the detector's cost (% of frames) and the frames per second."""
-    from services.process import prepare_process
-
-    prepare_process()
     import json
 
+    from services.process import prepare_process
     from services.tracking.kitti import KittiError
     from services.tracking.report import plot_run
     from services.tracking.run import parse_camera_box, run_tracking
+
+    prepare_process()
 
     try:
         box = parse_camera_box(init_box) if init_box is not None else None
@@ -211,9 +213,9 @@ def detect(
     KITTI's labels are. With --labels, their recall within 40 m (BEV IoU ≥ 0.5) and precision
     in the camera's view."""
     from services.process import prepare_process
+    from services.tracking.detect import detect_files
 
     prepare_process()
-    from services.tracking.detect import detect_files
 
     try:
         summary = detect_files(
@@ -300,13 +302,13 @@ def train_detector_command(
     from labelled scans pasted into others, and export it as ONNX with its validation in the
     metadata. With --from it fine-tunes a model instead (its batch norms folded, a smaller
     step) and reports the validation scans' recall and precision before and after."""
-    from services.process import prepare_process
-
-    prepare_process()
     import shlex
     import sys
 
+    from services.process import prepare_process
     from services.tracking.detector_training import DetectorTrainConfig, train_detector
+
+    prepare_process()
 
     if window % 16:
         fail(f"--window {window}: a multiple of 16 cells")
@@ -376,9 +378,9 @@ def train_default_detector_command(
     real drive it never saw; the metadata names the data, the seed and KITTI's licence (CC
     BY-NC-SA 3.0). About 40 minutes on 2 cores from an empty work folder."""
     from services.process import prepare_process
+    from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, build_default_detector
 
     prepare_process()
-    from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, build_default_detector
 
     try:
         metadata = build_default_detector(
@@ -411,9 +413,9 @@ def train_siamese_command(
     similarity regressed to a Gaussian of the candidate's offset, with the shape-completion
     regulariser) and export its encoder as ONNX."""
     from services.process import prepare_process
+    from services.tracking.siamese import SiameseTrainConfig, train_siamese
 
     prepare_process()
-    from services.tracking.siamese import SiameseTrainConfig, train_siamese
 
     if any((folder / "label_2").is_dir() for folder in data):
         fail(

@@ -7,8 +7,8 @@ last place. Here each scan is registered to the previous one in the ground plane
 heading) by trimmed point-to-point ICP on what stands above the road (z between
 ``LOW_M`` and ``HIGH_M`` in the sensor's frame, within ``RANGE_M``: walls, poles, trees,
 parked cars — the road itself is flat and says nothing about the motion along it), at
-most ``TARGET_POINTS`` of the previous scan and ``SOURCE_POINTS`` of the current (fixed
-random choices), from the last motion as the guess (vehicles move smoothly) — or, for the
+most ``TARGET_POINTS`` of the previous scan and ``SOURCE_POINTS`` of the current (evenly
+through the scan), from the last motion as the guess (vehicles move smoothly) — or, for the
 first pair and after a failure, from the shift (within ``SEARCH_M``) that best overlaps
 the two scans' bird's-eye occupancy — the trim closing from ``TRIM_M[0]`` to
 ``TRIM_M[1]``. A registration that matches less than ``MIN_MATCHED`` of its points says
@@ -31,21 +31,26 @@ ITERATIONS = 12
 MIN_MATCHED = 0.3
 SEARCH_M = 4.0
 """The most a car moves in a tenth of a second (144 km/h)."""
+COARSE_RANGE_M, COARSE_CELL_M = 25.0, 0.4
+"""The first pair's overlap is sought among the returns this near, on cells this wide."""
 
 
-def _standing(points: np.ndarray, most: int) -> np.ndarray:
-    """(M, 2) at most ``most`` of the scan's standing points, x and y."""
-    distance = np.hypot(points[:, 0], points[:, 1])
+def _standing(points: np.ndarray) -> np.ndarray:
+    """(M, 2) the scan's standing points, x and y."""
+    distance_2 = points[:, 0] ** 2 + points[:, 1] ** 2
     keep = (
         (points[:, 2] > LOW_M)
         & (points[:, 2] < HIGH_M)
-        & (distance > RANGE_M[0])
-        & (distance < RANGE_M[1])
+        & (distance_2 > RANGE_M[0] ** 2)
+        & (distance_2 < RANGE_M[1] ** 2)
     )
-    xy = np.asarray(points[keep, :2], dtype=np.float64)
-    if len(xy) > most:
-        xy = xy[np.random.default_rng(len(xy)).choice(len(xy), most, replace=False)]
-    return xy
+    return np.asarray(points[keep, :2], dtype=np.float64)
+
+
+def _every(xy: np.ndarray, most: int) -> np.ndarray:
+    """At most ``most`` of the points, evenly through the scan's order (a spinning sensor's
+    order sweeps the scene, so they spread over it)."""
+    return xy[:: max(1, -(-len(xy) // most))]
 
 
 def _rigid_2d(source: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -80,14 +85,16 @@ class EgoMotion:
     def __call__(self, points: np.ndarray) -> np.ndarray | None:
         from scipy.spatial import cKDTree
 
-        target = _standing(points, TARGET_POINTS)
+        standing = _standing(points)
+        target = _every(standing, TARGET_POINTS)
         previous, self.tree = self.tree, cKDTree(target) if len(target) >= 10 else None
         if previous is None or self.tree is None:
             return None
-        source = _standing(points, SOURCE_POINTS)
+        source = _every(standing, SOURCE_POINTS)
         if self.guess is None:
             # the previous scan is the current one moved by the motion: fixed = previous
-            shift = best_shift(previous.data, target, SEARCH_M, 0.2)
+            near = np.hypot(target[:, 0], target[:, 1]) < COARSE_RANGE_M
+            shift = best_shift(previous.data, target[near], SEARCH_M, COARSE_CELL_M)
             self.guess = np.array([0.0, *shift])
         motion, matched = self.guess.copy(), 0
         for trim in np.geomspace(*TRIM_M, ITERATIONS):

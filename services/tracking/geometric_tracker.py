@@ -10,9 +10,6 @@ the road under it; its size stays the given one.
 The confidence multiplies what would go wrong when the tracker drifts: the share of the
 box's points the model explains (within 0.2 m), whether there are enough of them, and
 whether the registration agrees with the motion model.
-
-A target hidden in its given frame (no returns in its box) is followed by the motion model
-alone until returns appear where it predicts it: its point model starts there.
 """
 
 from __future__ import annotations
@@ -142,6 +139,9 @@ def register(
 
 class GeometricTracker:
     name = "geometric"
+    sigma_m = 0.15
+    """A registration a sure frame places to a few centimetres; the model's own partial
+    view keeps it from better."""
 
     def __init__(self, config: GeometricConfig | None = None) -> None:
         self.config = config or GeometricConfig()
@@ -160,11 +160,6 @@ class GeometricTracker:
         points = nearby(points, predicted, radius + 2.5)
         scan_local = crop(points, predicted, radius)
         box, confidence, count = predicted.copy(), 0.0, 0
-        if len(self.model.points) < config.enough_points:
-            # hidden when it was given: its shape starts where the motion model puts it
-            seen = in_box(points, predicted)
-            if len(seen) >= config.enough_points:
-                self.model = PointModel(seen)
         if len(scan_local) >= 5 and len(self.model.points) >= 5:
             start = np.zeros(4)
             if wide:
@@ -213,11 +208,37 @@ class GeometricTracker:
         agrees = float(np.exp(-np.log(2) * (moved_m / config.motion_scale_m) ** 2))
         return explained * np.sqrt(enough) * np.sqrt(agrees)
 
-    def reset(self, points: np.ndarray, box: np.ndarray) -> None:
-        self.box = np.asarray(box, dtype=np.float64).copy()
-        self.motion.relocate(self.box)
-        self.model.add(in_box(points, self.box))
+    def reset(self, points: np.ndarray, box: np.ndarray) -> np.ndarray:
+        """A reset's box is where registration starts, not where the target is: the target's
+        model registered from it (the ICP of ``step``, without the motion model) moves it
+        onto the target when the registered box explains the returns well enough to learn
+        from, and only then do those returns join the model — a detection's few
+        centimetres of error would otherwise be learnt into the target's shape. A target
+        the tracker has no shape of yet takes its first from the reset box."""
+        config = self.config
+        box = np.asarray(box, dtype=np.float64).copy()
+        if len(self.model.points) >= 5:
+            near = nearby(points, box, config.margin_m + 2.5)
+            scan_local = crop(near, box, config.margin_m)
+            if len(scan_local) >= 5:
+                pose, _ = register(
+                    thinned(scan_local, config.registered_points), self.model, config
+                )
+                refined = box.copy()
+                refined[:2] = from_box_frame(np.array([[pose[0], pose[1], 0.0]]), box)[0, :2]
+                refined[YAW] = wrap(
+                    box[YAW] + np.clip(pose[3], -config.max_turn_rad, config.max_turn_rad)
+                )
+                target = in_box(near, refined)
+                if self._confidence(target, 0.0) >= config.learn_above:
+                    box = refined
+                    self.model.add(target)
+        else:
+            self.model.add(in_box(points, box))
+        self.box = box
+        self.motion.relocate(box)
         self.searching = 0
+        return box
 
     def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
         if len(self.model.points) < self.config.enough_points:

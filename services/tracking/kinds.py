@@ -46,7 +46,7 @@ class TrackParams(BaseModel):
     reset: str = Field(
         "adaptive:10",
         pattern=r"^(never|every:[1-9]\d*|adaptive(:\d+(\.\d+)?)?)$",
-        description="never, every:N (the thesis's fixed frequency 1/N) or adaptive[:BUDGET] (percent of frames).",
+        description="adaptive[:BUDGET] (the detector when the tracker is unsure, on at most BUDGET percent of the frames), every:N (the thesis's fixed frequency 1/N) or never.",
     )
     tracker: Literal["geometric", "siamese"] = Field(
         "geometric",

@@ -129,11 +129,7 @@ def track(
             started = time.perf_counter()
             detections = detector.detect(points, search_window(step.box))
             chosen = associate(
-                detections,
-                step.box,
-                partial(tracker.appearance, points),
-                step.confidence,
-                unsure_frames,
+                detections, step.box, partial(tracker.appearance, points), step.confidence
             )
             if chosen.index is not None:
                 box = fuse(
@@ -142,8 +138,9 @@ def track(
                     detections.boxes[chosen.index],
                     chosen.score,
                     unsure_frames,
+                    tracker.sigma_m,
                 )
-                tracker.reset(points, box)
+                box = tracker.reset(points, box)
                 confidence, reset, unsure_frames = max(confidence, chosen.score), True, 0
             result.detector_s += time.perf_counter() - started
             ran = True

@@ -2,16 +2,19 @@
 
 - ``never``: the tracker alone (Table 5.1's "only tracking").
 - ``every:N``: the thesis's fixed frequency 1/N — the detector's branch runs on every N-th
-  frame after the first and its box replaces the tracker's (the tracker still steps on
-  those frames: its box anchors the detector's search window and stands when no detection
-  is the target).
+  frame after the first and its box is fused into the tracker's (the tracker still steps
+  on those frames: its box anchors the detector's search window and stands when no
+  detection is the target).
 - ``adaptive[:BUDGET]``: the thesis's future work, detect only when needed. The tracker
   runs every frame; the detector runs as well when the tracker is unsure of its answer
   (low confidence, a sudden loss of the target's points, a registration far from the
-  motion model's prediction) and the budget allows, or when the budget has gone unspent
-  for a while. The budget (default 10 %) accrues by that share of a detection every frame,
-  holds at most ``CAPACITY`` detections, and a detection spends one: over a tracklet the
-  detector runs on at most BUDGET of its frames (plus the capacity).
+  motion model's prediction) and the budget allows. The budget (default 10 %) accrues by
+  that share of a detection every frame, holds at most ``CAPACITY`` detections, and a
+  detection spends one: over a tracklet the detector runs on at most BUDGET of its frames
+  (plus the capacity). A budget left idle stays unspent: a detection on a frame the tracker
+  was sure of only adds its error (on the simulated bench, spending it as refreshes cost
+  the geometric tracker five points of Success), and a target not seen lately — no
+  returns in its box, none in the recent frames — gives a detector nothing to correct.
 """
 
 from __future__ import annotations
@@ -80,6 +83,8 @@ class AdaptiveGate:
         self.recent_points: list[int] = []
 
     def unsure(self, step: TrackStep, moved_m: float) -> bool:
+        if step.points == 0 and not any(self.recent_points):
+            return False  # nothing of the target seen lately: nothing a detector could correct
         usual = (
             sorted(self.recent_points)[len(self.recent_points) // 2]
             if self.recent_points
@@ -94,7 +99,7 @@ class AdaptiveGate:
     def decide(self, step: TrackStep, moved_m: float) -> bool:
         """Whether to run the detector on this frame (spending the budget if so)."""
         self.tokens = min(CAPACITY, self.tokens + self.budget)
-        want = self.tokens >= 1.0 and (self.unsure(step, moved_m) or self.tokens >= CAPACITY)
+        want = self.tokens >= 1.0 and self.unsure(step, moved_m)
         self.recent_points = (self.recent_points + [step.points])[-10:]
         if want:
             self.tokens -= 1.0

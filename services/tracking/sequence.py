@@ -122,7 +122,7 @@ def open_sequence(folder: Path) -> Sequence:
     if labels is None:
         read_labels = None
     elif labels.is_dir():
-        read_labels = linked_object_labels(labels, calibration)
+        read_labels = linked_object_labels(labels)
     else:
         read_labels = kitti.read_tracking_labels(labels)
     lidar = None
@@ -143,7 +143,7 @@ def _label_step(labels: kitti.Labels | None) -> int:
     return int(values[counts.argmax()])
 
 
-def linked_object_labels(folder: Path, calibration: kitti.Calibration) -> kitti.Labels:
+def linked_object_labels(folder: Path) -> kitti.Labels:
     """Object-format label files ``NNNN.txt`` of one drive's frames as tracking labels: the
     frame from the file name, one track id per object — the rows of one type and exact
     ``h w l`` (KITTI's annotators keep an object's size), and where two alike share a frame,
@@ -158,8 +158,7 @@ def linked_object_labels(folder: Path, calibration: kitti.Calibration) -> kitti.
     labels = kitti.concatenate_labels(parts)
     track = np.full(len(labels), -1)
     objects = np.flatnonzero(np.asarray(labels.type, dtype=object) != kitti.DONT_CARE)
-    keys: dict[tuple, list[tuple[int, np.ndarray]]] = {}
-    """(type, h, w, l) → the tracks of that key with their last position."""
+    keys: dict[tuple, list[tuple[int, np.ndarray]]] = {}  # (type, h, w, l) → [(track, where)]
     next_id = 0
     for frame in np.unique(labels.frame):
         here = objects[labels.frame[objects] == frame]

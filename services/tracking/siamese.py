@@ -297,6 +297,9 @@ class SiameseTracker:
     """SC3D's tracker on an ONNX encoder of ``ARCHITECTURE``."""
 
     name = "siamese"
+    sigma_m = 1.0
+    """Its answer is one of candidates 0.5 m apart, and its similarity stays high as it
+    drifts onto the target's surroundings: it is no surer of a box than this."""
 
     def __init__(self, model: Path, *, threads: int = 1, seed: int = 0) -> None:
         from services.nn.onnx_io import read_model, session
@@ -353,13 +356,14 @@ class SiameseTracker:
         self.box = box
         return TrackStep(box, confidence, len(target), predicted)
 
-    def reset(self, points: np.ndarray, box: np.ndarray) -> None:
+    def reset(self, points: np.ndarray, box: np.ndarray) -> np.ndarray:
         self.box = np.asarray(box, dtype=np.float64).copy()
         self.motion.relocate(self.box)
         target = in_box(points, self.box)
         if len(target):
             self.previous = target
             self.latent = self._model_latent()
+        return self.box
 
     def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
         target = in_box(points, box)

@@ -46,6 +46,8 @@ class TrackStep:
 
 class Tracker(Protocol):
     name: str
+    sigma_m: float
+    """Its centre's error when it is sure of its answer (m): a reset weighs its box by it."""
 
     def start(self, points: np.ndarray, box: np.ndarray) -> None:
         """Begin on ``points`` (N, ≥3) with the target's ``box`` given."""
@@ -56,8 +58,9 @@ class Tracker(Protocol):
         (None: unknown)."""
         ...
 
-    def reset(self, points: np.ndarray, box: np.ndarray) -> None:
-        """Take ``box`` (a detection's) as the target's in the current scan."""
+    def reset(self, points: np.ndarray, box: np.ndarray) -> np.ndarray:
+        """Take ``box`` (a detection fused with the tracker's own) as the target's in the
+        current scan; the box the tracker holds now."""
         ...
 
     def appearance(self, points: np.ndarray, box: np.ndarray) -> float:
