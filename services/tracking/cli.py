@@ -65,9 +65,10 @@ DETECTOR = typer.Option(
     "learned",
     help="learned (the default): the BEV network — vista's shipped model unless "
     "--detector-model is given; trained on simulated drives and fine-tuned on KITTI's "
-    "labelled scans, it finds more real cars and far fewer false ones than the geometric "
-    "detector (README: 'Car tracking on LiDAR'). geometric: ground, clusters, L-shape boxes "
-    "scored by shape — no model, for a sensor no model fits.",
+    "labelled scans, on real scans it never saw it found 0.87 of the cars within 40 m at "
+    "precision 0.82, in 22 ms a scan (the geometric detector: 0.65 and 0.53, in 170 ms). "
+    "geometric: ground, clusters, L-shape boxes scored by shape — no model, for a sensor "
+    "no model fits.",
 )
 SIAMESE_MODEL = typer.Option(
     None, help="The Siamese tracker's ONNX encoder (vista track train siamese)."
@@ -100,7 +101,7 @@ def run(
     ),
     reset: str = typer.Option(
         "adaptive:10",
-        help="adaptive[:BUDGET] (the default: the detector only when the tracker is unsure, on at most BUDGET percent of the frames), every:N (the thesis's fixed frequency 1/N) or never.",
+        help="adaptive[:BUDGET] (the default: the detector only when the tracker is unsure, on at most BUDGET percent of the frames — on the real drive and the simulated bench never below the tracker alone, at under 1 % of the frames for the geometric tracker), every:N (the thesis's fixed frequency 1/N) or never.",
     ),
     tracker: str = TRACKER,
     detector: str = DETECTOR,
@@ -376,7 +377,7 @@ def train_default_detector_command(
     frames, a detector trained on them (the simulator-only model), fine-tuned on KITTI's
     labelled object scans with cars pasted from them and from the drives, validated on a
     real drive it never saw; the metadata names the data, the seed and KITTI's licence (CC
-    BY-NC-SA 3.0). About 40 minutes on 2 cores from an empty work folder."""
+    BY-NC-SA 3.0). About half an hour on 2 cores from an empty work folder."""
     from services.process import prepare_process
     from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, build_default_detector
 
