@@ -65,16 +65,22 @@ def simulate(
         height_swing_mm=height_swing_mm,
     )
     try:
-        done = simulate_sequence(
-            out_dir,
-            floor=floor,
-            path=path,
-            seconds=seconds,
-            fps=fps,
-            seed=seed,
-            effects=effects,
-            progress=typer.echo,
-        )
+        with typer.progressbar(length=1, label="rendering frames") as bar:
+
+            def rendered(done: int, total: int) -> None:
+                bar.length = total
+                bar.update(1)
+
+            done = simulate_sequence(
+                out_dir,
+                floor=floor,
+                path=path,
+                seconds=seconds,
+                fps=fps,
+                seed=seed,
+                effects=effects,
+                frame_progress=rendered,
+            )
     except ValueError as exc:
         fail(str(exc))
     typer.echo(
@@ -225,13 +231,18 @@ def eval_(
     truth: Path = typer.Argument(..., help="The true trajectory (TUM)."),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write EVAL.json."),
 ) -> None:
-    """Per-step RMSE of δx, δy (mm) and δθ (°), the final position error, the ATE (after the
-    best rigid alignment) and the drift in % of the distance travelled."""
+    """Per-step RMSE of δx, δy (mm) and δθ (°), the heading's bias per frame, the final
+    position error, the ATE (after the best rigid alignment) and the drift in % of the
+    distance travelled; with the run's TRAJ.json beside the trajectory, the final error
+    against its covariance (NEES, within 2σ)."""
     from services.odometry.evaluate import evaluate
+    from services.odometry.report import final_covariance
     from services.odometry.tum import read_tum
 
     try:
-        result = evaluate(read_tum(trajectory), read_tum(truth))
+        result = evaluate(
+            read_tum(trajectory), read_tum(truth), final_covariance(trajectory.with_suffix(".json"))
+        )
     except (OSError, ValueError) as exc:
         fail(str(exc))
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -240,7 +251,13 @@ def eval_(
         f"{result.poses} poses over {result.distance_m:.3f} m: RMSE δx {result.rmse_dx_mm:.4f} mm, "
         f"δy {result.rmse_dy_mm:.4f} mm, δθ {result.rmse_dtheta_deg:.4f}°; final error "
         f"{result.final_error_m:.4f} m, ATE {result.ate_rmse_m:.4f} m, drift "
-        f"{result.drift_percent:.3f} %"
+        f"{result.drift_percent:.3f} %, heading bias {result.heading_bias_deg:.5f}° a frame"
+        + (
+            f"; NEES {result.final_nees:.1f} (3 expected), final error "
+            f"{'within' if result.final_within_2_sigma else 'beyond'} 2σ ({2 * result.final_sigma_xy_m:.4f} m)"
+            if result.final_nees is not None
+            else ""
+        )
     )
     typer.echo(f"wrote {out}")
 

@@ -142,16 +142,19 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
 
 
 def _sample(image: np.ndarray, xy: np.ndarray, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``image`` at R(θ)·xy + t (about its centre), and which samples fell inside (float32
-    coordinates: 10⁻⁴ pixel steps across a 640-pixel frame)."""
+    """``image`` at R(θ)·xy + t (about its centre), bilinear in floating point, and which
+    samples fell inside. OpenCV's remap rounds positions to 1/32 pixel: on a real
+    photograph that rounding alone doubled the heading's frame-to-frame noise and left a
+    bias of 0.0003° a frame (measured on a KITTI frame with texels finer than the pixels)."""
+    from scipy.ndimage import map_coordinates
+
     c, s = np.cos(motion[2]), np.sin(motion[2])
     centre = _centre(image.shape)
-    affine = np.array([[c, -s, motion[0] + centre[0]], [s, c, motion[1] + centre[1]]])
-    where = cv2.transform(xy[None], affine)  # (1, N, 2) float32
-    x, y = where[0, :, 0], where[0, :, 1]
+    x = c * xy[:, 0] - s * xy[:, 1] + (motion[0] + centre[0])
+    y = s * xy[:, 0] + c * xy[:, 1] + (motion[1] + centre[1])
     inside = (x >= 0) & (x <= image.shape[1] - 1) & (y >= 0) & (y <= image.shape[0] - 1)
-    values = cv2.remap(image, where, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return values[0], inside
+    values = map_coordinates(image, (y, x), order=1, mode="nearest", prefilter=False)
+    return values.astype(np.float32, copy=False), inside
 
 
 def _compose_inverse(motion: np.ndarray, delta: np.ndarray) -> np.ndarray:

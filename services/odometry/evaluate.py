@@ -4,7 +4,13 @@ the final position error, the absolute trajectory error and the drift.
 Poses are matched by time (within half a frame). The per-step error compares each
 estimated motion between consecutive matched poses with the true one, in the first pose's
 frame; the ATE is the RMS position error after the rigid planar alignment that fits best
-(Umeyama without scale), as evo's ``ape`` reports it.
+(Umeyama without scale), as evo's ``ape`` reports it. The heading bias is the mean of the
+per-step heading errors (what sums into a curved path on a straight run).
+
+Given the final pose's covariance, the final error is also judged against it: the
+normalised estimation error squared (NEES, eᵀ P⁻¹ e over x, y and θ: about 3 on average when
+the covariance tells the truth) and whether the position error is within twice the
+position's σ (the root of the x–y trace).
 """
 
 from __future__ import annotations
@@ -29,6 +35,12 @@ class OdometryEval:
     ate_rmse_m: float
     drift_percent: float
     """Final position error in % of the distance travelled."""
+    heading_bias_deg: float
+    """The mean per-step heading error (degrees a frame)."""
+    final_nees: float | None = None
+    """eᵀ P⁻¹ e of the final pose (x, y, θ), when its covariance is given."""
+    final_sigma_xy_m: float | None = None
+    final_within_2_sigma: bool | None = None
 
     def document(self) -> dict:
         return asdict(self)
@@ -60,7 +72,11 @@ def align_rigid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([t[0], t[1], theta])
 
 
-def evaluate(estimate: Trajectory2D, truth: Trajectory2D) -> OdometryEval:
+def evaluate(
+    estimate: Trajectory2D, truth: Trajectory2D, final_covariance: np.ndarray | None = None
+) -> OdometryEval:
+    """The estimate against the truth; ``final_covariance`` (3 × 3: mm², mm·rad, rad²) of
+    the estimate's last pose, when known."""
     est_index, true_index = match(estimate, truth)
     est = estimate.pose[est_index]
     true = truth.pose[true_index]
@@ -74,6 +90,17 @@ def evaluate(estimate: Trajectory2D, truth: Trajectory2D) -> OdometryEval:
     aligned = se2.compose(fit, est)[:, :2]
     ate_mm = float(np.sqrt(np.mean(np.sum((aligned - true[:, :2]) ** 2, axis=1))))
     rms = np.sqrt(np.mean(step_error**2, axis=0))
+    judged = {}
+    if final_covariance is not None and est_index[-1] == len(estimate) - 1:
+        error = est[-1] - true[-1]
+        error[2] = se2.wrap(error[2])
+        covariance = np.asarray(final_covariance, dtype=np.float64)
+        sigma_mm = float(np.sqrt(covariance[0, 0] + covariance[1, 1]))
+        judged = {
+            "final_nees": float(error @ np.linalg.solve(covariance, error)),
+            "final_sigma_xy_m": sigma_mm / 1000,
+            "final_within_2_sigma": bool(final_mm <= 2 * sigma_mm),
+        }
     return OdometryEval(
         poses=len(est_index),
         distance_m=distance_mm / 1000,
@@ -83,4 +110,6 @@ def evaluate(estimate: Trajectory2D, truth: Trajectory2D) -> OdometryEval:
         final_error_m=final_mm / 1000,
         ate_rmse_m=ate_mm / 1000,
         drift_percent=100 * final_mm / distance_mm if distance_mm > 0 else float("nan"),
+        heading_bias_deg=float(np.degrees(step_error[:, 2].mean())),
+        **judged,
     )

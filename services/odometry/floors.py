@@ -177,12 +177,13 @@ def image_floor(source: str | Path, mm_per_px: float = IMAGE_MM_PER_PX) -> Floor
     return Floor(name, np.clip(albedo, 0.02, 1.0).astype(np.float32))
 
 
-def make_floor(name_or_path: str, seed: int = 0) -> Floor:
-    """A procedural floor by name, a sample image by name, or an image file."""
+def make_floor(name_or_path: str, seed: int = 0, mm_per_px: float = IMAGE_MM_PER_PX) -> Floor:
+    """A procedural floor by name, a sample image by name, or an image file (each of its
+    pixels ``mm_per_px`` of floor)."""
     if name_or_path in PROCEDURAL:
         return procedural_floor(name_or_path, seed)
     if name_or_path in SAMPLE_IMAGES or Path(name_or_path).is_file():
-        return image_floor(name_or_path)
+        return image_floor(name_or_path, mm_per_px)
     raise ValueError(
         f"--floor {name_or_path!r}: not a floor name ({', '.join(PROCEDURAL + SAMPLE_IMAGES)}) "
         "nor an image file"

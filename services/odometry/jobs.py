@@ -108,7 +108,7 @@ def odometry_job(ctx: JobContext) -> dict:
         "final_sigma_xy_mm": round(float(result.sigma_xy_mm[-1]), 3),
     }
     if truth is not None:
-        scores = evaluate(result.trajectory, truth).document()
+        scores = evaluate(result.trajectory, truth, result.covariance[-1]).document()
         ctx.add_artifact_json(scores, kind=EVALUATION.kind, name=EVALUATION.file_name())
         summary["evaluation"] = scores
     ctx.progress(

@@ -38,6 +38,10 @@ def run_document(run: OdometryRun) -> dict:
         "warned": run.warned,
         "pairs_per_s": round(run.pairs_per_s, 1),
         "final_sigma_xy_mm": round(float(run.sigma_xy_mm[-1]), 3),
+        "final_covariance": {
+            "units": "mm², mm·rad, rad² (x, y, θ)",
+            "matrix": run.covariance[-1].tolist(),
+        },
         "pairs_detail": [
             {
                 "pair": k,
@@ -59,7 +63,17 @@ def run_document(run: OdometryRun) -> dict:
             )
         ],
         "sigma_xy_mm": [round(float(v), 3) for v in run.sigma_xy_mm],
+        "sigma_theta_deg": [round(float(np.degrees(np.sqrt(c[2, 2]))), 5) for c in run.covariance],
     }
+
+
+def final_covariance(report_path: Path) -> np.ndarray | None:
+    """The final pose's covariance a TRAJ.json holds (None: not there, or an older file)."""
+    try:
+        document = json.loads(report_path.read_text())
+        return np.array(document["final_covariance"]["matrix"], dtype=np.float64).reshape(3, 3)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def trajectory_png(
@@ -88,7 +102,7 @@ def trajectory_png(
         label="estimate",
     )
     top.plot([0], [0], "ko", ms=4)
-    top.set_aspect("equal")
+    _equal_and_readable(top, estimate.pose[:, :2] / 1000)
     top.invert_yaxis()  # y along the image rows: drawn as the camera sees it
     top.set_xlabel("x (m, camera 0's columns)")
     top.set_ylabel("y (m, camera 0's rows)")
@@ -118,3 +132,14 @@ def trajectory_png(
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=110)
     plt.close(figure)
+
+
+def _equal_and_readable(axes, xy_m: np.ndarray) -> None:  # noqa: ANN001 - matplotlib axes
+    """Equal scales, each axis spanning at least a third of the other's: a straight path
+    would otherwise be a line in a strip too thin to read."""
+    low, high = xy_m.min(axis=0), xy_m.max(axis=0)
+    centre, span = (low + high) / 2, np.maximum(high - low, 1e-3)
+    side = np.maximum(span, span.max() / 3) * 1.1
+    axes.set_xlim(centre[0] - side[0] / 2, centre[0] + side[0] / 2)
+    axes.set_ylim(centre[1] - side[1] / 2, centre[1] + side[1] / 2)
+    axes.set_aspect("equal", adjustable="datalim")

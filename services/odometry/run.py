@@ -74,8 +74,14 @@ class OdometryRun:
     method: str
     seconds: float
     """Time to read the frames and estimate the motions."""
-    sigma_xy_mm: np.ndarray
-    """(N,) the position's standard deviation, growing with the distance."""
+    covariance: np.ndarray
+    """(N, 3, 3) each pose's covariance (mm², mm·rad, rad²), growing along the way."""
+
+    @property
+    def sigma_xy_mm(self) -> np.ndarray:
+        """(N,) the position's standard deviation (the root of the covariance's x–y trace:
+        the expected size of the position error)."""
+        return np.sqrt(self.covariance[:, 0, 0] + self.covariance[:, 1, 1])
 
     @property
     def pairs_per_s(self) -> float:
@@ -238,15 +244,11 @@ def _bridged(steps: Steps) -> Steps:
     return Steps(padded[index + 1], steps.confidence, steps.reasons, sigma, steps.warnings)
 
 
-def position_sigma(steps: Steps) -> np.ndarray:
-    """(N,) position standard deviation: the steps' own errors add up, the heading's error
-    turns every later step, and an error of scale the steps share grows with the distance."""
-    heading_var = np.concatenate([[0.0], np.cumsum(steps.sigma[:, 2] ** 2)])
-    length = np.hypot(steps.motion[:, 0], steps.motion[:, 1])
-    step_var = steps.sigma[:, 0] ** 2 + steps.sigma[:, 1] ** 2 + heading_var[:-1] * length**2
-    distance = np.concatenate([[0.0], np.cumsum(length)])
-    random = np.concatenate([[0.0], np.cumsum(step_var)])
-    return np.sqrt(random + (SCALE_SIGMA * distance) ** 2)
+def pose_covariance(steps: Steps) -> np.ndarray:
+    """(N, 3, 3) each pose's covariance (mm², mm·rad, rad²): the steps' own errors carried
+    through the composition (a heading error turns every later position), and an error of
+    scale the steps share growing with the way travelled (``se2.pose_covariances``)."""
+    return se2.pose_covariances(steps.motion, steps.sigma, SCALE_SIGMA)
 
 
 def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) -> Steps:
@@ -292,4 +294,4 @@ def run_odometry(
     steps = _bridged(steps)
     times = np.arange(len(files)) / camera.fps
     trajectory = Trajectory2D(times, se2.integrate(steps.motion))
-    return OdometryRun(trajectory, steps, method, seconds, position_sigma(steps))
+    return OdometryRun(trajectory, steps, method, seconds, pose_covariance(steps))

@@ -16,7 +16,7 @@ import numpy as np
 
 from services.odometry.camera import Camera
 from services.odometry.drive import Command, Robot, drive, path_commands
-from services.odometry.floors import make_floor
+from services.odometry.floors import IMAGE_MM_PER_PX, make_floor
 from services.odometry.render import Effects, exposures, render
 from services.odometry.tum import Trajectory2D, write_tum
 
@@ -39,6 +39,7 @@ def simulate_sequence(
     out_dir: Path,
     *,
     floor: str = "concrete",
+    floor_mm_per_px: float = IMAGE_MM_PER_PX,
     path: str = "loop",
     seconds: float | None = None,
     fps: float = 60.0,
@@ -48,14 +49,16 @@ def simulate_sequence(
     robot: Robot = Robot(),
     commands: list[Command] | None = None,
     progress: Progress | None = None,
+    frame_progress: Callable[[int, int], None] | None = None,
 ) -> Simulated:
-    """Drive ``path`` (or the given ``commands``) over ``floor`` and write what the camera
-    saw and where it was."""
+    """Drive ``path`` (or the given ``commands``) over ``floor`` (an image floor's pixel
+    covering ``floor_mm_per_px``) and write what the camera saw and where it was;
+    ``frame_progress(done, total)`` hears of every frame written."""
     say = progress or (lambda message: None)
     camera = camera or Camera.thesis(fps=fps)
     rng = np.random.default_rng(seed)
     say(f"floor {floor}")
-    ground = make_floor(floor, seed)
+    ground = make_floor(floor, seed, floor_mm_per_px)
     motion = drive(commands or path_commands(path, seconds=seconds, seed=seed), robot)
     times = np.arange(0.0, motion.seconds + 1e-9, 1.0 / camera.fps)
     exposure = exposures(camera, times, effects, rng)
@@ -69,6 +72,8 @@ def simulate_sequence(
         cv2.imwrite(str(frames_dir / frame_name(index)), image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         if progress and index and index % 500 == 0:
             say(f"  {index} of {len(times)} frames")
+        if frame_progress:
+            frame_progress(index + 1, len(times))
     (out_dir / "camera.json").write_text(json.dumps(camera.document(), indent=1) + "\n")
     write_tum(out_dir / "truth.tum", truth)
     return Simulated(out_dir, camera, truth, motion.distance_mm)
