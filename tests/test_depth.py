@@ -179,8 +179,19 @@ def test_eval_command_writes_the_contract(tmp_path: Path) -> None:
     write_depth_png(pred / "000001.png", truth)
     cv2.imwrite(str(pred / "000001.color.png"), np.zeros((20, 30, 3), np.uint8))
     out = tmp_path / "eval.json"
-    result = CliRunner().invoke(
+    refused = CliRunner().invoke(
         app, ["depth", "eval", str(pred), str(gt), "--crop", "none", "-o", str(out)]
+    )
+    assert refused.exit_code == 2 and "1 ground-truth PNGs" in refused.output
+    assert not out.exists()  # nothing written for folders that do not match
+    write_depth_png(pred / "000009.png", truth)
+    refused = CliRunner().invoke(
+        app, ["depth", "eval", str(pred), str(gt), "--crop", "none", "-o", str(out)]
+    )
+    assert "1 predictions in" in refused.output and "no ground truth" in refused.output
+    (pred / "000009.png").unlink()
+    result = CliRunner().invoke(
+        app, ["depth", "eval", str(pred), str(gt), "--crop", "none", "--partial", "-o", str(out)]
     )
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
@@ -197,7 +208,7 @@ def test_eval_command_writes_the_contract(tmp_path: Path) -> None:
         "000002"
     ]
     assert data["metrics"]["abs_rel"] == pytest.approx(0.05, abs=1e-3)
-    assert "1 ground-truth images had no prediction" in result.output
+    assert "WARNING, --partial: 1 ground-truth PNGs" in result.output
     refused = CliRunner().invoke(app, ["depth", "eval", str(tmp_path), str(gt), "-o", str(out)])
     assert refused.exit_code == 2 and "no prediction" in refused.output
     refused = CliRunner().invoke(
@@ -340,8 +351,18 @@ def test_drive_archives_unpack_to_kittis_layout_and_refuse_the_unsafe(tmp_path: 
                     inside = f"2011_09_26_drive_0001_sync/image_02/data/{relative.name}"
                 archive.write(path, inside)
         archive.writestr("2011_09_26_drive_0001_sync/image_02/../../../evil.png", b"x")
+        scan = np.zeros((5, 4), "<f4").tobytes()
+        for name in ("0000000000", "0000000001"):  # raw's LiDAR layout
+            archive.writestr(f"2011_09_26_drive_0001_sync/velodyne_points/data/{name}.bin", scan)
+        archive.writestr("2011_09_26_drive_0001_sync/calib_velo_to_cam.txt", "R: 1 0 0\n")
+    assert inspect_drive(raw).scans
     extract_drive(raw, tmp_path / "raw")
     assert len(list((tmp_path / "raw" / "image_02").glob("*.png"))) == 2
+    assert read_drive(tmp_path / "raw").velodyne == (
+        tmp_path / "raw" / "velodyne" / "0000000000.bin",
+        tmp_path / "raw" / "velodyne" / "0000000001.bin",
+    )
+    assert (tmp_path / "raw" / "calib_velo_to_cam.txt").is_file()
     assert not (tmp_path / "evil.png").exists() and not (tmp_path.parent / "evil.png").exists()
     bare = tmp_path / "bare.tar"
     with tarfile.open(bare, "w") as archive:
@@ -411,3 +432,181 @@ def test_a_tiny_distillation_end_to_end(tmp_path: Path) -> None:
     assert int8.spec.metadata["quantization"]["calibration_images"] == 12
     a, b = fp32.predict(images).depth_m, int8.predict(images).depth_m
     assert np.median(np.abs(a - b) / a) < 0.05  # int8 costs a few per cent at most
+
+
+KITTI_HELD_OUT = KITTI_RAW.parent / "kitti-object-testing-sample"
+
+
+@pytest.mark.skipif(not KITTI_RAW.is_dir(), reason="the shared KITTI sample is not here")
+def test_lidar_depth_is_kittis_projection_at_any_size(tmp_path: Path) -> None:
+    """The scans through calib.json give the drive's own depth PNGs pixel for pixel; KITTI
+    raw's text calibration gives the same; at the training size the nearest return wins."""
+    from services.depth.data import load_frames
+    from services.depth.lidar import lidar_depth, read_lidar_calibration, read_velodyne
+
+    drive = read_drive(KITTI_RAW)
+    assert drive.velodyne is not None and all(drive.velodyne)
+    calibration = read_lidar_calibration(KITTI_RAW)
+    points = read_velodyne(drive.velodyne[0])
+    truth = read_depth_png(drive.depth[0])
+    mine = lidar_depth(points, calibration, (1242, 375), (1242, 375))
+    assert ((mine > 0) == (truth > 0)).all()
+    assert np.abs(mine - truth).max() < 2 / 256  # the PNG stores 1/256 m steps
+    data = json.loads((KITTI_RAW / "calib.json").read_text())
+    velo_T = np.asarray(data["cam0_T_velo"])
+    text = tmp_path / "text"
+    text.mkdir()
+    (text / "calib_velo_to_cam.txt").write_text(
+        "R: " + " ".join(map(str, velo_T[:3, :3].ravel())) + "\n"
+        "T: " + " ".join(map(str, velo_T[:3, 3])) + "\n"
+    )
+    (text / "calib_cam_to_cam.txt").write_text(
+        "R_rect_00: " + " ".join(map(str, np.ravel(data["R_rect_00"]))) + "\n"
+        "P_rect_02: " + " ".join(map(str, np.ravel(data["P_rect_02"]))) + "\n"
+    )
+    again = read_lidar_calibration(text)
+    assert np.allclose(again.rect_T_velo, calibration.rect_T_velo)
+    small = lidar_depth(points, calibration, (1242, 375), (320, 96))
+    assert 2_000 < (small > 0).sum() < 320 * 96 and small[small > 0].min() > 1
+    frames = load_frames([KITTI_RAW], 320, 96, lidar=True)
+    assert frames.depth_m.shape == (40, 1, 96, 320) and np.array_equal(frames.depth_m[0, 0], small)
+    with pytest.raises(ValueError, match="no LiDAR calibration"):
+        read_lidar_calibration(tmp_path / "nowhere")
+
+
+def test_a_teacher_onnx_loads_for_fine_tuning(tmp_path: Path) -> None:
+    """A trained teacher's ONNX (batch norms folded by the export) back in torch answers as
+    the original did, and a student file is refused as a starting teacher."""
+    import torch
+
+    from services.depth.export import export_depth_model
+    from services.depth.nets import Student, Teacher
+    from services.depth.teacher import load_teacher
+
+    torch.manual_seed(0)
+    teacher = Teacher()
+    for layer in teacher.modules():
+        if isinstance(layer, torch.nn.BatchNorm2d):
+            layer.running_mean.uniform_(-0.2, 0.2)
+            layer.running_var.uniform_(0.5, 2.0)
+            layer.weight.data.uniform_(0.5, 1.5)
+            layer.bias.data.uniform_(-0.2, 0.2)
+    teacher.eval()
+    path = tmp_path / "teacher.onnx"
+    export_depth_model(
+        teacher, path, width=64, height=64, architecture="monodepth2-resnet18", features=True
+    )
+    loaded = load_teacher(path).eval()
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in loaded.modules())
+    x = torch.rand(2, 3, 64, 64)
+    with torch.no_grad():
+        assert torch.allclose(loaded(x), teacher(x), rtol=1e-4, atol=1e-5)
+    student = tmp_path / "student.onnx"
+    export_depth_model(
+        Student().eval(), student, width=64, height=64, architecture="deeplabv3plus-mobilenetv2"
+    )
+    with pytest.raises(ValueError, match="fine-tuning starts from a teacher"):
+        load_teacher(student)
+
+
+def test_weights_stored_in_int8_are_a_quarter_and_compute_as_before(tmp_path: Path) -> None:
+    from services.depth.export import export_depth_model
+    from services.depth.models import DepthModel
+    from services.depth.nets import Student
+    from services.nn.onnx_io import store_weights_int8
+
+    path = tmp_path / "student.onnx"
+    export_depth_model(
+        Student().eval(), path, width=128, height=64, architecture="deeplabv3plus-mobilenetv2"
+    )
+    small = store_weights_int8(path, tmp_path / "small.onnx")
+    assert small.stat().st_size < 0.3 * path.stat().st_size
+    fp32, int8 = DepthModel(path), DepthModel(small)
+    assert int8.spec.metadata == fp32.spec.metadata
+    images = np.random.default_rng(0).integers(0, 255, (2, 64, 128, 3), dtype=np.uint8)
+    a, b = fp32.predict(images).depth_m, int8.predict(images).depth_m
+    assert np.median(np.abs(a - b) / a) < 0.01
+
+
+def test_the_preview_has_a_colour_bar_in_metres() -> None:
+    from services.depth.predict import colour_bar, colour_preview
+
+    depth = np.tile(np.linspace(60, 3, 96)[:, None], (1, 320)).astype(np.float32)
+    preview = colour_preview(depth)
+    assert preview.shape[0] > 96 and preview.shape[1] == 320
+    bar = colour_bar(320, 1 / 3)
+    # far on the left (dark), near on the right (bright)
+    assert bar[0, -1].sum() > bar[0, 0].sum() + 300
+
+
+@pytest.mark.skipif(not KITTI_HELD_OUT.is_dir(), reason="the shared KITTI sample is not here")
+def test_build_default_at_a_tiny_scale(tmp_path: Path) -> None:
+    """The shipped model's recipe end to end on three simulated drives, one epoch a stage,
+    64 × 64: simulated teacher, LiDAR adaptation on the real drive, student, int8 weights,
+    the held-out score and the licence in the metadata; the predict command uses it."""
+    from services.depth.default_model import BuildSettings, build_default_model
+    from services.nn.onnx_io import read_model
+
+    out = tmp_path / "depth.onnx"
+    settings = BuildSettings(
+        sim_drives=3,
+        teacher_epochs=1,
+        adapt_epochs=1,
+        adapt_sim_drives=1,
+        student_epochs=1,
+        student_sim_drives=2,
+        batch=4,
+        size=(64, 64),
+    )
+    metadata = build_default_model(out, work=tmp_path / "work", settings=settings)
+    assert read_model(out).metadata == metadata
+    assert "CC BY-NC-SA 3.0" in metadata["licence"]
+    assert metadata["training_data"]["real_frames"] == 40
+    validation = metadata["validation"]
+    assert len(validation["frames"]) == 10 and validation["shipped"]["frames"] == 10
+    assert 0 < validation["shipped"]["abs_rel"] < 2
+    adapted = read_model(tmp_path / "work" / "teacher-lidar.onnx").metadata["training"]
+    # every real frame trains; the simulated drive validates
+    assert adapted["adapted_from"] == "teacher.onnx" and adapted["frames"] == {
+        "train": 40,
+        "val": 3,
+    }
+    result = CliRunner().invoke(
+        app,
+        ["depth", "predict", str(KITTI_HELD_OUT / "image_2"), "-o", str(tmp_path / "pred"),
+         "--model", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    evaluation = CliRunner().invoke(
+        app,
+        ["depth", "eval", str(tmp_path / "pred"), str(KITTI_HELD_OUT / "depth"),
+         "--median-scaling", "-o", str(tmp_path / "eval.json")],
+    )  # fmt: skip
+    assert evaluation.exit_code == 0, evaluation.output
+    scored = json.loads((tmp_path / "eval.json").read_text())["metrics"]["abs_rel"]
+    assert scored == pytest.approx(validation["shipped"]["abs_rel"], rel=0.02)
+
+
+@pytest.mark.skipif(not KITTI_HELD_OUT.is_dir(), reason="the shared KITTI sample is not here")
+def test_predict_uses_the_shipped_model(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A new user's first real images: no model given, the shipped one answers (its
+    metadata says where it comes from and its licence); without one, the error says how to
+    get one."""
+    import services.depth.default_model as default_model
+    from services.nn.onnx_io import read_model
+
+    shipped = read_model(default_model.PACKAGED).metadata
+    assert "CC BY-NC-SA 3.0" in shipped["licence"] and shipped["validation"]["shipped"]["frames"]
+    assert default_model.PACKAGED.stat().st_size <= 5_000_000
+    images = tmp_path / "images"
+    images.mkdir()
+    for name in ("000000.png", "000001.png"):
+        (images / name).write_bytes((KITTI_HELD_OUT / "image_2" / name).read_bytes())
+    result = CliRunner().invoke(app, ["depth", "predict", str(images), "-o", str(tmp_path / "p")])
+    assert result.exit_code == 0, result.output
+    depth = read_depth_png(tmp_path / "p" / "000000.png")
+    preview = cv2.imread(str(tmp_path / "p" / "000000.color.png"))
+    assert depth.shape == (375, 1242) and preview.shape[0] > 375  # the colour bar below
+    monkeypatch.setattr(default_model, "PACKAGED", tmp_path / "none.onnx")
+    result = CliRunner().invoke(app, ["depth", "predict", str(images), "-o", str(tmp_path / "q")])
+    assert result.exit_code == 2 and "vista depth build-default" in result.output

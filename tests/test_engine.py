@@ -557,7 +557,13 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
     image = _upload(engine, folder / "image_02" / "0000000001.png", "image", "image/png")
     base = f"/api/v1/inspections/{engine.inspection}/artifacts"
     uploaded = engine.http.get(f"{base}/{drive}").json()
-    assert uploaded["meta"] == {"frames": 3, "stereo": True, "depth": True, "poses": True}
+    assert uploaded["meta"] == {
+        "frames": 3,
+        "stereo": True,
+        "depth": True,
+        "scans": False,
+        "poses": True,
+    }
     small = {"width": 128, "height": 64, "epochs": 1, "batch": 2, "device": "cpu"}
     run = engine.run(
         [
@@ -580,14 +586,22 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
                 "inputs": [drive, image],
                 "after": ["student"],
             },
+            {
+                "name": "adapt",
+                "kind": "depth.train",
+                "inputs": [drive],
+                "after": ["teacher"],
+                "params": {**small, "network": "teacher", "supervision": "depth"},
+            },
+            {"name": "shipped", "kind": "depth.predict", "inputs": [image]},
         ]
     )
-    teacher, student, predict = [engine.wait(j["id"], timeout=300) for j in run["jobs"]]
-    assert [j["status"] for j in (teacher, student, predict)] == ["succeeded"] * 3, (
-        teacher,
-        student,
-        predict,
-    )
+    teacher, student, predict, adapt, shipped = [
+        engine.wait(j["id"], timeout=300) for j in run["jobs"]
+    ]
+    assert [j["status"] for j in (teacher, student, predict, adapt, shipped)] == [
+        "succeeded"
+    ] * 5, (teacher, student, predict, adapt, shipped)
     assert teacher["result"]["architecture"] == "monodepth2-resnet18"
     assert student["result"]["architecture"] == "deeplabv3plus-mobilenetv2"
     assert predict["result"]["images"] == 4

@@ -62,12 +62,19 @@ def evaluate(
     ),
     crop: str = typer.Option("garg", help="garg (monodepth2's Eigen-split crop), eigen or none."),
     max_depth: float = typer.Option(80.0, min=0.01, max=655.0, help="Cap, metres (KITTI: 80)."),
+    partial: bool = typer.Option(
+        False,
+        "--partial",
+        help="Score the names both folders have even when others are on one side only "
+        "(listed, with a warning); without it such folders are refused.",
+    ),
     out: Path = typer.Option(..., "-o", "--out", help="EVAL.json to write."),
 ) -> None:
     """Monodepth2's evaluation: per image the seven metrics (abs_rel, sq_rel, rmse,
     rmse_log, δ<1.25, δ<1.25², δ<1.25³) on ground-truth pixels within the crop and
     1e-3 m–--max-depth, the prediction resized to the ground truth and clipped; the
-    metrics averaged over images."""
+    metrics averaged over images. Predictions and ground truth are matched by file name;
+    folders that do not match one to one are refused unless --partial."""
     from services.depth.metrics import CROPS, evaluate_folders
 
     if crop not in CROPS:
@@ -78,6 +85,20 @@ def evaluate(
         )
     except ValueError as exc:
         fail(str(exc))
+    one_sided = [
+        f"{len(names)} {what} ({', '.join(names[:5])}{' …' if len(names) > 5 else ''})"
+        for names, what in (
+            (result.missing, f"ground-truth PNGs in {gt_dir} have no prediction"),
+            (result.unmatched, f"predictions in {pred_dir} have no ground truth"),
+        )
+        if names
+    ]
+    if one_sided and not partial:
+        fail(
+            "; ".join(one_sided)
+            + f": the folders do not match (only {len(result.images)} names in both); pass "
+            "--partial to score those alone"
+        )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result.to_json(), indent=1))
     m = result.metrics
@@ -86,10 +107,8 @@ def evaluate(
         f"{m.rmse:.3f} m, rmse_log {m.rmse_log:.3f}, δ1 {m.delta1:.3f}, δ2 {m.delta2:.3f}, "
         f"δ3 {m.delta3:.3f}"
     )
-    if result.missing:
-        typer.echo(
-            f"warning: {len(result.missing)} ground-truth images had no prediction: {result.missing[:5]}"
-        )
+    for line in one_sided:
+        typer.echo(f"WARNING, --partial: {line}; not scored", err=True)
     typer.echo(f"wrote {out}")
 
 
@@ -106,11 +125,11 @@ def _config(epochs: int, batch: int, learning_rate: float, seed: int, threads: i
     )
 
 
-def _load(folders: list[Path], width: int, height: int):  # noqa: ANN202 - a FrameSet
+def _load(folders: list[Path], width: int, height: int, lidar: bool = False):  # noqa: ANN202 - a FrameSet
     from services.depth.data import load_frames
 
     try:
-        return load_frames(folders, width, height)
+        return load_frames(folders, width, height, lidar=lidar)
     except ValueError as exc:
         fail(str(exc))
 
@@ -132,11 +151,18 @@ CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun
 def train_teacher_command(
     data: list[Path] = typer.Argument(
         ...,
-        help="Drive folders (image_02/, and image_03/, depth/, poses.txt as the supervision needs).",
+        help="Drive folders (image_02/, and image_03/, depth/, velodyne/, poses.txt as the supervision needs).",
     ),
     out: Path = typer.Option(..., "-o", "--out", help="TEACHER.onnx to write."),
     supervision: str = typer.Option(
-        "depth", help="stereo, mono (pose network), both, or depth (ground truth)."
+        "depth",
+        help="stereo, mono (pose network), both, depth (ground-truth maps) or lidar (the "
+        "drives' velodyne/ scans through their calibration; simulated drives give depth/).",
+    ),
+    initial: Path = typer.Option(
+        None,
+        "--from",
+        help="A teacher to adapt (e.g. one trained on the simulator) instead of starting from scratch.",
     ),
     width: int = WIDTH,
     height: int = HEIGHT,
@@ -151,26 +177,43 @@ def train_teacher_command(
     """Train Monodepth2's network (ResNet-18 encoder, 14.3 M parameters) as a teacher:
     self-supervised from stereo, from video with a pose network, or both (photometric
     L1 + SSIM with α = 0.85, edge-aware smoothness, per-pixel minimum reprojection,
-    auto-masking), or supervised by depth maps. Writes ONNX with its encoder and decoder
-    features as extra outputs (for vista's distillation) and the validation AbsRel."""
+    auto-masking), or supervised by depth maps or by the LiDAR scans of the drives. With
+    --from, adapts a trained teacher to your camera (e.g. the simulator's, on your own
+    scans or video). Writes ONNX with its encoder and decoder features as extra outputs
+    (for vista's distillation) and the validation AbsRel."""
     from services.depth.teacher import SUPERVISIONS, save_teacher, train_teacher
 
     if supervision not in SUPERVISIONS:
         fail(f"--supervision {supervision!r}: one of {', '.join(SUPERVISIONS)}")
     if width % 32 or height % 32:
         fail(f"--width {width} --height {height}: both must be multiples of 32 (at least 64)")
-    frames = _load(data, width, height)
+    if initial is not None and not initial.is_file():
+        fail(f"--from {initial}: no such file")
+    frames = _load(data, width, height, lidar=supervision == "lidar")
     typer.echo(
         f"{len(frames)} frames from {len(data)} folder{'s' * (len(data) > 1)} at {width} × {height}"
     )
     config = _config(epochs, batch, learning_rate, seed, threads, device)
     try:
         result = train_teacher(
-            frames, supervision, config, checkpoint_dir=checkpoints, progress=echo_progress
+            frames,
+            supervision,
+            config,
+            initial=initial,
+            checkpoint_dir=checkpoints,
+            progress=echo_progress,
         )
     except ValueError as exc:
         fail(str(exc))
-    save_teacher(result, out, config, width=width, height=height)
+    save_teacher(
+        result,
+        out,
+        config,
+        width=width,
+        height=height,
+        data=[str(folder) for folder in data],
+        **({"from": initial.name} if initial is not None else {}),
+    )
     score = (
         f"validation AbsRel {result.val_abs_rel:.3f}"
         if result.val_abs_rel is not None
@@ -243,12 +286,17 @@ def distill_command(
 
 @depth_app.command("predict")
 def predict_command(
-    model_path: Path = typer.Argument(..., help="MODEL.onnx (vista's, or any with its spec JSON)."),
     images_dir: Path = typer.Argument(
         ..., help="Folder of PNG or JPEG images (or a drive folder: its image_02/)."
     ),
     out_dir: Path = typer.Option(
         ..., "-o", "--out", help="Folder for NAME.png (uint16 m × 256), NAME.color.png, NAME.ply."
+    ),
+    model_path: Path = typer.Option(
+        None,
+        "--model",
+        help="MODEL.onnx (vista's, or any with its spec JSON); default: the model vista ships "
+        "(trained on the simulator, adapted to KITTI's camera by its LiDAR; see the README).",
     ),
     int8: bool = typer.Option(
         False,
@@ -268,6 +316,7 @@ def predict_command(
     import numpy as np
 
     from services.depth.data import image_files
+    from services.depth.default_model import default_model
     from services.depth.kitti import read_calibration, read_image
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
@@ -276,6 +325,10 @@ def predict_command(
     folder = images_dir / "image_02" if (images_dir / "image_02").is_dir() else images_dir
     if not folder.is_dir():
         fail(f"{images_dir}: no such folder")
+    try:
+        model_path = model_path or default_model()
+    except ValueError as exc:
+        fail(str(exc))
     paths = image_files(folder / "data" if (folder / "data").is_dir() else folder)
     if not paths:
         fail(f"{folder}: no PNG or JPEG images")
@@ -321,6 +374,88 @@ def import_command(
     typer.echo(f"wrote {out} ({spec.width} × {spec.height} in, {spec.output_kind} out)")
 
 
+@depth_app.command("build-default")
+def build_default_command(
+    out: Path = typer.Option(
+        None, "-o", "--out", help="Where to write the model (default: the packaged one)."
+    ),
+    work: Path = typer.Option(
+        Path("bench-results/depth"),
+        help="Simulated drives and each stage's model, reused by the next run (and by vista bench depth).",
+    ),
+    real_drive: Path = typer.Option(
+        None, help="A KITTI-raw-layout drive with velodyne/ (default: ../shared/data's drive 0052)."
+    ),
+    held_out: Path = typer.Option(
+        None,
+        help="Real frames to score on, never trained on (default: ../shared/data's kitti-object-testing-sample).",
+    ),
+    sim_drives: int = typer.Option(500, min=2, help="Simulated stereo drives of three frames."),
+    teacher_epochs: int = typer.Option(8, min=1),
+    adapt_epochs: int = typer.Option(20, min=1),
+    adapt_sim_drives: int = typer.Option(
+        40, min=1, help="Simulated drives mixed into the adaptation."
+    ),
+    student_epochs: int = typer.Option(8, min=1),
+    student_sim_drives: int = typer.Option(
+        300, min=1, help="Simulated drives the student also learns on."
+    ),
+    width: int = typer.Option(320, min=64, max=4096),
+    height: int = typer.Option(96, min=64, max=4096),
+    seed: int = SEED,
+    threads: int = THREADS,
+) -> None:
+    """Build the depth model vista ships: a teacher trained on simulated drives, adapted to a
+    real camera by that drive's LiDAR (simulated drives mixed in), the student distilled from
+    it on real and simulated images, its weights stored in int8 (computed in float), scored
+    on the held-out real frames; data, scores, seed, this command and KITTI's licence go into
+    its metadata. About an hour on 2 cores at the defaults; each stage is kept in --work."""
+    from services.depth.default_model import (
+        HELD_OUT,
+        PACKAGED,
+        REAL_DRIVE,
+        BuildSettings,
+        build_default_model,
+    )
+
+    if width % 32 or height % 32:
+        fail(f"--width {width} --height {height}: both must be multiples of 32 (at least 64)")
+    settings = BuildSettings(
+        sim_drives=sim_drives,
+        teacher_epochs=teacher_epochs,
+        adapt_epochs=adapt_epochs,
+        adapt_sim_drives=min(adapt_sim_drives, sim_drives - 1),
+        student_epochs=student_epochs,
+        student_sim_drives=min(student_sim_drives, sim_drives),
+        seed=seed,
+        threads=threads,
+        size=(width, height),
+    )
+    try:
+        metadata = build_default_model(
+            out or PACKAGED,
+            work=work,
+            real_drive=real_drive or REAL_DRIVE,
+            held_out=held_out or HELD_OUT,
+            settings=settings,
+            command=(
+                f"vista depth build-default --sim-drives {sim_drives} --teacher-epochs "
+                f"{teacher_epochs} --adapt-epochs {adapt_epochs} --adapt-sim-drives "
+                f"{adapt_sim_drives} --student-epochs {student_epochs} --student-sim-drives "
+                f"{student_sim_drives} --width {width} --height {height} --seed {seed}"
+            ),
+            progress=echo_progress,
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    figures = metadata["validation"]
+    typer.echo(
+        f"wrote {out or PACKAGED}: AbsRel {figures['shipped']['abs_rel']:.3f} on "
+        f"{figures['shipped']['frames']} held-out real frames (simulator-only teacher "
+        f"{figures['simulator_only_teacher']['abs_rel']:.3f})"
+    )
+
+
 def bench_depth(
     out: Path = typer.Option(Path("bench-results/depth.json"), help="Where to write the JSON."),
     work: Path = typer.Option(
@@ -332,16 +467,19 @@ def bench_depth(
         help="A teacher to distil instead of training one (vista's or any with its spec JSON).",
     ),
     train_drives: int = typer.Option(
-        1200, min=2, help="Simulated stereo drives of three frames to train on."
+        500, min=2, help="Simulated stereo drives of three frames to train on."
     ),
-    teacher_epochs: int = typer.Option(6, min=1),
+    teacher_epochs: int = typer.Option(8, min=1),
     student_epochs: int = typer.Option(8, min=1),
 ) -> None:
-    """Teacher and students side by side: parameters; monodepth2's metrics on held-out
-    simulated frames and on KITTI's real frames (with the int8 student and a flat-road
-    prior); latency per 1024 × 320 frame on 1 and 2 threads for torch, onnxruntime fp32
-    and int8; the thesis's figures beside. Trains what the work folder lacks (about
-    1.5 hours on 2 cores) and keeps it."""
+    """The simulator-only teacher and students, the teacher adapted to KITTI's camera by a
+    real drive's LiDAR and by its video, the student of the adapted teacher and the shipped
+    model side by side: parameters; monodepth2's metrics on held-out simulated frames, on
+    KITTI's ten held-out testing frames of other drives and on the adaptation drive (with
+    the int8 students and a flat-road prior); latency per 1024 × 320 frame on 1 and 2
+    threads for torch, onnxruntime fp32 and int8 (QDQ, QOperator); the thesis's figures
+    beside. Trains what the work folder lacks (about 1.5 hours on 2 cores; vista depth
+    build-default leaves its stages there) and keeps it."""
     from services.depth.bench import run_depth_bench
 
     if teacher is not None and not teacher.is_file():

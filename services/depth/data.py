@@ -86,10 +86,31 @@ def image_files(folder: Path) -> list[Path]:
     )
 
 
+def _scan_depths(drive, width: int, height: int) -> list[np.ndarray] | None:  # noqa: ANN001 - a kitti.Drive
+    """Each frame's LiDAR scan projected at (width, height), when every frame has one."""
+    from services.depth.lidar import lidar_depth, read_lidar_calibration, read_velodyne
+
+    if drive.velodyne is None or any(p is None for p in drive.velodyne):
+        return None
+    calibration = read_lidar_calibration(drive.folder)
+    size = (drive.camera.width, drive.camera.height)
+    return [
+        lidar_depth(read_velodyne(path), calibration, size, (width, height))
+        for path in drive.velodyne
+    ]
+
+
 def load_frames(
-    folders: list[Path], width: int, height: int, *, progress: Progress | None = None
+    folders: list[Path],
+    width: int,
+    height: int,
+    *,
+    lidar: bool = False,
+    progress: Progress | None = None,
 ) -> FrameSet:
-    """Every frame of ``folders`` at (width, height); ValueError naming a bad folder or file."""
+    """Every frame of ``folders`` at (width, height); ValueError naming a bad folder or file.
+    With ``lidar``, a drive's depth comes from its scans (``velodyne/`` projected at this
+    size through its calibration, the nearest return per pixel) where it has them."""
     say = progress or (lambda fraction, message: None)
     if width % 32 or height % 32 or min(width, height) < 64:
         raise ValueError(
@@ -114,13 +135,14 @@ def load_frames(
                 if drive.depth is not None and all(p is not None for p in drive.depth)
                 else None
             )
+            scans = _scan_depths(drive, width, height) if lidar else None
             poses = drive.poses
         else:
             paths = image_files(folder)
             if not paths:
                 raise ValueError(f"{folder}: no image_02/ and no PNG or JPEG images")
             K, baseline = nominal_K(width, height), 0.0
-            right_paths, depth_paths, poses = None, None, None
+            right_paths, depth_paths, poses, scans = None, None, None, None
         for k, path in enumerate(paths):
             images.append(_resize_image(read_image(path), width, height).transpose(2, 0, 1))
             rights.append(
@@ -128,11 +150,14 @@ def load_frames(
                 if right_paths
                 else None
             )
-            depths.append(
-                _resize_depth(read_depth_png(depth_paths[k]), width, height)[None]
-                if depth_paths
-                else None
-            )
+            if scans is not None:
+                depths.append(scans[k][None])
+            else:
+                depths.append(
+                    _resize_depth(read_depth_png(depth_paths[k]), width, height)[None]
+                    if depth_paths
+                    else None
+                )
             Ks.append(K)
             baselines.append(baseline)
             index = start + k
@@ -169,10 +194,14 @@ def load_frames(
 
 
 def split_by_group(
-    frames: FrameSet, val_fraction: float, seed: int
+    frames: FrameSet, val_fraction: float, seed: int, val_groups: tuple[int, ...] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Training and validation frame indices, whole folders to one side (frames of a drive
-    are alike); with a single folder, its last ``val_fraction`` of frames validate."""
+    are alike): the folders ``val_groups`` validate, else a random ``val_fraction`` of them;
+    with a single folder, its last ``val_fraction`` of frames validate."""
+    if val_groups is not None:
+        is_val = np.isin(frames.group, val_groups)
+        return np.flatnonzero(~is_val), np.flatnonzero(is_val)
     groups = np.unique(frames.group)
     if len(groups) == 1:
         count = len(frames)

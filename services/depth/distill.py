@@ -153,7 +153,9 @@ def distill(
     stereo = frames.right is not None
     video = not stereo and bool(frames.has_poses.all() and (frames.previous >= 0).any())
     photometric = ("stereo" if stereo else "video" if video else "none") if vista else "none"
-    train_index, val_index = split_by_group(frames, config.val_fraction, config.seed)
+    train_index, val_index = split_by_group(
+        frames, config.val_fraction, config.seed, config.val_groups
+    )
     if video and vista:
         train_index = train_index[((frames.previous >= 0) & (frames.following >= 0))[train_index]]
     if len(train_index) < config.batch:

@@ -1,7 +1,9 @@
 """A drive in one file: a zip or tar of a KITTI-layout drive folder (``kitti.read_drive``) —
 ``image_02/`` (or ``image_02/data/``), and as known ``image_03/``, ``depth/`` (or
-``proj_depth/groundtruth/image_02/``), ``calib.json`` or ``calib_cam_to_cam.txt`` and
-``poses.txt``, under any one top folder of the archive.
+``proj_depth/groundtruth/image_02/``), ``velodyne/`` (or ``velodyne_points/data/``: LiDAR
+scans, ``.bin``), ``calib.json`` or ``calib_cam_to_cam.txt`` (with
+``calib_velo_to_cam.txt`` for the scans) and ``poses.txt``, under any one top folder of the
+archive.
 
 Members are written under names of vista's choosing (the role's folder and the file's own
 base name, which must be plain: letters, digits, ``_``, ``-``, ``.``), never by the archive's
@@ -18,7 +20,9 @@ from services.archive import ArchiveError, Member, check_total, media_type, open
 
 HINT = "pack a drive folder with `tar czf drive.tar.gz -C DRIVE .` (image_02/ inside)"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+SCAN_SUFFIXES = (".bin",)
 MAX_MEMBER_BYTES = {"image": 256 << 20, "text": 64 << 20}
+SCAN_ROLES = {"velodyne": "velodyne", "velodyne_points/data": "velodyne"}
 ROLES = {
     "image_02": "image_02",
     "image_02/data": "image_02",
@@ -27,7 +31,7 @@ ROLES = {
     "depth": "depth",
     "proj_depth/groundtruth/image_02": "depth",
 }
-TEXT_FILES = ("calib.json", "calib_cam_to_cam.txt", "poses.txt")
+TEXT_FILES = ("calib.json", "calib_cam_to_cam.txt", "calib_velo_to_cam.txt", "poses.txt")
 PLAIN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 
@@ -39,6 +43,7 @@ class DriveArchive:
     frames: int
     stereo: bool
     depth: bool
+    scans: bool
     poses: bool
     media_type: str
 
@@ -71,12 +76,14 @@ def _plan(form: str, members: list[Member]) -> DriveArchive:
         folder, name = str(inside.parent), inside.name
         if folder == "." and name in TEXT_FILES:
             files[member.name] = name
-        elif folder in ROLES and Path(name).suffix.lower() in IMAGE_SUFFIXES:
+        elif (folder in ROLES and Path(name).suffix.lower() in IMAGE_SUFFIXES) or (
+            folder in SCAN_ROLES and Path(name).suffix.lower() in SCAN_SUFFIXES
+        ):
             if not PLAIN.match(name):
                 raise ArchiveError(
                     f"{member.name}: file names must be plain (letters, digits, _ - .)"
                 )
-            files[member.name] = f"{ROLES[folder]}/{name}"
+            files[member.name] = f"{ROLES.get(folder) or SCAN_ROLES[folder]}/{name}"
     targets = list(files.values())
     frames = sum(t.startswith("image_02/") for t in targets)
     if frames == 0:
@@ -91,6 +98,7 @@ def _plan(form: str, members: list[Member]) -> DriveArchive:
         frames,
         stereo=any(t.startswith("image_03/") for t in targets),
         depth=any(t.startswith("depth/") for t in targets),
+        scans=any(t.startswith("velodyne/") for t in targets),
         poses="poses.txt" in targets,
         media_type="",
     )

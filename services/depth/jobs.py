@@ -7,7 +7,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
+from contract.context import InputArtifact, JobContext, inputs_of_kind
 from contract.errors import JobInputError
 from services.archive import ArchiveError
 from services.depth.kinds import CLOUD, DEPTH_MAP, MODEL, PREDICT_REPORT, PREVIEW, TRAINING_REPORT
@@ -66,10 +66,8 @@ def train_job(ctx: JobContext) -> dict:
         raise JobInputError(
             "network student needs the teacher as a `model` input (a depth.train teacher's, or your own ONNX with vista's metadata)"
         )
-    if params.network == "teacher" and teachers:
-        raise JobInputError(
-            "network teacher trains from the drives alone; leave the `model` input out"
-        )
+    if len(teachers) > 1:
+        raise JobInputError(f"one `model` input at most; got {len(teachers)}")
     ctx.progress(0.01, f"unpacking {len(data)} input{'s' * (len(data) > 1)}")
     folders = _folders(ctx, data)
     config = DepthTrainConfig(
@@ -89,6 +87,7 @@ def train_job(ctx: JobContext) -> dict:
             [folder for _, folder in folders],
             params.width,
             params.height,
+            lidar=params.network == "teacher" and params.supervision == "lidar",
             progress=lambda f, m: ctx.progress(0.02 + 0.08 * f, m),
         )
         if params.network == "teacher":
@@ -96,11 +95,17 @@ def train_job(ctx: JobContext) -> dict:
                 frames,
                 params.supervision,
                 config,
+                initial=teachers[0].path if teachers else None,
                 checkpoint_dir=ctx.workdir / "checkpoints",
                 progress=say,
             )
             ctx.progress(0.96, "exporting to ONNX")
-            metrics = save_teacher(result, path, config, **size, inputs=inputs)
+            adapted = (
+                {"adapted_from": f"artifact {teachers[0].id} ({teachers[0].name})"}
+                if teachers
+                else {}
+            )
+            metrics = save_teacher(result, path, config, **size, inputs=inputs, **adapted)
             architecture = TEACHER_ARCHITECTURE
         else:
             teacher = DepthModel(teachers[0].path, ctx.threads)
@@ -144,22 +149,24 @@ def predict_job(ctx: JobContext) -> dict:
     import numpy as np
 
     from services.depth.data import image_files
+    from services.depth.default_model import default_model
     from services.depth.kitti import read_calibration, read_image
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
     from services.depth.quantize import quantize_int8
 
-    model_input = one_input(ctx, "model", "the depth model")
+    given = inputs_of_kind(ctx, "model")
     images = inputs_of_kind(ctx, "image", "drive")
     try:
-        model = DepthModel(model_input.path, ctx.threads)
+        model = DepthModel(given[0].path if given else default_model(), ctx.threads)
     except ValueError as exc:
-        raise JobInputError(_named(str(exc), ctx, [model_input])) from exc
+        raise JobInputError(_named(str(exc), ctx, given)) from exc
+    model_name = given[0].name if given else "vista's shipped model"
     ctx.progress(0.02, f"unpacking {len(images)} input{'s' * (len(images) > 1)}")
     groups = _folders(ctx, images)
     out = ctx.workdir / "out"
     report = {
-        "model": model.spec.metadata.get("architecture", model_input.name),
+        "model": model.spec.metadata.get("architecture", model_name),
         "int8": ctx.params.int8,
         "images": [],
     }
@@ -231,7 +238,7 @@ def predict_job(ctx: JobContext) -> dict:
                     }
                 )
     except ValueError as exc:
-        raise JobInputError(_named(str(exc), ctx, [model_input, *images])) from exc
+        raise JobInputError(_named(str(exc), ctx, [*given, *images])) from exc
     ctx.add_artifact_json(report, kind=PREDICT_REPORT.kind, name=PREDICT_REPORT.file_name())
     seconds = [i["seconds"] for i in report["images"]]
     ctx.progress(

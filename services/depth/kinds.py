@@ -14,13 +14,15 @@ class TrainParams(BaseModel):
 
     network: Literal["teacher", "student"] = Field(
         "student",
-        description="teacher: Monodepth2's network trained on the drives; student: DeepLabv3+ "
-        "with MobileNetV2 distilled from the `model` input.",
+        description="teacher: Monodepth2's network trained on the drives (adapting the `model` "
+        "input when one is given); student: DeepLabv3+ with MobileNetV2 distilled from the "
+        "`model` input.",
     )
-    supervision: Literal["stereo", "mono", "both", "depth"] = Field(
+    supervision: Literal["stereo", "mono", "both", "depth", "lidar"] = Field(
         "depth",
-        description="A teacher's: stereo (image_03/), mono (video, pose network), both, or depth "
-        "(the drives' depth maps).",
+        description="A teacher's: stereo (image_03/), mono (video, pose network), both, depth "
+        "(the drives' depth maps) or lidar (the drives' velodyne/ scans through their "
+        "calibration).",
     )
     method: Literal["thesis", "vista"] = Field(
         "vista", description="A student's: the thesis's L1, or vista's distillation."
@@ -60,13 +62,17 @@ DEPTH_TRAIN = JobKind(
     description=(
         "Trains a monocular depth network on `drive` archives (KITTI layout) or `image`s: a "
         "teacher (Monodepth2's network, self-supervised by stereo or video or supervised by "
-        "depth) or a student (DeepLabv3+ MobileNetV2, 2.67 M parameters) distilled from a "
+        "depth or LiDAR; from scratch, or adapting a teacher `model`) or a student (DeepLabv3+ MobileNetV2, 2.67 M parameters) distilled from a "
         "teacher `model`; writes the ONNX `model` (its spec, training and validation in its "
         "metadata) and the training's history."
     ),
     inputs=(
         Inputs(("drive", "image"), "drives (zip or tar, KITTI layout) or images", max=None),
-        Inputs(("model",), "the teacher (network student only)", min=0),
+        Inputs(
+            ("model",),
+            "the teacher (a student's to learn from; a teacher's to adapt, optional)",
+            min=0,
+        ),
     ),
     outputs=(MODEL, TRAINING_REPORT),
 )
@@ -78,12 +84,16 @@ DEPTH_PREDICT = JobKind(
     params=PredictParams,
     description=(
         "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "
-        "depth `model`: per image a KITTI depth PNG (uint16, metres × 256) at its own size, a "
+        "depth `model` (without one, the model vista ships): per image a KITTI depth PNG (uint16, metres × 256) at its own size, a "
         "colour preview and the camera-frame point cloud (PLY, mm), and a report with each "
         "image's time and median depth."
     ),
     inputs=(
-        Inputs(("model",), "a depth model (vista's, or ONNX with vista's metadata)"),
+        Inputs(
+            ("model",),
+            "a depth model (vista's, or ONNX with vista's metadata); none: the shipped one",
+            min=0,
+        ),
         Inputs(("image", "drive"), "the images", max=None),
     ),
     outputs=(DEPTH_MAP, PREVIEW, CLOUD, PREDICT_REPORT),

@@ -4,7 +4,8 @@ images and calibration, and poses in the odometry format.
 - Depth PNG (the depth benchmark's convention): uint16, metres × 256, 0 = no measurement.
 - A *drive* folder holds ``image_02/`` (left colour camera, ``*.png``; KITTI raw's
   ``image_02/data/`` also works), optionally ``image_03/`` (right), ``depth/`` (or the depth
-  benchmark's ``proj_depth/groundtruth/image_02/``) and ``poses.txt``; its calibration is
+  benchmark's ``proj_depth/groundtruth/image_02/``), ``velodyne/`` (or KITTI raw's
+  ``velodyne_points/data/``: LiDAR scans, ``lidar.py``) and ``poses.txt``; its calibration is
   ``calib.json`` (``K`` or ``P_rect_02``, optional ``baseline_m`` or ``P_rect_03``) or
   KITTI's ``calib_cam_to_cam.txt``, in the folder or its parent (raw drives share their
   date folder's).
@@ -154,6 +155,9 @@ class Drive:
     """A depth PNG per frame (None where a frame has none), or None without depth."""
     poses: np.ndarray | None
     """(N, 4, 4) ``cam0_T_cami`` when the drive has poses.txt."""
+    velodyne: tuple[Path | None, ...] | None = None
+    """A LiDAR scan per frame (``velodyne/NAME.bin``; None where a frame has none), or None
+    without ``velodyne/``."""
 
 
 def read_drive(folder: Path) -> Drive:
@@ -187,7 +191,13 @@ def read_drive(folder: Path) -> Drive:
         poses = read_poses(folder / "poses.txt")
         if len(poses) != len(names):
             raise ValueError(f"{folder / 'poses.txt'}: {len(poses)} poses for {len(names)} frames")
-    return Drive(folder, camera, names, tuple(left), right, depth, poses)
+    velodyne = None
+    for candidate in (folder / "velodyne", folder / "velodyne_points" / "data"):
+        if candidate.is_dir():
+            by_name = {p.stem: p for p in candidate.glob("*.bin")}
+            velodyne = tuple(by_name.get(n) for n in names)
+            break
+    return Drive(folder, camera, names, tuple(left), right, depth, poses, velodyne)
 
 
 def write_poses(path: Path, cam0_T_cam: np.ndarray) -> None:

@@ -124,9 +124,16 @@ class FolderEvaluation:
     """Per image: ``name``, the seven metrics, ``pixels``, ``scale``."""
     missing: list[str]
     """Ground-truth names without a prediction (not evaluated)."""
+    unmatched: list[str]
+    """Prediction names without ground truth (not evaluated)."""
 
     def to_json(self) -> dict:
-        return {"metrics": self.metrics.to_json(), "images": self.images, "missing": self.missing}
+        return {
+            "metrics": self.metrics.to_json(),
+            "images": self.images,
+            "missing": self.missing,
+            "unmatched_predictions": self.unmatched,
+        }
 
 
 def evaluate_folders(
@@ -138,7 +145,8 @@ def evaluate_folders(
     max_depth_m: float = MAX_DEPTH_M,
 ) -> FolderEvaluation:
     """Every ground-truth depth PNG in ``gt_dir`` against the prediction of the same name in
-    ``pred_dir`` (KITTI depth PNGs; a prediction's ``*.color.png`` preview is ignored)."""
+    ``pred_dir`` (KITTI depth PNGs; a prediction's ``*.color.png`` preview is ignored); the
+    names on one side only are listed in the result (``missing``, ``unmatched``)."""
     from services.depth.kitti import read_depth_png
 
     for folder, what in ((pred_dir, "predictions"), (gt_dir, "ground truth")):
@@ -176,4 +184,5 @@ def evaluate_folders(
             }
         )
     missing = [n for n in truths if n not in predictions]
-    return FolderEvaluation(mean_errors(evaluations), images, missing)
+    unmatched = [n for n in predictions if n not in truths]
+    return FolderEvaluation(mean_errors(evaluations), images, missing, sorted(unmatched))

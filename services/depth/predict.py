@@ -3,7 +3,8 @@ back to the image's own size and written in KITTI's convention, with a colour pr
 when asked, a point cloud.
 
 - ``NAME.png``: uint16, metres × 256 (0 = none), the input's size;
-- ``NAME.color.png``: inverse depth through the magma colour map (near bright);
+- ``NAME.color.png``: inverse depth through the magma colour map (near bright), a colour bar
+  in metres below;
 - ``NAME.ply``: the camera-frame cloud (x right, y down, z forward), float32 mm with the
   image's colours, organised as the image's grid (NaN where there is no depth).
 """
@@ -64,15 +65,55 @@ def predict_image(model: DepthModel, image: np.ndarray) -> tuple[np.ndarray, flo
     return depth, seconds
 
 
+BAR_TICKS_M = (1, 2, 3, 5, 10, 20, 30, 50, 100)
+
+
 def colour_preview(depth_m: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 BGR: inverse depth scaled to its 95th percentile, magma."""
+    """(H + bar, W, 3) uint8 BGR: inverse depth scaled to its 95th percentile, magma, over a
+    colour bar labelled in metres (far on the left, near on the right)."""
     import cv2
 
     inverse = np.where(depth_m > 0, 1 / np.maximum(depth_m, 1e-3), 0)
     top = float(np.percentile(inverse, 95)) or 1.0
-    return cv2.applyColorMap(
+    image = cv2.applyColorMap(
         np.clip(inverse / top * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_MAGMA
     )
+    return np.vstack((image, colour_bar(image.shape[1], top)))
+
+
+def colour_bar(width: int, top_inverse_m: float) -> np.ndarray:
+    """(h, width, 3) uint8 BGR: the preview's colours from 0 to ``top_inverse_m`` (1/m)
+    with ticks at round depths, labelled in metres."""
+    import cv2
+
+    height = max(28, width // 24)
+    ramp = np.linspace(0, 255, width).astype(np.uint8)
+    strip = cv2.applyColorMap(np.tile(ramp, (height // 2, 1)), cv2.COLORMAP_MAGMA)
+    bar = np.vstack((strip, np.zeros((height - len(strip), width, 3), np.uint8)))
+    scale = height / 64
+    near_m = 1 / top_inverse_m
+    ticks = [d for d in BAR_TICKS_M if 0.04 <= 1 / d / top_inverse_m <= 0.9]
+    labels = [(near_m, f"{near_m:.1f} m")] + [(d, f"{d} m") for d in ticks]
+    free_until = width + 4  # labels go near to far; one that would overlap is left out
+    for depth, text in labels:
+        x = min(width - 1, int(round((1 / depth) / top_inverse_m * (width - 1))))
+        (text_w, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+        left = int(np.clip(x - text_w // 2, 0, width - text_w))
+        if left + text_w + 4 > free_until:
+            continue
+        free_until = left
+        cv2.line(bar, (x, 0), (x, len(strip)), (255, 255, 255), 1)
+        cv2.putText(
+            bar,
+            text,
+            (left, height - max(2, height // 10)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            (255, 255, 255),
+            1,
+            cv2.LINE_AA,
+        )
+    return bar
 
 
 def depth_cloud(depth_m: np.ndarray, camera: Camera, image: np.ndarray):  # noqa: ANN201 - a PointCloud

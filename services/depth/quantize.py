@@ -1,5 +1,6 @@
-"""int8 models: onnxruntime's static quantization (QDQ, per-channel int8 weights, int8
-activations), calibrated on the user's own images, the spec carried over."""
+"""int8 models: onnxruntime's static quantization (per-channel int8 weights, int8
+activations; QDQ by default, or the QOperator format's fused int8 operators), calibrated on
+the user's own images, the spec carried over."""
 
 from __future__ import annotations
 
@@ -15,9 +16,12 @@ from services.nn.onnx_io import METADATA_KEY
 CALIBRATION_IMAGES = 32
 
 
-def quantize_int8(model: DepthModel, images: np.ndarray, out: Path) -> Path:
+def quantize_int8(
+    model: DepthModel, images: np.ndarray, out: Path, *, operators: bool = False
+) -> Path:
     """Write ``model`` quantized to int8 at ``out``, its activation ranges calibrated on
-    ``images`` ((N, H, W, 3) uint8 at the model's size, up to ``CALIBRATION_IMAGES``)."""
+    ``images`` ((N, H, W, 3) uint8 at the model's size, up to ``CALIBRATION_IMAGES``);
+    ``operators``: the QOperator format (QLinearConv …) instead of QDQ."""
     import onnx
     from onnxruntime.quantization import (
         CalibrationDataReader,
@@ -48,7 +52,7 @@ def quantize_int8(model: DepthModel, images: np.ndarray, out: Path) -> Path:
             str(prepared),
             str(out),
             Reader(),
-            quant_format=QuantFormat.QDQ,
+            quant_format=QuantFormat.QOperator if operators else QuantFormat.QDQ,
             per_channel=True,
             weight_type=QuantType.QInt8,
             activation_type=QuantType.QInt8,
@@ -61,7 +65,10 @@ def quantize_int8(model: DepthModel, images: np.ndarray, out: Path) -> Path:
     entry.value = json.dumps(
         {
             **model.spec.metadata,
-            "quantization": {"kind": "int8 static QDQ", "calibration_images": len(chosen)},
+            "quantization": {
+                "kind": f"int8 static {'QOperator' if operators else 'QDQ'}",
+                "calibration_images": len(chosen),
+            },
         },
         sort_keys=True,
     )

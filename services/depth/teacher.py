@@ -5,7 +5,14 @@
   ``nets.PoseNet`` (depth up to scale: evaluate with median scaling);
 - ``both``: the right camera and the neighbouring frames together (Monodepth2's MS);
 - ``depth``: supervised by the drives' depth maps (L1 of log depth and the scale-invariant
-  gradient loss), where ground truth exists (simulated drives, LiDAR).
+  gradient loss), where ground truth exists (simulated drives, depth benchmark folders);
+- ``lidar``: supervised the same way by the drives' own LiDAR scans (``velodyne/`` and the
+  calibration, projected at the training size: ``lidar.py``); a drive without scans gives
+  its depth maps, so simulated drives can be mixed in.
+
+Any of them can start from a trained teacher (``initial``: an ONNX file of vista's, its batch
+norms folded into the convolutions) to adapt a simulator-trained model to the user's camera;
+then only the full-resolution disparity is trained (the export keeps no other head).
 
 Self-supervision follows Monodepth2: at four scales, disparity upsampled to the input size,
 the per-pixel minimum reprojection error over sources with auto-masking, plus edge-aware
@@ -14,6 +21,7 @@ smoothness weighted 1e-3 / 2^scale.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +39,10 @@ from services.depth.training import (
     make_batch,
 )
 
-SUPERVISIONS = ("stereo", "mono", "both", "depth")
+SUPERVISIONS = ("stereo", "mono", "both", "depth", "lidar")
+SUPERVISED = ("depth", "lidar")
+TRAINING_HEADS = ("heads.1", "heads.2", "heads.3")
+"""The coarser disparities' heads: trained, but not in an exported teacher."""
 TEACHER_ARCHITECTURE = "monodepth2-resnet18"
 SMOOTHNESS = 1e-3
 GRADIENT_WEIGHT = 0.5
@@ -84,16 +95,23 @@ def supervision_needs(frames: FrameSet, supervision: str) -> None:
         raise ValueError(
             "--supervision depth needs a depth map for every frame (depth/ or proj_depth/)"
         )
+    if supervision == "lidar" and frames.depth_m is None:
+        raise ValueError(
+            "--supervision lidar needs every drive's scans (velodyne/*.bin named as its "
+            "images, and calib.json or calib_velo_to_cam.txt + calib_cam_to_cam.txt) or, "
+            "for a simulated drive, its depth/"
+        )
 
 
-def scale_depths(out: dict, size: tuple[int, int]) -> list:
-    """Each scale's disparity upsampled to the input size, as depth (Monodepth2's practice)."""
+def scale_depths(out: dict, size: tuple[int, int], scales: int = 4) -> list:
+    """The first ``scales`` scales' disparities upsampled to the input size, as depth
+    (Monodepth2's practice)."""
     import torch.nn.functional as F
 
     from services.depth.nets import disparity_to_depth
 
     maps = [out["disparity"]] + [
-        out[f"disparity_{s}"] for s in (1, 2, 3) if f"disparity_{s}" in out
+        out[f"disparity_{s}"] for s in range(1, scales) if f"disparity_{s}" in out
     ]
     return [
         (
@@ -155,15 +173,34 @@ def abs_rel(
     return float(np.mean(scores)) if scores else float("nan")
 
 
+def load_teacher(path: Path):  # noqa: ANN201 - a nets.Teacher
+    """A teacher ONNX file of vista's as a ``nets.Teacher`` to train further (batch norms
+    folded); ValueError when the file holds another network."""
+    from services.depth.nets import Teacher
+    from services.nn.onnx_io import fold_batch_norms, load_onnx_weights, read_model
+
+    architecture = read_model(path).metadata.get("architecture")
+    if architecture != TEACHER_ARCHITECTURE:
+        raise ValueError(
+            f"{path}: a {architecture!r} model; fine-tuning starts from a teacher "
+            f"({TEACHER_ARCHITECTURE}, written by vista depth train-teacher)"
+        )
+    teacher = fold_batch_norms(Teacher())
+    load_onnx_weights(teacher, path, unused=TRAINING_HEADS)
+    return teacher
+
+
 def train_teacher(
     frames: FrameSet,
     supervision: str,
     config: DepthTrainConfig,
     *,
+    initial: Path | None = None,
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
 ) -> TeacherResult:
-    """Train ``nets.Teacher`` on ``frames`` with ``supervision`` (module docstring)."""
+    """Train ``nets.Teacher`` on ``frames`` with ``supervision`` (module docstring), from
+    scratch or from the teacher in ``initial``."""
     import torch
 
     from services.depth.data import split_by_group
@@ -171,11 +208,14 @@ def train_teacher(
 
     supervision_needs(frames, supervision)
     torch.manual_seed(config.seed)
-    teacher = Teacher()
+    teacher = load_teacher(initial) if initial is not None else Teacher()
+    scales = 1 if initial is not None else 4
     modules = {"depth": teacher}
     if supervision in ("mono", "both"):
         modules["pose"] = PoseNet()
-    train_index, val_index = split_by_group(frames, config.val_fraction, config.seed)
+    train_index, val_index = split_by_group(
+        frames, config.val_fraction, config.seed, config.val_groups
+    )
     if supervision in ("mono", "both"):
         has_neighbours = (frames.previous >= 0) & (frames.following >= 0)
         train_index = train_index[has_neighbours[train_index]]
@@ -188,8 +228,8 @@ def train_teacher(
     def step(batch: Batch) -> tuple:
         out = teacher.forward_train(batch.network_input)
         total, kept = 0.0, []
-        for scale, (depth_m, disparity) in enumerate(scale_depths(out, size)):
-            if supervision == "depth":
+        for scale, (depth_m, disparity) in enumerate(scale_depths(out, size, scales)):
+            if supervision in SUPERVISED:
                 total = total + supervised_loss(depth_m, batch.depth_m)
                 continue
             sources = []
@@ -206,7 +246,7 @@ def train_teacher(
             loss, share = self_supervised_loss(batch, depth_m, disparity, scale, sources)
             total, kept = total + loss, [*kept, float(share)]
         logs = {"automask_kept": float(np.mean(kept))} if kept else {}
-        return total / 4, logs
+        return total / scales, logs
 
     has_truth = frames.depth_m is not None
     median = supervision == "mono"
@@ -226,7 +266,8 @@ def train_teacher(
             )
         )
 
-    run = fingerprint(config, frames, {"teacher": supervision})
+    start = hashlib.sha256(Path(initial).read_bytes()).hexdigest() if initial else None
+    run = fingerprint(config, frames, {"teacher": supervision, "initial": start})
     result = fit(
         modules,
         step,

@@ -37,6 +37,12 @@ class DepthTrainConfig:
     val_fraction: float = 0.1
     augment: bool = True
     """Random horizontal flips and colour jitter of the network's input (Monodepth2's)."""
+    keep_best: bool = True
+    """Keep the epoch validation scores best, or (off) the last: when the validation frames
+    cannot speak for the frames that matter (adapting to real frames, validated on simulated
+    ones)."""
+    val_groups: tuple[int, ...] | None = None
+    """Which folders (by their order) validate; None: a random ``val_fraction`` of them."""
 
 
 @dataclass
@@ -186,5 +192,5 @@ def fit(
 
     return shared_fit(
         modules, step, validate, train_index, batches, config,
-        run=run, checkpoint_dir=checkpoint_dir, progress=progress,
+        run=run, checkpoint_dir=checkpoint_dir, progress=progress, keep_best=config.keep_best,
     )  # fmt: skip

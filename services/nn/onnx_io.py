@@ -19,6 +19,9 @@ from pathlib import Path
 import numpy as np
 
 METADATA_KEY = "vista"
+STORED_INT8 = "_stored_int8"
+"""The name's end of the nodes that dequantise weights stored in int8 (``store_weights_int8``);
+an int8 model's own quantisation nodes are left to onnxruntime."""
 TOLERANCE = 1e-4
 """Largest difference allowed between onnxruntime's output and torch's (relative to the
 output's scale)."""
@@ -95,7 +98,9 @@ def export_onnx(
 
 
 def session(path: Path, threads: int = 1):  # noqa: ANN201 - an onnxruntime.InferenceSession
-    """An onnxruntime session on ``threads`` threads that sleep instead of spinning."""
+    """An onnxruntime session on ``threads`` threads that sleep instead of spinning; a model
+    whose weights are stored in int8 (``store_weights_int8``) gets them in float once, here
+    (onnxruntime would dequantise them on every run: twice the time)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -103,7 +108,42 @@ def session(path: Path, threads: int = 1):  # noqa: ANN201 - an onnxruntime.Infe
     options.inter_op_num_threads = 1
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     options.add_session_config_entry("session.inter_op.allow_spinning", "0")
-    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    model = _weights_in_float(Path(path)) or str(path)
+    return ort.InferenceSession(model, options, providers=["CPUExecutionProvider"])
+
+
+def _weights_in_float(path: Path) -> bytes | None:
+    """The model with its int8-stored weights dequantised (serialised), or None when it
+    stores none: the ``DequantizeLinear`` nodes ``store_weights_int8`` added."""
+    import onnx
+    from onnx import numpy_helper
+
+    proto = onnx.load_model(str(path))
+    stored = {i.name: i for i in proto.graph.initializer}
+    constant = [
+        node
+        for node in proto.graph.node
+        if node.op_type == "DequantizeLinear"
+        and node.name.endswith(STORED_INT8)
+        and all(name in stored for name in node.input)
+    ]
+    if not constant:
+        return None
+    for node in constant:
+        quantized, scale, *zero = (numpy_helper.to_array(stored[n]) for n in node.input)
+        axis = next((a.i for a in node.attribute if a.name == "axis"), 1)
+        shape = [1] * quantized.ndim
+        if scale.ndim:
+            shape[axis] = len(scale)
+        offset = zero[0].astype(np.float32).reshape(shape) if zero else 0.0
+        weight = (quantized.astype(np.float32) - offset) * scale.reshape(shape)
+        proto.graph.initializer.append(numpy_helper.from_array(weight, node.output[0]))
+        proto.graph.node.remove(node)
+    used = {name for node in proto.graph.node for name in node.input}
+    keep = [i for i in proto.graph.initializer if i.name in used]
+    del proto.graph.initializer[:]
+    proto.graph.initializer.extend(keep)
+    return proto.SerializeToString()
 
 
 def read_model(path: Path) -> ModelFile:
@@ -121,30 +161,44 @@ def read_model(path: Path) -> ModelFile:
 
 
 def fold_batch_norms(module):  # noqa: ANN001, ANN201 - a torch.nn.Module, changed in place
-    """Each convolution followed by a batch norm in a ``Sequential`` becomes one convolution
-    with a bias (the batch norm an identity): the network as its ONNX export computes it,
-    which ``load_onnx_weights`` can fill and a fine-tuning run can train without batch
-    statistics (a few scans make poor ones)."""
+    """Each convolution followed by a batch norm — in a ``Sequential``, or as a module's
+    ``convK``/``bnK`` pair (ResNet's blocks) — becomes one convolution with a bias (the batch
+    norm an identity): the network as its ONNX export computes it, which
+    ``load_onnx_weights`` can fill and a fine-tuning run can train without batch statistics
+    (a few scans or frames make poor ones)."""
     from torch import nn
     from torch.nn.utils.fusion import fuse_conv_bn_eval
 
-    for sequential in [m for m in module.modules() if isinstance(m, nn.Sequential)]:
-        for index in range(len(sequential) - 1):
-            conv, norm = sequential[index], sequential[index + 1]
-            if isinstance(conv, nn.Conv2d | nn.ConvTranspose2d | nn.Conv1d) and isinstance(
-                norm, nn.BatchNorm2d | nn.BatchNorm1d
-            ):
-                sequential[index] = fuse_conv_bn_eval(
-                    conv.eval(), norm.eval(), transpose=isinstance(conv, nn.ConvTranspose2d)
-                )
-                sequential[index + 1] = nn.Identity()
+    convolutions = nn.Conv2d | nn.ConvTranspose2d | nn.Conv1d
+    norms = nn.BatchNorm2d | nn.BatchNorm1d
+
+    def fused(conv, norm):  # noqa: ANN001, ANN202 - torch modules
+        return fuse_conv_bn_eval(
+            conv.eval(), norm.eval(), transpose=isinstance(conv, nn.ConvTranspose2d)
+        )
+
+    for parent in list(module.modules()):
+        if isinstance(parent, nn.Sequential):
+            for index in range(len(parent) - 1):
+                conv, norm = parent[index], parent[index + 1]
+                if isinstance(conv, convolutions) and isinstance(norm, norms):
+                    parent[index] = fused(conv, norm)
+                    parent[index + 1] = nn.Identity()
+            continue
+        children = dict(parent.named_children())
+        for name, norm in children.items():
+            conv = children.get("conv" + name.removeprefix("bn"))
+            if name.startswith("bn") and isinstance(norm, norms) and isinstance(conv, convolutions):
+                setattr(parent, "conv" + name.removeprefix("bn"), fused(conv, norm))
+                setattr(parent, name, nn.Identity())
     return module
 
 
-def load_onnx_weights(module, path: Path) -> None:  # noqa: ANN001 - a torch.nn.Module
+def load_onnx_weights(module, path: Path, *, unused: tuple[str, ...] = ()) -> None:  # noqa: ANN001 - a torch.nn.Module
     """Fill ``module`` (batch norms folded, ``fold_batch_norms``) with the weights of the
     ONNX file it was exported to: each layer's weight and bias by the layer's name;
-    ValueError when the file does not fit the network."""
+    ValueError when the file does not fit the network. Layers named in ``unused`` (prefixes:
+    the training-only heads an export drops) may be absent and keep their weights."""
     import onnx
     import torch
     from onnx import numpy_helper
@@ -152,11 +206,24 @@ def load_onnx_weights(module, path: Path) -> None:  # noqa: ANN001 - a torch.nn.
 
     proto = onnx.load_model(str(path))
     stored = {i.name: numpy_helper.to_array(i) for i in proto.graph.initializer}
+    # a folded convolution's bias is named by the exporter: take it from the node's inputs
+    bias_of = {
+        node.input[1]: node.input[2]
+        for node in proto.graph.node
+        if node.op_type in ("Conv", "ConvTranspose", "Gemm") and len(node.input) > 2
+    }
     for name, layer in module.named_modules():
         if not isinstance(layer, nn.Conv2d | nn.ConvTranspose2d | nn.Conv1d | nn.Linear):
             continue
-        weight = stored.get(f"{name}.weight")
-        bias = stored.get(f"{name}.bias", stored.get(f"{name}.weight_bias"))
+        # a model exported inside a wrapper (a teacher with its features) has its prefix
+        key = next(
+            (k for k in (f"{name}.weight", f"inner.{name}.weight") if k in stored),
+            f"{name}.weight",
+        )
+        weight = stored.get(key)
+        if weight is None and name.startswith(unused):
+            continue
+        bias = stored.get(bias_of.get(key, ""), stored.get(key.removesuffix("weight") + "bias"))
         if weight is None or weight.shape != tuple(layer.weight.shape):
             raise ValueError(f"{path}: no weights of the shape of layer {name!r}: another network")
         with torch.no_grad():
@@ -167,3 +234,49 @@ def load_onnx_weights(module, path: Path) -> None:  # noqa: ANN001 - a torch.nn.
                     if bias is not None
                     else torch.zeros_like(layer.bias)
                 )
+
+
+def store_weights_int8(path: Path, out: Path, *, min_elements: int = 1024) -> Path:
+    """Write ``path``'s model to ``out`` with each large weight (a float initializer of two or
+    more dimensions and at least ``min_elements`` values) stored in int8, one symmetric scale
+    per output channel, behind a ``DequantizeLinear``: a quarter of the size, computed in
+    float as before (the per-channel rounding is at most half a step, 1/254 of the channel's
+    largest weight). The metadata is kept."""
+    import onnx
+    from onnx import helper, numpy_helper
+
+    proto = onnx.load_model(str(path))
+    kept, nodes = [], []
+    for initializer in proto.graph.initializer:
+        weight = numpy_helper.to_array(initializer)
+        if weight.dtype != np.float32 or weight.ndim < 2 or weight.size < min_elements:
+            kept.append(initializer)
+            continue
+        name = initializer.name
+        largest = np.abs(weight.reshape(len(weight), -1)).max(axis=1)
+        scale = np.where(largest > 0, largest / 127, 1.0).astype(np.float32)
+        shaped = scale.reshape((-1,) + (1,) * (weight.ndim - 1))
+        quantized = np.clip(np.rint(weight / shaped), -127, 127).astype(np.int8)
+        kept += [
+            numpy_helper.from_array(quantized, f"{name}_int8"),
+            numpy_helper.from_array(scale, f"{name}_scale"),
+            numpy_helper.from_array(np.zeros(len(scale), np.int8), f"{name}_zero"),
+        ]
+        nodes.append(
+            helper.make_node(
+                "DequantizeLinear",
+                [f"{name}_int8", f"{name}_scale", f"{name}_zero"],
+                [name],
+                axis=0,
+                name=f"{name}{STORED_INT8}",
+            )
+        )
+    del proto.graph.initializer[:]
+    proto.graph.initializer.extend(kept)
+    graph_nodes = list(proto.graph.node)
+    del proto.graph.node[:]
+    proto.graph.node.extend(nodes + graph_nodes)
+    onnx.checker.check_model(proto)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save_model(proto, str(out))
+    return out

@@ -128,6 +128,7 @@ def _drive_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
         "frames": found.frames,
         "stereo": found.stereo,
         "depth": found.depth,
+        "scans": found.scans,
         "poses": found.poses,
     }
     return found.media_type, meta
