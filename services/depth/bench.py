@@ -237,14 +237,18 @@ def _accuracy(models: dict[str, Path], evalsets: list[EvalSet], work: Path) -> d
         for name, path in models.items():
             model = DepthModel(path, available_cores())
             rows[name] = _score(lambda image, m=model: predict_image(m, image)[0], evalset)
-            if name.startswith(("student-vista", "student of")):
-                sample = np.stack([resize_for(model, image) for image in evalset.images])
-                tag = "kitti" if "KITTI" in evalset.name else "sim"
+            if not name.startswith(("student-vista", "student of")):
+                continue
+            sample = np.stack([resize_for(model, image) for image in evalset.images])
+            tag = evalsets.index(evalset)
+            for form, operators in (("QDQ", False), ("QOperator", True)):
                 int8 = DepthModel(
-                    quantize_int8(model, sample, work / f"{path.stem}.int8-{tag}.onnx"),
+                    quantize_int8(
+                        model, sample, work / f"{path.stem}.{form}-{tag}.onnx", operators=operators
+                    ),
                     available_cores(),
                 )
-                rows[f"{name} int8"] = _score(
+                rows[f"{name} int8 {form}"] = _score(
                     lambda image, m=int8: predict_image(m, image)[0], evalset
                 )
         out[evalset.name] = rows
@@ -373,13 +377,20 @@ def _verdict(accuracy: dict, latency: dict) -> dict[str, bool]:
         ]["abs_rel"]
         < sim["student-thesis (simulator only)"]["abs_rel"],
     }
+    for setname, rows in accuracy.items():
+        fp32 = rows.get("student of the LiDAR-adapted teacher (fp32)")
+        fast = rows.get("student of the LiDAR-adapted teacher (fp32) int8 QOperator")
+        if fp32 and fast:
+            verdict[f"int8 (QOperator) within 5 % of fp32's AbsRel, {setname}"] = (
+                fast["abs_rel"] <= 1.05 * fp32["abs_rel"]
+            )
     real = accuracy.get(HELD_OUT_SET, {})
     if SHIPPED in real:
         verdict[f"shipped model AbsRel ≤ {TARGETS['real_abs_rel']} on held-out real frames"] = (
             real[SHIPPED]["abs_rel"] <= TARGETS["real_abs_rel"]
         )
     for name, row in real.items():
-        if "adapted" in name:
+        if "adapted" in name and " int8 " not in name:
             verdict[f"{name} better than the simulator-only teacher (held-out real)"] = (
                 row["abs_rel"] < real["teacher (simulator only)"]["abs_rel"]
             )

@@ -183,7 +183,8 @@ def predict_job(ctx: JobContext) -> dict:
                 [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]
             )
             model = DepthModel(
-                quantize_int8(model, sample, ctx.workdir / "model.int8.onnx"), ctx.threads
+                quantize_int8(model, sample, ctx.workdir / "model.int8.onnx", operators=True),
+                ctx.threads,
             )
         for number, (artifact, folder) in enumerate(groups):
             drive = artifact is not None

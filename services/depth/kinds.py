@@ -42,7 +42,9 @@ class PredictParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     int8: bool = Field(
-        False, description="Quantize the model to int8 first, calibrated on these images."
+        False,
+        description="Quantize the model to int8 first (QOperator: about 2× faster), calibrated "
+        "on these images.",
     )
     clouds: bool = Field(True, description="Write each image's point cloud (PLY, mm).")
 

@@ -55,7 +55,8 @@ def quantize_int8(
             quant_format=QuantFormat.QOperator if operators else QuantFormat.QDQ,
             per_channel=True,
             weight_type=QuantType.QInt8,
-            activation_type=QuantType.QInt8,
+            # QOperator's int8 kernels on x64 want unsigned activations (onnxruntime's advice)
+            activation_type=QuantType.QUInt8 if operators else QuantType.QInt8,
             extra_options={"ActivationSymmetric": False, "WeightSymmetric": True},
         )
     proto = onnx.load_model(str(out))
