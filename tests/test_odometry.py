@@ -529,3 +529,17 @@ def test_the_trajectory_plot_keeps_a_straight_path_readable(tmp_path) -> None:
     y0, y1 = axes.get_ylim()
     assert (y1 - y0) >= (x1 - x0) / 3.5 and x0 <= 0 and x1 >= 5
     plt.close(figure)
+
+
+def test_a_singular_final_covariance_leaves_the_nees_unmeasured() -> None:
+    """A model that claims no heading error (a zero σ) cannot judge the final error: its
+    NEES is unmeasured rather than a crash, and the 2σ check still stands."""
+    from services.odometry.evaluate import evaluate
+    from services.odometry.tum import Trajectory2D
+
+    t = np.arange(5) / 60
+    truth = Trajectory2D(t, np.column_stack([np.arange(5.0), np.zeros(5), np.zeros(5)]))
+    estimate = Trajectory2D(t, np.column_stack([np.arange(5.0) * 1.01, np.zeros(5), np.zeros(5)]))
+    result = evaluate(estimate, truth, np.diag([1.0, 1.0, 0.0]))
+    assert result.final_nees is None and result.final_within_2_sigma is True
+    assert evaluate(estimate, truth, np.diag([1.0, 1.0, 1e-6])).final_nees is not None

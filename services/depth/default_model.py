@@ -39,7 +39,6 @@ KITTI_LICENCE = (
 SIZE = (320, 96)
 ADAPT_LEARNING_RATE = 1e-4
 """A third of training from scratch's: the simulator's teacher is adjusted, not relearned."""
-SIM_TEST_SEED = 900_000
 
 
 def default_model() -> Path:

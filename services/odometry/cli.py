@@ -253,9 +253,14 @@ def eval_(
         f"{result.final_error_m:.4f} m, ATE {result.ate_rmse_m:.4f} m, drift "
         f"{result.drift_percent:.3f} %, heading bias {result.heading_bias_deg:.5f}° a frame"
         + (
-            f"; NEES {result.final_nees:.1f} (3 expected), final error "
-            f"{'within' if result.final_within_2_sigma else 'beyond'} 2σ ({2 * result.final_sigma_xy_m:.4f} m)"
-            if result.final_nees is not None
+            (
+                f"; NEES {result.final_nees:.1f} (3 expected)"
+                if result.final_nees is not None
+                else "; NEES unmeasured (the covariance claims no error in some direction)"
+            )
+            + f", final error {'within' if result.final_within_2_sigma else 'beyond'} 2σ "
+            f"({2 * result.final_sigma_xy_m:.4f} m)"
+            if result.final_within_2_sigma is not None
             else ""
         )
     )

@@ -38,7 +38,8 @@ class OdometryEval:
     heading_bias_deg: float
     """The mean per-step heading error (degrees a frame)."""
     final_nees: float | None = None
-    """eᵀ P⁻¹ e of the final pose (x, y, θ), when its covariance is given."""
+    """eᵀ P⁻¹ e of the final pose (x, y, θ), when its covariance is given and positive
+    definite."""
     final_sigma_xy_m: float | None = None
     final_within_2_sigma: bool | None = None
 
@@ -96,8 +97,11 @@ def evaluate(
         error[2] = se2.wrap(error[2])
         covariance = np.asarray(final_covariance, dtype=np.float64)
         sigma_mm = float(np.sqrt(covariance[0, 0] + covariance[1, 1]))
+        # a covariance without spread in some direction (a model that claims no error in
+        # it) cannot judge the error: its NEES is unmeasured
+        positive = bool(np.all(np.linalg.eigvalsh(covariance) > 0))
         judged = {
-            "final_nees": float(error @ np.linalg.solve(covariance, error)),
+            "final_nees": float(error @ np.linalg.solve(covariance, error)) if positive else None,
             "final_sigma_xy_m": sigma_mm / 1000,
             "final_within_2_sigma": bool(final_mm <= 2 * sigma_mm),
         }
