@@ -607,6 +607,12 @@ def test_predict_uses_the_shipped_model(tmp_path: Path, monkeypatch: pytest.Monk
     depth = read_depth_png(tmp_path / "p" / "000000.png")
     preview = cv2.imread(str(tmp_path / "p" / "000000.color.png"))
     assert depth.shape == (375, 1242) and preview.shape[0] > 375  # the colour bar below
+    from services.depth.models import DepthModel
+
+    raw = np.full((1, 1, 4, 4), 0.5, np.float32)
+    raw[0, 0, 0, 0] = np.nan  # an int8 model out of its calibration's range answered so
+    with pytest.raises(ValueError, match="no valid depth .* 6.2% of the pixels"):
+        DepthModel(default_model.PACKAGED).to_depth(raw)
     monkeypatch.setattr(default_model, "PACKAGED", tmp_path / "none.onnx")
     result = CliRunner().invoke(app, ["depth", "predict", str(images), "-o", str(tmp_path / "q")])
     assert result.exit_code == 2 and "vista depth build-default" in result.output

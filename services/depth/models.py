@@ -155,7 +155,8 @@ class DepthModel:
         return np.ascontiguousarray(x)
 
     def to_depth(self, raw: np.ndarray) -> np.ndarray:
-        """The model's first output as (N, H, W) depth in metres."""
+        """The model's first output as (N, H, W) depth in metres; ValueError when any of it
+        is not finite (a depth map with holes must not pass for a measurement)."""
         spec = self.spec
         out = np.asarray(raw, np.float32)
         if out.ndim == 4:
@@ -165,11 +166,20 @@ class DepthModel:
                 f"{self.path}: its first output has shape {raw.shape}, not a depth map"
             )
         if spec.output_kind == "depth":
-            return out * spec.scale
-        if spec.output_kind == "disparity":
-            return spec.scale / np.maximum(out, 1e-6)
-        low, high = 1 / spec.max_depth_m, 1 / spec.min_depth_m
-        return 1 / (low + (high - low) * out)
+            depth = out * spec.scale
+        elif spec.output_kind == "disparity":
+            depth = spec.scale / np.maximum(out, 1e-6)
+        else:
+            low, high = 1 / spec.max_depth_m, 1 / spec.min_depth_m
+            depth = 1 / (low + (high - low) * out)
+        broken = ~np.isfinite(depth)
+        if broken.any():
+            # e.g. an int8 model whose calibration did not cover these images' activations
+            raise ValueError(
+                f"{self.path}: the model answered no valid depth (NaN or infinite) for "
+                f"{broken.mean():.1%} of the pixels"
+            )
+        return depth
 
     def predict(self, images: np.ndarray, *, features: bool = False, batch: int = 4) -> Prediction:
         """Depth for (N, H, W, 3) uint8 RGB images at the model's size."""
