@@ -1,5 +1,6 @@
 """How a process that runs vista's algorithms is set up, once, where it starts (a job
-worker, `vista measure`, a bench): ``prepare_process``.
+worker, `vista measure`, a bench): ``prepare_process``; and how a child process is tied
+to its parent's life: ``die_with_parent``.
 
 BLAS runs one thread: the algorithms run their own threads (one per core they are given),
 and BLAS threads on top of them would only fight them for the cores (and spin while they
@@ -16,7 +17,9 @@ lets freed arrays be reused; the process keeps up to that much memory it no long
 from __future__ import annotations
 
 import ctypes
+import ctypes.util
 import os
+import signal
 import sys
 from functools import cache
 
@@ -27,6 +30,7 @@ M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD_BYTES = 32 << 20
 """glibc's largest allowed threshold on 64-bit systems."""
 TRIM_THRESHOLD_BYTES = 256 << 20
+PR_SET_PDEATHSIG = 1
 
 
 @cache
@@ -58,3 +62,29 @@ def available_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
         return os.cpu_count() or 1
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Linux: SIGTERM this process when its parent dies, even by SIGKILL, so a child of a
+    killed server (an API process, a job worker) never lives on as an orphan taking work
+    beside the restarted server's own children.
+
+    ``parent_pid`` is the parent's pid as the parent saw it when starting this process:
+    the signal is only armed from here on, so a parent that died before this call is
+    caught by comparing it with ``os.getppid()`` (then this process stops at once). The
+    kernel sends the signal when the *thread* that started this process ends, so start
+    children from a thread that outlives them."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: the parent's own shutdown still stops it
+        pass
+    if not parent_alive(parent_pid):
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def parent_alive(parent_pid: int) -> bool:
+    """Whether this process's parent is still ``parent_pid`` (an orphan is adopted by
+    another process, usually PID 1), for loops that should end with their parent even
+    where the death signal is missing."""
+    return os.getppid() == parent_pid

@@ -16,6 +16,8 @@ from fastapi_offline import FastAPIOffline
 
 from supervisor import health
 from supervisor.artifacts.router import router as artifacts_router
+from supervisor.audit.router import router as audit_router
+from supervisor.auth.revocations import Revocations
 from supervisor.auth.router import router as auth_router
 from supervisor.defects.router import router as defects_router
 from supervisor.deps import TokenCache
@@ -24,12 +26,14 @@ from supervisor.engine.maintenance import MaintenanceLoop, resend_queued
 from supervisor.engine.runtime import Runtime
 from supervisor.exports.router import router as exports_router
 from supervisor.feedback.router import router as feedback_router
+from supervisor.headers import SecurityHeaders
 from supervisor.inspections.router import router as inspections_router
 from supervisor.jobs.router import router as jobs_router
 from supervisor.judgments.router import router as judgments_router
 from supervisor.migrate import check_schema
+from supervisor.openapi import install_openapi
 from supervisor.problems import install_problem_handlers
-from supervisor.settings import Settings, get_settings
+from supervisor.settings import Settings, get_settings, secure_data_dir
 from supervisor.sync.router import router as sync_router
 from supervisor.users.router import router as users_router
 
@@ -40,7 +44,7 @@ WEB_DIST = Path(__file__).resolve().parent.parent / "clients" / "web" / "dist"
 
 def _engine_lock(settings: Settings) -> IO | None:
     """The embedded pool's lock: held for life by the one API process that runs it."""
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    secure_data_dir(settings)
     handle = open(settings.data_dir / "engine.lock", "w")  # noqa: SIM115 - held for life
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -61,13 +65,14 @@ def create_app(
     async def lifespan(app: FastAPI):  # noqa: ANN202
         rt = runtime or Runtime.create(settings)
         check_schema(rt.db.url)
+        secure_data_dir(settings)
         app.state.runtime = rt
         pool, loop, lock = None, None, None
         if run_engine:
             if rt.dispatcher.polls_database and settings.embedded_workers > 0:
                 lock = _engine_lock(settings)
                 if lock is not None:  # with several API processes, one runs the pool
-                    pool = EmbeddedPool(settings, settings.embedded_workers)
+                    pool = EmbeddedPool(rt, settings.embedded_workers)
                     pool.start()
             resend_queued(rt, only_undispatched=False)
             loop = MaintenanceLoop(rt)
@@ -100,8 +105,10 @@ def create_app(
         redoc_url="/redoc",
         static_url="/docs-assets",
     )
-    app.state.token_cache = TokenCache()
+    app.state.token_cache = TokenCache(Revocations(settings.resolved_artifact_dir))
+    app.add_middleware(SecurityHeaders)
     install_problem_handlers(app)
+    install_openapi(app)
     api = APIRouter(prefix=API_PREFIX)
     for router in (
         auth_router,
@@ -114,6 +121,7 @@ def create_app(
         sync_router,
         exports_router,
         feedback_router,
+        audit_router,
     ):
         api.include_router(router)
     app.include_router(api)

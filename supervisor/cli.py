@@ -16,19 +16,19 @@ from services.odometry import cli as odometry_cli
 from services.stitching import cli as stitching_cli
 from services.tracking import cli as tracking_cli
 from services.wording import counted
-from supervisor.settings import get_settings
+from supervisor.settings import get_settings, secure_data_dir
+from supervisor.users import cli as users_cli
 
 app = typer.Typer(
     help="vista: 3D inspection — supervisor, job workers, benchmarks.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )
-user_app = typer.Typer(help="Manage users.", no_args_is_help=True)
 bench_app = typer.Typer(help="Benchmarks: print a table and write JSON.", no_args_is_help=True)
 simulate_app = typer.Typer(
     help="Simulators: write examples with their ground truth.", no_args_is_help=True
 )
-app.add_typer(user_app, name="user")
+app.add_typer(users_cli.app, name="user")
 app.add_typer(bench_app, name="bench")
 app.add_typer(simulate_app, name="simulate")
 
@@ -39,12 +39,13 @@ def migrate(revision: str = typer.Option("head", help="Target revision.")) -> No
     from supervisor.migrate import current_revision, upgrade
 
     settings = get_settings()
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    secure_data_dir(settings)
     url = settings.resolved_database_url
     try:
         upgrade(url, revision)
     except Exception as exc:  # shown to the user
         fail(f"migration failed on {_redact(url)}: {exc}")
+    secure_data_dir(settings)
     typer.echo(f"database {_redact(url)} is at migration {current_revision(url)}")
 
 
@@ -67,11 +68,12 @@ def serve(
     from supervisor.migrate import SchemaOutOfDate, check_schema
 
     settings = get_settings()
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    secure_data_dir(settings)
     try:
         created = check_schema(settings.resolved_database_url)
     except SchemaOutOfDate as exc:
         fail(str(exc))
+    secure_data_dir(settings)
     if created:
         typer.echo(created)
     logging.basicConfig(
@@ -140,39 +142,6 @@ def worker(
     os.execv(sys.executable, args)
 
 
-@user_app.command("create")
-def user_create(
-    name: str = typer.Argument(..., help="Username."),
-    role: str = typer.Option(..., help="admin, inspector, viewer or device."),
-    password: bool = typer.Option(False, "--password", help="Ask for a password to sign in with."),
-    token_name: str = typer.Option("cli", help="Name of the token printed."),
-) -> None:
-    """Create a user and print an API token for it (shown once)."""
-    from supervisor.db import Database
-    from supervisor.models.users import ROLES
-    from supervisor.problems import Problem
-    from supervisor.users.service import create_token, create_user
-
-    if role not in ROLES:
-        fail(f"--role must be one of {', '.join(ROLES)}, not {role!r}")
-    secret = (
-        typer.prompt("password", hide_input=True, confirmation_prompt=True) if password else None
-    )
-    if secret is not None and len(secret) < 8:
-        fail("the password needs at least 8 characters")
-    db = Database(get_settings().resolved_database_url)
-    try:
-        with db.write() as session:
-            user = create_user(session, username=name, role=role, password=secret)
-            kind = "device" if role == "device" else "cli"
-            token = create_token(session, user=user, name=token_name, kind=kind, ttl_hours=None)
-    except Problem as exc:
-        fail(exc.detail)
-    finally:
-        db.dispose()
-    typer.echo(token)
-
-
 @bench_app.command("api")
 def bench_api(
     out: Path = typer.Option(Path("bench-results/api.json"), help="Where to write the JSON."),
@@ -184,6 +153,9 @@ def bench_api(
     ),
     api_workers: int = typer.Option(
         2, min=1, help="API processes serving PostgreSQL (SQLite is served by one)."
+    ),
+    sqlite_normal: bool = typer.Option(
+        True, help="Also run SQLite with synchronous=NORMAL (the cost of durability)."
     ),
 ) -> None:
     """Judgment writes/s and latency with concurrent clients, and defect-page latency, on
@@ -197,6 +169,7 @@ def bench_api(
         defects=defects,
         postgres_url=postgres_url or os.environ.get("VISTA_TEST_DATABASE_URL"),
         api_workers=api_workers,
+        sqlite_normal=sqlite_normal,
     )
 
 
@@ -239,7 +212,7 @@ def demo(
     """Simulate a curved cabin sidewall with seams out of tolerance and surface defects and
     run it through the whole chain (upload → calibrate → stitch → measure) on this
     installation, so its inspection list shows real findings."""
-    from supervisor.demo import DEMO_PASSWORD, DEMO_USER, DemoError, run_demo
+    from supervisor.demo import DEMO_USER, DemoError, run_demo
 
     settings = get_settings()
     try:
@@ -275,7 +248,8 @@ def demo(
     typer.echo(
         f"\nsimulated data and its ground truth: {outcome['folder']}\n"
         f"review it: `vista serve` (or `make run`), then open the dashboard at {url}/ and "
-        f"sign in as {DEMO_USER} / {DEMO_PASSWORD}: inspection {inspection['id']} shows the "
+        f"sign in as {DEMO_USER} with the password {outcome['password']} (new at each demo "
+        f"run; shown only here): inspection {inspection['id']} shows the "
         f"scene, the defects and the runs.\n"
         f"the API: {url}/docs (works offline); GET /api/v1/defects?inspection={inspection['id']}"
     )

@@ -4,6 +4,10 @@ SQLite needs two things to be a fair multi-writer store: WAL with a busy timeout
 write transactions that take the write lock when they begin (``BEGIN IMMEDIATE``) so two
 writers never deadlock upgrading a read lock. Read sessions begin a plain deferred
 transaction so they never wait for a writer.
+
+SQLite's ``synchronous`` level is FULL unless asked otherwise: in WAL mode NORMAL syncs
+the log only at checkpoints, so a power loss can undo commits the API already answered
+(an upload acknowledged, its row gone); FULL syncs the log at every commit.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import sqlite3
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, Literal, get_args
 
 import orjson
 from sqlalchemy import MetaData, create_engine, event
@@ -29,11 +33,14 @@ NAMING_CONVENTION = {
 }
 
 
+SqliteSynchronous = Literal["FULL", "NORMAL"]
+
+
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
 
 
-def _configure_sqlite(engine: Engine) -> None:
+def _configure_sqlite(engine: Engine, synchronous: SqliteSynchronous) -> None:
     # SQLite's busy handler polls with growing sleeps, so waiting writers of one process
     # overtake each other unfairly (p99 in seconds under load); a lock queues them.
     writer = threading.Lock()
@@ -43,7 +50,7 @@ def _configure_sqlite(engine: Engine) -> None:
         dbapi_connection.isolation_level = None  # SQLAlchemy emits BEGIN itself below
         cursor = dbapi_connection.cursor()
         cursor.execute("PRAGMA journal_mode=WAL")
-        cursor.execute("PRAGMA synchronous=NORMAL")
+        cursor.execute(f"PRAGMA synchronous={synchronous}")
         cursor.execute("PRAGMA busy_timeout=30000")
         cursor.execute("PRAGMA foreign_keys=ON")
         cursor.close()
@@ -78,14 +85,19 @@ def json_loads(text: str | bytes) -> Any:
         return json.loads(text)
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, *, sqlite_synchronous: SqliteSynchronous = "FULL") -> Engine:
+    """An engine for ``url``; ``sqlite_synchronous``: SQLite's durability (see above)."""
     if url.startswith("sqlite"):
+        if sqlite_synchronous not in get_args(SqliteSynchronous):  # it goes into a PRAGMA
+            raise ValueError(
+                f"sqlite_synchronous must be FULL or NORMAL, not {sqlite_synchronous!r}"
+            )
         engine = create_engine(
             url,
             connect_args={"check_same_thread": False, "timeout": 30},
             json_deserializer=json_loads,
         )
-        _configure_sqlite(engine)
+        _configure_sqlite(engine, sqlite_synchronous)
         return engine
     # No ping per checkout (it doubles the round trips of a short request); a connection
     # the server dropped is invalidated on first use and the pool reconnects.
@@ -97,9 +109,9 @@ def make_engine(url: str) -> Engine:
 class Database:
     """An engine with a read and a write session factory."""
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, *, sqlite_synchronous: SqliteSynchronous = "FULL") -> None:
         self.url = url
-        self.engine = make_engine(url)
+        self.engine = make_engine(url, sqlite_synchronous=sqlite_synchronous)
         self.is_sqlite = self.engine.dialect.name == "sqlite"
         self._read = sessionmaker(self.engine, expire_on_commit=False)
         self._write = sessionmaker(

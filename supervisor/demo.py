@@ -14,10 +14,10 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
-from supervisor.settings import Settings
+from supervisor.audit.service import COMMAND_LINE
+from supervisor.settings import Settings, secure_data_dir
 
 DEMO_USER = "demo"
-DEMO_PASSWORD = "vista-demo"
 TOLERANCES = {
     "gap_mm": {"min": 0.5, "max": 3.0},
     "step_mm": {"max": 0.8},
@@ -56,23 +56,31 @@ class DemoError(RuntimeError):
     pass
 
 
-def _demo_token(settings: Settings) -> str:
-    """A fresh API token for the demo inspector (created on first use)."""
+def _demo_account(settings: Settings) -> tuple[str, str]:
+    """A fresh API token and a fresh random password for the demo inspector (created on
+    first use): no published password ever works on a real database."""
+    import secrets
+    from datetime import timedelta
+
     from sqlalchemy import select
 
     from supervisor.db import Database
     from supervisor.models import User
-    from supervisor.users.service import create_token, create_user
+    from supervisor.users.service import change_user, create_token, create_user
 
-    db = Database(settings.resolved_database_url)
+    password = secrets.token_urlsafe(12)
+    db = Database(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
         with db.write() as session:
             user = session.scalar(select(User).where(User.username == DEMO_USER))
             if user is None:
-                user = create_user(
-                    session, username=DEMO_USER, role="inspector", password=DEMO_PASSWORD
-                )
-            return create_token(session, user=user, name="vista demo", kind="cli", ttl_hours=24)
+                user = create_user(session, username=DEMO_USER, role="inspector", password=password)
+            else:
+                change_user(session, user, actor=COMMAND_LINE, active=True, password=password)
+            token = create_token(
+                session, user=user, name="vista demo", kind="cli", ttl=timedelta(hours=24)
+            )
+            return token, password
     finally:
         db.dispose()
 
@@ -95,8 +103,9 @@ def run_demo(
     from supervisor.app import create_app
     from supervisor.migrate import upgrade
 
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    secure_data_dir(settings)
     upgrade(settings.resolved_database_url, "head")
+    secure_data_dir(settings)
     folder = settings.data_dir / "demo" / f"assembly-{seed}"
     spec = AssemblySpec(
         rows=2,
@@ -110,7 +119,7 @@ def run_demo(
     say(f"simulating a curved cabin sidewall (2 × 2 panels, R 2000 mm) into {folder}")
     grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
     write_defects_example(folder, spec, grid=grid, seed=seed, progress=say)
-    token = _demo_token(settings)
+    token, password = _demo_account(settings)
     with TestClient(create_app(settings)) as client:
         client.headers["authorization"] = f"Bearer {token}"
 
@@ -170,7 +179,13 @@ def run_demo(
             job = failed[0]
             raise DemoError(f"job {job['id']} ({job['step']}) {job['status']}: {job['error']}")
         defects = call("GET", "/api/v1/defects", params={"run": run["id"], "limit": 500})["items"]
-    return {"inspection": inspection, "run": run, "defects": defects, "folder": folder}
+    return {
+        "inspection": inspection,
+        "run": run,
+        "defects": defects,
+        "folder": folder,
+        "password": password,
+    }
 
 
 def _wait(call: Callable, run_id: int, timeout_s: float, say: Callable[[str], None]) -> dict:

@@ -11,6 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
+from supervisor.auth.revocations import Revocations
 from supervisor.auth.service import token_digest, user_for_token
 from supervisor.db import commit
 from supervisor.engine.runtime import Runtime
@@ -22,8 +23,9 @@ READ_ROLES: tuple[Role, ...] = ROLES
 EDIT_ROLES: tuple[Role, ...] = ("admin", "inspector")
 JUDGE_ROLES: tuple[Role, ...] = ("admin", "inspector", "device")
 ADMIN_ROLES: tuple[Role, ...] = ("admin",)
-DEVICE_WRITE_PATHS = ("/api/v1/sync/judgments",)
-"""The only writes a device token (a headset's) may make; it reads everything else."""
+DEVICE_WRITE_PATHS = ("/api/v1/sync/judgments", "/api/v1/auth/token")
+"""The only writes a device token (a headset's) may make (sync, sign out); it reads
+everything else."""
 
 _bearer = HTTPBearer(auto_error=False, description="A token from POST /api/v1/auth/token.")
 
@@ -34,31 +36,43 @@ class CurrentUser:
     username: str
     role: str
     token_kind: str
+    token_id: int
 
 
 class TokenCache:
-    """Recently seen tokens, so most requests need no database round trip to sign in.
+    """Recently checked tokens, so most requests need no database round trip to sign in.
 
-    An entry lives ``ttl_s`` seconds (never past the token's own expiry), so a revoked
-    token or a deactivated user stops working within that time.
+    An entry lives ``ttl_s`` seconds (never past the token's own expiry) and only while
+    the revocation stamp is the one read before the token was checked: a token revoked,
+    or a user deactivated, through vista stops working at the next request in every API
+    process; a change made by hand in the database, within ``ttl_s``.
     """
 
-    def __init__(self, ttl_s: float = 10.0, max_entries: int = 10_000) -> None:
+    def __init__(
+        self, revocations: Revocations, ttl_s: float = 5.0, max_entries: int = 10_000
+    ) -> None:
+        self.revocations = revocations
         self.ttl_s = ttl_s
         self.max_entries = max_entries
-        self._entries: dict[str, tuple[CurrentUser, float]] = {}
+        self._entries: dict[str, tuple[CurrentUser, float, int]] = {}
 
     def get(self, digest: str) -> CurrentUser | None:
         entry = self._entries.get(digest)
         if entry is None or entry[1] < time.monotonic():
             return None
+        if entry[2] != self.revocations.stamp():
+            return None
         return entry[0]
 
-    def put(self, digest: str, user: CurrentUser, expires_in_s: float | None) -> None:
+    def put(self, digest: str, user: CurrentUser, expires_in_s: float | None, stamp: int) -> None:
+        """Keep ``user`` for ``digest``, checked when the revocation stamp was ``stamp``."""
         if len(self._entries) >= self.max_entries:
             self._entries.clear()
         lifetime = self.ttl_s if expires_in_s is None else min(self.ttl_s, expires_in_s)
-        self._entries[digest] = (user, time.monotonic() + lifetime)
+        self._entries[digest] = (user, time.monotonic() + lifetime, stamp)
+
+    def forget(self, digest: str) -> None:
+        self._entries.pop(digest, None)
 
 
 def get_runtime(request: Request) -> Runtime:
@@ -97,7 +111,11 @@ def _look_up(request: Request, token: str) -> tuple[CurrentUser, float | None] |
     user, api_token = found
     expires_in = (api_token.expires_at - utcnow()).total_seconds() if api_token.expires_at else None
     signed_in = CurrentUser(
-        id=user.id, username=user.username, role=user.role, token_kind=api_token.kind
+        id=user.id,
+        username=user.username,
+        role=user.role,
+        token_kind=api_token.kind,
+        token_id=api_token.id,
     )
     return signed_in, expires_in
 
@@ -116,11 +134,16 @@ async def current_user(
     user = cache.get(digest)
     if user is not None:
         return _device_checked(request, user)
+    stamp = cache.revocations.stamp()  # before the check: a revocation meanwhile shows
     found = await run_in_threadpool(_look_up, request, credentials.credentials)
     if found is None:
-        raise Problem(401, "The token is unknown, expired or revoked.", headers=challenge)
+        raise Problem(
+            401,
+            "The token is unknown, expired or revoked, or its user is deactivated: sign in again.",
+            headers=challenge,
+        )
     user, expires_in = found
-    cache.put(digest, user, expires_in)
+    cache.put(digest, user, expires_in, stamp)
     return _device_checked(request, user)
 
 
@@ -145,3 +168,7 @@ def require(*roles: str, action: str):  # noqa: ANN201 - a FastAPI dependency
         return user
 
     return dependency
+
+
+def get_revocations(request: Request) -> Revocations:
+    return request.app.state.token_cache.revocations

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Annotated, Any, NotRequired
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from typing_extensions import TypedDict  # pydantic reads typing.TypedDict from 3.12 only
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 log = logging.getLogger("vista.api")
@@ -26,9 +28,47 @@ _TITLES = {
     415: "Unsupported media type",
     416: "Range not satisfiable",
     422: "Invalid input",
+    429: "Too many requests",
     500: "Internal error",
     503: "Not ready",
 }
+
+
+class ValidationIssue(TypedDict):
+    """One part of a request that failed validation, as FastAPI (pydantic) reported it."""
+
+    loc: Annotated[
+        list[str | int],
+        Field(
+            description="Where: `body`, `query`, `path` or `header`, then field names and "
+            'list indexes, e.g. `["body", "steps", 0, "name"]`.'
+        ),
+    ]
+    msg: Annotated[str, Field(description="What is wrong, in pydantic's words.")]
+    type: Annotated[str, Field(description="pydantic's error type, e.g. `missing`.")]
+
+
+class ProblemDetails(TypedDict):
+    """Every error the API answers (RFC 9457, `application/problem+json`). `detail` is the
+    sentence to show a person. A 422 refused by validation also lists each refused part
+    in `errors`; a 422 from a rule checked later (a reference to something that does not
+    exist, a combination of fields, the content of an upload) has `detail` only."""
+
+    type: Annotated[
+        str, Field(description="Always `about:blank`: the status says what kind of problem.")
+    ]
+    title: Annotated[
+        str, Field(description="The status in words, e.g. `Not found`, `Invalid input`.")
+    ]
+    status: Annotated[int, Field(ge=400, le=599, description="The HTTP status code again.")]
+    detail: Annotated[str, Field(description="What went wrong and what to do about it.")]
+    instance: NotRequired[Annotated[str, Field(description="The path of the request.")]]
+    errors: NotRequired[
+        Annotated[
+            list[ValidationIssue],
+            Field(description="Only on a 422 from request validation: every refused part."),
+        ]
+    ]
 
 
 class Problem(Exception):

@@ -11,10 +11,9 @@ process that dies on the same socket, and stops them all on SIGINT/SIGTERM.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import logging
 import multiprocessing
+import os
 import signal
 import socket
 import time
@@ -22,11 +21,12 @@ from multiprocessing.process import BaseProcess
 
 import uvicorn
 
+from services.process import die_with_parent
+
 APP = "supervisor.app:create_app"
 RESTART_PAUSE_S = 1.0
 STOP_TIMEOUT_S = 30.0
 BACKLOG = 2048
-PR_SET_PDEATHSIG = 1
 
 log = logging.getLogger("vista.serve")
 
@@ -45,18 +45,9 @@ def listening_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-def _die_with_parent() -> None:
-    """Linux: SIGTERM this process when the parent dies, even by SIGKILL (no orphans)."""
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):  # not Linux: the parent's own shutdown still stops it
-        pass
-
-
-def _serve_one(sock: socket.socket, access_log: bool) -> None:
-    """One API process: one uvicorn server on its own socket."""
-    _die_with_parent()
+def _serve_one(sock: socket.socket, access_log: bool, parent_pid: int) -> None:
+    """One API process: one uvicorn server on its own socket, ended with its parent."""
+    die_with_parent(parent_pid)
     config = uvicorn.Config(
         APP, factory=True, log_level="info", access_log=access_log, backlog=BACKLOG
     )
@@ -83,7 +74,10 @@ def serve(host: str, port: int, *, processes: int, access_log: bool) -> None:
 
     def start(sock: socket.socket) -> BaseProcess:
         process = context.Process(
-            target=_serve_one, args=(sock, access_log), name="vista-api", daemon=False
+            target=_serve_one,
+            args=(sock, access_log, os.getpid()),
+            name="vista-api",
+            daemon=False,
         )
         process.start()
         return process

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -54,6 +54,26 @@ class Settings(BaseSettings):
     job_time_limit_s: int = Field(6 * 3600, ge=1, description="Hard limit on one job attempt.")
     retry_backoff_s: float = Field(5.0, ge=0, description="First retry delay; doubles each time.")
     token_ttl_hours: float = Field(12.0, gt=0, description="Lifetime of a sign-in token.")
+    cli_token_ttl_days: float = Field(
+        90.0, gt=0, description="Default lifetime of a token made by `vista user token`."
+    )
+    device_token_ttl_days: float = Field(
+        30.0, gt=0, description="Default lifetime of a headset's (device) token."
+    )
+    sign_in_per_account_per_min: int = Field(
+        10, ge=1, description="Failed sign-ins one account may take per minute before 429."
+    )
+    sign_in_per_address_per_min: int = Field(
+        30, ge=1, description="Sign-ins one client address may try per minute before 429."
+    )
+    sign_in_concurrency: int = Field(
+        1, ge=1, description="Password checks (argon2, 64 MiB each) run at once per process."
+    )
+    sqlite_synchronous: Literal["FULL", "NORMAL"] = Field(
+        "FULL",
+        description="SQLite durability: FULL loses no acknowledged commit on power loss; "
+        "NORMAL is faster (see `vista bench api`) but may lose the last commits.",
+    )
     scene_max_points: int = Field(
         500_000, ge=1000, le=20_000_000, description="Points of the stitched cloud in scene.glb."
     )
@@ -85,6 +105,18 @@ class Settings(BaseSettings):
     @property
     def max_upload_bytes(self) -> int:
         return self.max_upload_mb * 1024 * 1024
+
+
+def secure_data_dir(settings: Settings) -> None:
+    """The data folder only its owner can enter (700) and the SQLite files only its owner
+    can read (600): the database holds password hashes and the inspection record."""
+    folder = settings.data_dir
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    folder.chmod(0o700)
+    for name in ("vista.db", "vista.db-wal", "vista.db-shm", "engine.lock"):
+        path = folder / name
+        if path.exists():
+            path.chmod(0o600)
 
 
 @lru_cache

@@ -2,22 +2,37 @@
 
 Files are written to a temporary name inside the storage folder, hashed while they are
 written, and renamed into place only once complete, so a reader never sees half a file
-and a failed upload leaves nothing behind.
+and a failed upload leaves nothing behind (a killed process's ``.part`` files are removed
+at the next start-up: ``remove_stale_temp_files``).
+
+A file is durable before its database row commits, else a power loss could leave a
+committed row pointing at an empty or missing file: whoever writes a temporary file
+(``receive``, ``put_file``, ``put_bytes``) syncs it to disk before ``commit`` renames it
+into place, and ``commit`` syncs its folder after the rename (and the parent of a folder
+it creates). That is one fsync per file and one per folder; an upload's file is synced
+before the request's database transaction begins, so no writer waits on that. Folders
+and files are private to the server's user (0700, 0600): they hold customers' scans.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import hashlib
 import os
 import re
 import shutil
+import time
 import uuid
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 URI_SCHEME = "file:"
 CHUNK_BYTES = 1024 * 1024
+PRIVATE_FILE_MODE = 0o600
+PRIVATE_DIR_MODE = 0o700
 
 
 class UploadTooLarge(Exception):
@@ -33,15 +48,66 @@ class StoredFile:
     sha256: str
 
 
+@dataclass(frozen=True)
+class Removed:
+    """What a clean-up removed: how many files or folders, and their size."""
+
+    count: int
+    size_bytes: int
+
+
 def safe_name(name: str) -> str:
     cleaned = re.sub(r"[^A-Za-z0-9._-]+", "_", os.path.basename(name)).strip("._")
     return cleaned[:120] or "artifact"
 
 
+def tree_size(path: Path) -> int:
+    """Bytes of the files under ``path`` (files that vanish meanwhile count nothing)."""
+    total = 0
+    for folder, _dirs, files in os.walk(path):
+        for name in files:
+            with contextlib.suppress(FileNotFoundError):
+                total += os.lstat(os.path.join(folder, name)).st_size
+    return total
+
+
+def _open_private(path: Path) -> BinaryIO:
+    """A new file for writing that only the server's user can read (0600)."""
+    return open(path, "xb", opener=lambda p, flags: os.open(p, flags, PRIVATE_FILE_MODE))
+
+
+def _sync(out: BinaryIO) -> None:
+    """Flush ``out`` and sync its data to disk."""
+    out.flush()
+    os.fsync(out.fileno())
+
+
+def _fsync_path(path: Path) -> None:
+    """Sync ``path`` (a file, or a folder's entries) to disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _make_private_dirs(path: Path) -> None:
+    """Create ``path`` and its missing parents as private folders (0700), syncing the
+    parent of each one made so the new entry survives a power loss too."""
+    if path.is_dir():
+        return
+    _make_private_dirs(path.parent)
+    try:
+        path.mkdir(mode=PRIVATE_DIR_MODE)
+    except FileExistsError:  # another process made it meanwhile (and syncs it)
+        return
+    _fsync_path(path.parent)
+
+
 class Storage:
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
-        (self.root / "tmp").mkdir(parents=True, exist_ok=True)
+        _make_private_dirs(self.root / "tmp")
 
     def path(self, uri: str) -> Path:
         if not uri.startswith(URI_SCHEME):
@@ -63,13 +129,14 @@ class Storage:
         digest = hashlib.sha256()
         size = 0
         try:
-            with open(temp, "wb") as out:
+            with _open_private(temp) as out:
                 async for chunk in chunks:
                     size += len(chunk)
                     if size > limit_bytes:
                         raise UploadTooLarge(limit_bytes)
                     digest.update(chunk)
                     out.write(chunk)
+                await asyncio.to_thread(_sync, out)  # seconds for gigabytes: off the event loop
         except BaseException:
             temp.unlink(missing_ok=True)
             raise
@@ -78,11 +145,13 @@ class Storage:
         )
 
     def commit(self, temp_uri: str, *, inspection_id: int, name: str) -> str:
-        """Move a received temporary file to its final place; returns the final uri."""
+        """Move a temporary file (synced by its writer) to its final place and sync the
+        folder that now lists it; returns the final uri."""
         uri = self._final_uri(inspection_id, name)
         target = self.path(uri)
-        target.parent.mkdir(parents=True, exist_ok=True)
+        _make_private_dirs(target.parent)
         os.replace(self.path(temp_uri), target)
+        _fsync_path(target.parent)
         return uri
 
     def put_file(self, source: Path, *, inspection_id: int, name: str) -> StoredFile:
@@ -91,11 +160,12 @@ class Storage:
         temp = self.new_temp_path()
         size = 0
         try:
-            with open(source, "rb") as src, open(temp, "wb") as out:
+            with open(source, "rb") as src, _open_private(temp) as out:
                 while chunk := src.read(CHUNK_BYTES):
                     digest.update(chunk)
                     out.write(chunk)
                     size += len(chunk)
+                _sync(out)
         except BaseException:
             temp.unlink(missing_ok=True)
             raise
@@ -104,9 +174,31 @@ class Storage:
 
     def put_bytes(self, data: bytes, *, inspection_id: int, name: str) -> StoredFile:
         temp = self.new_temp_path()
-        temp.write_bytes(data)
+        try:
+            with _open_private(temp) as out:
+                out.write(data)
+                _sync(out)
+        except BaseException:
+            temp.unlink(missing_ok=True)
+            raise
         uri = self.commit(f"{URI_SCHEME}tmp/{temp.name}", inspection_id=inspection_id, name=name)
         return StoredFile(uri=uri, size_bytes=len(data), sha256=hashlib.sha256(data).hexdigest())
+
+    def remove_stale_temp_files(self, *, older_than_s: float) -> Removed:
+        """Remove the ``.part`` files not written for ``older_than_s`` seconds: left by a
+        process killed during an upload or a job output, they are never renamed."""
+        cutoff = time.time() - older_than_s
+        count = size_bytes = 0
+        for path in (self.root / "tmp").glob("*.part"):
+            try:
+                stat = path.stat()
+                if stat.st_mtime >= cutoff:
+                    continue
+                path.unlink()
+            except FileNotFoundError:  # renamed or removed by its owner meanwhile
+                continue
+            count, size_bytes = count + 1, size_bytes + stat.st_size
+        return Removed(count, size_bytes)
 
     def delete(self, uri: str) -> None:
         self.path(uri).unlink(missing_ok=True)

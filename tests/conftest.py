@@ -10,6 +10,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from datetime import timedelta
 from pathlib import Path
 
 import httpx
@@ -131,7 +132,7 @@ def add_user(runtime: Runtime, username: str, role: str, password: str | None = 
     with runtime.db.write() as session:
         user = create_user(session, username=username, role=role, password=password)
         kind = "device" if role == "device" else "cli"
-        return create_token(session, user=user, name="test", kind=kind, ttl_hours=None)
+        return create_token(session, user=user, name="test", kind=kind, ttl=timedelta(days=1))
 
 
 @pytest.fixture

@@ -32,3 +32,25 @@ def empty_cloud_bytes() -> bytes:
     header = "ply\nformat binary_little_endian 1.0\nelement vertex 0\n"
     header += "property float x\nproperty float y\nproperty float z\nend_header\n"
     return header.encode()
+
+
+def raw_ply(header_lines: list[str], body: bytes = b"") -> bytes:
+    """A binary little-endian PLY of ``header_lines`` (between the format line and
+    ``end_header``) and ``body``, however wrong either is."""
+    header = ["ply", "format binary_little_endian 1.0", *header_lines, "end_header"]
+    return ("\n".join(header) + "\n").encode("latin-1") + body
+
+
+def mesh_bytes(tmp_path: Path) -> bytes:
+    """A 4 × 5 grid of the plane as a triangle mesh (two triangles per cell)."""
+    cloud = plane_grid(4, 5)
+    corners = np.arange(20).reshape(4, 5)[:-1, :-1].ravel()
+    faces = np.concatenate(
+        [
+            np.stack([corners, corners + 1, corners + 5], 1),
+            np.stack([corners + 1, corners + 6, corners + 5], 1),
+        ]
+    )
+    path = tmp_path / f"mesh-{np.random.randint(1 << 30)}.ply"
+    write_ply(path, PointCloud(points=cloud.points), faces=faces)
+    return path.read_bytes()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import tarfile
 import zipfile
 from pathlib import Path
@@ -34,3 +35,31 @@ def pack(folder: Path, archive: Path, *, truth: bool = True) -> Path:
             for path in files:
                 out.add(path, f"{folder.name}/{path.relative_to(folder)}")
     return archive
+
+
+def archive_bytes(members: dict[str, bytes], form: str) -> bytes:
+    """``members`` (name → bytes, in that order) packed as ``zip`` or ``tar``, ``tar.gz``,
+    ``tar.bz2``, ``tar.xz``, in memory."""
+    out = io.BytesIO()
+    if form == "zip":
+        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
+            for name, data in members.items():
+                archive.writestr(name, data)
+        return out.getvalue()
+    mode = "w" if form == "tar" else f"w:{form.removeprefix('tar.')}"
+    with tarfile.open(fileobj=out, mode=mode) as archive:
+        for name, data in members.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            archive.addfile(info, io.BytesIO(data))
+    return out.getvalue()
+
+
+def sequence_members(folder: Path) -> dict[str, bytes]:
+    """A simulated sequence folder's files as archive members under ``seq/``."""
+    files = [
+        *sorted((folder / "frames").glob("*.png")),
+        folder / "camera.json",
+        folder / "truth.tum",
+    ]
+    return {f"seq/{path.relative_to(folder)}": path.read_bytes() for path in files}

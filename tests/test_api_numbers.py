@@ -47,6 +47,12 @@ def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
         ("POST", "/api/v1/auth/token"): {"username": "ada", "password": "admin-password"},
         ("POST", "/api/v1/users"): {"username": "new", "role": "viewer", "password": "pw-123456"},
         ("POST", "/api/v1/users/{user_id}/tokens"): {"name": "t", "ttl_hours": 1.0},
+        ("PATCH", "/api/v1/users/{user_id}"): {"active": True},
+        ("PUT", "/api/v1/me/password"): {
+            "current_password": "admin-password",
+            "new_password": "admin-password",
+        },
+        ("POST", "/api/v1/tokens/revoke"): {"device": "no-such-headset"},
         ("POST", "/api/v1/inspections"): inspection,
         ("PATCH", "/api/v1/inspections/{inspection_id}"): inspection,
         ("POST", "/api/v1/inspections/{inspection_id}/runs"): {

@@ -86,7 +86,13 @@ def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: 
     out = tmp_path / "deep" / "api.json"
 
     report = run_api_bench(
-        out=out, clients=4, seconds=1, defects=300, postgres_url=PG_URL if with_postgres else None
+        out=out,
+        clients=4,
+        seconds=1,
+        defects=300,
+        postgres_url=PG_URL if with_postgres else None,
+        sqlite_normal=False,
+        storm_s=0.5,
     )
 
     assert json.loads(out.read_text()) == json.loads(json.dumps(report))
@@ -100,4 +106,8 @@ def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: 
         assert integrity["revision_rows"] == writes["total_writes_including_warmup"]
         assert page["requests"] == PAGE_REQUESTS
         assert page["errors"] == 0 and page["wrong_pages"] == 0
+        storm = result["sign_in_storm"]
+        assert storm["idle"]["p99_ms"] is not None and storm["storm"]["p99_ms"] is not None
+        assert sum(storm["sign_in_statuses"].values()) > 0
+        assert set(storm["sign_in_statuses"]) <= {"401", "429"}
     assert "writes/s" in format_table(report)

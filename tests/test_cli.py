@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import re
+
 import pytest
 from fastapi.testclient import TestClient
 from typer.testing import CliRunner
@@ -72,10 +74,14 @@ def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
     last = shown.output.strip().splitlines()[-2:]
     assert "open the dashboard at http://" in last[0] and "/docs (works offline)" in last[1]
     assert "Warning" not in shown.output
-    # the findings are the inspection's: a reviewer signing in sees them
+    # the findings are the inspection's: a reviewer signing in with the printed password
+    # sees them; no published password works
+    password = re.search(r"sign in as demo with the password (\S+) ", shown.output).group(1)
     with TestClient(create_app(get_settings(), run_engine=False)) as client:
+        published = {"username": "demo", "password": "vista-demo"}
+        assert client.post("/api/v1/auth/token", json=published).status_code == 401
         signed_in = client.post(
-            "/api/v1/auth/token", json={"username": "demo", "password": "vista-demo"}
+            "/api/v1/auth/token", json={"username": "demo", "password": password}
         )
         assert signed_in.status_code in (200, 201), signed_in.text
         client.headers["authorization"] = f"Bearer {signed_in.json()['access_token']}"

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from supervisor.bench.browser import launch_chromium
-from supervisor.demo import DEMO_PASSWORD, DEMO_USER, run_demo
+from supervisor.demo import DEMO_USER, run_demo
 from supervisor.engine.runtime import Runtime
 from tests.conftest import add_user, auth, make_settings
 
@@ -50,13 +50,18 @@ def test_review_an_inspection_in_the_browser(demo_server):
         page = browser.new_page(viewport={"width": 1400, "height": 900})
         errors: list[str] = []
         page.on("pageerror", lambda error: errors.append(str(error)))
+        csp: list[str] = []  # the security headers must not block the dashboard
+        page.on(
+            "console",
+            lambda m: csp.append(m.text) if "Content Security Policy" in m.text else None,
+        )
         page.goto(server.url + "/")
         assert page.locator("#view-inspection").is_hidden()  # not under the sign-in form
         page.fill("input[name=username]", DEMO_USER)
         page.fill("input[name=password]", "wrong")
         page.click("#sign-in-form button")
         page.wait_for_selector("#sign-in-error:has-text('wrong password')")
-        page.fill("input[name=password]", DEMO_PASSWORD)
+        page.fill("input[name=password]", demo["password"])
         page.click("#sign-in-form button")
         page.click(f"#inspection-table tr[data-id='{inspection}']")
         page.wait_for_selector("#defect-list .row")
@@ -160,7 +165,16 @@ def test_review_an_inspection_in_the_browser(demo_server):
             }).length"""
         )
         assert cut == 0
-        assert errors == []
+
+        # Sign out revokes the token on the server, not only in this browser.
+        token = page.evaluate("sessionStorage.getItem('vista.token')")
+        assert (
+            token and httpx.get(f"{server.url}/api/v1/me", headers=auth(token)).status_code == 200
+        )
+        page.click("#sign-out")
+        page.wait_for_selector("#sign-in-form")
+        assert httpx.get(f"{server.url}/api/v1/me", headers=auth(token)).status_code == 401
+        assert errors == [] and csp == []
 
 
 def test_api_docs_work_offline(start_server, tmp_path, sqlite_url):

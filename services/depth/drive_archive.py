@@ -7,7 +7,9 @@ archive.
 
 Members are written under names of vista's choosing (the role's folder and the file's own
 base name, which must be plain: letters, digits, ``_``, ``-``, ``.``), never by the archive's
-paths; sizes are checked before anything is read (``services.archive``).
+paths; what the archive expands to is checked as it is read (``services.archive``). At upload
+every image is decoded once: one OpenCV cannot read, or a depth map that is not one 16-bit
+channel, is refused naming it.
 """
 
 from __future__ import annotations
@@ -16,11 +18,22 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
-from services.archive import ArchiveError, Member, check_total, media_type, opened, read_member
+import numpy as np
+
+from services.archive import (
+    ArchiveError,
+    Member,
+    decode_image,
+    media_type,
+    opened,
+    read_in_order,
+    read_member,
+)
 
 HINT = "pack a drive folder with `tar czf drive.tar.gz -C DRIVE .` (image_02/ inside)"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 SCAN_SUFFIXES = (".bin",)
+SCAN_POINT_BYTES = 16
 MAX_MEMBER_BYTES = {"image": 256 << 20, "text": 64 << 20}
 SCAN_ROLES = {"velodyne": "velodyne", "velodyne_points/data": "velodyne"}
 ROLES = {
@@ -49,7 +62,6 @@ class DriveArchive:
 
 
 def _plan(form: str, members: list[Member]) -> DriveArchive:
-    check_total(members)
     roots = set()
     for member in members:
         parts = PurePosixPath(member.name).parts
@@ -83,6 +95,11 @@ def _plan(form: str, members: list[Member]) -> DriveArchive:
                 raise ArchiveError(
                     f"{member.name}: file names must be plain (letters, digits, _ - .)"
                 )
+            if folder in SCAN_ROLES and member.size % SCAN_POINT_BYTES:
+                raise ArchiveError(
+                    f"{member.name}: {member.size:,} bytes is not a scan of whole "
+                    f"{SCAN_POINT_BYTES}-byte points (x, y, z, reflectance as float32)"
+                )
             files[member.name] = f"{ROLES.get(folder) or SCAN_ROLES[folder]}/{name}"
     targets = list(files.values())
     frames = sum(t.startswith("image_02/") for t in targets)
@@ -104,10 +121,31 @@ def _plan(form: str, members: list[Member]) -> DriveArchive:
     )
 
 
+def _check_images(form: str, archive: object, members: list[Member], plan: DriveArchive) -> None:
+    """Every image decoded once, in one pass in the archive's order; the depth maps must be
+    KITTI's (one 16-bit channel, metres × 256)."""
+    images = {
+        name: MAX_MEMBER_BYTES["image"]
+        for name, target in plan.files.items()
+        if target not in TEXT_FILES and not target.startswith("velodyne/")
+    }
+    for member, data in read_in_order(form, archive, members, images):
+        image = decode_image(member.name, data)
+        if plan.files[member.name].startswith("depth/") and (
+            image.dtype != np.uint16 or image.ndim != 2
+        ):
+            raise ArchiveError(
+                f"{member.name}: a depth map is one 16-bit channel (KITTI: metres × 256), not "
+                f"{image.dtype} × {1 if image.ndim == 2 else image.shape[2]}"
+            )
+
+
 def inspect_drive(path: Path) -> DriveArchive:
-    """What the archive holds, checked without extracting it; ArchiveError naming the problem."""
-    with opened(path, HINT) as (form, members, _):
+    """What the archive holds, its images decoded once, nothing extracted; ArchiveError
+    naming the problem."""
+    with opened(path, HINT) as (form, members, archive):
         plan = _plan(form, members)
+        _check_images(form, archive, members, plan)
     return replace(plan, media_type=media_type(path, form))
 
 

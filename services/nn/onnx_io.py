@@ -12,7 +12,9 @@ import contextlib
 import io
 import json
 import logging
+import re
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -156,8 +158,82 @@ def read_model(path: Path) -> ModelFile:
         raise ValueError(f"{path}: not an ONNX model ({type(exc).__name__})") from None
     for entry in proto.metadata_props:
         if entry.key == METADATA_KEY:
-            return ModelFile(path, json.loads(entry.value))
+            return ModelFile(path, _metadata(path, entry.value))
     raise ValueError(f"{path}: an ONNX model without vista's metadata (not built by vista)")
+
+
+def _metadata(path: Path, text: str | bytes) -> dict:
+    """vista's metadata document (protobuf hands a string that is not UTF-8 over as bytes)."""
+    from services.archive import parse_json
+
+    try:
+        metadata = parse_json(text if isinstance(text, bytes) else text.encode("utf-8"))
+    except ValueError as exc:
+        raise ValueError(f"{path}: its metadata '{METADATA_KEY}' is not JSON ({exc})") from None
+    if not isinstance(metadata, dict):
+        raise ValueError(f"{path}: its metadata '{METADATA_KEY}' is not a JSON object")
+    return metadata
+
+
+def _tensors(graph) -> Iterator:  # noqa: ANN001 - an onnx.GraphProto
+    """Every tensor stored in ``graph`` and its subgraphs (an ``If``'s branches, a ``Loop``'s
+    body): initializers, sparse ones and the constants held in node attributes."""
+    graphs = [graph]
+    while graphs:
+        current = graphs.pop()
+        yield from current.initializer
+        for sparse in current.sparse_initializer:
+            yield from (sparse.values, sparse.indices)
+        for node in current.node:
+            for attribute in node.attribute:
+                if attribute.HasField("t"):
+                    yield attribute.t
+                yield from attribute.tensors
+                if attribute.HasField("g"):
+                    graphs.append(attribute.g)
+                graphs.extend(attribute.graphs)
+
+
+def check_runnable(path: Path) -> None:
+    """ValueError saying why onnxruntime could not run the model in ``path``: weights in
+    external files (an upload is one file, and a path inside the model must never reach the
+    server's disk), or what creating a CPU session says (an operator of a domain onnxruntime
+    lacks, a graph it cannot load). The session is built from the bytes, never the path."""
+    import onnx
+    import onnxruntime as ort
+
+    data = Path(path).read_bytes()
+    try:
+        proto = onnx.load_model_from_string(data)
+    except Exception as exc:  # onnx raises several types for a bad file
+        raise ValueError(f"{path}: not an ONNX model ({type(exc).__name__})") from None
+    external = next(
+        (t.name for t in _tensors(proto.graph) if t.data_location == onnx.TensorProto.EXTERNAL),
+        None,
+    )
+    if external is not None:
+        raise ValueError(
+            f"{path}: tensor {external[:60]!r} keeps its data in an external file; save the "
+            "model with its weights inside (onnx.save_model(..., save_as_external_data=False))"
+        )
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    options.log_severity_level = 4  # the reason is raised, not logged
+    # every node still needs a kernel; no optimisation pass runs over an untrusted graph
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    try:
+        ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's own exception types, one per status code
+        raise ValueError(f"{path}: onnxruntime cannot run it ({_ort_reason(exc)})") from None
+
+
+def _ort_reason(exc: Exception) -> str:
+    """onnxruntime's message without its status prefix and load-path boilerplate, short."""
+    text = " ".join(str(exc).split())
+    text = re.sub(r"^\[ONNXRuntimeError\] : \d+ : \w+ : ", "", text)
+    text = re.sub(r"^Load model from .*? failed:\s*", "", text)
+    return text[:200] + ("…" if len(text) > 200 else "")
 
 
 def fold_batch_norms(module):  # noqa: ANN001, ANN201 - a torch.nn.Module, changed in place

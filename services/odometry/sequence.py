@@ -6,20 +6,29 @@ The frames may sit in any one folder of the archive (``frames/``, ``seq/frames/`
 top); they are taken in name order, numbers by value (``2.png`` before ``10.png``); a
 desktop's leftovers (``__MACOSX/``, ``._*``) are skipped. Nothing is extracted by the
 archive's own paths: the members are read and written under names of vista's choosing, so a
-member called ``../../etc/passwd`` cannot land outside the folder. Sizes are checked before
-anything is read: a tar's listing stops once its files pass ``services.archive.MAX_ARCHIVE_BYTES``, and
-camera.json, truth.tum and each frame have limits of their own.
+member called ``../../etc/passwd`` cannot land outside the folder. What the archive expands
+to is checked as it is read (``services.archive``); camera.json, truth.tum and each frame
+have limits of their own, and at upload every frame is decoded once (a frame OpenCV cannot
+read, or of another size than camera.json says, is refused naming it).
 """
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
 from services.archive import ArchiveError as SequenceError
-from services.archive import Member, check_total, media_type, opened, read_member
+from services.archive import (
+    JsonTooDeep,
+    Member,
+    decode_image,
+    media_type,
+    opened,
+    parse_json,
+    read_in_order,
+    read_member,
+)
 from services.odometry.camera import Camera
 from services.odometry.tum import parse_tum
 
@@ -44,8 +53,10 @@ class SequenceArchive:
 
 
 def _frame_order(name: str) -> list:
-    """Numbers by value: 2.png before 10.png."""
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
+    """Numbers by value: 2.png before 10.png (compared as digit strings by length, so a
+    name of thousands of digits sorts too)."""
+    parts = re.split(r"(\d+)", name)
+    return [(len(p.lstrip("0")), p.lstrip("0")) if k % 2 else p for k, p in enumerate(parts)]
 
 
 def _one(members: list[Member], file_name: str, *, required: bool) -> Member | None:
@@ -58,8 +69,46 @@ def _one(members: list[Member], file_name: str, *, required: bool) -> Member | N
     return found[0] if found else None
 
 
-def _inspect(form: str, members: list[Member], archive: object) -> SequenceArchive:
-    check_total(members)
+def _camera(member: Member, data: bytes) -> Camera:
+    try:
+        document = parse_json(data)
+    except JsonTooDeep as exc:
+        raise SequenceError(f"{member.name} {exc}") from None
+    except ValueError as exc:
+        raise SequenceError(f"{member.name} is not JSON ({exc})") from None
+    try:
+        return Camera.from_document(document)
+    except (ValueError, OverflowError) as exc:  # int() of an infinite size overflows
+        detail = str(exc).removeprefix("camera.json: ")
+        raise SequenceError(f"{member.name}: {detail}") from None
+
+
+def _truth(member: Member, data: bytes, frames: int) -> None:
+    try:
+        truth = parse_tum(data.decode(), member.name)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise SequenceError(f"{member.name}: not a TUM trajectory ({exc})") from None
+    if len(truth) != frames:
+        raise SequenceError(f"{member.name} has {len(truth)} poses for {frames} frames")
+
+
+def _read_once(
+    form: str, archive: object, members: list[Member], limits: dict[str, int]
+) -> tuple[dict[str, bytes], dict[str, tuple[int, int]]]:
+    """camera.json's and truth.tum's bytes, and each frame decoded once, kept as its
+    (height, width): one pass in the archive's order."""
+    texts, shapes = {}, {}
+    for member, data in read_in_order(form, archive, members, limits):
+        if member.name.lower().endswith(".png"):
+            shapes[member.name] = decode_image(member.name, data).shape[:2]
+        else:
+            texts[member.name] = data
+    return texts, shapes
+
+
+def _inspect(
+    form: str, members: list[Member], archive: object, *, decode_frames: bool
+) -> SequenceArchive:
     pngs = sorted({m.name for m in members if m.name.lower().endswith(".png")}, key=_frame_order)
     folders = sorted({str(PurePosixPath(name).parent) for name in pngs})
     if len(folders) > 1:
@@ -68,34 +117,34 @@ def _inspect(form: str, members: list[Member], archive: object) -> SequenceArchi
     if len(pngs) < 2:
         raise SequenceError(f"needs at least 2 PNG frames, found {len(pngs)}")
     camera_member = _one(members, "camera.json", required=True)
-    try:
-        text = read_member(form, archive, camera_member, MAX_MEMBER_BYTES["camera.json"])
-        camera = Camera.from_document(json.loads(text))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SequenceError(f"{camera_member.name} is not JSON ({exc})") from None
-    except ValueError as exc:
-        detail = str(exc).removeprefix("camera.json: ")
-        raise SequenceError(f"{camera_member.name}: {detail}") from None
     truth_member = _one(members, "truth.tum", required=False)
+    limits = {camera_member.name: MAX_MEMBER_BYTES["camera.json"]}
     if truth_member is not None:
-        try:
-            text = read_member(form, archive, truth_member, MAX_MEMBER_BYTES["truth.tum"])
-            truth = parse_tum(text.decode(), truth_member.name)
-        except (UnicodeDecodeError, ValueError) as exc:
-            raise SequenceError(f"{truth_member.name}: not a TUM trajectory ({exc})") from None
-        if len(truth) != len(pngs):
-            raise SequenceError(
-                f"{truth_member.name} has {len(truth)} poses for {len(pngs)} frames"
-            )
+        limits[truth_member.name] = MAX_MEMBER_BYTES["truth.tum"]
+    if decode_frames:
+        limits |= {name: MAX_MEMBER_BYTES["frame"] for name in pngs}
+    texts, shapes = _read_once(form, archive, members, limits)
+    camera = _camera(camera_member, texts[camera_member.name])
+    if truth_member is not None:
+        _truth(truth_member, texts[truth_member.name], len(pngs))
+    size = (camera.height, camera.width)
+    wrong = [name for name in pngs if shapes.get(name, size) != size]
+    if wrong:
+        height, width = shapes[wrong[0]]
+        raise SequenceError(
+            f"{wrong[0]} is {width} × {height} pixels, but camera.json says "
+            f"{camera.width} × {camera.height}"
+        )
     return SequenceArchive(
         form, tuple(pngs), camera, camera_member.name, truth_member.name if truth_member else None
     )
 
 
 def inspect_sequence(path: Path) -> SequenceArchive:
-    """The archive's frames, camera and truth, checked; SequenceError naming the problem."""
+    """The archive's frames (each decoded once), camera and truth, checked; SequenceError
+    naming the problem."""
     with opened(path, HINT) as (form, members, archive):
-        found = _inspect(form, members, archive)
+        found = _inspect(form, members, archive, decode_frames=True)
     return replace(found, media_type=media_type(path, form))
 
 
@@ -108,7 +157,7 @@ def extract_sequence(path: Path, out_dir: Path) -> SequenceArchive:
     frames_dir = out_dir / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
     with opened(path, HINT) as (form, members, archive):
-        found = _inspect(form, members, archive)
+        found = _inspect(form, members, archive, decode_frames=False)
         targets = {name: frames_dir / f"{k:06d}.png" for k, name in enumerate(found.frames)}
         targets[found.camera_member] = out_dir / "camera.json"
         if found.truth_member is not None:

@@ -73,7 +73,10 @@ def parse_tum(text: str, path: str) -> Trajectory2D:
     if np.any(np.diff(data[:, 0]) <= 0):
         line = int(np.argmax(np.diff(data[:, 0]) <= 0)) + 2
         raise ValueError(f"{path}: the times must increase (pose {line})")
-    q = data[:, 4:8] / np.linalg.norm(data[:, 4:8], axis=1, keepdims=True)
+    norm = np.linalg.norm(data[:, 4:8], axis=1, keepdims=True)
+    if np.any(norm < 1e-9):  # no rotation; dividing by it would make the pose NaN
+        raise ValueError(f"{path}: pose {int(np.argmax(norm < 1e-9)) + 1} has a zero quaternion")
+    q = data[:, 4:8] / norm
     tilt = np.hypot(q[:, 0], q[:, 1])
     if np.any(tilt > 1e-3):
         raise ValueError(

@@ -12,6 +12,7 @@ so a 10 GB cloud is checked in constant memory.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -21,6 +22,9 @@ import numpy as np
 PLY_MEDIA_TYPE = "application/x-ply"
 MAX_HEADER_BYTES = 64 * 1024
 CHECK_CHUNK_ROWS = 1 << 20
+MAX_COUNT_DIGITS = 18
+"""A count of more digits than this (10^18 rows) is larger than any file; refusing it early
+also keeps ``int()`` away from Python's 4300-digit limit."""
 
 _SCALAR_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -119,30 +123,13 @@ def _parse_header(handle: BinaryIO) -> PlyHeader:
         elif keyword in ("comment", "obj_info"):
             comments.append(line.partition(" ")[2].strip())
         elif keyword == "element":
-            if len(words) != 3 or not words[2].isdigit():
-                raise PlyError(f"header line {number}: expected 'element NAME COUNT', got {line!r}")
-            elements.append({"name": words[1], "count": int(words[2]), "props": [], "list": None})
+            elements.append(_element_line(number, line, words, elements))
         elif keyword == "property":
             if not elements:
                 raise PlyError(f"header line {number}: property before any element")
-            current = elements[-1]
-            if len(words) == 5 and words[1] == "list":
-                if words[2] not in _SCALAR_TYPES or words[3] not in _SCALAR_TYPES:
-                    raise PlyError(f"header line {number}: unknown list type in {line!r}")
-                if current["list"] or current["props"]:
-                    raise PlyError(
-                        f"header line {number}: element '{current['name']}' mixes a list with "
-                        "other properties, which vista does not read"
-                    )
-                current["list"] = (words[2], words[3], words[4])
-            elif len(words) == 3 and words[1] in _SCALAR_TYPES:
-                if current["list"]:
-                    raise PlyError(f"header line {number}: property after a list property")
-                current["props"].append((words[2], _SCALAR_TYPES[words[1]]))
-            else:
-                raise PlyError(f"header line {number}: cannot read property line {line!r}")
+            _add_property(number, line, words, elements[-1])
         else:
-            raise PlyError(f"header line {number}: unknown keyword {keyword!r}")
+            raise PlyError(f"header line {number}: unknown keyword {keyword[:40]!r}")
 
     if fmt is None:
         raise PlyError("the PLY header has no 'format' line")
@@ -168,11 +155,62 @@ def _parse_header(handle: BinaryIO) -> PlyHeader:
     )
 
 
+def _element_line(number: int, line: str, words: list[str], elements: list[dict]) -> dict:
+    """``element NAME COUNT`` as a new element; a count too long to be real and a second
+    element of the same name (which one would the readers take?) are refused."""
+    if len(words) != 3 or not words[2].isdigit():
+        raise PlyError(f"header line {number}: expected 'element NAME COUNT', got {line[:80]!r}")
+    if len(words[2]) > MAX_COUNT_DIGITS:
+        raise PlyError(
+            f"header line {number}: element '{words[1][:40]}' counts {len(words[2])} digits of "
+            "rows, more than any file holds"
+        )
+    if any(e["name"] == words[1] for e in elements):
+        raise PlyError(f"header line {number}: a second element named '{words[1][:40]}'")
+    return {"name": words[1], "count": int(words[2]), "props": [], "list": None}
+
+
+def _add_property(number: int, line: str, words: list[str], element: dict) -> None:
+    """``property TYPE NAME`` or ``property list COUNT_TYPE ITEM_TYPE NAME`` added to
+    ``element``; refused: unknown types, a list counted by a float (a NaN or fractional
+    count has no meaning), a name used twice, a list mixed with other properties."""
+    name = words[-1] if len(words) in (3, 5) else ""
+    if name and any(n == name for n, _ in element["props"]):
+        raise PlyError(
+            f"header line {number}: property '{name[:40]}' appears twice in element "
+            f"'{element['name'][:40]}'"
+        )
+    if len(words) == 5 and words[1] == "list":
+        if words[2] not in _SCALAR_TYPES or words[3] not in _SCALAR_TYPES:
+            raise PlyError(f"header line {number}: unknown list type in {line[:80]!r}")
+        if np.dtype(_SCALAR_TYPES[words[2]]).kind not in "iu":
+            raise PlyError(
+                f"header line {number}: a list's count must be an integer type, not {words[2]!r}"
+            )
+        if element["list"] or element["props"]:
+            raise PlyError(
+                f"header line {number}: element '{element['name'][:40]}' mixes a list with "
+                "other properties, which vista does not read"
+            )
+        element["list"] = (words[2], words[3], words[4])
+    elif len(words) == 3 and words[1] in _SCALAR_TYPES:
+        if element["list"]:
+            raise PlyError(f"header line {number}: property after a list property")
+        element["props"].append((words[2], _SCALAR_TYPES[words[1]]))
+    else:
+        raise PlyError(f"header line {number}: cannot read property line {line[:80]!r}")
+
+
 def _grid_shape(comments: list[str]) -> tuple[int, int] | None:
     values = {}
     for comment in comments:
         words = comment.split()
-        if len(words) == 2 and words[0] in ("width", "height") and words[1].isdigit():
+        if (
+            len(words) == 2
+            and words[0] in ("width", "height")
+            and words[1].isdigit()
+            and len(words[1]) <= MAX_COUNT_DIGITS
+        ):
             values[words[0]] = int(words[1])
     if "width" in values and "height" in values:
         return values["height"], values["width"]
@@ -207,6 +245,8 @@ def _list_block_bytes(mapped: np.ndarray, offset: int, element: PlyElement) -> i
     if offset + count_dtype.itemsize > len(mapped):
         raise PlyError(f"the file ends before element '{element.name}'")
     first = int(np.frombuffer(mapped, count_dtype, 1, offset)[0])
+    if first < 0:
+        raise PlyError(f"element '{element.name}' starts with a list of {first} items ('{name}')")
     row = count_dtype.itemsize + first * item_dtype.itemsize
     total = row * element.count
     if offset + total > len(mapped):
@@ -301,6 +341,9 @@ def read_ply(path: Path) -> PointCloud:
     with open(path, "rb") as handle:
         header = _parse_header(handle)
         vertex = _vertex_element(header)
+        available = os.fstat(handle.fileno()).st_size - header.header_bytes
+        if vertex.count * vertex.dtype.itemsize > available:  # type: ignore[union-attr]
+            raise PlyError(f"the file is truncated: {vertex.count} vertices in {available} bytes")
         handle.seek(header.header_bytes)
         vertices = np.fromfile(handle, dtype=vertex.dtype, count=vertex.count)
     if len(vertices) != vertex.count:
@@ -382,6 +425,8 @@ def read_mesh(path: Path) -> tuple[PointCloud, np.ndarray]:
         if element.dtype is None:
             raise PlyError(f"element '{element.name}' before the faces has list properties")
         offset += element.count * element.dtype.itemsize
+    if offset + face.count * _TRIANGLE.itemsize > Path(path).stat().st_size:
+        raise PlyError(f"the file is truncated: {face.count} faces do not fit after the vertices")
     triangles = np.fromfile(path, dtype=_TRIANGLE, count=face.count, offset=offset)
     if len(triangles) != face.count or np.any(triangles["n"] != 3):
         raise PlyError("faces must all be triangles, and all present")

@@ -17,7 +17,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from services.archive import ArchiveError, Member, check_total, media_type, opened, read_member
+from services.archive import ArchiveError, Member, media_type, opened, read_in_order, read_member
 from services.tracking import kitti
 
 HINT = "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt poses.txt`"
@@ -48,7 +48,6 @@ def _root(path: PurePosixPath) -> PurePosixPath:
 
 
 def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
-    check_total(members)
     roots = {
         _root(PurePosixPath(m.name))
         for m in members
@@ -88,14 +87,11 @@ def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
             "no calib.txt beside velodyne/ (KITTI's calibration: P2, R_rect, Tr_velo_cam)"
         )
     parsed = {}
-    for name, target in texts.items():
-        text = read_member(
-            form, archive, next(m for m in members if m.name == name), MAX_TEXT_BYTES
-        )
+    for member, text in read_in_order(form, archive, members, dict.fromkeys(texts, MAX_TEXT_BYTES)):
         try:
-            parsed[target] = text.decode()
+            parsed[texts[member.name]] = text.decode()
         except UnicodeDecodeError:
-            raise ArchiveError(f"{name} is not text") from None
+            raise ArchiveError(f"{member.name} is not text") from None
     try:
         kitti.parse_calibration(parsed["calib.txt"], "calib.txt")
         labels = (
@@ -106,7 +102,7 @@ def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
         poses = (
             kitti.parse_poses(parsed["poses.txt"], "poses.txt") if "poses.txt" in parsed else None
         )
-    except kitti.KittiError as exc:
+    except ValueError as exc:  # KittiError, and numpy's own on numbers it cannot shape
         raise ArchiveError(str(exc)) from None
     if poses is not None and len(poses) < len(scans):
         raise ArchiveError(f"poses.txt has {len(poses)} poses for {len(scans)} scans")

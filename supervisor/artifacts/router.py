@@ -64,10 +64,13 @@ async def upload_artifact(
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),
 ) -> Response:
-    """Upload a file. Its content is checked against what its kind needs before it is
-    kept, whatever Content-Type was declared (a PLY — recognised by its magic line — for
-    header, element sizes and finite coordinates; JSON parsed; PNG and GLB by signature),
-    and the media type kept is the content's. Anything refused leaves nothing behind."""
+    """Upload a file as the raw request body (not a form), its Content-Type one of the
+    body's media types (415 otherwise), not empty and within the server's upload limit
+    (413). Its content is checked against what its `kind` needs before it is kept,
+    whatever Content-Type was declared (422 otherwise): a PLY — recognised by its magic
+    line — for header, element sizes and finite coordinates; JSON parsed; PNG, JPEG and
+    GLB by signature; archives, models and trajectories read as their kind says. The
+    media type kept is the content's. Anything refused leaves nothing behind."""
     media_type = _media_type(request)
     limit = runtime.settings.max_upload_bytes
     declared_length = request.headers.get("content-length")
@@ -125,8 +128,10 @@ def get_artifact(
     "/inspections/{inspection_id}/artifacts/{artifact_id}/content",
     response_class=FileResponse,
     responses={
-        200: {"content": {m: {} for m in MEDIA_TYPES}},
-        206: {"description": "A byte range"},
+        200: {
+            "description": "The file, with the media type it was kept with.",
+            "content": {m: {} for m in MEDIA_TYPES},
+        }
     },
 )
 def download_artifact(
@@ -158,7 +163,7 @@ def delete_artifact(
     user: CurrentUser = Depends(editors),
 ) -> Response:
     uri = service.delete(
-        session, inspection_id=inspection_id, artifact_id=artifact_id, user_id=user.id
+        session, inspection_id=inspection_id, artifact_id=artifact_id, actor=user, role=user.role
     )
     after_commit(session, lambda: runtime.storage.delete(uri))
     return Response(status_code=204)

@@ -9,12 +9,14 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from supervisor.artifacts.schemas import ArtifactOut
+from supervisor.audit.service import Actor, audit
 from supervisor.changes import add_created, record_change
 from supervisor.db import commit
 from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once
+from supervisor.inspections.service import ensure_live
 from supervisor.inspections.service import get as get_inspection
-from supervisor.models import Artifact, Job
+from supervisor.models import Artifact, Inspection, Job
 from supervisor.models.jobs import UNFINISHED
 from supervisor.pagination import Page, paginate
 from supervisor.problems import Problem, not_found
@@ -25,12 +27,23 @@ def get(session: Session, *, inspection_id: int, artifact_id: int) -> Artifact:
     artifact = session.get(Artifact, artifact_id)
     if artifact is None or artifact.inspection_id != inspection_id:
         raise not_found(f"artifact in inspection {inspection_id}", artifact_id)
+    ensure_live(session, inspection_id, f"artifact in inspection {inspection_id}", artifact_id)
     return artifact
 
 
-def delete(session: Session, *, inspection_id: int, artifact_id: int, user_id: int) -> str:
-    """Delete the row; returns the storage uri to remove once the transaction committed."""
+def delete(
+    session: Session, *, inspection_id: int, artifact_id: int, actor: Actor, role: str
+) -> str:
+    """Delete the row (its uploader, the inspection's owner or an admin); returns the
+    storage uri to remove once the transaction committed."""
     artifact = get(session, inspection_id=inspection_id, artifact_id=artifact_id)
+    owner = session.scalar(select(Inspection.created_by).where(Inspection.id == inspection_id))
+    if role != "admin" and actor.id not in (artifact.created_by, owner):
+        raise Problem(
+            403,
+            f"Only who uploaded artifact {artifact_id}, the inspection's owner or an admin "
+            "may delete it.",
+        )
     unfinished = session.scalars(
         select(Job).where(Job.inspection_id == inspection_id, Job.status.in_(UNFINISHED))
     ).all()
@@ -45,7 +58,16 @@ def delete(session: Session, *, inspection_id: int, artifact_id: int, user_id: i
         entity_id=artifact_id,
         op="delete",
         inspection_id=inspection_id,
-        user_id=user_id,
+        user_id=actor.id,
+    )
+    audit(
+        session,
+        actor,
+        "delete",
+        entity="artifact",
+        entity_id=artifact_id,
+        inspection_id=inspection_id,
+        before={"name": artifact.name, "kind": artifact.kind, "sha256": artifact.sha256},
     )
     return uri
 

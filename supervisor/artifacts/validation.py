@@ -3,7 +3,6 @@ whatever media type was declared (a PLY is recognised by its magic line)."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict
 from pathlib import Path
 
@@ -12,6 +11,10 @@ from supervisor.artifacts.kinds import ARTIFACT_KINDS, Format
 from supervisor.problems import Problem
 
 MAX_JSON_BYTES = 256 * 1024 * 1024
+MAX_TUM_BYTES = 256 * 1024 * 1024
+MAX_IMAGE_BYTES = 256 * 1024 * 1024
+MAX_MODEL_BYTES = 512 * 1024 * 1024
+"""onnx, onnxruntime and the check each hold a copy (protobuf's own limit is 2 GiB)."""
 _MEDIA_TYPE_OF: dict[Format, str] = {
     "ply": PLY_MEDIA_TYPE,
     "ply-mesh": PLY_MEDIA_TYPE,
@@ -92,13 +95,26 @@ def _ply_meta(path: Path, name: str, kind: str, *, mesh: bool) -> dict:
 
 
 def _check_json(path: Path, name: str, kind: str) -> None:
+    """Parsed whole, once its nesting is known to be at most ``MAX_JSON_DEPTH`` (Python's
+    parser recurses once per level: 200 000 brackets would exhaust the stack)."""
+    from services.archive import MAX_JSON_DEPTH, JsonTooDeep, parse_json
+
     if path.stat().st_size > MAX_JSON_BYTES:
         raise Problem(413, f"JSON artifacts are limited to {MAX_JSON_BYTES // 2**20} MiB.")
     try:
-        with open(path, "rb") as handle:
-            json.load(handle)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        parse_json(path.read_bytes())
+    except JsonTooDeep as exc:
+        raise Problem(
+            422, f"{name} (kind={kind}) {exc}; vista reads JSON up to {MAX_JSON_DEPTH} levels."
+        ) from exc
+    except ValueError as exc:
         raise Problem(422, f"{name} (kind={kind}) is not valid JSON: {exc}.") from exc
+
+
+def _text(exc: Exception) -> str:
+    """An error's sentence as it can be sent: a tar member's name that is not UTF-8 comes
+    with surrogates (tarfile's ``surrogateescape``), which no JSON response can encode."""
+    return str(exc).encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 def _sequence_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
@@ -107,7 +123,7 @@ def _sequence_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
     try:
         found = inspect_sequence(path)
     except SequenceError as exc:
-        raise Problem(422, f"{name} (kind={kind}) is not a frame sequence: {exc}.") from exc
+        raise Problem(422, f"{name} (kind={kind}) is not a frame sequence: {_text(exc)}.") from exc
     meta = {
         "frames": len(found.frames),
         "camera": found.camera.document(),
@@ -123,7 +139,7 @@ def _drive_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
     try:
         found = inspect_drive(path)
     except ArchiveError as exc:
-        raise Problem(422, f"{name} (kind={kind}) is not a drive: {exc}.") from exc
+        raise Problem(422, f"{name} (kind={kind}) is not a drive: {_text(exc)}.") from exc
     meta = {
         "frames": found.frames,
         "stereo": found.stereo,
@@ -141,7 +157,7 @@ def _lidar_meta(path: Path, name: str, kind: str) -> tuple[str, dict]:
     try:
         found = inspect_lidar(path)
     except ArchiveError as exc:
-        raise Problem(422, f"{name} (kind={kind}) is not a LiDAR sequence: {exc}.") from exc
+        raise Problem(422, f"{name} (kind={kind}) is not a LiDAR sequence: {_text(exc)}.") from exc
     meta = {
         "frames": found.frames,
         "labels": found.labels,
@@ -168,12 +184,26 @@ def _png_header(path: Path) -> tuple[int, int, int, int] | None:
     )
 
 
+def _decodable(path: Path, name: str, kind: str) -> None:
+    """The image decoded once, as the jobs will read it (under the archives' pixel limit)."""
+    from services.archive import ArchiveError, decode_image
+
+    if path.stat().st_size > MAX_IMAGE_BYTES:
+        raise Problem(413, f"Images are limited to {MAX_IMAGE_BYTES // 2**20} MiB.")
+    try:
+        decode_image(name, path.read_bytes())
+    except ArchiveError as exc:
+        raise Problem(422, f"{name} (kind={kind}){str(exc).removeprefix(name)}.") from exc
+
+
 def _image_meta(path: Path, head: bytes, name: str, kind: str) -> tuple[str, dict]:
     if head.startswith(JPEG_MAGIC):
+        _decodable(path, name, kind)
         return "image/jpeg", {}
     header = _png_header(path)
     if header is None:
         raise Problem(422, f"{name} (kind={kind}) is neither a PNG nor a JPEG image.")
+    _decodable(path, name, kind)
     return "image/png", {"width": header[0], "height": header[1]}
 
 
@@ -188,16 +218,22 @@ def _depth_png_meta(path: Path, name: str, kind: str) -> dict:
             f"{name} (kind={kind}) is a {bits}-bit PNG of colour type {colour}; a depth map is "
             "16-bit grey (KITTI: metres × 256).",
         )
+    _decodable(path, name, kind)
     return {"width": width, "height": height}
 
 
 def _model_meta(path: Path, name: str, kind: str) -> dict:
-    from services.nn.onnx_io import read_model
+    """vista's metadata read, and the model loaded by onnxruntime as a job would: a custom
+    operator or weights in external files are refused here, not in the job."""
+    from services.nn.onnx_io import check_runnable, read_model
 
+    if path.stat().st_size > MAX_MODEL_BYTES:
+        raise Problem(413, f"Models are limited to {MAX_MODEL_BYTES // 2**20} MiB.")
     try:
         metadata = read_model(path).metadata
+        check_runnable(path)
     except ValueError as exc:
-        reason = str(exc).replace(f"{path}: ", "")
+        reason = _text(exc).replace(f"{path}: ", "")
         raise Problem(422, f"{name} (kind={kind}) is not a model vista can run: {reason}.") from exc
     return {"architecture": metadata.get("architecture"), "metrics": metadata.get("metrics")}
 
@@ -205,8 +241,10 @@ def _model_meta(path: Path, name: str, kind: str) -> dict:
 def _check_tum(path: Path, name: str, kind: str) -> None:
     from services.odometry.tum import parse_tum
 
+    if path.stat().st_size > MAX_TUM_BYTES:
+        raise Problem(413, f"TUM trajectories are limited to {MAX_TUM_BYTES // 2**20} MiB.")
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
         parse_tum(text, name)
-    except (UnicodeDecodeError, ValueError) as exc:
+    except ValueError as exc:  # UnicodeDecodeError too
         raise Problem(422, f"{name} (kind={kind}) is not a TUM trajectory: {exc}.") from exc

@@ -1,36 +1,134 @@
+"""Sign-in, sign-out and the signed-in user's own account."""
+
 from __future__ import annotations
 
-from datetime import timedelta
-
-from fastapi import APIRouter, Depends
-from sqlalchemy.orm import Session
+from fastapi import APIRouter, Depends, Request, Response
+from fastapi.concurrency import run_in_threadpool
 
 from supervisor.auth import service
+from supervisor.auth.limits import SignInGuard, TooManySignIns
 from supervisor.auth.schemas import MeOut, TokenOut, TokenRequest
-from supervisor.deps import SESSION, CurrentUser, current_user, get_runtime
+from supervisor.deps import (
+    READ_ROLES,
+    CurrentUser,
+    current_user,
+    get_revocations,
+    get_runtime,
+    require,
+)
 from supervisor.engine.runtime import Runtime
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem
+from supervisor.users import service as users
+from supervisor.users.schemas import PasswordChange
 
 router = APIRouter(tags=["auth"])
+signed_in = require(*READ_ROLES, action="sign out")
+NO_STORE = {"Cache-Control": "no-store", "Pragma": "no-cache"}
 
 
-@router.post("/auth/token", response_model=TokenOut)
-def sign_in(
-    body: TokenRequest,
-    session: Session = SESSION,
-    runtime: Runtime = Depends(get_runtime),
-) -> TokenOut:
-    """Exchange a username and password for a bearer token."""
-    user = service.authenticate(session, username=body.username, password=body.password)
-    if user is None:
+def _guard(request: Request, runtime: Runtime) -> SignInGuard:
+    state = request.app.state
+    if getattr(state, "sign_in_guard", None) is None:
+        settings = runtime.settings
+        state.sign_in_guard = SignInGuard(
+            per_account=settings.sign_in_per_account_per_min,
+            per_address=settings.sign_in_per_address_per_min,
+            concurrency=settings.sign_in_concurrency,
+        )
+    return state.sign_in_guard
+
+
+@router.post(
+    "/auth/token",
+    response_model=TokenOut,
+    responses={429: {"description": "Too many sign-ins: wait `Retry-After` seconds."}},
+)
+async def sign_in(
+    body: TokenRequest, request: Request, runtime: Runtime = Depends(get_runtime)
+) -> Response:
+    """Exchange a username and password for a bearer token (a `session` token that expires
+    after VISTA_TOKEN_TTL_HOURS). Failed sign-ins per account and sign-ins per address are
+    limited per minute (429 with `Retry-After`)."""
+    guard = _guard(request, runtime)
+    address = request.client.host if request.client else "unknown"
+    try:
+        guard.admit(username=body.username, address=address)
+    except TooManySignIns as exc:
+        raise Problem(
+            429,
+            f"{exc.reason}: try again in {exc.retry_after_s} s.",
+            headers={"Retry-After": str(exc.retry_after_s)},
+        ) from exc
+    async with guard:
+        issued = await run_in_threadpool(_sign_in, runtime, body)
+    if issued is None:
+        guard.failed(body.username)
         raise Problem(401, "Unknown username or wrong password.")
-    ttl = timedelta(hours=runtime.settings.token_ttl_hours)
-    token = service.issue_token(session, user=user, kind="session", name="sign-in", ttl=ttl)
-    return TokenOut(access_token=token, expires_at=utcnow() + ttl)
+    token, expires_at = issued
+    out = TokenOut(access_token=token, expires_at=expires_at)
+    return Response(out.model_dump_json(), media_type="application/json", headers=NO_STORE)
+
+
+def _sign_in(runtime: Runtime, body: TokenRequest) -> tuple[str, object] | None:
+    with runtime.db.write() as session:
+        user = service.authenticate(session, username=body.username, password=body.password)
+        if user is None:
+            return None
+        ttl = users.default_ttl("session", runtime.settings)
+        token = service.issue_token(session, user=user, kind="session", name="sign-in", ttl=ttl)
+    return token, utcnow() + ttl
+
+
+@router.delete("/auth/token", status_code=204)
+def sign_out(
+    request: Request,
+    runtime: Runtime = Depends(get_runtime),
+    user: CurrentUser = Depends(signed_in),
+) -> Response:
+    """Sign out: revoke the token this request is made with (any kind); it stops working
+    at once in every API process."""
+    with runtime.db.write() as session:
+        users.revoke(session, actor=user, reason="signed out", token_id=user.token_id)
+    get_revocations(request).bump()
+    return Response(status_code=204)
 
 
 @router.get("/me", response_model=MeOut)
 def me(user: CurrentUser = Depends(current_user)) -> MeOut:
     """Who the bearer token belongs to."""
     return MeOut(id=user.id, username=user.username, role=user.role, token_kind=user.token_kind)
+
+
+@router.put("/me/password", status_code=204)
+async def change_my_password(
+    body: PasswordChange,
+    request: Request,
+    runtime: Runtime = Depends(get_runtime),
+    user: CurrentUser = Depends(signed_in),
+) -> Response:
+    """Change your password (give the current one). Your other sign-in tokens are revoked;
+    CLI and device tokens keep working (revoke them with POST /tokens/revoke)."""
+    async with _guard(request, runtime):
+        changed = await run_in_threadpool(_change_password, runtime, user, body)
+    if not changed:
+        raise Problem(403, "current_password: that is not your current password.")
+    get_revocations(request).bump()
+    return Response(status_code=204)
+
+
+def _change_password(runtime: Runtime, user: CurrentUser, body: PasswordChange) -> bool:
+    with runtime.db.write() as session:
+        account = users.get_user(session, user.id)
+        if not service.verify_password(account.password_hash, body.current_password):
+            return False
+        users.change_user(session, account, actor=user, password=body.new_password)
+        users.revoke(
+            session,
+            actor=user,
+            reason="password changed",
+            user_id=user.id,
+            kind="session",
+            except_id=user.token_id,
+        )
+    return True

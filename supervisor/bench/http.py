@@ -15,16 +15,22 @@ class RawHttp:
     httpx costs several times more CPU per request; on a 2-core machine that CPU would
     come out of the server being measured."""
 
-    def __init__(self, host: str, port: int, token: str) -> None:
+    def __init__(
+        self, host: str, port: int, token: str | None, *, local_address: str | None = None
+    ) -> None:
         self.host, self.port = host, port
-        self._static = (
-            f"Host: {host}:{port}\r\nAuthorization: Bearer {token}\r\nAccept: application/json\r\n"
-        )
+        self.local_address = local_address
+        """Connect from this address (a loopback client of its own: 127.0.0.x)."""
+        bearer = f"Authorization: Bearer {token}\r\n" if token else ""
+        self._static = f"Host: {host}:{port}\r\n{bearer}Accept: application/json\r\n"
         self._reader: asyncio.StreamReader | None = None
         self._writer: asyncio.StreamWriter | None = None
 
     async def connect(self) -> None:
-        self._reader, self._writer = await asyncio.open_connection(self.host, self.port)
+        local = (self.local_address, 0) if self.local_address else None
+        self._reader, self._writer = await asyncio.open_connection(
+            self.host, self.port, local_addr=local
+        )
         sock = self._writer.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

@@ -8,7 +8,7 @@ import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from sqlalchemy import create_engine, insert, select, text
@@ -18,6 +18,8 @@ from supervisor.db import Database
 from supervisor.models import Defect, Inspection
 from supervisor.models.defects import DEFECT_TYPES, SEVERITIES
 from supervisor.users.service import create_token, create_user
+
+BENCH_TOKEN_TTL = timedelta(days=1)
 
 
 @contextmanager
@@ -86,7 +88,7 @@ def seed_database(url: str, *, clients: int, defects: int, rng: random.Random) -
         with db.write() as session:
             admin = create_user(session, username="bench-admin", role="admin", password=None)
             admin_token = create_token(
-                session, user=admin, name="bench", kind="cli", ttl_hours=None
+                session, user=admin, name="bench", kind="cli", ttl=BENCH_TOKEN_TTL
             )
             user_ids, user_tokens = [], []
             for index in range(clients):
@@ -97,7 +99,7 @@ def seed_database(url: str, *, clients: int, defects: int, rng: random.Random) -
                     password=None,
                 )
                 user_tokens.append(
-                    create_token(session, user=user, name="bench", kind="cli", ttl_hours=None)
+                    create_token(session, user=user, name="bench", kind="cli", ttl=BENCH_TOKEN_TTL)
                 )
                 user_ids.append(user.id)
             inspection = Inspection(

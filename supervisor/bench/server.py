@@ -24,13 +24,16 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
-def server_environment(data_dir: Path, url: str, api_workers: int) -> dict[str, str]:
+def server_environment(
+    data_dir: Path, url: str, api_workers: int, extra: dict[str, str] | None = None
+) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("VISTA_")}
     env.update(
         VISTA_DATA_DIR=str(data_dir),
         VISTA_DATABASE_URL=url,
         VISTA_EMBEDDED_WORKERS="0",
         VISTA_API_WORKERS=str(api_workers),
+        **(extra or {}),
     )
     return env
 
@@ -78,15 +81,18 @@ class Server:
 
 
 @contextmanager
-def running_server(data_dir: Path, url: str, api_workers: int) -> Iterator[Server]:
-    """``vista serve`` in its own process (no embedded workers), stopped on the way out."""
+def running_server(
+    data_dir: Path, url: str, api_workers: int, extra_env: dict[str, str] | None = None
+) -> Iterator[Server]:
+    """``vista serve`` in its own process (no embedded workers), stopped on the way out;
+    ``extra_env``: more VISTA_* settings."""
     port = free_port()
     log_path = data_dir / "serve.log"
     command = [sys.executable, "-m", "supervisor.cli", "serve", "--port", str(port)]
     with log_path.open("wb") as log:
         process = subprocess.Popen(
             command,
-            env=server_environment(data_dir, url, api_workers),
+            env=server_environment(data_dir, url, api_workers, extra_env),
             stdout=log,
             stderr=subprocess.STDOUT,
         )

@@ -17,6 +17,7 @@ from supervisor.defects.schemas import (
 from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, require
 from supervisor.idempotency import create_once, digest_model
 from supervisor.ids import IdPath, IdQuery
+from supervisor.inspections.service import live
 from supervisor.models import Defect
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 
@@ -42,7 +43,7 @@ def list_defects(
     """Defects in id order, each with its reviewers' consensus; follow ``next_cursor``."""
     return paginate(
         session,
-        select(Defect),
+        select(Defect).where(live(Defect.inspection_id)),
         equal={
             Defect.inspection_id: inspection,
             Defect.run_id: run,
@@ -64,10 +65,12 @@ def report_defect(
     session: Session = SESSION,
     user: CurrentUser = Depends(editors),
 ) -> JSONResponse:
-    """Report a finding by hand (an inspector saw it; no job measured it)."""
+    """Report a finding by hand (an inspector saw it; no job measured it). Rules the
+    schema cannot state (422): `inspection_id` names an inspection not in the trash;
+    `normal` is not the zero vector."""
 
     def create():  # noqa: ANN202
-        defect = service.create(session, data=body, user_id=user.id)
+        defect = service.create(session, data=body, actor=user)
         out = service.defects_out(session, [defect])[0].model_dump(mode="json")
         return out, f"/api/v1/defects/{defect.id}"
 
@@ -90,6 +93,17 @@ def update_defect(
     session: Session = SESSION,
     user: CurrentUser = Depends(editors),
 ) -> DefectOut:
-    """Move a defect through its workflow: open → resolved (repaired) or dismissed."""
-    defect = service.set_status(session, defect_id=defect_id, status=body.status, user_id=user.id)
+    """Move a defect through its workflow: open → resolved (repaired) or dismissed, or
+    back to open. Dismissing needs a `reason` (not blank; 422), unless the defect is
+    dismissed already (then nothing changes); a critical defect may be dismissed only by
+    its inspection's owner or an admin. Who and why are kept (`status_by`,
+    `status_reason`, the audit log)."""
+    defect = service.set_status(
+        session,
+        defect_id=defect_id,
+        status=body.status,
+        reason=body.reason,
+        actor=user,
+        role=user.role,
+    )
     return service.defects_out(session, [defect])[0]

@@ -1,15 +1,16 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.ids import IdField
 from supervisor.models.defects import DefectStatus, DefectType, Severity, Verdict
-from supervisor.requests import MAX_MM, Millimetres, RequestModel
+from supervisor.requests import MAX_MM, Millimetres, RequestId, RequestModel
 
-Vector3 = tuple[Millimetres, Millimetres, Millimetres]
-"""A location (mm) or a direction (any length: the API normalises it), within ±1 km."""
+Vector3 = Annotated[tuple[Millimetres, Millimetres, Millimetres], Field(strict=False)]
+"""A location (mm) or a direction (any length: the API normalises it), within ±1 km. (A
+JSON array: strict would want a Python tuple; its numbers stay strict.)"""
 
 
 class Consensus(BaseModel):
@@ -29,10 +30,10 @@ class Consensus(BaseModel):
 class DefectCreate(RequestModel):
     """A finding reported by hand (jobs add theirs directly)."""
 
-    inspection_id: IdField
+    inspection_id: RequestId = Field(description="An inspection that is not in the trash.")
     type: DefectType
     location_mm: Vector3
-    normal: Vector3 = (0.0, 0.0, 1.0)
+    normal: Vector3 = Field((0.0, 0.0, 1.0), description="Any length but zero.")
     value_mm: Millimetres | None = None
     tolerance_mm: Millimetres | None = None
     extent_mm: float = Field(0.0, ge=0, le=MAX_MM)
@@ -42,6 +43,12 @@ class DefectCreate(RequestModel):
 
 class DefectUpdate(RequestModel):
     status: DefectStatus
+    reason: str = Field(
+        "",
+        max_length=2000,
+        description="Why: required (not blank) to dismiss a defect that is not dismissed "
+        "yet; kept with the defect and in the audit log.",
+    )
 
 
 class DefectOut(BaseModel):
@@ -62,5 +69,7 @@ class DefectOut(BaseModel):
     severity: Severity
     confidence: float
     source: str
+    status_by: int | None = Field(None, description="Who last set the status.")
+    status_reason: str = Field("", description="Why they did.")
     created_at: datetime
     consensus: Consensus | None = None

@@ -2,10 +2,13 @@ from __future__ import annotations
 
 import math
 
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from supervisor.audit.service import Actor, audit
 from supervisor.changes import add_created, record_update
 from supervisor.defects.schemas import DefectCreate, DefectOut
+from supervisor.inspections.service import ensure_live
 from supervisor.judgments.consensus import consensus_for
 from supervisor.models import Defect, Inspection
 from supervisor.problems import Problem, not_found
@@ -38,11 +41,13 @@ def get(session: Session, *, defect_id: int) -> Defect:
     defect = session.get(Defect, defect_id)
     if defect is None:
         raise not_found("defect", defect_id)
+    ensure_live(session, defect.inspection_id, "defect", defect_id)
     return defect
 
 
-def create(session: Session, *, data: DefectCreate, user_id: int) -> Defect:
-    if session.get(Inspection, data.inspection_id) is None:
+def create(session: Session, *, data: DefectCreate, actor: Actor) -> Defect:
+    inspection = session.get(Inspection, data.inspection_id)
+    if inspection is None or inspection.deleted_at is not None:
         raise Problem(422, f"inspection_id: there is no inspection with id {data.inspection_id}.")
     norm = math.sqrt(sum(c * c for c in data.normal))
     if norm < 1e-9:
@@ -61,13 +66,53 @@ def create(session: Session, *, data: DefectCreate, user_id: int) -> Defect:
         confidence=data.confidence,
         source="manual",
     )
-    add_created(session, "defect", defect, user_id)
+    add_created(session, "defect", defect, actor.id)
+    audit(
+        session,
+        actor,
+        "report",
+        entity="defect",
+        entity_id=defect.id,
+        inspection_id=defect.inspection_id,
+        after={"type": defect.type, "severity": defect.severity, "status": "open"},
+    )
     return defect
 
 
-def set_status(session: Session, *, defect_id: int, status: str, user_id: int) -> Defect:
+def set_status(
+    session: Session, *, defect_id: int, status: str, reason: str, actor: Actor, role: str
+) -> Defect:
+    """Resolve, dismiss or reopen a defect, recording who and why. Dismissing needs a
+    reason; dismissing a critical defect is for the inspection's owner or an admin."""
     defect = get(session, defect_id=defect_id)
-    defect.status = status
-    record_update(session, "defect", defect, user_id=user_id)
+    if status == defect.status:
+        return defect
+    reason = reason.strip()
+    if status == "dismissed" and not reason:
+        raise Problem(422, "reason: say why the defect is dismissed (kept in the audit log).")
+    if status == "dismissed" and defect.severity == "critical" and role != "admin":
+        owner = session.scalar(
+            select(Inspection.created_by).where(Inspection.id == defect.inspection_id)
+        )
+        if owner != actor.id:
+            raise Problem(
+                403,
+                f"Defect {defect_id} is critical: only the inspection's owner or an admin may "
+                "dismiss it.",
+            )
+    before = {"status": defect.status, "status_by": defect.status_by}
+    defect.status, defect.status_by, defect.status_reason = status, actor.id, reason
+    record_update(session, "defect", defect, user_id=actor.id)
+    audit(
+        session,
+        actor,
+        "set_status",
+        entity="defect",
+        entity_id=defect_id,
+        inspection_id=defect.inspection_id,
+        before=before,
+        after={"status": status, "status_by": actor.id},
+        reason=reason,
+    )
     session.flush()
     return defect

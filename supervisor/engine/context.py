@@ -8,6 +8,7 @@ transaction that marks the job succeeded, so a failed or lost attempt leaves not
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import tempfile
 import threading
@@ -27,6 +28,20 @@ from supervisor.models._types import utcnow
 from supervisor.storage import StoredFile
 
 PROGRESS_WRITE_INTERVAL_S = 0.25
+_SCRATCH_NAME = re.compile(r"job(\d+)-a(\d+)-")
+
+
+def scratch_prefix(job_id: int, attempt: int) -> str:
+    """The start of an attempt's scratch folder name: the job and attempt that own it, so
+    a folder left by a killed worker is told from one in use (``scratch_owner``)."""
+    return f"job{job_id}-a{attempt}-"
+
+
+def scratch_owner(name: str) -> tuple[int, int] | None:
+    """The (job id, attempt) a scratch folder named ``name`` belongs to; None if it is
+    not one."""
+    match = _SCRATCH_NAME.match(name)
+    return (int(match[1]), int(match[2])) if match else None
 
 
 @dataclass(frozen=True)
@@ -99,9 +114,13 @@ class WorkerContext:
 
     @property
     def workdir(self) -> Path:
-        """A scratch folder for this attempt, removed when it ends."""
+        """A private scratch folder for this attempt, removed when it ends (one left by a
+        killed worker is removed at the next start-up, see ``remove_leftovers``)."""
         if self._workdir is None:
-            self._workdir = Path(tempfile.mkdtemp(prefix=f"vista-job{self.claim.id}-"))
+            root = self._runtime.scratch_dir
+            root.mkdir(mode=0o700, parents=True, exist_ok=True)
+            prefix = scratch_prefix(self.claim.id, self.claim.attempt)
+            self._workdir = Path(tempfile.mkdtemp(prefix=prefix, dir=root))
         return self._workdir
 
     def check_cancelled(self) -> None:

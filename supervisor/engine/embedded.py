@@ -2,28 +2,34 @@
 
 No broker is needed: a worker claims the oldest queued job that is due (the claim in
 ``run_job`` is atomic, so several workers never run one job twice). A worker that dies
-is restarted, and the maintenance loop re-queues the job it held once its heartbeat
-stops.
+is restarted, and the job it held is re-queued at once (``release_jobs_of_worker``), not
+after its heartbeat timeout. Workers live and die with the server: a killed server's
+workers get SIGTERM from the kernel (``die_with_parent``), and a worker that finds
+itself adopted by another parent stops polling, so no orphan takes jobs beside the
+restarted server's own workers.
 """
 
 from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import signal
 import threading
 
 from sqlalchemy import or_, select
 
-from services.process import prepare_process
+from services.process import die_with_parent, parent_alive, prepare_process
+from supervisor.engine.maintenance import release_jobs_of_worker
 from supervisor.engine.runner import run_job
-from supervisor.engine.runtime import Runtime
+from supervisor.engine.runtime import Runtime, worker_name
 from supervisor.models import Job
 from supervisor.models._types import utcnow
 from supervisor.settings import Settings
 
 log = logging.getLogger("vista.engine")
 IDLE_POLL_S = 0.2
+WATCH_INTERVAL_S = 0.5
 
 
 def next_due_jobs(rt: Runtime, limit: int = 4) -> list[int]:
@@ -41,11 +47,12 @@ def next_due_jobs(rt: Runtime, limit: int = 4) -> list[int]:
         )
 
 
-def _worker_main(settings_json: str, stop: mp.synchronize.Event) -> None:
+def _worker_main(settings_json: str, stop: mp.synchronize.Event, parent_pid: int) -> None:
+    die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when workers stop
     prepare_process()
     rt = Runtime.create(Settings.model_validate_json(settings_json))
-    while not stop.is_set():
+    while not stop.is_set() and parent_alive(parent_pid):
         ran = False
         for job_id in next_due_jobs(rt):
             if run_job(job_id, runtime=rt) != "skipped":
@@ -57,12 +64,19 @@ def _worker_main(settings_json: str, stop: mp.synchronize.Event) -> None:
 
 
 class EmbeddedPool:
-    def __init__(self, settings: Settings, processes: int) -> None:
-        self._settings_json = settings.model_dump_json()
+    """``processes`` worker processes, restarted when they die, stopped with the server.
+
+    Every worker is started by the monitor thread, which ends only after the workers
+    have: the kernel's parent-death signal follows the thread that started a process."""
+
+    def __init__(self, runtime: Runtime, processes: int) -> None:
+        self._rt = runtime
+        self._settings_json = runtime.settings.model_dump_json()
         self._count = processes
         self._ctx = mp.get_context("spawn")
         self._stop = self._ctx.Event()
         self._procs: list[mp.process.BaseProcess] = []
+        self._spawning = threading.Lock()  # no worker starts once stop() began
         self._monitor_stop = threading.Event()
         self._monitor = threading.Thread(target=self._watch, name="vista-pool-monitor", daemon=True)
 
@@ -73,7 +87,7 @@ class EmbeddedPool:
     def _spawn(self) -> mp.process.BaseProcess:
         proc = self._ctx.Process(
             target=_worker_main,
-            args=(self._settings_json, self._stop),
+            args=(self._settings_json, self._stop, os.getpid()),
             name="vista-worker",
             daemon=True,
         )
@@ -81,25 +95,37 @@ class EmbeddedPool:
         return proc
 
     def start(self) -> None:
-        self._procs = [self._spawn() for _ in range(self._count)]
         self._monitor.start()
 
     def _watch(self) -> None:
-        while not self._monitor_stop.wait(0.5):
+        with self._spawning:
+            if not self._stop.is_set():
+                self._procs = [self._spawn() for _ in range(self._count)]
+        while not self._monitor_stop.wait(WATCH_INTERVAL_S):
             for index, proc in enumerate(self._procs):
                 if not proc.is_alive() and not self._stop.is_set():
-                    log.warning(
-                        "embedded worker %s exited (%s); restarting", proc.pid, proc.exitcode
-                    )
-                    self._procs[index] = self._spawn()
+                    self._replace(index, proc)
+
+    def _replace(self, index: int, dead: mp.process.BaseProcess) -> None:
+        """Release the jobs the dead worker held, then start another in its place."""
+        log.warning("embedded worker %s exited (%s); restarting", dead.pid, dead.exitcode)
+        if dead.pid is not None:
+            try:
+                release_jobs_of_worker(self._rt, worker_name(dead.pid), dead.exitcode)
+            except Exception:  # the heartbeat timeout still recovers its jobs
+                log.warning("releasing the jobs of worker %s failed", dead.pid, exc_info=True)
+        with self._spawning:
+            if not self._stop.is_set():
+                self._procs[index] = self._spawn()
 
     def stop(self, timeout_s: float = 10.0) -> None:
-        self._monitor_stop.set()
-        self._stop.set()
-        if self._monitor.is_alive():
-            self._monitor.join(timeout=2)
+        with self._spawning:
+            self._stop.set()
         for proc in self._procs:
             proc.join(timeout=timeout_s)
             if proc.is_alive():
                 proc.terminate()
                 proc.join(timeout=2)
+        self._monitor_stop.set()
+        if self._monitor.is_alive():
+            self._monitor.join(timeout=2)

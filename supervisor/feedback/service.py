@@ -29,6 +29,7 @@ from sqlalchemy.orm import Session
 from services.defects.tolerances import FIELDS
 from supervisor.defects.service import reading
 from supervisor.feedback.schemas import FeedbackOut, Suggestion, ToleranceFeedback
+from supervisor.inspections.service import live
 from supervisor.judgments.consensus import tally, votes_for
 from supervisor.models import Defect, Inspection
 
@@ -185,7 +186,7 @@ def feedback(session: Session, *, inspection_id: int | None, min_reviews: int) -
         Defect.value_mm,
         Defect.tolerance_mm,
         Defect.measurements,
-    ).where(Defect.source == "job")
+    ).where(Defect.source == "job", live(Defect.inspection_id))
     if inspection_id is not None:
         query = query.where(Defect.inspection_id == inspection_id)
     defects = session.execute(query).all()

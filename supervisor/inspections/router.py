@@ -6,18 +6,32 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from supervisor.db import after_commit
-from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, get_runtime, require
+from supervisor.deps import (
+    ADMIN_ROLES,
+    EDIT_ROLES,
+    READ_ROLES,
+    SESSION,
+    CurrentUser,
+    get_runtime,
+    require,
+)
 from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once, digest_model
 from supervisor.ids import IdPath
 from supervisor.inspections import service
-from supervisor.inspections.schemas import InspectionCreate, InspectionOut, InspectionUpdate
+from supervisor.inspections.schemas import (
+    InspectionCreate,
+    InspectionOut,
+    InspectionUpdate,
+    TrashedInspectionOut,
+)
 from supervisor.models import Inspection
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 
 router = APIRouter(tags=["inspections"])
 readers = require(*READ_ROLES, action="read inspections")
 editors = require(*EDIT_ROLES, action="change inspections")
+admins = require(*ADMIN_ROLES, action="manage the trash")
 
 
 @router.post("/inspections", status_code=201, response_model=InspectionOut)
@@ -27,8 +41,13 @@ def create_inspection(
     session: Session = SESSION,
     user: CurrentUser = Depends(editors),
 ) -> JSONResponse:
+    """Create an inspection; you are its owner (`created_by`). Rules the schema cannot
+    state (422): `tolerances.gap_mm.min` is below `max` (a side not given takes its
+    default, 0.5 and 3.0 mm); each marker's `base_T_marker` is rigid (last row 0 0 0 1,
+    rotation part orthonormal with determinant +1)."""
+
     def create():  # noqa: ANN202
-        inspection = service.create(session, data=body, user_id=user.id)
+        inspection = service.create(session, data=body, actor=user)
         out = InspectionOut.model_validate(inspection).model_dump(mode="json")
         return out, f"/api/v1/inspections/{inspection.id}"
 
@@ -46,7 +65,7 @@ def list_inspections(
 ) -> Page[InspectionOut]:
     return paginate(
         session,
-        select(Inspection),
+        select(Inspection).where(Inspection.deleted_at.is_(None)),
         cursor=cursor,
         limit=limit,
         item=InspectionOut,
@@ -69,17 +88,64 @@ def update_inspection(
     session: Session = SESSION,
     user: CurrentUser = Depends(editors),
 ) -> Inspection:
-    return service.update(session, inspection_id=inspection_id, data=body, user_id=user.id)
+    """Change an inspection: only the fields given (`aircraft`, `serial` and `tolerances`
+    may be null: empty). Its tolerances, and closing or reopening it, are for its owner
+    (`created_by`) or an admin (403); every change is in the audit log. The rules of
+    POST /inspections hold (422): `gap_mm.min` below `max`, rigid marker transforms."""
+    return service.update(
+        session, inspection_id=inspection_id, data=body, actor=user, role=user.role
+    )
 
 
 @router.delete("/inspections/{inspection_id}", status_code=204)
 def delete_inspection(
     inspection_id: IdPath,
     session: Session = SESSION,
-    runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),
 ) -> Response:
-    """Delete an inspection with its artifacts, runs, jobs, defects and judgments."""
-    service.delete(session, inspection_id=inspection_id, user_id=user.id)
+    """Move an inspection to the trash (its owner or an admin; 409 while jobs are queued
+    or running). It disappears from every list and sync (410); an admin can restore it
+    with everything in it, or purge it for good."""
+    service.delete(session, inspection_id=inspection_id, actor=user, role=user.role)
+    return Response(status_code=204)
+
+
+@router.get("/trash/inspections", response_model=Page[TrashedInspectionOut])
+def list_trash(
+    cursor: str | None = None,
+    limit: Limit = DEFAULT_LIMIT,
+    session: Session = SESSION,
+    _: CurrentUser = Depends(admins),
+) -> Page[TrashedInspectionOut]:
+    """Inspections in the trash, with who deleted them and when (admins)."""
+    return paginate(
+        session,
+        select(Inspection).where(Inspection.deleted_at.is_not(None)),
+        cursor=cursor,
+        limit=limit,
+        item=TrashedInspectionOut,
+    )
+
+
+@router.post("/trash/inspections/{inspection_id}/restore", response_model=InspectionOut)
+def restore_inspection(
+    inspection_id: IdPath,
+    session: Session = SESSION,
+    user: CurrentUser = Depends(admins),
+) -> Inspection:
+    """Take an inspection out of the trash with everything in it (admins)."""
+    return service.restore(session, inspection_id=inspection_id, actor=user)
+
+
+@router.delete("/trash/inspections/{inspection_id}", status_code=204)
+def purge_inspection(
+    inspection_id: IdPath,
+    session: Session = SESSION,
+    runtime: Runtime = Depends(get_runtime),
+    user: CurrentUser = Depends(admins),
+) -> Response:
+    """Delete a trashed inspection for good: its artifacts, runs, jobs, defects, judgments
+    and files (admins). Cannot be undone."""
+    service.purge(session, inspection_id=inspection_id, actor=user)
     after_commit(session, lambda: runtime.storage.delete_inspection(inspection_id))
     return Response(status_code=204)

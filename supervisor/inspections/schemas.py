@@ -1,13 +1,30 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
 
 from services.defects.tolerances import Tolerances
 from supervisor.models.inspections import Area, InspectionStatus
-from supervisor.requests import Millimetres, RequestModel
+from supervisor.requests import Millimetres, RequestModel, omittable
+
+MatrixRow = Annotated[list[Millimetres], Field(min_length=4, max_length=4)]
+
+
+def _strictly(value: Any) -> Any:
+    """Tolerances as strict as a request body (their model is shared with CONFIG.json)."""
+    return Tolerances.model_validate(value, strict=True) if isinstance(value, dict) else value
+
+
+StrictTolerances = Annotated[
+    Tolerances,
+    BeforeValidator(_strictly),
+    Field(
+        description="Acceptance limits, mm (colour: ΔE); a limit not given takes its default. "
+        "`gap_mm.min` must be below `gap_mm.max` (defaults 0.5 and 3.0 for a side not given)."
+    ),
+]
 
 
 class ImageMarker(RequestModel):
@@ -15,9 +32,12 @@ class ImageMarker(RequestModel):
 
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")
     area: Literal["cargo", "cabin"]
-    base_T_marker: list[list[Millimetres]] = Field(
+    base_T_marker: list[MatrixRow] = Field(
+        min_length=4,
+        max_length=4,
         description="4 × 4 row-major rigid transform, mm: the marker's frame (x right, y up "
-        "the image, z out of it) in the base frame."
+        "the image, z out of it) in the base frame. Rigid: the last row is 0 0 0 1 and the "
+        "rotation part orthonormal, not mirroring (determinant +1).",
     )
     size_mm: float = Field(gt=0, le=10_000, description="Printed edge length of the image.")
     image: str = Field("", max_length=200, description="The target's name in the AR library.")
@@ -25,8 +45,6 @@ class ImageMarker(RequestModel):
     @field_validator("base_T_marker")
     @classmethod
     def _rigid(cls, value: list[list[float]]) -> list[list[float]]:
-        if len(value) != 4 or any(len(row) != 4 for row in value):
-            raise ValueError("must be 4 × 4")
         if value[3] != [0.0, 0.0, 0.0, 1.0]:
             raise ValueError("the last row must be 0 0 0 1")
         rotation = [row[:3] for row in value[:3]]
@@ -51,19 +69,22 @@ class InspectionCreate(RequestModel):
     aircraft: str = Field("", max_length=100)
     serial: str = Field("", max_length=100)
     area: Area
-    tolerances: Tolerances = Field(default_factory=Tolerances)
+    tolerances: StrictTolerances = Field(default_factory=Tolerances)
     markers: list[ImageMarker] = Field(default_factory=list, max_length=16)
     status: InspectionStatus = "planned"
 
 
 class InspectionUpdate(RequestModel):
-    title: str | None = Field(None, min_length=1, max_length=200)
+    """Only the fields given change. `aircraft` and `serial` may be null (empty), and
+    `tolerances` (no limits of its own: the defaults hold); the others may not."""
+
+    title: str = omittable(min_length=1, max_length=200)
     aircraft: str | None = Field(None, max_length=100)
     serial: str | None = Field(None, max_length=100)
-    area: Area | None = None
-    tolerances: Tolerances | None = None
-    markers: list[ImageMarker] | None = Field(None, max_length=16)
-    status: InspectionStatus | None = None
+    area: Area = omittable()
+    tolerances: StrictTolerances | None = None
+    markers: list[ImageMarker] = omittable(max_length=16)
+    status: InspectionStatus = omittable()
 
 
 class InspectionOut(BaseModel):
@@ -80,3 +101,8 @@ class InspectionOut(BaseModel):
     created_by: int | None
     created_at: datetime
     updated_at: datetime
+
+
+class TrashedInspectionOut(InspectionOut):
+    deleted_at: datetime
+    deleted_by: int | None

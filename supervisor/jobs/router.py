@@ -20,6 +20,7 @@ from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once, digest_model
 from supervisor.ids import IdPath, IdQuery
 from supervisor.inspections.service import get as get_inspection
+from supervisor.inspections.service import live
 from supervisor.jobs import service
 from supervisor.jobs.schemas import (
     InputsOut,
@@ -71,7 +72,11 @@ def create_run(
     user: CurrentUser = Depends(operators),
 ) -> JSONResponse:
     """Create a run from ordered steps; a step starts when the steps in its ``after`` have
-    succeeded, and receives their output artifacts as inputs."""
+    succeeded, and receives their output artifacts as inputs. Rules the schema cannot
+    state (422): step names are unique; `kind` is one of GET /job-kinds and `params`
+    match its `params_schema`; `inputs` are artifacts of this inspection; `after` names
+    earlier steps; a step gets (from its `inputs` and its `after` steps' outputs) the
+    kinds and numbers of artifacts its job kind reads."""
     get_inspection(session, inspection_id=inspection_id)
     ready = []
 
@@ -134,7 +139,7 @@ def list_jobs(
 ) -> Page[JobOut]:
     return paginate(
         session,
-        select(Job),
+        select(Job).where(live(Job.inspection_id)),
         equal={Job.run_id: run, Job.inspection_id: inspection, Job.status: status},
         cursor=cursor,
         limit=limit,
@@ -155,7 +160,7 @@ def cancel_job(
     job_id: IdPath, session: Session = SESSION, user: CurrentUser = Depends(operators)
 ) -> JobOut:
     """Cancel a job: at once if it has not started, else at its next progress report."""
-    job = service.cancel_job(session, job_id=job_id, user_id=user.id)
+    job = service.cancel_job(session, job_id=job_id, actor=user)
     return service.job_out(session, job)
 
 
@@ -167,7 +172,7 @@ def retry_job(
     user: CurrentUser = Depends(operators),
 ) -> JobOut:
     """Run a failed or cancelled job again; the jobs after it follow when it succeeds."""
-    job, ready = service.retry_job(session, job_id=job_id, user_id=user.id)
+    job, ready = service.retry_job(session, job_id=job_id, actor=user)
     after_commit(session, lambda: dispatch(runtime.db, runtime.dispatcher, ready))
     return service.job_out(session, job)
 

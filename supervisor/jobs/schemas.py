@@ -5,9 +5,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.ids import IdField
 from supervisor.models.jobs import JobStatus
-from supervisor.requests import RequestModel
+from supervisor.requests import RequestId, RequestModel
 
 STEP_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,63}$"
 
@@ -16,7 +15,7 @@ class StepIn(RequestModel):
     name: str = Field(pattern=STEP_NAME_PATTERN, description="Unique within the run.")
     kind: str = Field(min_length=1, max_length=64, description="A job kind from GET /job-kinds.")
     params: dict[str, Any] = Field(default_factory=dict)
-    inputs: list[IdField] = Field(
+    inputs: list[RequestId] = Field(
         default_factory=list, max_length=1000, description="Artifact ids of this inspection."
     )
     after: list[str] = Field(

@@ -7,11 +7,12 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from contract.kinds import JobKind
+from supervisor.audit.service import Actor, audit
 from supervisor.changes import record_change, record_update
 from supervisor.engine.dispatch import Dispatch
 from supervisor.engine.graph import cancel_dependents, dependencies, dependents
 from supervisor.engine.registry import all_kinds, get_kind
-from supervisor.inspections.service import follow_runs
+from supervisor.inspections.service import ensure_live, follow_runs
 from supervisor.jobs.schemas import JobOut, RunCreate, RunOut
 from supervisor.jobs.step_inputs import check_step_inputs
 from supervisor.models import Artifact, Job, JobDependency, Run
@@ -159,6 +160,7 @@ def get_run(session: Session, *, run_id: int) -> Run:
     run = session.get(Run, run_id)
     if run is None:
         raise not_found("run", run_id)
+    ensure_live(session, run.inspection_id, "run", run_id)
     return run
 
 
@@ -166,12 +168,27 @@ def get_job(session: Session, *, job_id: int) -> Job:
     job = session.get(Job, job_id)
     if job is None:
         raise not_found("job", job_id)
+    ensure_live(session, job.inspection_id, "job", job_id)
     return job
 
 
-def cancel_job(session: Session, *, job_id: int, user_id: int) -> Job:
+def _audit_job(session: Session, actor: Actor, action: str, job: Job, before: str) -> None:
+    audit(
+        session,
+        actor,
+        action,
+        entity="job",
+        entity_id=job.id,
+        inspection_id=job.inspection_id,
+        before={"status": before},
+        after={"status": job.status},
+    )
+
+
+def cancel_job(session: Session, *, job_id: int, actor: Actor) -> Job:
     """Cancel now if not started; ask the worker to stop if running (it ends soon after)."""
     job = get_job(session, job_id=job_id)
+    before = job.status
     if job.status in FINISHED:
         raise Problem(409, f"Job {job_id} already {job.status}; there is nothing to cancel.")
     if job.status == "running":
@@ -187,15 +204,17 @@ def cancel_job(session: Session, *, job_id: int, user_id: int) -> Job:
         cancel_dependents(session, job.id, f"not run: step '{job.step}' (job {job.id}) cancelled")
         session.flush()
         follow_runs(session, inspection_id=job.inspection_id)
-    record_update(session, "job", job, user_id=user_id)
+    record_update(session, "job", job, user_id=actor.id)
     session.flush()
     session.refresh(job)
+    _audit_job(session, actor, "cancel", job, before)
     return job
 
 
-def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list[Dispatch]]:
+def retry_job(session: Session, *, job_id: int, actor: Actor) -> tuple[Job, list[Dispatch]]:
     """Run a failed or cancelled job again, with the jobs downstream of it."""
     job = get_job(session, job_id=job_id)
+    before = job.status
     if job.status not in ("failed", "cancelled"):
         raise Problem(
             409, f"Job {job_id} is {job.status}; only failed or cancelled jobs are retried."
@@ -222,10 +241,11 @@ def retry_job(session: Session, *, job_id: int, user_id: int) -> tuple[Job, list
             item.dispatched_at = None
             item.finished_at = None
             item.message = "retry requested"
-            record_update(session, "job", item, user_id=user_id)
+            record_update(session, "job", item, user_id=actor.id)
             if item.status == "queued":
                 ready.append(Dispatch(item.id, item.queue))
             frontier.extend(dependents(session, [item.id]))
     session.flush()
     follow_runs(session, inspection_id=job.inspection_id)
+    _audit_job(session, actor, "retry", job, before)
     return job, ready

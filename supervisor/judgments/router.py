@@ -30,7 +30,9 @@ async def put_my_judgment(
     user: CurrentUser = Depends(judges),
 ) -> Response:
     """Set your judgment of a defect. Each change is a new revision; repeating the same
-    judgment changes nothing. Nobody can write another user's judgment."""
+    judgment changes nothing. Nobody can write another user's judgment. `new_type` is
+    given exactly when the verdict is `reclassified`, and must differ from the defect's
+    type (422)."""
     judgment, consensus = await run_in_threadpool(
         service.put_mine, runtime.db, defect_id=defect_id, user_id=user.id, data=body
     )

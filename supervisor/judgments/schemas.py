@@ -9,8 +9,21 @@ from supervisor.requests import RequestModel
 
 
 class JudgmentIn(RequestModel):
+    """`new_type` is given exactly when the verdict is `reclassified` (then it must differ
+    from the defect's type)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "if": {"properties": {"verdict": {"const": "reclassified"}}},
+            "then": {"required": ["new_type"], "properties": {"new_type": {"type": "string"}}},
+            "else": {"properties": {"new_type": {"type": "null"}}},
+        }
+    )
+
     verdict: Verdict
-    new_type: DefectType | None = Field(None, description="Required when reclassified.")
+    new_type: DefectType | None = Field(
+        None, description="The type it really is: required when reclassified, else null."
+    )
     comment: str = Field("", max_length=4000)
 
     @model_validator(mode="after")

@@ -42,12 +42,13 @@ from sqlalchemy.orm import Session
 from sqlalchemy.types import JSON
 
 from supervisor.judgments.schemas import JudgmentIn
-from supervisor.models import Change, Defect, Judgment, JudgmentRevision
+from supervisor.models import Change, Defect, Inspection, Judgment, JudgmentRevision
 
 _judgments = Judgment.__table__
 _revisions = JudgmentRevision.__table__
 _changes = Change.__table__
 _defects = Defect.__table__
+_inspections = Inspection.__table__
 
 _DEFECT_ID = bindparam("defect_id", type_=_judgments.c.defect_id.type)
 _USER_ID = bindparam("user_id", type_=_judgments.c.user_id.type)
@@ -125,6 +126,16 @@ class Written:
     """Every user's current (verdict, new type) of the defect, for its consensus."""
 
 
+def _the_defect() -> ColumnElement[bool]:
+    """The defect judged, unless its inspection is in the trash (then it is not there)."""
+    live = exists(
+        select(_inspections.c.id).where(
+            _inspections.c.id == _defects.c.inspection_id, _inspections.c.deleted_at.is_(None)
+        )
+    )
+    return and_(_defects.c.id == _DEFECT_ID, live)
+
+
 def same_type(defect_type: ColumnElement) -> ColumnElement[bool]:
     """The judgment being written reclassifies the defect as the type it already has."""
     return and_(_VERDICT == "reclassified", _NEW_TYPE.is_not_distinct_from(defect_type))
@@ -139,7 +150,7 @@ def _upsert(dialect_insert: type[postgresql.Insert] | type[sqlite.Insert]) -> In
     with ``newer_only``, when it was made after the stored one); returns the row written."""
     source = select(
         _defects.c.id, _USER_ID, _VERDICT, _NEW_TYPE, _COMMENT, literal(1), _NOW, _CLIENT_TIME
-    ).where(_defects.c.id == _DEFECT_ID, not_(same_type(_defects.c.type)))
+    ).where(_the_defect(), not_(same_type(_defects.c.type)))
     statement = dialect_insert(_judgments).from_select(
         ["defect_id", "user_id", "verdict", "new_type", "comment", "revision", "updated_at"]
         + ["client_time"],
@@ -212,7 +223,7 @@ def _outcome(mine: FromClause, changed: ColumnElement[bool], votes: Select) -> S
             *mine.c,
         )
         .select_from(_defects.outerjoin(mine, true()))
-        .where(_defects.c.id == _DEFECT_ID)
+        .where(_the_defect())
     )
 
 

@@ -49,6 +49,10 @@ class Defect(Base):
     severity: Mapped[str] = mapped_column(String(16), default="minor")
     confidence: Mapped[float] = mapped_column(Float, default=1.0)
     source: Mapped[str] = mapped_column(String(16), default="job")
+    status_by: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    """Who last set the status (resolved or dismissed it, or reopened it)."""
+    status_reason: Mapped[str] = mapped_column(Text, default="")
+    """Why, in their words (required to dismiss)."""
     created_at: Mapped[datetime] = created_at_column()
 
 

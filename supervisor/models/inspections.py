@@ -34,8 +34,13 @@ class Inspection(Base):
     """Image markers at known poses (cargo, cabin) that align a headset with the scene."""
     status: Mapped[str] = mapped_column(String(16), default="planned")
     created_by: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    """The owner: with admins, the only one who may delete or close it or change its
+    tolerances."""
     created_at: Mapped[datetime] = created_at_column()
     updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow, onupdate=utcnow)
+    deleted_at: Mapped[datetime | None] = mapped_column(UTCDateTime(), index=True)
+    """Set when it went to the trash: hidden everywhere, restorable, files kept until purged."""
+    deleted_by: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
 
 
 class Artifact(Base):

@@ -35,7 +35,9 @@ async def sync(
     request: Request,
     inspection: int = Query(ge=1, le=MAX_ID, description="The inspection to sync."),
     since: str | None = Query(
-        None, description="The `next_cursor` of the last sync; none or `0` for everything."
+        None,
+        description="The `next_cursor` of the last sync of this inspection (another is "
+        "refused: 400); none or `0` for everything.",
     ),
     limit: int = Query(
         service.DEFAULT_PAGE,
@@ -49,8 +51,9 @@ async def sync(
     """Everything that changed in an inspection since a cursor: defects (their state now),
     judgments, the consensus of every defect whose judgments changed, the scene's ETag and
     the next cursor. Without a cursor: the whole inspection, in pages of `limit` defects
-    (`more` says another page waits). Clients upsert by id; an entity may come twice."""
-    cursor = service.decode_cursor(since)
+    (`more` says another page waits). Clients upsert by id; an entity may come twice.
+    An inspection deleted since the cursor answers 410: drop the local copy."""
+    cursor = service.decode_cursor(since, inspection)
 
     def read() -> dict:
         with runtime.db.read() as session:

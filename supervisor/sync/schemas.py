@@ -1,17 +1,19 @@
 from __future__ import annotations
 
+import re
 from datetime import datetime
 from typing import Literal
 
 from pydantic import BaseModel, Field, field_validator
 
 from supervisor.defects.schemas import Consensus, DefectType
-from supervisor.ids import IdField
 from supervisor.judgments.schemas import JudgmentIn, JudgmentOut
-from supervisor.requests import RequestModel
+from supervisor.requests import RequestId, RequestModel
 
 MAX_BATCH = 1000
 
+RFC3339 = re.compile(r"\d{4}-\d{2}-\d{2}[Tt]\d{2}:\d{2}:\d{2}(\.\d+)?([Zz]|[+-]\d{2}:\d{2})")
+"""A JSON Schema `date-time`: lenient parsers read numbers and other forms as times too."""
 ItemStatus = Literal["applied", "unchanged", "stale", "rejected"]
 
 
@@ -61,14 +63,24 @@ class OfflineJudgment(JudgmentIn):
     client_id: str = Field(
         min_length=1, max_length=64, description="Made by the client (a UUID); retries reuse it."
     )
-    defect_id: IdField
-    client_time: datetime = Field(description="When the user judged, by the client's clock.")
+    defect_id: RequestId
+    inspection_id: RequestId | None = Field(
+        None,
+        description="The inspection the client synced the defect from: the item is refused "
+        "when the defect is not in it (send it; it keeps a verdict off another defect).",
+    )
+    client_time: datetime = Field(
+        strict=False,  # read from a string, checked by _rfc3339 first
+        description="When the user judged, by the client's clock, with its offset.",
+    )
 
-    @field_validator("client_time")
+    @field_validator("client_time", mode="before")
     @classmethod
-    def _aware(cls, value: datetime) -> datetime:
-        if value.tzinfo is None:
-            raise ValueError("give a time zone (e.g. a trailing 'Z' for UTC)")
+    def _rfc3339(cls, value: object) -> object:
+        if not (isinstance(value, str) and RFC3339.fullmatch(value)):
+            raise ValueError(
+                "give an RFC 3339 date-time with a time zone, e.g. 2024-05-01T12:00:00Z"
+            )
         return value
 
 
@@ -81,7 +93,8 @@ class ItemResult(BaseModel):
     defect_id: int
     status: ItemStatus = Field(
         description="applied: now your judgment; unchanged: the same as your judgment; stale: "
-        "you judged this defect later (by client time) elsewhere; rejected: see detail."
+        "you judged this defect later (by client time) elsewhere; rejected: see detail (the "
+        "defect is gone, in another inspection, or the judgment is not allowed)."
     )
     replayed: bool = Field(False, description="This client_id was sent before: first answer.")
     detail: str | None = None

@@ -51,11 +51,14 @@ RECENT_CHANGES = 1000
 DEFAULT_PAGE = 20_000
 MAX_PAGE = 50_000
 
-_CURSOR_PREFIX = "sync"
+_CURSOR_PREFIX = "sync2"
+"""A cursor names its inspection (``sync2:<inspection>:<seq>[:<defect id>]``): one given
+for another inspection, or in the older format without it, is refused."""
 
 
 @dataclass(frozen=True)
 class Cursor:
+    inspection_id: int
     seq: int
     """Every change up to this log position is in the client's copy (or in the snapshot)."""
     snapshot_after: int | None = None
@@ -63,20 +66,21 @@ class Cursor:
 
 
 def encode_cursor(cursor: Cursor) -> str:
-    parts = [_CURSOR_PREFIX, str(cursor.seq)]
+    parts = [_CURSOR_PREFIX, str(cursor.inspection_id), str(cursor.seq)]
     if cursor.snapshot_after is not None:
         parts.append(str(cursor.snapshot_after))
     return base64.urlsafe_b64encode(":".join(parts).encode()).decode().rstrip("=")
 
 
-def decode_cursor(value: str | None) -> Cursor | None:
-    """None for a full sync (no cursor, or ``0``)."""
+def decode_cursor(value: str | None, inspection_id: int) -> Cursor | None:
+    """None for a full sync (no cursor, or ``0``); 400 for a cursor not given out for
+    this inspection."""
     if not value or value == "0":
         return None
     try:
         raw = base64.urlsafe_b64decode(value + "=" * (-len(value) % 4)).decode()
         prefix, *numbers = raw.split(":")
-        if prefix != _CURSOR_PREFIX or len(numbers) not in (1, 2):
+        if prefix != _CURSOR_PREFIX or len(numbers) not in (2, 3):
             raise ValueError(raw)
         ints = [int(n) for n in numbers]
         if any(n < 0 for n in ints):
@@ -85,7 +89,13 @@ def decode_cursor(value: str | None) -> Cursor | None:
         raise Problem(
             400, "since: not a cursor this server gave out; sync from the start (since=0)."
         ) from exc
-    return Cursor(ints[0], ints[1] if len(ints) == 2 else None)
+    if ints[0] != inspection_id:
+        raise Problem(
+            400,
+            f"since: this cursor belongs to inspection {ints[0]}, not {inspection_id}; "
+            "sync this inspection from the start (since=0).",
+        )
+    return Cursor(ints[0], ints[1], ints[2] if len(ints) == 3 else None)
 
 
 # --- reading -----------------------------------------------------------------------
@@ -182,19 +192,12 @@ def changes_since(
     """One page of what changed in the inspection after ``cursor`` (None: everything)."""
     now = utcnow()
     inspection = session.get(Inspection, inspection_id)
-    if inspection is None:
-        deleted = cursor is not None and session.scalar(
-            select(Change.seq).where(
-                Change.inspection_id == inspection_id,
-                Change.entity == "inspection",
-                Change.op == "delete",
-            )
-        )
-        if deleted:
+    if inspection is None or inspection.deleted_at is not None:
+        if cursor is not None:  # a device that had it: tell it to drop its copy
             raise Problem(410, f"Inspection {inspection_id} was deleted; drop its local copy.")
         raise not_found("inspection", inspection_id)
     if cursor is None:
-        cursor = Cursor(_high_water(session, now), snapshot_after=0)
+        cursor = Cursor(inspection_id, _high_water(session, now), snapshot_after=0)
     if cursor.snapshot_after is not None:
         page = _snapshot_page(session, inspection, cursor, limit)
     else:
@@ -215,7 +218,7 @@ def _snapshot_page(session: Session, inspection: Inspection, cursor: Cursor, lim
     defect_ids = [r.id for r in rows]
     judgments = _judgments_of(session, defect_ids)
     judged = sorted({j.defect_id for j in judgments})
-    after = Cursor(cursor.seq, rows[-1].id if more else None)
+    after = Cursor(inspection.id, cursor.seq, rows[-1].id if more else None)
     return {
         "inspection": _inspection_doc(inspection) if cursor.snapshot_after == 0 else None,
         "defects": [_defect_doc(r) for r in rows],
@@ -266,7 +269,7 @@ def _change_page(
         "defects": [_defect_doc(r) for r in defects],
         "judgments": [_judgment_doc(j, j.username) for j in judgments],
         "consensus": consensus_docs(session, judged_defects),
-        "next_cursor": encode_cursor(Cursor(last)),
+        "next_cursor": encode_cursor(Cursor(inspection.id, last)),
         "more": more,
     }
 
@@ -342,6 +345,7 @@ def _apply(
     }
     ids = list({item.defect_id for item in items})
     current = {j.defect_id: j for j in session.execute(_MINE, {"user_id": user_id, "ids": ids})}
+    homes = _homes(session, ids)
     results = []
     for item in items:
         digest = _digest(item)
@@ -355,7 +359,11 @@ def _apply(
             else:
                 status, result["replayed"] = receipt.status, True
         else:
-            status, detail = _apply_one(session, item, current, user_id, now)
+            refusal = _misplaced(item, homes.get(item.defect_id))
+            if refusal is not None:
+                status, detail = "rejected", refusal
+            else:
+                status, detail = _apply_one(session, item, current, user_id, now)
             if status != "rejected":
                 receipt = SyncReceipt(
                     user_id=user_id,
@@ -374,6 +382,35 @@ def _apply(
     session.flush()
     touched = sorted({r["defect_id"] for r in results if r["status"] == "applied"})
     return results, consensus_docs(session, touched)
+
+
+def _homes(session: Session, defect_ids: list[int]) -> dict[int, tuple[int, bool]]:
+    """Each existing defect's (inspection id, inspection in the trash)."""
+    rows = session.execute(
+        select(Defect.id, Defect.inspection_id, Inspection.deleted_at.is_not(None))
+        .join(Inspection, Inspection.id == Defect.inspection_id)
+        .where(Defect.id.in_(bindparam("ids", expanding=True))),
+        {"ids": defect_ids},
+    )
+    return {defect_id: (inspection_id, bool(trashed)) for defect_id, inspection_id, trashed in rows}
+
+
+def _misplaced(item: OfflineJudgment, home: tuple[int, bool] | None) -> str | None:
+    """Why the item cannot be for the defect it names, or None."""
+    if home is None:
+        return (
+            f"There is no defect with id {item.defect_id} (deleted, or never on this server); "
+            "your judgment is set aside."
+        )
+    inspection_id, trashed = home
+    if trashed:
+        return f"Inspection {inspection_id} was deleted; your judgment is set aside."
+    if item.inspection_id is not None and item.inspection_id != inspection_id:
+        return (
+            f"Defect {item.defect_id} is in inspection {inspection_id}, not in inspection "
+            f"{item.inspection_id} you judged it in: your judgment is set aside."
+        )
+    return None
 
 
 def _kept(judgment: Row | None, item: OfflineJudgment) -> tuple[str, str | None] | None:

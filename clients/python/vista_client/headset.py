@@ -175,6 +175,7 @@ class Headset:
         item = {
             "client_id": str(uuid.uuid4()),
             "defect_id": defect_id,
+            "inspection_id": self.inspection_id,
             "verdict": verdict,
             "comment": comment,
             "client_time": (at or self.clock()).astimezone(UTC).isoformat(),

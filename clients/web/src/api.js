@@ -44,6 +44,7 @@ export async function request(method, path, { body, params, headers, raw } = {})
 
 export const api = {
   signIn: (username, password) => request("POST", "/auth/token", { body: { username, password } }),
+  signOut: () => request("DELETE", "/auth/token", { raw: true }),
   me: () => request("GET", "/me"),
   inspections: () => request("GET", "/inspections", { params: { limit: 500 } }),
   inspection: (id) => request("GET", `/inspections/${id}`),

@@ -144,7 +144,13 @@ $("#sign-in-form").addEventListener("submit", async (event) => {
   }
 });
 
-$("#sign-out").addEventListener("click", () => {
+$("#sign-out").addEventListener("click", async () => {
+  // The server revokes the token, so a copy of it (another tab, a leaked log) stops too.
+  try {
+    await api.signOut();
+  } catch {
+    // already expired or revoked: signing out here is all that is left to do
+  }
   session.token = null;
   state.me = null;
   location.hash = "#/sign-in";

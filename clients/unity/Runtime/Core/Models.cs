@@ -436,6 +436,9 @@ namespace Vista.Client
         public string ClientId;
         /// <summary>The defect judged.</summary>
         public long DefectId;
+        /// <summary>The inspection the defect was synced from: the server refuses the item
+        /// when the defect is not in it.</summary>
+        public long? InspectionId;
         /// <summary>One of <see cref="Verdicts"/>.</summary>
         public string Verdict;
         /// <summary>The new type, exactly when the verdict is reclassified.</summary>
@@ -452,6 +455,7 @@ namespace Vista.Client
             {
                 ClientId = json.GetRequiredString("client_id"),
                 DefectId = json.GetInt64("defect_id"),
+                InspectionId = json.GetNullableInt64("inspection_id"),
                 Verdict = json.GetRequiredString("verdict"),
                 NewType = json.GetString("new_type"),
                 Comment = json.GetString("comment") ?? "",
@@ -462,11 +466,14 @@ namespace Vista.Client
         /// <summary>The item as <c>POST /api/v1/sync/judgments</c> takes it.</summary>
         public Dictionary<string, object> ToJson()
         {
-            return new Dictionary<string, object>
+            var json = new Dictionary<string, object>
             {
                 { "client_id", ClientId }, { "defect_id", DefectId }, { "verdict", Verdict },
                 { "new_type", NewType }, { "comment", Comment }, { "client_time", ClientTime },
             };
+            if (InspectionId.HasValue)
+                json["inspection_id"] = InspectionId.Value;
+            return json;
         }
 
         /// <summary>How the judgment looks locally before the server has it (revision 0).</summary>

@@ -227,6 +227,7 @@ namespace Vista.Client
             {
                 ClientId = Guid.NewGuid().ToString(),
                 DefectId = defectId,
+                InspectionId = InspectionId,
                 Verdict = verdict,
                 NewType = newType,
                 Comment = comment ?? "",
