@@ -64,19 +64,25 @@ def _demo_account(settings: Settings) -> tuple[str, str]:
 
     from sqlalchemy import select
 
+    from supervisor.auth.service import hash_password
     from supervisor.db import Database
     from supervisor.models import User
     from supervisor.users.service import change_user, create_token, create_user
 
     password = secrets.token_urlsafe(12)
+    password_hash = hash_password(password)
     db = Database(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
         with db.write() as session:
             user = session.scalar(select(User).where(User.username == DEMO_USER))
             if user is None:
-                user = create_user(session, username=DEMO_USER, role="inspector", password=password)
+                user = create_user(
+                    session, username=DEMO_USER, role="inspector", password_hash=password_hash
+                )
             else:
-                change_user(session, user, actor=COMMAND_LINE, active=True, password=password)
+                change_user(
+                    session, user, actor=COMMAND_LINE, active=True, password_hash=password_hash
+                )
             token = create_token(
                 session, user=user, name="vista demo", kind="cli", ttl=timedelta(hours=24)
             )

@@ -21,6 +21,7 @@ from sqlalchemy import create_engine, text
 from sqlalchemy.engine import make_url
 
 from supervisor.app import create_app
+from supervisor.auth.service import hash_password
 from supervisor.db import Base
 from supervisor.engine.runtime import Runtime
 from supervisor.migrate import upgrade
@@ -130,7 +131,8 @@ def client(settings: Settings, runtime: Runtime) -> Iterator[TestClient]:
 
 def add_user(runtime: Runtime, username: str, role: str, password: str | None = None) -> str:
     with runtime.db.write() as session:
-        user = create_user(session, username=username, role=role, password=password)
+        password_hash = hash_password(password) if password else None
+        user = create_user(session, username=username, role=role, password_hash=password_hash)
         kind = "device" if role == "device" else "cli"
         return create_token(session, user=user, name="test", kind=kind, ttl=timedelta(days=1))
 

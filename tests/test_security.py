@@ -326,3 +326,32 @@ def test_a_token_made_without_a_lifetime_by_the_command_line_expires(runtime):
     with runtime.db.read() as session:
         row = session.query(ApiToken).filter_by(token_sha256=token_digest(token)).one()
     assert row.expires_at is not None
+
+
+def test_password_check_slots_are_shared_by_every_process_of_the_machine(tmp_path):
+    from supervisor.auth.limits import PasswordSlots
+
+    first, second = PasswordSlots(tmp_path, 1), PasswordSlots(tmp_path, 1)  # two API processes
+    held = first.try_take()
+    assert held is not None and second.try_take() is None
+    first.give_back(held)
+    assert second.try_take() is not None
+
+
+def test_a_password_hashed_with_older_parameters_is_re_hashed_at_sign_in(client, runtime):
+    from argon2 import PasswordHasher
+    from sqlalchemy import select
+
+    from supervisor.models import User
+    from supervisor.users.service import create_user
+
+    four_lanes = PasswordHasher(parallelism=4).hash("older-password")  # argon2-cffi's default
+    with runtime.db.write() as session:
+        create_user(session, username="olga", role="viewer", password_hash=four_lanes)
+    signed = client.post(
+        "/api/v1/auth/token", json={"username": "olga", "password": "older-password"}
+    )
+    assert signed.status_code == 200
+    with runtime.db.read() as session:
+        stored = session.scalar(select(User.password_hash).where(User.username == "olga"))
+    assert "p=1$" in stored and stored != four_lanes

@@ -1,26 +1,35 @@
 """Keeping sign-in from being used against the API.
 
-A sign-in checks a password with argon2 (64 MiB, about half a second of one core), so
-unbounded anonymous sign-ins starve every other request. Two guards, per API process:
+A sign-in checks a password with argon2id (64 MiB, about half a second of one core), so
+unbounded anonymous sign-ins starve every other request. Three guards:
 
-- rate limits: failed sign-ins per account and sign-in attempts per client address in a
-  sliding minute; past either, 429 with ``Retry-After`` before any password is checked;
-- a bound on password checks running at once (``sign_in_concurrency``) and on those
-  waiting for their turn: a sign-in that would wait in a long queue is answered 429 at
-  once instead of piling up threads.
+- rate limits, per API process: failed sign-ins per account and sign-in attempts per
+  client address in a sliding minute; past either, 429 with ``Retry-After`` before any
+  password is checked;
+- password-check slots shared by every API process of the machine (``sign_in_concurrency``
+  lock files in the data folder, held with ``flock``, released by the kernel if a process
+  dies): at most that many argon2 checks run at once however many processes serve, and a
+  sign-in that would wait behind more than ``QUEUE_PER_SLOT`` others is turned away;
+- a refused sign-in is answered after ``REFUSAL_DELAY_S`` (an idle wait, no thread), so a
+  client that ignores ``Retry-After`` floods nothing but its own connection.
 """
 
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import math
+import os
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 
 WINDOW_S = 60.0
 QUEUE_PER_SLOT = 4
 """Sign-ins that may wait for each password-check slot before new ones are refused."""
+SLOT_POLL_S = 0.02
+REFUSAL_DELAY_S = 1.0
 
 
 @dataclass
@@ -61,12 +70,39 @@ class TooManySignIns(Exception):
         self.retry_after_s = max(1, math.ceil(retry_after_s))
 
 
+class PasswordSlots:
+    """``count`` lock files: holding one is the right to run one password check."""
+
+    def __init__(self, folder: Path, count: int) -> None:
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+        self.count = count
+        self._fds = [
+            os.open(folder / f"slot-{i}.lock", os.O_RDWR | os.O_CREAT, 0o600) for i in range(count)
+        ]
+        self._free = list(self._fds)  # this process's fds not held by one of its own checks
+
+    def try_take(self) -> int | None:
+        for fd in list(self._free):
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue
+            self._free.remove(fd)
+            return fd
+        return None
+
+    def give_back(self, fd: int) -> None:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        self._free.append(fd)
+
+
 class SignInGuard:
-    def __init__(self, *, per_account: int, per_address: int, concurrency: int) -> None:
+    def __init__(
+        self, *, per_account: int, per_address: int, concurrency: int, slot_folder: Path
+    ) -> None:
         self.failures = SlidingWindow(per_account)
         self.attempts = SlidingWindow(per_address)
-        self.concurrency = concurrency
-        self._slots: asyncio.Semaphore | None = None
+        self.slots = PasswordSlots(slot_folder, concurrency)
         self._waiting = 0
 
     def admit(self, *, username: str, address: str) -> None:
@@ -83,22 +119,22 @@ class SignInGuard:
                 f"Too many failed sign-ins for {username!r} ({self.failures.limit} a minute)",
                 wait_s,
             )
-        if self._waiting >= self.concurrency * QUEUE_PER_SLOT:
+        if self._waiting >= self.slots.count * QUEUE_PER_SLOT:
             raise TooManySignIns("Too many sign-ins at once", 1.0)
         self.attempts.add(address, now)
 
     def failed(self, username: str) -> None:
         self.failures.add(username.lower(), time.monotonic())
 
-    async def __aenter__(self) -> None:
-        if self._slots is None:  # made in the event loop that uses it
-            self._slots = asyncio.Semaphore(self.concurrency)
+    async def slot(self) -> int:
+        """Wait (idle, polling) for a password-check slot; give it back with ``release``."""
         self._waiting += 1
         try:
-            await self._slots.acquire()
+            while (fd := self.slots.try_take()) is None:
+                await asyncio.sleep(SLOT_POLL_S)
+            return fd
         finally:
             self._waiting -= 1
 
-    async def __aexit__(self, *exc: object) -> None:
-        assert self._slots is not None
-        self._slots.release()
+    def release(self, fd: int) -> None:
+        self.slots.give_back(fd)

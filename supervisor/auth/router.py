@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import asyncio
+from collections.abc import Callable
+from datetime import datetime
+from typing import TypeVar
+
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from sqlalchemy import select, update
 
 from supervisor.auth import service
-from supervisor.auth.limits import SignInGuard, TooManySignIns
+from supervisor.auth.limits import REFUSAL_DELAY_S, SignInGuard, TooManySignIns
 from supervisor.auth.schemas import MeOut, TokenOut, TokenRequest
 from supervisor.deps import (
     READ_ROLES,
@@ -17,6 +23,7 @@ from supervisor.deps import (
     require,
 )
 from supervisor.engine.runtime import Runtime
+from supervisor.models import User
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem
 from supervisor.users import service as users
@@ -25,6 +32,7 @@ from supervisor.users.schemas import PasswordChange
 router = APIRouter(tags=["auth"])
 signed_in = require(*READ_ROLES, action="sign out")
 NO_STORE = {"Cache-Control": "no-store", "Pragma": "no-cache"}
+T = TypeVar("T")
 
 
 def _guard(request: Request, runtime: Runtime) -> SignInGuard:
@@ -35,8 +43,18 @@ def _guard(request: Request, runtime: Runtime) -> SignInGuard:
             per_account=settings.sign_in_per_account_per_min,
             per_address=settings.sign_in_per_address_per_min,
             concurrency=settings.sign_in_concurrency,
+            slot_folder=settings.data_dir / "sign-in-slots",
         )
     return state.sign_in_guard
+
+
+async def _checked(guard: SignInGuard, check: Callable[[], T]) -> T:
+    """``check`` (an argon2 verification) in a thread, holding a password-check slot."""
+    fd = await guard.slot()
+    try:
+        return await run_in_threadpool(check)
+    finally:
+        guard.release(fd)
 
 
 @router.post(
@@ -55,27 +73,40 @@ async def sign_in(
     try:
         guard.admit(username=body.username, address=address)
     except TooManySignIns as exc:
+        await asyncio.sleep(REFUSAL_DELAY_S)  # idle: a client ignoring Retry-After waits too
         raise Problem(
             429,
             f"{exc.reason}: try again in {exc.retry_after_s} s.",
             headers={"Retry-After": str(exc.retry_after_s)},
         ) from exc
-    async with guard:
-        issued = await run_in_threadpool(_sign_in, runtime, body)
-    if issued is None:
+    user = await run_in_threadpool(_account, runtime, body.username)
+    hash_ = user.password_hash if user is not None else None
+    if not await _checked(guard, lambda: service.verify_password(hash_, body.password)):
         guard.failed(body.username)
         raise Problem(401, "Unknown username or wrong password.")
-    token, expires_at = issued
+    if user is None or not user.active:  # a right password of a deactivated account
+        raise Problem(401, "Unknown username or wrong password.")
+    rehashed = None
+    if service.needs_rehash(hash_):  # made with older argon2 parameters
+        rehashed = await _checked(guard, lambda: service.hash_password(body.password))
+    token, expires_at = await run_in_threadpool(_issue, runtime, user, rehashed)
     out = TokenOut(access_token=token, expires_at=expires_at)
     return Response(out.model_dump_json(), media_type="application/json", headers=NO_STORE)
 
 
-def _sign_in(runtime: Runtime, body: TokenRequest) -> tuple[str, object] | None:
+def _account(runtime: Runtime, username: str) -> User | None:
+    with runtime.db.read() as session:
+        return session.scalar(select(User).where(User.username == username))
+
+
+def _issue(runtime: Runtime, user: User, rehashed: str | None) -> tuple[str, datetime]:
+    """A sign-in token (and the password's new hash, if re-made), in a short write
+    transaction (never around the password check: on SQLite that would hold every writer
+    back for half a second)."""
+    ttl = users.default_ttl("session", runtime.settings)
     with runtime.db.write() as session:
-        user = service.authenticate(session, username=body.username, password=body.password)
-        if user is None:
-            return None
-        ttl = users.default_ttl("session", runtime.settings)
+        if rehashed is not None:
+            session.execute(update(User).where(User.id == user.id).values(password_hash=rehashed))
         token = service.issue_token(session, user=user, kind="session", name="sign-in", ttl=ttl)
     return token, utcnow() + ttl
 
@@ -109,8 +140,8 @@ async def change_my_password(
 ) -> Response:
     """Change your password (give the current one). Your other sign-in tokens are revoked;
     CLI and device tokens keep working (revoke them with POST /tokens/revoke)."""
-    async with _guard(request, runtime):
-        changed = await run_in_threadpool(_change_password, runtime, user, body)
+    guard = _guard(request, runtime)
+    changed = await _checked(guard, lambda: _change_password(runtime, user, body))
     if not changed:
         raise Problem(403, "current_password: that is not your current password.")
     get_revocations(request).bump()
@@ -118,11 +149,15 @@ async def change_my_password(
 
 
 def _change_password(runtime: Runtime, user: CurrentUser, body: PasswordChange) -> bool:
+    """Both argon2 steps outside any transaction; then one short write."""
+    with runtime.db.read() as session:
+        current = users.get_user(session, user.id).password_hash
+    if not service.verify_password(current, body.current_password):
+        return False
+    new_hash = service.hash_password(body.new_password)
     with runtime.db.write() as session:
         account = users.get_user(session, user.id)
-        if not service.verify_password(account.password_hash, body.current_password):
-            return False
-        users.change_user(session, account, actor=user, password=body.new_password)
+        users.change_user(session, account, actor=user, password_hash=new_hash)
         users.revoke(
             session,
             actor=user,

@@ -86,7 +86,7 @@ def seed_database(url: str, *, clients: int, defects: int, rng: random.Random) -
     db = Database(url)
     try:
         with db.write() as session:
-            admin = create_user(session, username="bench-admin", role="admin", password=None)
+            admin = create_user(session, username="bench-admin", role="admin", password_hash=None)
             admin_token = create_token(
                 session, user=admin, name="bench", kind="cli", ttl=BENCH_TOKEN_TTL
             )
@@ -96,7 +96,7 @@ def seed_database(url: str, *, clients: int, defects: int, rng: random.Random) -
                     session,
                     username=f"bench-inspector-{index:03d}",
                     role="inspector",
-                    password=None,
+                    password_hash=None,
                 )
                 user_tokens.append(
                     create_token(session, user=user, name="bench", kind="cli", ttl=BENCH_TOKEN_TTL)

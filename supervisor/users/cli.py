@@ -39,10 +39,13 @@ def _database(*, revokes: bool = False) -> Iterator[Session]:
 
 
 def _ask_password() -> str:
+    """A new password, asked twice; returned hashed (argon2id)."""
+    from supervisor.auth.service import hash_password
+
     secret = typer.prompt("password", hide_input=True, confirmation_prompt=True)
     if len(secret) < 8:
         fail("the password needs at least 8 characters")
-    return secret
+    return hash_password(secret)
 
 
 def _ttl(kind: str, days: float | None) -> timedelta:
@@ -73,10 +76,10 @@ def create(
     with _database() as session:
         if name_taken(session, name):
             fail(f"a user named {name!r} already exists")
-    secret = _ask_password() if password else None
+    secret = _ask_password() if password else None  # hashed, before the transaction
     kind = "device" if role == "device" else "cli"
     with _database() as session:
-        user = create_user(session, username=name, role=role, password=secret)
+        user = create_user(session, username=name, role=role, password_hash=secret)
         token = create_token(
             session, user=user, name=token_name, kind=kind, ttl=_ttl(kind, ttl_days)
         )
@@ -214,7 +217,7 @@ def password(name: str = typer.Argument(..., help="Username.")) -> None:
 
     with _database() as session:
         by_name(session, name)  # an unknown name fails before the password is asked
-    _change(name, password=_ask_password())
+    _change(name, password_hash=_ask_password())
     typer.echo(f"{name}'s password is set")
 
 

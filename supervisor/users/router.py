@@ -9,6 +9,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from supervisor.auth.service import hash_password
 from supervisor.db import after_commit
 from supervisor.deps import (
     ADMIN_ROLES,
@@ -44,6 +45,12 @@ manage_users = require(*ADMIN_ROLES, action="manage users")
 signed_in = require(*READ_ROLES, action="manage tokens")
 
 
+def _hashed(password: str | None) -> str | None:
+    """argon2id of ``password``, before the request's first statement: the write lock
+    (SQLite) is taken there, and no writer should wait half a second on a hash."""
+    return hash_password(password) if password is not None else None
+
+
 def revoked_after_commit(session: Session, request: Request) -> None:
     """Every API process checks its cached tokens again once this transaction committed."""
     after_commit(session, get_revocations(request).bump)
@@ -60,9 +67,15 @@ def create_user(
     `password`; a device account has none and signs in with tokens only. 409 when the
     username is taken."""
 
+    password_hash = _hashed(body.password)
+
     def create():  # noqa: ANN202
         user = service.create_user(
-            session, username=body.username, role=body.role, password=body.password, actor=admin
+            session,
+            username=body.username,
+            role=body.role,
+            password_hash=password_hash,
+            actor=admin,
         )
         return UserOut.model_validate(user).model_dump(mode="json"), f"/api/v1/users/{user.id}"
 
@@ -99,9 +112,15 @@ def update_user(
     """Deactivate (`active: false`: their tokens stop working at once), reactivate, change
     the role or set the password of a user (admins); a field left out or null is kept.
     The last active admin stays one (409); a device account has no password (422)."""
+    password_hash = _hashed(body.password)
     user = service.get_user(session, user_id)
     service.change_user(
-        session, user, actor=admin, active=body.active, role=body.role, password=body.password
+        session,
+        user,
+        actor=admin,
+        active=body.active,
+        role=body.role,
+        password_hash=password_hash,
     )
     revoked_after_commit(session, request)
     return user

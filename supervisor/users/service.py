@@ -13,7 +13,7 @@ from sqlalchemy import Select, func, select, update
 from sqlalchemy.orm import Session
 
 from supervisor.audit.service import COMMAND_LINE, Actor, audit
-from supervisor.auth.service import hash_password, issue_token
+from supervisor.auth.service import issue_token
 from supervisor.models import ApiToken, User
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem, not_found
@@ -51,17 +51,14 @@ def create_user(
     *,
     username: str,
     role: str,
-    password: str | None,
+    password_hash: str | None,
     actor: Actor = COMMAND_LINE,
 ) -> User:
+    """A new user; ``password_hash`` from ``auth.service.hash_password``, computed before
+    the transaction (argon2 takes half a second: no write lock may wait on it)."""
     if name_taken(session, username):
         raise Problem(409, f"A user named {username!r} already exists.")
-    user = User(
-        username=username,
-        role=role,
-        password_hash=hash_password(password) if password else None,
-        active=True,
-    )
+    user = User(username=username, role=role, password_hash=password_hash, active=True)
     session.add(user)
     session.flush()
     audit(session, actor, "create", entity="user", entity_id=user.id, after=_user_state(user))
@@ -168,15 +165,16 @@ def change_user(
     actor: Actor,
     active: bool | None = None,
     role: str | None = None,
-    password: str | None = None,
+    password_hash: str | None = None,
 ) -> User:
     """Deactivate or reactivate a user, change their role or set their password. A
     deactivated user's tokens stop working (and stay stopped when reactivated: issue new
-    ones); the last active admin cannot be deactivated or demoted."""
+    ones); the last active admin cannot be deactivated or demoted. ``password_hash`` as
+    for ``create_user``."""
     losing_admin = user.role == "admin" and (active is False or (role and role != "admin"))
     if losing_admin and user.active and _other_active_admins(session, user) == 0:
         raise Problem(409, f"{user.username!r} is the last active admin; make another admin first.")
-    if password is not None and user.role == "device":
+    if password_hash is not None and user.role == "device":
         raise Problem(422, "password: device accounts sign in with tokens only.")
     before = _user_state(user)
     if active is not None:
@@ -186,8 +184,8 @@ def change_user(
     after = _user_state(user)
     changed_before = {k: v for k, v in before.items() if after[k] != v}
     changed_after = {k: after[k] for k in changed_before}
-    if password is not None:
-        user.password_hash = hash_password(password)
+    if password_hash is not None:
+        user.password_hash = password_hash
         changed_before["password"], changed_after["password"] = "(old)", "(new)"
     if active is False:
         revoke(session, actor=actor, reason="user deactivated", user_id=user.id)
