@@ -113,8 +113,12 @@ def secure_data_dir(settings: Settings) -> None:
     folder = settings.data_dir
     folder.mkdir(mode=0o700, parents=True, exist_ok=True)
     folder.chmod(0o700)
-    for name in ("vista.db", "vista.db-wal", "vista.db-shm", "engine.lock"):
-        path = folder / name
+    private = [folder / "engine.lock"]
+    url = settings.resolved_database_url
+    if url.startswith("sqlite:///"):
+        database = Path(url.removeprefix("sqlite:///"))
+        private += [database, Path(f"{database}-wal"), Path(f"{database}-shm")]
+    for path in private:
         if path.exists():
             path.chmod(0o600)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import stat
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 import pytest
 
@@ -303,6 +304,8 @@ def test_the_data_folder_and_database_are_private(sqlite_url, tmp_path, runtime_
     settings = make_settings(tmp_path, sqlite_url)
     client, _, _ = runtime_factory(settings)
     assert stat.S_IMODE(settings.data_dir.stat().st_mode) == 0o700
+    database = Path(sqlite_url.removeprefix("sqlite:///"))
+    assert stat.S_IMODE(database.stat().st_mode) == 0o600
 
 
 @pytest.mark.parametrize("role", ["viewer", "device"])
