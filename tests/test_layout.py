@@ -1,5 +1,6 @@
 """The layout's rules, checked on the source: the services and the job contract never
-reach into the supervisor, and the contract into neither side."""
+reach into the supervisor, and the contract into neither side; libraries import no
+service; no module imports itself through others (no cycle, function-level imports too)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,12 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+PACKAGES = ("contract", "services", "supervisor")
+LIBRARIES = ("services.archive", "services.nn", "services.pointcloud", "services.process")
+LIBRARIES += ("services.wording",)
+"""Code any service may use; it knows no service."""
 
 
 def imported_modules(folder: str) -> dict[str, set[str]]:
@@ -48,3 +55,110 @@ def test_the_python_clients_word_lists_are_the_servers():
     from supervisor.models.defects import DEFECT_TYPES, VERDICTS
 
     assert headset.VERDICTS == VERDICTS and headset.DEFECT_TYPES == DEFECT_TYPES
+
+
+def module_names() -> dict[str, Path]:
+    """Every module of the packages by dotted name (a package by its own name)."""
+    found = {}
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module → the modules it imports (at any depth of the file, relative imports
+    resolved; ``from a import b`` is an edge to ``a.b`` when that is a module)."""
+    modules = module_names()
+
+    def known(name: str) -> str | None:
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                edges |= {known(alias.name) for alias in node.names}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    parents = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base = ".".join(parents + ([node.module] if node.module else []))
+                for alias in node.names:
+                    full = f"{base}.{alias.name}"
+                    edges.add(full if full in modules else known(base))
+        graph[name] = edges - {None, name}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected groups of more than one module (Tarjan, iteratively)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, edges = work[-1]
+            child = next((e for e in edges if e in graph), None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                group = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    group.append(member)
+                    if member == node:
+                        break
+                if len(group) > 1:
+                    found.append(sorted(group))
+    return found
+
+
+def test_the_cycle_finder_finds_a_planted_cycle():
+    planted = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"e"}}
+    assert cycles(planted) == [["a", "b", "c"]]
+
+
+def test_no_module_imports_itself_through_others():
+    graph = import_graph()
+    assert len(graph) > 200 and "services.odometry.run" in graph["services.odometry.jobs"]
+    assert cycles(graph) == []
+
+
+def test_libraries_import_no_service():
+    graph = import_graph()
+    inside = [name for name in graph if name.startswith(LIBRARIES)]
+    assert len(inside) > 10
+    reaching_services = {
+        name: sorted(
+            target
+            for target in graph[name]
+            if target.startswith("services.") and not target.startswith(LIBRARIES)
+        )
+        for name in inside
+    }
+    assert {k: v for k, v in reaching_services.items() if v} == {}

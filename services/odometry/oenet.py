@@ -20,6 +20,7 @@ import numpy as np
 
 from services.odometry import se2
 from services.odometry.camera import Camera
+from services.odometry.frames import frame_files, read_frames
 from services.odometry.tum import read_tum
 
 INPUT_SIDE = 64
@@ -93,8 +94,6 @@ def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, Camera]:
     """A simulated sequence (frames/, camera.json, truth.tum) as network inputs
     (N−1, 2, 64, 64) and targets (N−1, 3): δx mm, δy mm, δθ °."""
     import json
-
-    from services.odometry.run import frame_files, read_frames
 
     camera = Camera.from_document(json.loads((folder / "camera.json").read_text()))
     truth = read_tum(folder / "truth.tum")

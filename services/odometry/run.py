@@ -13,17 +13,18 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from services.odometry import se2
 from services.odometry.camera import Camera
 from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px
+from services.odometry.frames import frame_files, read_frames
+from services.odometry.oenet import oenet_motions, oenet_sigma
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
 
@@ -94,29 +95,6 @@ class OdometryRun:
     @property
     def warned(self) -> int:
         return sum(w is not None for w in self.steps.warnings)
-
-
-def frame_files(folder: Path) -> list[Path]:
-    """The frames in name order; ValueError when there are fewer than two."""
-    if not folder.is_dir():
-        raise ValueError(f"{folder}: not a folder of frames")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
-    if len(files) < 2:
-        raise ValueError(f"{folder}: needs at least 2 PNG frames, found {len(files)}")
-    return files
-
-
-def read_frames(files: list[Path], camera: Camera) -> Iterator[np.ndarray]:
-    for path in files:
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise ValueError(f"{path}: not an image OpenCV can read")
-        if image.shape != (camera.height, camera.width):
-            raise ValueError(
-                f"{path}: {image.shape[1]} × {image.shape[0]} pixels, but camera.json says "
-                f"{camera.width} × {camera.height}"
-            )
-        yield image
 
 
 def _phase_run(files: list[Path], camera: Camera, tick: Callable[[], None]) -> Steps:
@@ -254,7 +232,6 @@ def pose_covariance(steps: Steps) -> np.ndarray:
 def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) -> Steps:
     """OE-Net's motions; its σ is the test RMSE it was exported with (it gives no
     confidence of its own, so nothing is flagged)."""
-    from services.odometry.oenet import oenet_motions, oenet_sigma
 
     motion = oenet_motions(model, read_frames(files, camera), camera, threads)
     sigma = np.tile(oenet_sigma(model, camera), (len(motion), 1))
