@@ -13,6 +13,8 @@ from typing import Protocol
 from pydantic import BaseModel
 
 from contract.errors import JobInputError
+from contract.tolerances import Tolerances
+from contract.vocabulary import DefectType, Severity
 
 
 @dataclass(frozen=True)
@@ -30,13 +32,13 @@ class InputArtifact:
 class NewDefect:
     """A finding a job reports; lengths in mm, ``normal`` a unit vector."""
 
-    type: str
+    type: DefectType
     location_mm: tuple[float, float, float]
     normal: tuple[float, float, float]
     value_mm: float | None
     tolerance_mm: float | None
     extent_mm: float
-    severity: str
+    severity: Severity
     confidence: float
     measurements: dict = field(default_factory=dict)
 
@@ -48,7 +50,7 @@ class JobContext(Protocol):
     """The parameters, validated against the kind's model."""
     attempt: int
     """1 for the first attempt."""
-    tolerances: dict
+    tolerances: Tolerances
     """The inspection's acceptance limits when the job was claimed."""
     threads: int
     """Threads the handler's algorithms may run on (the worker's setting)."""

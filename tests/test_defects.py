@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from contract.tolerances import Limits
 from services.defects.config import ConfigError, MeasureConfig, parse_config
 from services.defects.evaluate import evaluate
 from services.defects.example import write_defects_example
@@ -23,7 +24,6 @@ from services.defects.simulate import (
     part_to_layout,
     random_assembly,
 )
-from services.defects.tolerances import Limits
 from services.defects.truth import Truth, seam_gap_mm
 from services.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
 from services.pointcloud.ply import PointCloud, read_ply

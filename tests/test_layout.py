@@ -52,7 +52,8 @@ def test_the_python_clients_word_lists_are_the_servers():
     does not depend on the server's package): the same words."""
     from vista_client import headset
 
-    from supervisor.models.defects import DEFECT_TYPES, VERDICTS
+    from contract.vocabulary import DEFECT_TYPES
+    from supervisor.models.defects import VERDICTS
 
     assert headset.VERDICTS == VERDICTS and headset.DEFECT_TYPES == DEFECT_TYPES
 

@@ -19,9 +19,9 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from contract.tolerances import Limits, Tolerances, limits_of, tolerances_of
 from services.defects.sections import EDGE_MODELS, GAP_MODES, SectionConfig
 from services.defects.surface import SurfaceConfig
-from services.defects.tolerances import Limits, Tolerances, limits_of, tolerances_of
 
 
 class ConfigError(ValueError):

@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contract.tolerances import Limits, upper_limit
 from services.defects.measure import MeasureResult, SeamResult
-from services.defects.tolerances import Limits, upper_limit
 from services.defects.truth import TrueSeam, Truth
 
 SEAM_MATCH_MM = 10.0

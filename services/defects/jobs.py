@@ -7,7 +7,8 @@ from dataclasses import replace
 
 from contract.context import JobContext, NewDefect, input_error, one_input
 from contract.errors import JobInputError
-from services.defects.config import ConfigError, parse_config
+from contract.tolerances import limits_of
+from services.defects.config import MeasureConfig
 from services.defects.kinds import PROFILES, RESULT
 from services.defects.measure import Finding, MeasureError, MeasureResult, measure
 from services.defects.report import finding_document, profile_png, result_document
@@ -51,10 +52,7 @@ def _in_tolerance_seams(result: MeasureResult) -> list[NewDefect]:
 def measure_job(ctx: JobContext) -> dict:
     params = ctx.params
     cloud = one_input(ctx, "cloud", "the stitched point cloud")
-    try:
-        config = parse_config(ctx.tolerances, "the inspection's tolerances")
-    except ConfigError as exc:
-        raise JobInputError(str(exc)) from exc
+    config = MeasureConfig(tolerances=limits_of(ctx.tolerances))
     config = replace(
         config,
         cell_mm=params.cell_mm,

@@ -19,6 +19,8 @@ from math import erf, sqrt
 import numpy as np
 from scipy import ndimage
 
+from contract.tolerances import upper_limit
+from contract.vocabulary import Progress
 from services.defects import binning
 from services.defects.config import MeasureConfig
 from services.defects.panels import PanelShape, describe_panels, segment_panels
@@ -32,11 +34,9 @@ from services.defects.sections import (
     section_range,
 )
 from services.defects.surface import SurfaceFinding, find_surface_defects
-from services.defects.tolerances import upper_limit
 from services.pointcloud.ply import PointCloud
 from services.wording import counted
 
-Progress = Callable[[float, str], None]
 MAX_CELLS = 60e6
 """Largest height map measured (2.4 m² at 0.2 mm cells; ~2 GB of work arrays)."""
 MIN_SIGMA_MM = 0.005

@@ -8,15 +8,13 @@ A folder is a drive (``kitti.read_drive``) when it has ``image_02/``; otherwise 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from contract.vocabulary import Progress
 from services.depth.kitti import IMAGE_SUFFIXES, read_depth_png, read_drive, read_image
-
-Progress = Callable[[float, str], None]
 
 
 @dataclass(frozen=True)

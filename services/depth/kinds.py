@@ -5,6 +5,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.kinds import Inputs, JobKind, Output
+from contract.vocabulary import DeviceChoice
 
 EPOCHS = 12
 
@@ -33,7 +34,7 @@ class TrainParams(BaseModel):
     batch: int = Field(8, ge=1, le=4096, description="Frames per step.")
     learning_rate: float = Field(3e-4, gt=0, le=1, description="Adam's step (cosine schedule).")
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")
-    device: Literal["auto", "cpu", "cuda"] = Field(
+    device: DeviceChoice = Field(
         "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
     )
 

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-DEVICES = ("auto", "cpu", "cuda")
+from contract.vocabulary import DEVICE_CHOICES as DEVICES
+from contract.vocabulary import DeviceChoice
 
 
-def choose_device(setting: str = "auto"):  # noqa: ANN201 - a torch.device (torch imported inside)
+def choose_device(setting: DeviceChoice | str = "auto"):  # noqa: ANN201 - a torch.device (torch imported inside)
     """``auto``: CUDA when torch sees a GPU, else the CPU; ``cuda`` without a GPU is an
     error naming the problem."""
     import torch

@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-Progress = Callable[[float, str], None]
+from contract.vocabulary import Progress
 
 
 class FitSettings(Protocol):

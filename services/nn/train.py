@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-Progress = Callable[[float, str], None]
+from contract.vocabulary import Progress
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.kinds import Inputs, JobKind, Output
+from contract.vocabulary import DeviceChoice
 
 OENET_EPOCHS = 40
 OENET_LEARNING_RATE = 0.02
@@ -36,7 +37,7 @@ class TrainParams(BaseModel):
         OENET_LEARNING_RATE, gt=0, le=10, description="SGD step (momentum 0.9)."
     )
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")
-    device: Literal["auto", "cpu", "cuda"] = Field(
+    device: DeviceChoice = Field(
         "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
     )
 

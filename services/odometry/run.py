@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.vocabulary import Progress
 from services.odometry import se2
 from services.odometry.camera import Camera
 from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px
@@ -29,7 +30,6 @@ from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
 
 METHODS = ("vista", "phase", "oenet")
-Progress = Callable[[float, str], None]
 
 MIN_RESPONSE = 0.08
 """Below this phase-correlation peak the frames did not match (textureless, blurred, too

@@ -9,18 +9,16 @@ probable outliers. Then all scans in the base frame, closest vertices merged per
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from contract.vocabulary import Progress
 from services.pointcloud.grid import smooth_grid_normals, surrounded
 from services.pointcloud.ply import PointCloud
 from services.pointcloud.transforms import apply
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
 from services.stitching.icp import Alignment, IcpConfig, refine_poses
-
-Progress = Callable[[float, str], None]
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contract.kinds import Inputs, JobKind, Output
+from contract.vocabulary import DeviceChoice
 
 DETECTOR_EPOCHS = 12
 DETECTOR_LEARNING_RATE = 2e-3
@@ -86,7 +87,7 @@ class TrainParams(BaseModel):
         False,
         description="detector only: fine-tune a model — a `model` input, or else vista's shipped detector — on the sequences instead of training from scratch.",
     )
-    device: Literal["auto", "cpu", "cuda"] = Field(
+    device: DeviceChoice = Field(
         "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
     )
 

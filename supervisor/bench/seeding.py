@@ -14,9 +14,9 @@ from typing import Any
 from sqlalchemy import create_engine, insert, select, text
 from sqlalchemy.engine import make_url
 
+from contract.vocabulary import DEFECT_TYPES, SEVERITIES
 from supervisor.db import Database
 from supervisor.models import Defect, Inspection
-from supervisor.models.defects import DEFECT_TYPES, SEVERITIES
 from supervisor.users.service import create_token, create_user
 
 BENCH_TOKEN_TTL = timedelta(days=1)

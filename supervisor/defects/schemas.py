@@ -5,7 +5,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.models.defects import DefectStatus, DefectType, Severity, Verdict
+from contract.vocabulary import DefectType, Severity
+from supervisor.models.defects import DefectStatus, Verdict
 from supervisor.requests import MAX_MM, Millimetres, RequestId, RequestModel
 
 Vector3 = Annotated[tuple[Millimetres, Millimetres, Millimetres], Field(strict=False)]

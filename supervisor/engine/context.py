@@ -22,6 +22,7 @@ from sqlalchemy import select, update
 
 from contract.context import InputArtifact, NewDefect
 from contract.errors import JobCancelled, JobLost
+from contract.tolerances import Tolerances
 from supervisor.engine.runtime import Runtime
 from supervisor.models import Job
 from supervisor.models._types import utcnow
@@ -59,7 +60,8 @@ class JobClaim:
     max_attempts: int
     inputs: tuple[InputArtifact, ...]
     tolerances: dict = field(default_factory=dict)
-    """The inspection's acceptance limits (its ``tolerances``) when the job was claimed."""
+    """The inspection's acceptance limits (its ``tolerances`` document) when the job was
+    claimed; the handler sees them as a ``Tolerances`` model."""
 
 
 @dataclass(frozen=True)
@@ -103,7 +105,7 @@ class WorkerContext:
         self.kind = claim.kind
         self.params = params
         self.attempt = claim.attempt
-        self.tolerances = claim.tolerances
+        self.tolerances = Tolerances.model_validate(claim.tolerances)
         self.threads = runtime.settings.job_threads
         self.inputs = claim.inputs
         self.stop = stop

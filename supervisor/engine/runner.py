@@ -51,10 +51,11 @@ def run_job(job_id: int, *, runtime: Runtime) -> str:
     except LookupError as exc:
         return _end_failed(rt, claim, sentence(str(exc)))
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        return _end_failed(rt, claim, sentence(f"params.{where}: {first['msg']}"))
-    ctx = WorkerContext(rt, claim, params, stop)
+        return _end_failed(rt, claim, _first_error("params", exc))
+    try:
+        ctx = WorkerContext(rt, claim, params, stop)
+    except ValidationError as exc:  # stored before today's rules: fix them through the API
+        return _end_failed(rt, claim, _first_error("the inspection's tolerances", exc))
     beat = _Heartbeat(rt, claim, stop)
     beat.start()
     error: BaseException | None = None
@@ -273,6 +274,12 @@ def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str 
             finished_at=utcnow(),
         )
     return status if ended is not None else "lost"
+
+
+def _first_error(where: str, exc: ValidationError) -> str:
+    first = exc.errors()[0]
+    at = ".".join([where, *(str(p) for p in first["loc"])])
+    return sentence(f"{at}: {first['msg']}")
 
 
 def _end_failed(rt: Runtime, claim: JobClaim, error: str) -> str:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from services.defects.tolerances import FIELDS
+from contract.tolerances import FIELDS
 from supervisor.defects.service import reading
 from supervisor.feedback.schemas import FeedbackOut, Suggestion, ToleranceFeedback
 from supervisor.inspections.service import live

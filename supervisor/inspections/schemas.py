@@ -5,7 +5,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
 
-from services.defects.tolerances import Tolerances
+from contract.tolerances import Tolerances
 from supervisor.models.inspections import Area, InspectionStatus
 from supervisor.requests import Millimetres, RequestModel, omittable
 

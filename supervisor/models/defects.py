@@ -8,16 +8,13 @@ from typing import Literal, get_args
 from sqlalchemy import CheckConstraint, Float, ForeignKey, Integer, String, Text, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
 
+from contract.vocabulary import DEFECT_TYPES, SEVERITIES
 from supervisor.db import Base
 from supervisor.models._types import JSONType, UTCDateTime, created_at_column, utcnow
 
-DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
 DefectStatus = Literal["open", "resolved", "dismissed"]
-Severity = Literal["info", "minor", "major", "critical"]
 Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
-DEFECT_TYPES: tuple[DefectType, ...] = get_args(DefectType)
 DEFECT_STATUSES: tuple[DefectStatus, ...] = get_args(DefectStatus)
-SEVERITIES: tuple[Severity, ...] = get_args(Severity)
 VERDICTS: tuple[Verdict, ...] = get_args(Verdict)
 
 

@@ -1,4 +1,5 @@
-"""An inspection's acceptance limits: one model for the API, CONFIG.json and ``measure``.
+"""An inspection's acceptance limits: one model for the API, CONFIG.json, the job
+context and ``measure``.
 
 The document (``Tolerances``) is what an inspection's ``tolerances`` and CONFIG.json hold;
 ``Limits`` is the flat view ``measure`` judges by, every limit filled (defaults where the
