@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from fastapi import Request, Response
-from sqlalchemy import select
+from sqlalchemy import insert, select
 from sqlalchemy.orm import Session
 
 from supervisor.artifacts.schemas import ArtifactOut
 from supervisor.audit.service import Actor, audit
-from supervisor.changes import add_created, record_change
+from supervisor.changes import record_change
 from supervisor.db import commit
 from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once
@@ -72,6 +72,47 @@ def delete(
     return uri
 
 
+def record_artifact(
+    session: Session,
+    *,
+    inspection_id: int,
+    kind: str,
+    name: str,
+    media_type: str,
+    stored: StoredFile,
+    meta: dict,
+    job_id: int | None = None,
+    created_by: int | None = None,
+) -> int:
+    """The one way an artifact's row comes to be (an upload's, a job output's): the row
+    and its change-log entry; returns its id. ``stored`` is already in its final place."""
+    artifact_id = session.execute(
+        insert(Artifact)
+        .values(
+            inspection_id=inspection_id,
+            kind=kind,
+            name=safe_name(name),
+            media_type=media_type,
+            size_bytes=stored.size_bytes,
+            sha256=stored.sha256,
+            storage_uri=stored.uri,
+            meta=meta,
+            job_id=job_id,
+            created_by=created_by,
+        )
+        .returning(Artifact.id)
+    ).scalar_one()
+    record_change(
+        session,
+        entity="artifact",
+        entity_id=artifact_id,
+        op="create",
+        inspection_id=inspection_id,
+        user_id=created_by,
+    )
+    return artifact_id
+
+
 @dataclass(frozen=True)
 class Upload:
     """A file received and checked, to be kept as an artifact of ``inspection_id``."""
@@ -99,20 +140,19 @@ def store(request: Request, runtime: Runtime, user_id: int, upload: Upload) -> R
             upload.received.uri, inspection_id=upload.inspection_id, name=upload.name
         )
         final_uri.append(uri)
-        artifact = Artifact(
+        artifact_id = record_artifact(
+            session,
             inspection_id=upload.inspection_id,
             kind=upload.kind,
-            name=safe_name(upload.name),
+            name=upload.name,
             media_type=upload.media_type,
-            size_bytes=upload.received.size_bytes,
-            sha256=upload.received.sha256,
-            storage_uri=uri,
+            stored=replace(upload.received, uri=uri),
             meta=upload.meta,
             created_by=user_id,
         )
-        add_created(session, "artifact", artifact, user_id)
+        artifact = session.get(Artifact, artifact_id)
         body = ArtifactOut.model_validate(artifact).model_dump(mode="json")
-        return body, f"/api/v1/inspections/{upload.inspection_id}/artifacts/{artifact.id}"
+        return body, f"/api/v1/inspections/{upload.inspection_id}/artifacts/{artifact_id}"
 
     digest = f"{upload.kind}\n{upload.name}\n{upload.media_type}\n{upload.received.sha256}"
     with runtime.db.session(write=True) as session:

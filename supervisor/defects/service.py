@@ -2,11 +2,12 @@ from __future__ import annotations
 
 import math
 
-from sqlalchemy import select
+from sqlalchemy import insert, select
 from sqlalchemy.orm import Session
 
+from contract.context import NewDefect
 from supervisor.audit.service import Actor, audit
-from supervisor.changes import add_created, record_update
+from supervisor.changes import record_change, record_update
 from supervisor.defects.schemas import DefectCreate, DefectOut
 from supervisor.inspections.service import ensure_live
 from supervisor.judgments.consensus import consensus_for
@@ -45,28 +46,71 @@ def get(session: Session, *, defect_id: int) -> Defect:
     return defect
 
 
+def record_defect(
+    session: Session,
+    finding: NewDefect,
+    *,
+    inspection_id: int,
+    source: str,
+    run_id: int | None = None,
+    job_id: int | None = None,
+    user_id: int | None = None,
+) -> int:
+    """The one way a defect's row comes to be (a job's finding, one reported by hand): the
+    row, open, and its change-log entry; returns its id."""
+    defect_id = session.execute(
+        insert(Defect)
+        .values(
+            inspection_id=inspection_id,
+            run_id=run_id,
+            job_id=job_id,
+            type=finding.type,
+            status="open",
+            value_mm=finding.value_mm,
+            tolerance_mm=finding.tolerance_mm,
+            measurements=finding.measurements,
+            location_mm=list(finding.location_mm),
+            normal=list(finding.normal),
+            extent_mm=finding.extent_mm,
+            severity=finding.severity,
+            confidence=finding.confidence,
+            source=source,
+        )
+        .returning(Defect.id)
+    ).scalar_one()
+    record_change(
+        session,
+        entity="defect",
+        entity_id=defect_id,
+        op="create",
+        inspection_id=inspection_id,
+        user_id=user_id,
+    )
+    return defect_id
+
+
 def create(session: Session, *, data: DefectCreate, actor: Actor) -> Defect:
+    """A finding an inspector reports by hand (no job measured it)."""
     inspection = session.get(Inspection, data.inspection_id)
     if inspection is None or inspection.deleted_at is not None:
         raise Problem(422, f"inspection_id: there is no inspection with id {data.inspection_id}.")
     norm = math.sqrt(sum(c * c for c in data.normal))
     if norm < 1e-9:
         raise Problem(422, "normal: must not be the zero vector.")
-    defect = Defect(
-        inspection_id=data.inspection_id,
+    finding = NewDefect(
         type=data.type,
-        status="open",
+        location_mm=tuple(data.location_mm),
+        normal=tuple(c / norm for c in data.normal),
         value_mm=data.value_mm,
         tolerance_mm=data.tolerance_mm,
-        measurements={},
-        location_mm=list(data.location_mm),
-        normal=[c / norm for c in data.normal],
         extent_mm=data.extent_mm,
         severity=data.severity,
         confidence=data.confidence,
-        source="manual",
     )
-    add_created(session, "defect", defect, actor.id)
+    defect_id = record_defect(
+        session, finding, inspection_id=data.inspection_id, source="manual", user_id=actor.id
+    )
+    defect = session.get(Defect, defect_id)
     audit(
         session,
         actor,

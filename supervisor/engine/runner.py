@@ -18,19 +18,21 @@ import time
 from datetime import timedelta
 
 from pydantic import ValidationError
-from sqlalchemy import insert, or_, select, update
+from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
 from contract.context import InputArtifact
 from contract.errors import JobCancelled, JobInputError, JobLost, JobTimeLimit
-from supervisor.changes import record_change, record_update
+from supervisor.artifacts.service import record_artifact
+from supervisor.changes import record_update
+from supervisor.defects.service import record_defect
 from supervisor.engine.context import JobClaim, StopSignal, WorkerContext
 from supervisor.engine.dispatch import Dispatch, dispatch
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
 from supervisor.engine.transient import is_transient
 from supervisor.engine.transitions import end_attempt
-from supervisor.models import Artifact, Defect, Inspection, Job, JobDependency
+from supervisor.models import Artifact, Inspection, Job, JobDependency
 from supervisor.models._types import utcnow
 
 log = logging.getLogger("vista.engine")
@@ -212,53 +214,24 @@ def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: WorkerContext, result: dic
 
 def _store_outputs(session: Session, claim: JobClaim, ctx: WorkerContext) -> None:
     for staged in ctx.staged:
-        artifact_id = session.execute(
-            insert(Artifact)
-            .values(
-                inspection_id=claim.inspection_id,
-                kind=staged.kind,
-                name=staged.name,
-                media_type=staged.media_type,
-                size_bytes=staged.stored.size_bytes,
-                sha256=staged.stored.sha256,
-                storage_uri=staged.stored.uri,
-                meta=staged.meta,
-                job_id=claim.id,
-            )
-            .returning(Artifact.id)
-        ).scalar_one()
-        record_change(
+        record_artifact(
             session,
-            entity="artifact",
-            entity_id=artifact_id,
-            op="create",
             inspection_id=claim.inspection_id,
+            kind=staged.kind,
+            name=staged.name,
+            media_type=staged.media_type,
+            stored=staged.stored,
+            meta=staged.meta,
+            job_id=claim.id,
         )
-    for defect in ctx.defects:
-        defect_id = session.execute(
-            insert(Defect)
-            .values(
-                inspection_id=claim.inspection_id,
-                run_id=claim.run_id,
-                job_id=claim.id,
-                type=defect.type,
-                value_mm=defect.value_mm,
-                tolerance_mm=defect.tolerance_mm,
-                measurements=defect.measurements,
-                location_mm=list(defect.location_mm),
-                normal=list(defect.normal),
-                extent_mm=defect.extent_mm,
-                severity=defect.severity,
-                confidence=defect.confidence,
-            )
-            .returning(Defect.id)
-        ).scalar_one()
-        record_change(
+    for finding in ctx.defects:
+        record_defect(
             session,
-            entity="defect",
-            entity_id=defect_id,
-            op="create",
+            finding,
             inspection_id=claim.inspection_id,
+            source="job",
+            run_id=claim.run_id,
+            job_id=claim.id,
         )
 
 
