@@ -27,6 +27,11 @@ class InputArtifact:
     meta: dict
     job_id: int | None
 
+    @property
+    def label(self) -> str:
+        """How messages name it: "artifact 18 (spray.ply)" (never its storage path)."""
+        return f"artifact {self.id} ({self.name})"
+
 
 @dataclass(frozen=True)
 class NewDefect:
@@ -93,6 +98,4 @@ def one_input(ctx: JobContext, kind: str, what: str) -> InputArtifact:
 
 def input_error(artifact: InputArtifact, exc: Exception) -> JobInputError:
     """The file's error, naming the artifact instead of its storage path."""
-    return JobInputError(
-        str(exc).replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
-    )
+    return JobInputError(str(exc).replace(str(artifact.path), artifact.label))

@@ -16,5 +16,8 @@ DEFECT_TYPES: tuple[DefectType, ...] = get_args(DefectType)
 SEVERITIES: tuple[Severity, ...] = get_args(Severity)
 DEVICE_CHOICES: tuple[DeviceChoice, ...] = get_args(DeviceChoice)
 
+ONNX_MEDIA_TYPE = "application/octet-stream"
+"""How a model artifact is kept and served (ONNX has no registered media type)."""
+
 Progress = Callable[[float, str], None]
 """Long work's report: the fraction done (0..1) and what it is doing."""

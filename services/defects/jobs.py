@@ -72,7 +72,7 @@ def measure_job(ctx: JobContext) -> dict:
             progress=lambda fraction, message: ctx.progress(0.1 + 0.8 * fraction, message),
         )
     except MeasureError as exc:
-        raise JobInputError(f"artifact {cloud.id} ({cloud.name}): {exc}") from exc
+        raise JobInputError(f"{cloud.label}: {exc}") from exc
     ctx.progress(0.92, "storing results")
     ctx.add_artifact_json(
         result_document(result, config), kind=RESULT.kind, name=RESULT.file_name()

@@ -9,11 +9,10 @@ from pathlib import Path
 
 from contract.context import InputArtifact, JobContext, inputs_of_kind
 from contract.errors import JobInputError
+from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.archive import ArchiveError
 from services.depth.kinds import CLOUD, DEPTH_MAP, MODEL, PREDICT_REPORT, PREVIEW, TRAINING_REPORT
 from services.pointcloud.ply import PLY_MEDIA_TYPE
-
-ONNX_MEDIA_TYPE = "application/octet-stream"
 
 
 def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[InputArtifact, Path]]:
@@ -28,7 +27,7 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
             try:
                 extract_drive(artifact.path, folder)
             except ArchiveError as exc:
-                raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+                raise JobInputError(f"{artifact.label}: {exc}") from exc
             out.append((artifact, folder))
         else:
             images.mkdir(exist_ok=True)
@@ -47,7 +46,7 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
 
 def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
     for artifact in artifacts:
-        message = message.replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
+        message = message.replace(str(artifact.path), artifact.label)
     return message.replace(str(ctx.workdir), "the job's folder")
 
 
@@ -80,7 +79,7 @@ def train_job(ctx: JobContext) -> dict:
     )
     say = lambda fraction, message: ctx.progress(0.1 + 0.85 * fraction, message)  # noqa: E731 - a one-line adapter
     path = ctx.workdir / MODEL.file_name()
-    inputs = [f"artifact {a.id} ({a.name})" for a in data]
+    inputs = [a.label for a in data]
     size = {"width": params.width, "height": params.height}
     try:
         frames = load_frames(

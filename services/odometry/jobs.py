@@ -9,6 +9,7 @@ from pathlib import Path
 
 from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
 from contract.errors import JobInputError
+from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.odometry.kinds import (
     EVALUATION,
     MODEL,
@@ -20,14 +21,13 @@ from services.odometry.kinds import (
 from services.odometry.sequence import SequenceArchive, SequenceError, extract_sequence
 
 TUM_MEDIA_TYPE = "text/plain"
-ONNX_MEDIA_TYPE = "application/octet-stream"
 
 
 def _unpacked(artifact: InputArtifact, folder: Path) -> SequenceArchive:
     try:
         return extract_sequence(artifact.path, folder)
     except SequenceError as exc:
-        raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+        raise JobInputError(f"{artifact.label}: {exc}") from exc
 
 
 def _named(
@@ -42,12 +42,12 @@ def _named(
     frames = re.escape(str(folder / "frames")) + r"/(\d+)\.png"
     message = re.sub(
         frames,
-        lambda m: f"artifact {sequence.id} ({sequence.name}): {found.frames[int(m[1])]}",
+        lambda m: f"{sequence.label}: {found.frames[int(m[1])]}",
         message,
     )
-    message = message.replace(str(folder / "frames"), f"artifact {sequence.id} ({sequence.name})")
+    message = message.replace(str(folder / "frames"), sequence.label)
     for model in models:
-        message = message.replace(str(model.path), f"artifact {model.id} ({model.name})")
+        message = message.replace(str(model.path), model.label)
     return message
 
 
@@ -132,8 +132,7 @@ def train_job(ctx: JobContext) -> dict:
         folder = ctx.workdir / f"sequence-{number}"
         if _unpacked(artifact, folder).truth_member is None:
             raise JobInputError(
-                f"artifact {artifact.id} ({artifact.name}) has no truth.tum: training needs "
-                "each pair's true motion"
+                f"{artifact.label} has no truth.tum: training needs each pair's true motion"
             )
         folders.append(folder)
     config = TrainConfig(
@@ -151,7 +150,7 @@ def train_job(ctx: JobContext) -> dict:
             model,
             config,
             checkpoint_dir=ctx.workdir / "checkpoints",
-            sources=[f"artifact {a.id} ({a.name})" for a in sequences],
+            sources=[a.label for a in sequences],
             progress=lambda fraction, message: ctx.progress(0.1 + 0.88 * fraction, message),
         )
     except ValueError as exc:

@@ -10,6 +10,7 @@ import numpy as np
 
 from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
 from contract.errors import JobInputError
+from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.archive import ArchiveError
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
@@ -23,8 +24,6 @@ from services.tracking.kinds import (
     TRAINING_REPORT,
 )
 
-ONNX_MEDIA_TYPE = "application/octet-stream"
-
 
 def _unpacked(ctx: JobContext, artifact: InputArtifact, folder: Path) -> Path:
     from services.tracking.lidar_archive import extract_lidar
@@ -32,13 +31,13 @@ def _unpacked(ctx: JobContext, artifact: InputArtifact, folder: Path) -> Path:
     try:
         extract_lidar(artifact.path, folder)
     except ArchiveError as exc:
-        raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+        raise JobInputError(f"{artifact.label}: {exc}") from exc
     return folder
 
 
 def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
     for artifact in artifacts:
-        message = message.replace(str(artifact.path), f"artifact {artifact.id} ({artifact.name})")
+        message = message.replace(str(artifact.path), artifact.label)
     return message.replace(str(ctx.workdir), "the job's folder")
 
 
@@ -51,7 +50,7 @@ def _models(models: list[InputArtifact]) -> dict[str, InputArtifact]:
         try:
             architecture = read_model(artifact.path).metadata.get("architecture")
         except ValueError as exc:
-            raise JobInputError(f"artifact {artifact.id} ({artifact.name}): {exc}") from exc
+            raise JobInputError(f"{artifact.label}: {exc}") from exc
         if architecture in found:
             raise JobInputError(f"two `model` inputs are {architecture} models; give one")
         found[architecture] = artifact
@@ -104,7 +103,7 @@ def track_job(ctx: JobContext) -> dict:
         )
     except (ValueError, KittiError) as exc:
         raise JobInputError(_named(str(exc), ctx, [sequence, *models.values()])) from exc
-    document["sequence"] = f"artifact {sequence.id} ({sequence.name})"
+    document["sequence"] = sequence.label
     ctx.progress(0.92, "writing TRACK.json and the plot")
     ctx.add_artifact_json(document, kind=TRACK_REPORT.kind, name=TRACK_REPORT.file_name())
     plot = ctx.workdir / TRACK_PLOT.file_name()
@@ -166,9 +165,7 @@ def train_job(ctx: JobContext) -> dict:
         ctx.progress(0.05 * number / len(sequences), f"unpacking {artifact.name}")
         folder = _unpacked(ctx, artifact, ctx.workdir / f"sequence-{number}")
         if not (folder / "label_02.txt").exists():
-            raise JobInputError(
-                f"artifact {artifact.id} ({artifact.name}) has no label_02.txt: nothing to learn from"
-            )
+            raise JobInputError(f"{artifact.label} has no label_02.txt: nothing to learn from")
         folders.append(folder)
     settings = {"seed": params.seed, "threads": ctx.threads, "device": params.device}
     start = _starting_detector(ctx, params)
@@ -180,7 +177,7 @@ def train_job(ctx: JobContext) -> dict:
     options = {
         "checkpoint_dir": ctx.workdir / "checkpoints",
         "progress": lambda fraction, message: ctx.progress(0.05 + 0.93 * fraction, message),
-        "sources": [f"artifact {a.id} ({a.name})" for a in sequences],
+        "sources": [a.label for a in sequences],
     }
     try:
         if params.network == "detector":

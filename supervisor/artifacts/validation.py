@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
+from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_mesh, validate_ply
 from supervisor.artifacts.kinds import ARTIFACT_KINDS, Format
 from supervisor.problems import Problem
@@ -21,7 +22,7 @@ _MEDIA_TYPE_OF: dict[Format, str] = {
     "json": "application/json",
     "png": "image/png",
     "glb": "model/gltf-binary",
-    "onnx": "application/octet-stream",
+    "onnx": ONNX_MEDIA_TYPE,
     "tum": "text/plain",
 }
 _FORMAT_OF_MEDIA_TYPE: dict[str, Format] = {
