@@ -21,3 +21,7 @@ ONNX_MEDIA_TYPE = "application/octet-stream"
 
 Progress = Callable[[float, str], None]
 """Long work's report: the fraction done (0..1) and what it is doing."""
+Say = Callable[[str], None]
+"""A line of news for the user (a simulator's "drive 3/500")."""
+Count = Callable[[int, int], None]
+"""Items done of the total, after each one (a tracker's frames)."""

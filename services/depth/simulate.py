@@ -10,11 +10,11 @@ A drive folder gets ``image_02/`` (left), ``image_03/`` (right, when stereo), ``
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from contract.vocabulary import Say
 from services.depth.camera import KITTI_HEIGHT_M, Camera, kitti_camera
 from services.depth.kitti import write_depth_png, write_image, write_poses
 from services.depth.render import render
@@ -22,8 +22,6 @@ from services.depth.scene import random_scene
 
 FPS = 10.0
 """KITTI raw's frame rate."""
-
-Progress = Callable[[str], None]
 
 
 def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -66,7 +64,7 @@ def simulate_drive(
     stereo: bool = False,
     seed: int = 0,
     camera: Camera | None = None,
-    progress: Progress | None = None,
+    progress: Say | None = None,
 ) -> Path:
     """Render one drive of ``frames`` frames at 10 Hz into ``out_dir`` (see the module's
     docstring); the camera is KITTI's at 1242 × 375 unless given."""
@@ -103,7 +101,7 @@ def simulate_dataset(
     stereo: bool,
     seed: int,
     camera: Camera,
-    progress: Progress | None = None,
+    progress: Say | None = None,
 ) -> list[Path]:
     """``drives`` drives of ``frames`` frames in ``root/drive_NNNN`` (seeds ``seed`` + k);
     a drive already complete on disk is kept, so an interrupted run resumes."""

@@ -7,20 +7,18 @@ and ``OUT/truth.tum`` (frame i's camera pose in the frame of camera 0).
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from contract.vocabulary import Count, Say
 from services.odometry.camera import Camera
 from services.odometry.drive import Command, Robot, drive, path_commands
 from services.odometry.floors import IMAGE_MM_PER_PX, make_floor
 from services.odometry.render import Effects, exposures, render
 from services.odometry.tum import Trajectory2D, write_tum
-
-Progress = Callable[[str], None]
 
 
 @dataclass(frozen=True)
@@ -48,8 +46,8 @@ def simulate_sequence(
     effects: Effects = Effects(),
     robot: Robot = Robot(),
     commands: list[Command] | None = None,
-    progress: Progress | None = None,
-    frame_progress: Callable[[int, int], None] | None = None,
+    progress: Say | None = None,
+    frame_progress: Count | None = None,
 ) -> Simulated:
     """Drive ``path`` (or the given ``commands``) over ``floor`` (an image floor's pixel
     covering ``floor_mm_per_px``) and write what the camera saw and where it was;

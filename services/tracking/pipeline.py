@@ -11,20 +11,19 @@ own answer stands.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Protocol
 
 import numpy as np
 
+from contract.vocabulary import Count
 from services.tracking.association import associate, fuse, search_window
 from services.tracking.boxes import inside
 from services.tracking.detections import Detections
 from services.tracking.resets import UNSURE_BELOW, AdaptiveGate, ResetPolicy
 from services.tracking.tracker import Tracker, TrackStep
-
-Progress = Callable[[int, int], None]
 
 
 class Detector(Protocol):
@@ -84,7 +83,7 @@ def track(
     tracker: Tracker,
     detector: Detector | None,
     policy: ResetPolicy,
-    progress: Progress | None = None,
+    progress: Count | None = None,
     total: int = 0,
 ) -> TrackResult:
     """Track one target through ``scans`` — (frame, points (N, ≥3), ``prev_T_cur`` ego
