@@ -99,3 +99,11 @@ def one_input(ctx: JobContext, kind: str, what: str) -> InputArtifact:
 def input_error(artifact: InputArtifact, exc: Exception) -> JobInputError:
     """The file's error, naming the artifact instead of its storage path."""
     return JobInputError(str(exc).replace(str(artifact.path), artifact.label))
+
+
+def in_user_words(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
+    """An error about files the job unpacked or read, in the user's words: each input's
+    storage path becomes its label, the scratch folder "the job's folder"."""
+    for artifact in artifacts:
+        message = message.replace(str(artifact.path), artifact.label)
+    return message.replace(str(ctx.workdir), "the job's folder")

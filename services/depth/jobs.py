@@ -7,7 +7,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from contract.context import InputArtifact, JobContext, inputs_of_kind
+from contract.context import InputArtifact, JobContext, in_user_words, inputs_of_kind
 from contract.errors import JobInputError
 from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.archive import ArchiveError
@@ -42,12 +42,6 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
     if images.is_dir():
         out.append((None, images))
     return out
-
-
-def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
-    for artifact in artifacts:
-        message = message.replace(str(artifact.path), artifact.label)
-    return message.replace(str(ctx.workdir), "the job's folder")
 
 
 def train_job(ctx: JobContext) -> dict:
@@ -127,7 +121,7 @@ def train_job(ctx: JobContext) -> dict:
             )
             architecture = STUDENT_ARCHITECTURE
     except ValueError as exc:
-        raise JobInputError(_named(str(exc), ctx, data + teachers)) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, data + teachers)) from exc
     ctx.add_artifact_file(
         path,
         kind=MODEL.kind,
@@ -159,7 +153,7 @@ def predict_job(ctx: JobContext) -> dict:
     try:
         model = DepthModel(given[0].path if given else default_model(), ctx.threads)
     except ValueError as exc:
-        raise JobInputError(_named(str(exc), ctx, given)) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, given)) from exc
     model_name = given[0].name if given else "vista's shipped model"
     ctx.progress(0.02, f"unpacking {len(images)} input{'s' * (len(images) > 1)}")
     groups = _folders(ctx, images)
@@ -238,7 +232,7 @@ def predict_job(ctx: JobContext) -> dict:
                     }
                 )
     except ValueError as exc:
-        raise JobInputError(_named(str(exc), ctx, [*given, *images])) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, [*given, *images])) from exc
     ctx.add_artifact_json(report, kind=PREDICT_REPORT.kind, name=PREDICT_REPORT.file_name())
     seconds = [i["seconds"] for i in report["images"]]
     ctx.progress(

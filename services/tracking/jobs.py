@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
+from contract.context import InputArtifact, JobContext, in_user_words, inputs_of_kind, one_input
 from contract.errors import JobInputError
 from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.archive import ArchiveError
@@ -33,12 +33,6 @@ def _unpacked(ctx: JobContext, artifact: InputArtifact, folder: Path) -> Path:
     except ArchiveError as exc:
         raise JobInputError(f"{artifact.label}: {exc}") from exc
     return folder
-
-
-def _named(message: str, ctx: JobContext, artifacts: list[InputArtifact]) -> str:
-    for artifact in artifacts:
-        message = message.replace(str(artifact.path), artifact.label)
-    return message.replace(str(ctx.workdir), "the job's folder")
 
 
 def _models(models: list[InputArtifact]) -> dict[str, InputArtifact]:
@@ -102,7 +96,7 @@ def track_job(ctx: JobContext) -> dict:
             ),
         )
     except (ValueError, KittiError) as exc:
-        raise JobInputError(_named(str(exc), ctx, [sequence, *models.values()])) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, [sequence, *models.values()])) from exc
     document["sequence"] = sequence.label
     ctx.progress(0.92, "writing TRACK.json and the plot")
     ctx.add_artifact_json(document, kind=TRACK_REPORT.kind, name=TRACK_REPORT.file_name())
@@ -188,7 +182,7 @@ def train_job(ctx: JobContext) -> dict:
             config = SiameseTrainConfig(epochs=params.epochs or SIAMESE_EPOCHS, **settings)
             metadata = train_siamese(folders, model, config, **options)
     except ValueError as exc:
-        raise JobInputError(_named(str(exc), ctx, sequences)) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, sequences)) from exc
     ctx.add_artifact_file(
         model,
         kind=MODEL.kind,
