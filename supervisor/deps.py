@@ -71,9 +71,6 @@ class TokenCache:
         lifetime = self.ttl_s if expires_in_s is None else min(self.ttl_s, expires_in_s)
         self._entries[digest] = (user, time.monotonic() + lifetime, stamp)
 
-    def forget(self, digest: str) -> None:
-        self._entries.pop(digest, None)
-
 
 def get_runtime(request: Request) -> Runtime:
     return request.app.state.runtime

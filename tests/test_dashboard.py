@@ -173,6 +173,7 @@ def test_review_an_inspection_in_the_browser(demo_server):
         )
         page.click("#sign-out")
         page.wait_for_selector("#sign-in-form")
+        assert page.input_value("input[name=password]") == ""
         assert httpx.get(f"{server.url}/api/v1/me", headers=auth(token)).status_code == 401
         assert errors == [] and csp == []
 

@@ -112,6 +112,10 @@ def test_sign_out_revokes_the_token_at_the_next_request(client, tokens):
     assert client.delete("/api/v1/auth/token", headers=auth(token)).status_code == 204
     again = client.get("/api/v1/me", headers=auth(token))
     assert again.status_code == 401 and "revoked" in again.json()["detail"]
+    admin = tokens["admin"]
+    trail = client.get("/api/v1/audit", params={"entity": "token"}, headers=auth(admin)).json()
+    ines = [(e["username"], e["action"]) for e in trail["items"] if e["username"] == "ines"]
+    assert ines == [("ines", "issue"), ("ines", "revoke")]  # the sign-in and the sign-out
 
 
 def test_revoking_tokens_by_id_user_and_device(client, tokens, runtime):

@@ -28,7 +28,8 @@ class Actor(Protocol):
 
 @dataclass(frozen=True)
 class Operator:
-    """Someone acting outside the API: at the command line, on the server's machine."""
+    """Someone acting outside a signed-in request: at the command line on the server's
+    machine, or a user signing in."""
 
     id: int | None = None
     username: str = "(command line)"

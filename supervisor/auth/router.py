@@ -11,6 +11,7 @@ from fastapi import APIRouter, Depends, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select, update
 
+from supervisor.audit.service import Operator
 from supervisor.auth import service
 from supervisor.auth.limits import REFUSAL_DELAY_S, SignInGuard, TooManySignIns
 from supervisor.auth.schemas import MeOut, TokenOut, TokenRequest
@@ -107,7 +108,10 @@ def _issue(runtime: Runtime, user: User, rehashed: str | None) -> tuple[str, dat
     with runtime.db.write() as session:
         if rehashed is not None:
             session.execute(update(User).where(User.id == user.id).values(password_hash=rehashed))
-        token = service.issue_token(session, user=user, kind="session", name="sign-in", ttl=ttl)
+        signed_in_as = Operator(user.id, user.username)  # the sign-in is in the audit log
+        token = users.create_token(
+            session, user=user, name="sign-in", kind="session", ttl=ttl, actor=signed_in_as
+        )
     return token, utcnow() + ttl
 
 

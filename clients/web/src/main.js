@@ -153,6 +153,7 @@ $("#sign-out").addEventListener("click", async () => {
   }
   session.token = null;
   state.me = null;
+  $("#sign-in-form").reset(); // the password must not wait in the form for the next person
   location.hash = "#/sign-in";
 });
 
