@@ -3,6 +3,7 @@ reports a long task's progress."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NoReturn
 
 import typer
@@ -16,3 +17,11 @@ def fail(message: str) -> NoReturn:
 def echo_progress(fraction: float, message: str) -> None:
     """A training's or a batch's progress line: ``[ 42.0 %] message``."""
     typer.echo(f"[{fraction * 100:5.1f} %] {message}")
+
+
+def alias(app: typer.Typer, old: str, command: Callable[..., None], new: str) -> None:
+    """``vista <old>`` kept for a release as an alias of ``vista <new>``: listed as
+    deprecated in ``--help`` and in the README."""
+    app.command(old, deprecated=True, help=f"Alias of `vista {new}` (kept for this release).")(
+        command
+    )

@@ -14,6 +14,8 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from contract.scene import Present
+
 ANY_KIND = "*"
 
 
@@ -58,11 +60,31 @@ class JobKind:
     outputs: tuple[Output, ...] = ()
     """What it writes (the handler takes the names from here): a later step's inputs are
     checked against them, and ``GET /job-kinds`` lists them."""
+    present: Presenter | None = None
+    """How its results appear in the inspection's 3D scene, if they do."""
 
     @property
     def input_kinds(self) -> tuple[str, ...]:
         return tuple(dict.fromkeys(k for spec in self.inputs for k in spec.kinds))
 
     def load_handler(self) -> Callable[[Any], dict]:
-        module_name, _, function = self.handler.partition(":")
-        return getattr(importlib.import_module(module_name), function)
+        return load_hook(self.handler)
+
+
+@dataclass(frozen=True)
+class Presenter:
+    """A job kind's results in the scene: ``hook`` (``module:function``, a
+    ``contract.scene.Present``) draws the newest ``reads`` output of the inspection."""
+
+    reads: Output
+    hook: str
+
+    def load(self) -> Present:
+        return load_hook(self.hook)
+
+
+def load_hook(path: str) -> Any:
+    """The function ``module:function`` names, its module imported now (hooks are named
+    by path so that declaring a kind loads none of a service's libraries)."""
+    module_name, _, function = path.partition(":")
+    return getattr(importlib.import_module(module_name), function)

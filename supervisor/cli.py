@@ -10,12 +10,8 @@ from pathlib import Path
 import typer
 
 from contract.cli import fail
-from services.defects import cli as defects_cli
-from services.depth import cli as depth_cli
-from services.odometry import cli as odometry_cli
-from services.stitching import cli as stitching_cli
-from services.tracking import cli as tracking_cli
-from services.wording import counted
+from services.lib.wording import counted
+from supervisor.engine.registry import declared_hooks
 from supervisor.settings import get_settings, secure_data_dir
 from supervisor.users import cli as users_cli
 
@@ -191,11 +187,8 @@ def bench_clients(
     )
 
 
-stitching_cli.register(app, simulate_app, bench_app)
-defects_cli.register(app, simulate_app, bench_app)
-odometry_cli.register(app, bench_app)
-depth_cli.register(app, bench_app)
-tracking_cli.register(app, bench_app)
+for register in declared_hooks("CLI"):  # each service's commands, as the registry names them
+    register(app, simulate_app, bench_app)
 
 if __name__ == "__main__":
     app()

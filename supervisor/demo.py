@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from supervisor.audit.service import COMMAND_LINE
+from supervisor.engine.registry import declared_hooks
 from supervisor.settings import Settings, secure_data_dir
 
 DEMO_USER = "demo"
@@ -104,8 +105,6 @@ def run_demo(
         warnings.filterwarnings("ignore", message=".*starlette.testclient.*")
         from fastapi.testclient import TestClient
 
-    from services.defects.example import write_defects_example
-    from services.defects.simulate import AssemblySpec
     from supervisor.app import create_app
     from supervisor.migrate import upgrade
 
@@ -113,18 +112,8 @@ def run_demo(
     upgrade(settings.resolved_database_url, "head")
     secure_data_dir(settings)
     folder = settings.data_dir / "demo" / f"assembly-{seed}"
-    spec = AssemblySpec(
-        rows=2,
-        cols=2,
-        panel_mm=(150.0, 100.0),
-        radius_mm=2000.0,
-        gap_mm=(0.8, 3.6),
-        step_mm=(-1.2, 1.2),
-        taper_mm=(0.0, 0.8),
-    )
-    say(f"simulating a curved cabin sidewall (2 × 2 panels, R 2000 mm) into {folder}")
-    grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
-    write_defects_example(folder, spec, grid=grid, seed=seed, progress=say)
+    (write_example,) = declared_hooks("DEMO_EXAMPLE")
+    write_example(folder, spacing_mm=spacing_mm, seed=seed, say=say)
     token, password = _demo_account(settings)
     with TestClient(create_app(settings)) as client:
         client.headers["authorization"] = f"Bearer {token}"

@@ -21,7 +21,7 @@ from multiprocessing.process import BaseProcess
 
 import uvicorn
 
-from services.process import die_with_parent
+from services.lib.process import die_with_parent
 
 APP = "supervisor.app:create_app"
 RESTART_PAUSE_S = 1.0

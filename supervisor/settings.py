@@ -16,7 +16,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from services.process import available_cores
+from services.lib.process import available_cores
 
 
 class Settings(BaseSettings):

@@ -33,7 +33,7 @@ def tiny_depth_model(path: Path, *, width: int = 64, height: int = 32) -> Path:
     import torch
 
     from services.depth.export import depth_metadata
-    from services.nn.onnx_io import export_onnx
+    from services.lib.nn.onnx_io import export_onnx
 
     class Tiny(torch.nn.Module):
         def __init__(self) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.pointcloud.ply import PointCloud
+from services.lib.pointcloud.ply import PointCloud
 
 
 def _drop(kind: str, size: float, inside: np.ndarray) -> np.ndarray:

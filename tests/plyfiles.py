@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.pointcloud.ply import PointCloud, write_ply
+from services.lib.pointcloud.ply import PointCloud, write_ply
 
 
 def plane_grid(height: int = 40, width: int = 50, spacing_mm: float = 0.1) -> PointCloud:

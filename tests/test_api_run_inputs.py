@@ -7,8 +7,7 @@ from __future__ import annotations
 import pytest
 from sqlalchemy import func, select
 
-from supervisor.artifacts.kinds import ARTIFACT_KINDS
-from supervisor.engine.registry import load_kinds
+from supervisor.engine.registry import artifact_kinds, load_kinds
 from supervisor.models import Artifact, Job, Run
 from tests.conftest import auth
 from tests.plyfiles import ply_bytes
@@ -120,8 +119,8 @@ def test_every_kinds_outputs_are_known_artifact_kinds(settings):
     for kind in kinds.values():
         if kind.name.startswith("test."):
             continue
-        assert {o.kind for o in kind.outputs} <= set(ARTIFACT_KINDS), kind.name
-        assert {k for spec in kind.inputs for k in spec.kinds} <= set(ARTIFACT_KINDS), kind.name
+        assert {o.kind for o in kind.outputs} <= set(artifact_kinds()), kind.name
+        assert {k for spec in kind.inputs for k in spec.kinds} <= set(artifact_kinds()), kind.name
 
 
 def test_artifact_kinds_and_content_are_checked_whatever_the_media_type(upload, runtime, tmp_path):

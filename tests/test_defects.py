@@ -25,8 +25,8 @@ from services.defects.simulate import (
     random_assembly,
 )
 from services.defects.truth import Truth, seam_gap_mm
-from services.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
-from services.pointcloud.ply import PointCloud, read_ply
+from services.lib.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
+from services.lib.pointcloud.ply import PointCloud, read_ply
 from supervisor.cli import app
 
 
@@ -327,7 +327,7 @@ def test_sensor_artefacts_at_depth_jumps_and_tilted_views() -> None:
     """Mixed pixels fall between the two surfaces of a jump, spikes off it; elsewhere the
     returns are untouched. A tilted view still looks at the same point."""
     from services.defects.simulate import _tilted
-    from services.pointcloud.scan_sim import SensorModel, _edge_artefacts
+    from services.lib.pointcloud.scan_sim import SensorModel, _edge_artefacts
 
     true = np.full((20, 30), 220.0)
     true[:, 15:] = 240.0  # a panel's edge over the backing, 20 mm farther
@@ -362,7 +362,7 @@ def test_which_edges_the_views_saw() -> None:
 
     from services.defects.example import BASE_T_PART
     from services.defects.simulate import AssemblyScanner, _tilted
-    from services.pointcloud.scan_sim import SensorModel, workplan
+    from services.lib.pointcloud.scan_sim import SensorModel, workplan
 
     spec = dict(rows=2, cols=1, panel_mm=(60.0, 40.0), edge_kinds=("square",), surface_defects=0)
     spec = AssemblySpec(**_spec(spec, gap_mm=(0.3, 0.3), taper_mm=(0.0, 0.0)))

@@ -16,7 +16,7 @@ from services.defects.config import ConfigError, MeasureConfig, parse_config
 from services.defects.edges import MODELS
 from services.defects.measure import MeasureResult, SeamResult, measure
 from services.defects.report import result_document
-from services.pointcloud.ply import PointCloud, write_ply
+from services.lib.pointcloud.ply import PointCloud, write_ply
 from supervisor.cli import app
 from tests.edgeclouds import seam_cloud
 

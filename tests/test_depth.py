@@ -275,7 +275,7 @@ def test_someone_elses_onnx_with_a_spec_beside_it(tmp_path: Path) -> None:
     import torch
 
     from services.depth.models import DepthModel
-    from services.nn.onnx_io import export_onnx
+    from services.lib.nn.onnx_io import export_onnx
 
     class Disparity(torch.nn.Module):
         def forward(self, bgr: torch.Tensor) -> torch.Tensor:  # (N, H, W, 3) → (N, H, W, 1)
@@ -313,7 +313,7 @@ def test_someone_elses_onnx_with_a_spec_beside_it(tmp_path: Path) -> None:
     stamped = tmp_path / "stamped.onnx"
     result = CliRunner().invoke(app, ["depth", "import", str(path), "-o", str(stamped)])
     assert result.exit_code == 0, result.output
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     assert read_model(stamped).metadata["output"]["kind"] == "sigmoid_disparity"
     assert np.allclose(DepthModel(stamped).predict(image).depth_m, expected, rtol=1e-5)
@@ -329,8 +329,8 @@ def test_drive_archives_unpack_to_kittis_layout_and_refuse_the_unsafe(tmp_path: 
     import tarfile
     import zipfile
 
-    from services.archive import ArchiveError
     from services.depth.drive_archive import extract_drive, inspect_drive
+    from services.lib.archive import ArchiveError
     from tests.depthfiles import pack_drive, small_drive
 
     folder = small_drive(tmp_path / "drive", frames=2)
@@ -513,7 +513,7 @@ def test_weights_stored_in_int8_are_a_quarter_and_compute_as_before(tmp_path: Pa
     from services.depth.export import export_depth_model
     from services.depth.models import DepthModel
     from services.depth.nets import Student
-    from services.nn.onnx_io import store_weights_int8
+    from services.lib.nn.onnx_io import store_weights_int8
 
     path = tmp_path / "student.onnx"
     export_depth_model(
@@ -545,7 +545,7 @@ def test_build_default_at_a_tiny_scale(tmp_path: Path) -> None:
     64 × 64: simulated teacher, LiDAR adaptation on the real drive, student, int8 weights,
     the held-out score and the licence in the metadata; the predict command uses it."""
     from services.depth.default_model import BuildSettings, build_default_model
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     out = tmp_path / "depth.onnx"
     settings = BuildSettings(
@@ -593,7 +593,7 @@ def test_predict_uses_the_shipped_model(tmp_path: Path, monkeypatch: pytest.Monk
     metadata says where it comes from and its licence); without one, the error says how to
     get one."""
     import services.depth.default_model as default_model
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     shipped = read_model(default_model.PACKAGED).metadata
     assert "CC BY-NC-SA 3.0" in shipped["licence"] and shipped["validation"]["shipped"]["frames"]

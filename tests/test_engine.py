@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import redis
 
-from services.pointcloud.ply import validate_ply
+from services.lib.pointcloud.ply import validate_ply
 from supervisor.engine.runner import run_job, sentence
 from tests.conftest import (
     BROKER_URL,
@@ -457,7 +457,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     assert produced == {"defects.json", "seam-profiles.png"}
 
     # A cloud that holds no panel assembly fails the job with the reason, storing nothing.
-    from services.pointcloud.ply import PointCloud, write_ply
+    from services.lib.pointcloud.ply import PointCloud, write_ply
 
     spray = tmp_path / "spray.ply"
     points = np.random.default_rng(0).uniform(0, 50, (5000, 3)).astype(np.float32)

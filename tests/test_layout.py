@@ -11,9 +11,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 PACKAGES = ("contract", "services", "supervisor")
-LIBRARIES = ("services.archive", "services.nn", "services.pointcloud", "services.process")
-LIBRARIES += ("services.wording",)
-"""Code any service may use; it knows no service."""
+LIBRARIES = "services.lib"
+"""Code any service may use (archives, processes, wording, networks, point clouds); it knows
+no service."""
 
 
 def imported_modules(folder: str) -> dict[str, set[str]]:
@@ -152,14 +152,46 @@ def test_no_module_imports_itself_through_others():
 
 def test_libraries_import_no_service():
     graph = import_graph()
-    inside = [name for name in graph if name.startswith(LIBRARIES)]
+    inside = [name for name in graph if _within(name, LIBRARIES)]
     assert len(inside) > 10
     reaching_services = {
         name: sorted(
             target
             for target in graph[name]
-            if target.startswith("services.") and not target.startswith(LIBRARIES)
+            if target.startswith("services.") and not _within(target, LIBRARIES)
         )
         for name in inside
     }
     assert {k: v for k, v in reaching_services.items() if v} == {}
+
+
+def _within(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def supervisor_reaching_into_services(graph: dict[str, set[str]]) -> dict[str, list[str]]:
+    """Supervisor modules importing a service module: it knows a service only through the
+    registry (``supervisor.engine.registry`` names the services' ``kinds`` modules as
+    strings and loads the hooks they declare); the libraries are its to use."""
+    return {
+        name: sorted(t for t in targets if _within(t, "services") and not _within(t, LIBRARIES))
+        for name, targets in graph.items()
+        if _within(name, "supervisor")
+        and any(_within(t, "services") and not _within(t, LIBRARIES) for t in targets)
+    }
+
+
+def test_the_supervisor_knows_services_only_through_the_registry():
+    graph = import_graph()
+    assert "services.lib.pointcloud.ply" in graph["supervisor.exports.scene"]  # a library
+    assert supervisor_reaching_into_services(graph) == {}
+
+
+def test_a_planted_service_import_in_the_supervisor_is_found():
+    graph = import_graph()
+    graph["supervisor.exports.scene"] = graph["supervisor.exports.scene"] | {
+        "services.defects.kinds"
+    }
+    assert supervisor_reaching_into_services(graph) == {
+        "supervisor.exports.scene": ["services.defects.kinds"]
+    }

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from services.nn.device import choose_device
-from services.nn.onnx_io import export_onnx, read_model, session
-from services.nn.train import TrainConfig, train
+from services.lib.nn.device import choose_device
+from services.lib.nn.onnx_io import export_onnx, read_model, session
+from services.lib.nn.train import TrainConfig, train
 
 
 def _data(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -78,7 +78,7 @@ def test_a_model_file_fills_its_network_with_batch_norms_folded(tmp_path) -> Non
     shipped model is fine-tuned)."""
     from torch import nn
 
-    from services.nn.onnx_io import fold_batch_norms, load_onnx_weights
+    from services.lib.nn.onnx_io import fold_batch_norms, load_onnx_weights
 
     def network() -> nn.Module:
         return nn.Sequential(

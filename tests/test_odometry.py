@@ -252,7 +252,7 @@ def test_oenet_trains_exports_and_runs_at_tiny_scale(short_sequence, tmp_path) -
     """OE-Net (Table 6.1) built by the command on one short sequence for one epoch: the
     ONNX file says what it is, and `run --method oenet` uses it (its accuracy is the
     bench's business, after a real training run)."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
     from services.odometry.oenet import network
 
     # Table 6.1 layer by layer: 2 750 498 in the translation branch, 2 363 489 in the rotation

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.pointcloud.ply import PlyError, PointCloud, read_ply, validate_ply, write_ply
+from services.lib.pointcloud.ply import PlyError, PointCloud, read_ply, validate_ply, write_ply
 from tests.plyfiles import empty_cloud_bytes, plane_grid, with_nan
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.pointcloud.ply import PointCloud
+from services.lib.pointcloud.ply import PointCloud
 from services.scan.inspect import decimate, inspect_cloud
 from tests.plyfiles import plane_grid
 

@@ -13,7 +13,7 @@ import pytest
 from pygltflib import GLTF2
 from scipy.spatial.transform import Rotation
 
-from services.pointcloud.ply import PointCloud, write_ply
+from services.lib.pointcloud.ply import PointCloud, write_ply
 from supervisor.exports.gltf import pose_to_gltf, quaternion_xyzw, rotation_from_y
 from supervisor.exports.scene import TYPE_COLORS, rgba
 from tests.conftest import auth

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.pointcloud import scan_sim
-from services.pointcloud.grid import grid_normals, smooth_grid_normals, surrounded
-from services.pointcloud.ply import PointCloud, read_ply
+from services.lib.pointcloud import scan_sim
+from services.lib.pointcloud.grid import grid_normals, smooth_grid_normals, surrounded
+from services.lib.pointcloud.ply import PointCloud, read_ply
 from services.stitching.calibration import calibrate
 from services.stitching.calibration_sim import simulate_calibration
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.pointcloud.ply import read_ply
+from services.lib.pointcloud.ply import read_ply
 from services.stitching.bench import CASES, _run_pipeline, calibration_bench
 from services.stitching.calibration import calibrate
 from services.stitching.example import write_example

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.pointcloud.transforms import check_rigid, pose_error, to_json
+from services.lib.pointcloud.transforms import check_rigid, pose_error, to_json
 from services.stitching.calibration import (
     OPENCV_METHODS,
     CalibrationError,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from services.pointcloud import scan_sim
-from services.pointcloud.ply import PointCloud
-from services.pointcloud.transforms import from_rotvec, pose_error
+from services.lib.pointcloud import scan_sim
+from services.lib.pointcloud.ply import PointCloud
+from services.lib.pointcloud.transforms import from_rotvec, pose_error
 from services.stitching.calibration_sim import nominal_flange_T_sensor
 from services.stitching.icp import IcpConfig, transform_twist, twist_transform
 from services.stitching.stitch import StitchConfig, stitch

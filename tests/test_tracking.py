@@ -380,7 +380,7 @@ def test_learned_detector_decodes_a_peak_into_its_box() -> None:
 def test_tiny_detector_and_siamese_train_export_and_run(drive: Path, tmp_path: Path) -> None:
     """A detector and a Siamese encoder trained for one short epoch on the small drive: the
     ONNX files carry their metadata and run in the pipeline with resets."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
     from services.tracking.detector_training import DetectorTrainConfig, train_detector
     from services.tracking.run import run_tracking
     from services.tracking.siamese import SiameseTrainConfig, candidate_poses, train_siamese
@@ -542,7 +542,7 @@ def test_detect_command_writes_kittis_results_and_scores_them(tmp_path: Path) ->
 def test_lidar_archives_unpack_and_refuse_the_unsafe(drive: Path, tmp_path: Path) -> None:
     import tarfile
 
-    from services.archive import ArchiveError
+    from services.lib.archive import ArchiveError
     from services.tracking.lidar_archive import extract_lidar, inspect_lidar
     from tests.lidarfiles import pack_sequence
 

@@ -86,7 +86,7 @@ def test_the_shipped_detector_finds_the_cars_of_a_real_drive_it_never_saw() -> N
     """vista's default detector on the labelled drive held out of its training: recall of
     the cars within 40 m and precision in the camera's view as its metadata reports them;
     its metadata names the data, the seed and KITTI's licence."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
     from services.tracking.bench_real import detection_scores
     from services.tracking.datasets import labelled_scans
     from services.tracking.detect_learned import DEFAULT_MODEL, LearnedDetector
@@ -109,7 +109,7 @@ def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Pat
     """`vista track train detector --from` on a few labelled scans, validated on others:
     the model starts as the shipped one (the same scores before as the shipped model
     gets), and the metadata holds both scores, the starting model and the licence."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
     from services.tracking.datasets import labelled_scans
     from services.tracking.detect_learned import DEFAULT_MODEL
 

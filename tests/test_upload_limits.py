@@ -18,7 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
-from services.archive import MAX_EXPANSION_RATIO, MAX_JSON_DEPTH
+from services.lib.archive import MAX_EXPANSION_RATIO, MAX_JSON_DEPTH
 from supervisor.artifacts.validation import validate_upload
 from supervisor.problems import PROBLEM_MEDIA_TYPE, Problem
 from tests.conftest import add_user, auth, make_settings
@@ -263,9 +263,9 @@ def test_frame_names_of_thousands_of_digits_sort(tmp_path, sequence):
 
 
 def test_an_archive_listing_more_files_than_any_sequence_is_refused_unread(tmp_path, monkeypatch):
-    import services.archive
+    import services.lib.archive
 
-    monkeypatch.setattr(services.archive, "MAX_MEMBERS", 50)
+    monkeypatch.setattr(services.lib.archive, "MAX_MEMBERS", 50)
     many = {f"seq/{k}.txt": b"" for k in range(60)}
     zipped = refusal(tmp_path, archive_bytes(many, "zip"), kind="frames")
     assert "60 entries" in zipped.detail  # from the zip's end record, before its directory

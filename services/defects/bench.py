@@ -38,9 +38,9 @@ from services.defects.simulate import (
     scan_assembly,
 )
 from services.defects.truth import truth_of
-from services.pointcloud.scan_sim import SensorModel
-from services.pointcloud.transforms import from_rotvec
-from services.process import available_cores, prepare_process
+from services.lib.pointcloud.scan_sim import SensorModel
+from services.lib.pointcloud.transforms import from_rotvec
+from services.lib.process import available_cores, prepare_process
 
 TARGETS = {
     "gap and step error p95 (mm)": 0.05,

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail
-from services.wording import counted
+from contract.cli import alias, fail
+from services.lib.wording import counted
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands.
 
@@ -39,8 +39,8 @@ def measure(
     from services.defects.measure import measure as run_measure
     from services.defects.report import profile_png, result_document
     from services.defects.truth import Truth
-    from services.pointcloud.ply import PlyError, read_ply
-    from services.process import available_cores, prepare_process
+    from services.lib.pointcloud.ply import PlyError, read_ply
+    from services.lib.process import available_cores, prepare_process
     from services.stitching.files import StitchingFileError, load_json
 
     prepare_process()
@@ -238,6 +238,12 @@ def bench_defects(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
-    app.command("measure")(measure)
+    defects_app = typer.Typer(
+        help="Gaps, steps, parallelism, mismatch and surface defects of a stitched cloud.",
+        no_args_is_help=True,
+    )
+    defects_app.command("measure")(measure)
+    alias(app, "measure", measure, "defects measure")
+    app.add_typer(defects_app, name="defects")
     simulate_app.command("defects")(simulate_defects)
     bench_app.command("defects")(bench_defects)

@@ -9,12 +9,12 @@ poses, and every seam, junction and defect of the assembly in the base frame).
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from contract.vocabulary import Say
 from services.defects.config import MeasureConfig, config_document
 from services.defects.simulate import (
     AssemblyScans,
@@ -23,9 +23,9 @@ from services.defects.simulate import (
     scan_assembly,
 )
 from services.defects.truth import truth_of
-from services.pointcloud.ply import PointCloud, write_ply
-from services.pointcloud.scan_sim import SensorModel
-from services.pointcloud.transforms import invert, make_transform, perturb, to_json
+from services.lib.pointcloud.ply import PointCloud, write_ply
+from services.lib.pointcloud.scan_sim import SensorModel
+from services.lib.pointcloud.transforms import invert, make_transform, perturb, to_json
 from services.stitching.calibration_sim import simulate_calibration
 from services.stitching.example import calibration_truth, write_session
 from services.stitching.stitch import StitchConfig, stitch
@@ -67,7 +67,7 @@ def write_defects_example(
     poses: int = 15,
     voxel_mm: float = 0.1,
     seed: int = 0,
-    progress: Callable[[str], None] | None = None,
+    progress: Say | None = None,
 ) -> DefectsExample:
     """Simulate an assembly, its calibration session and its scans, and write them with
     the ground truth. ``grid`` (1000, 1540) samples the 154 × 100 mm field every 0.1 mm."""
@@ -105,3 +105,21 @@ def write_defects_example(
         len(truth["defects"]),
         len(merged.points),
     )
+
+
+def write_demo_assembly(out_dir: Path, *, spacing_mm: float, seed: int, say: Say) -> DefectsExample:
+    """`vista demo`'s data (the registry names it ``DEMO_EXAMPLE``): a curved cabin sidewall
+    of 2 × 2 panels (R 2000 mm) whose seams stray out of tolerance, scanned every
+    ``spacing_mm``, with its ground truth."""
+    spec = AssemblySpec(
+        rows=2,
+        cols=2,
+        panel_mm=(150.0, 100.0),
+        radius_mm=2000.0,
+        gap_mm=(0.8, 3.6),
+        step_mm=(-1.2, 1.2),
+        taper_mm=(0.0, 0.8),
+    )
+    say(f"simulating a curved cabin sidewall (2 × 2 panels, R 2000 mm) into {out_dir}")
+    grid = (int(round(100 / spacing_mm)), int(round(154 / spacing_mm)))
+    return write_defects_example(out_dir, spec, grid=grid, seed=seed, progress=say)

@@ -12,8 +12,8 @@ from services.defects.config import MeasureConfig
 from services.defects.kinds import PROFILES, RESULT
 from services.defects.measure import Finding, MeasureError, MeasureResult, measure
 from services.defects.report import finding_document, profile_png, result_document
-from services.pointcloud.ply import PlyError, read_ply
-from services.wording import counted
+from services.lib.pointcloud.ply import PlyError, read_ply
+from services.lib.wording import counted
 
 
 def _new_defect(finding: Finding, severity: str | None = None) -> NewDefect:

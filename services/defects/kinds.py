@@ -2,7 +2,9 @@
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from contract.kinds import Inputs, JobKind, Output
+from contract.artifacts import ArtifactKind
+from contract.kinds import Inputs, JobKind, Output, Presenter
+from services.lib.artifact_kinds import FORMATS
 
 
 class MeasureParams(BaseModel):
@@ -35,6 +37,18 @@ MEASURE = JobKind(
     ),
     inputs=(Inputs(("cloud",), "the stitched point cloud"),),
     outputs=(RESULT, PROFILES),
+    present=Presenter(RESULT, "services.defects.present:scene_lines"),
 )
 
 KINDS = (MEASURE,)
+ARTIFACT_KINDS = (
+    ArtifactKind(
+        "mesh", "Nominal panel surfaces as a PLY triangle mesh.", f"{FORMATS}:inspect_mesh"
+    ),
+)
+"""The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
+
+CLI = "services.defects.cli:register"
+"""Its commands: `vista defects …` (``register(app, simulate_app, bench_app)``)."""
+DEMO_EXAMPLE = "services.defects.example:write_demo_assembly"
+"""What `vista demo` simulates and runs: a cabin sidewall whose seams stray out of tolerance."""

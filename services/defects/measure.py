@@ -34,8 +34,8 @@ from services.defects.sections import (
     section_range,
 )
 from services.defects.surface import SurfaceFinding, find_surface_defects
-from services.pointcloud.ply import PointCloud
-from services.wording import counted
+from services.lib.pointcloud.ply import PointCloud
+from services.lib.wording import counted
 
 MAX_CELLS = 60e6
 """Largest height map measured (2.4 m² at 0.2 mm cells; ~2 GB of work arrays)."""
@@ -189,7 +189,7 @@ def measure(
     progress: Progress | None = None,
 ) -> MeasureResult:
     """Seams, junctions and surface findings of a stitched panel-assembly cloud, on
-    ``threads`` threads (one per core given: see ``services.process`` for the process's
+    ``threads`` threads (one per core given: see ``services.lib.process`` for the process's
     set-up that lets them scale)."""
     config = config or MeasureConfig()
     report = progress or (lambda fraction, message: None)

@@ -10,7 +10,7 @@ from services.defects.config import MeasureConfig, config_document
 from services.defects.edges import MODELS
 from services.defects.measure import Finding, MeasureResult, PanelResult, SeamResult, Stats
 from services.defects.sections import EdgeShape
-from services.wording import counted
+from services.lib.wording import counted
 
 RESULT_FORMAT = "vista.defects/1"
 

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.pointcloud.color import lab_to_srgb, srgb_to_lab
-from services.pointcloud.scan_sim import Mesh, Scanner, SensorModel
-from services.pointcloud.transforms import apply, invert
+from services.lib.pointcloud.color import lab_to_srgb, srgb_to_lab
+from services.lib.pointcloud.scan_sim import Mesh, Scanner, SensorModel
+from services.lib.pointcloud.transforms import apply, invert
 
 ARC_SAMPLES = 24
 """Vertices on a rounded edge's quarter circle (chord sag ≤ 0.0012 × the radius)."""
@@ -662,7 +662,7 @@ def scan_assembly(
     tilted by ``tilt_deg`` about the base x axis through the point it looks at (seams
     running along x are then seen from the side: one side face in view, the other and
     part of the floor in shadow)."""
-    from services.pointcloud.scan_sim import workplan
+    from services.lib.pointcloud.scan_sim import workplan
 
     scanner = AssemblyScanner(assembly, base_T_part, sensor)
     base_T_sensor = workplan(scanner.scanner.mesh, base_T_part, sensor, overlap=overlap)

@@ -36,7 +36,7 @@ from services.defects.morphology import dilate, erode
 from services.defects.panels import Panels
 from services.defects.raster import Raster, block_cells, block_sums
 from services.defects.smoothing import gaussian_pair
-from services.pointcloud.color import delta_e, srgb_to_lab
+from services.lib.pointcloud.color import delta_e, srgb_to_lab
 
 EIGHT_CONNECTED = np.ones((3, 3), bool)
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from services.defects.simulate import Assembly, SeamTruth, layout_normal, layout_to_part
-from services.pointcloud.transforms import apply
+from services.lib.pointcloud.transforms import apply
 
 Point = tuple[float, float, float]
 

@@ -38,7 +38,7 @@ from services.depth.kitti import read_depth_png, read_drive, read_image
 from services.depth.metrics import METRICS, evaluate_image, mean_errors
 from services.depth.models import DepthModel
 from services.depth.training import DepthTrainConfig
-from services.process import available_cores, prepare_process
+from services.lib.process import available_cores, prepare_process
 
 TRAIN_SIZE = (320, 96)
 LATENCY_SIZE = (1024, 320)

@@ -498,6 +498,6 @@ def bench_depth(
     )
 
 
-def register(app: typer.Typer, bench_app: typer.Typer) -> None:
+def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
     app.add_typer(depth_app, name="depth")
     bench_app.command("depth")(bench_depth)

@@ -135,7 +135,7 @@ def _config(settings: BuildSettings, epochs: int, **extra: object):  # noqa: ANN
 
 def _reusable(path: Path, epochs: int) -> bool:
     """A stage's model already in the work folder, trained for as many epochs as asked."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     if not path.is_file():
         return False
@@ -320,7 +320,7 @@ def build_default_model(
     stage's result is kept in ``work`` and reused by the next run when it was trained for as
     many epochs (the stage's other settings are not compared: a new --work for those)."""
     from services.depth.models import DepthModel
-    from services.nn.onnx_io import METADATA_KEY, store_weights_int8
+    from services.lib.nn.onnx_io import METADATA_KEY, store_weights_int8
 
     say = progress or (lambda fraction, message: None)
     for folder, what in ((real_drive, "real drive"), (held_out, "held-out frames")):

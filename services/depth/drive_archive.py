@@ -7,7 +7,7 @@ archive.
 
 Members are written under names of vista's choosing (the role's folder and the file's own
 base name, which must be plain: letters, digits, ``_``, ``-``, ``.``), never by the archive's
-paths; what the archive expands to is checked as it is read (``services.archive``). At upload
+paths; what the archive expands to is checked as it is read (``services.lib.archive``). At upload
 every image is decoded once: one OpenCV cannot read, or a depth map that is not one 16-bit
 channel, is refused naming it.
 """
@@ -20,7 +20,8 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from services.archive import (
+from contract.artifacts import ArtifactRefused, Inspected
+from services.lib.archive import (
     ArchiveError,
     Member,
     decode_image,
@@ -29,6 +30,7 @@ from services.archive import (
     read_in_order,
     read_member,
 )
+from services.lib.formats import text_of
 
 HINT = "pack a drive folder with `tar czf drive.tar.gz -C DRIVE .` (image_02/ inside)"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -163,3 +165,20 @@ def extract_drive(path: Path, out_dir: Path) -> DriveArchive:
             destination.parent.mkdir(parents=True, exist_ok=True)
             destination.write_bytes(read_member(form, archive, member, limit))
     return plan
+
+
+def inspect_drive_artifact(path: Path, declared: str) -> Inspected:
+    """The ``drive`` kind's check (``contract.artifacts.Inspect``): the archive planned as
+    the depth jobs read it."""
+    try:
+        found = inspect_drive(path)
+    except ArchiveError as exc:
+        raise ArtifactRefused(f"is not a drive: {text_of(exc)}") from exc
+    meta = {
+        "frames": found.frames,
+        "stereo": found.stereo,
+        "depth": found.depth,
+        "scans": found.scans,
+        "poses": found.poses,
+    }
+    return Inspected(found.media_type, meta)

@@ -51,7 +51,7 @@ def export_depth_model(
     onnxruntime and torch on ``example`` (a random image if none) is checked and returned."""
     import torch
 
-    from services.nn.onnx_io import export_onnx
+    from services.lib.nn.onnx_io import export_onnx
 
     class WithFeatures(torch.nn.Module):
         def __init__(self) -> None:

@@ -10,9 +10,9 @@ from pathlib import Path
 from contract.context import InputArtifact, JobContext, in_user_words, inputs_of_kind
 from contract.errors import JobInputError
 from contract.vocabulary import ONNX_MEDIA_TYPE
-from services.archive import ArchiveError
 from services.depth.kinds import CLOUD, DEPTH_MAP, MODEL, PREDICT_REPORT, PREVIEW, TRAINING_REPORT
-from services.pointcloud.ply import PLY_MEDIA_TYPE
+from services.lib.archive import ArchiveError
+from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 
 
 def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[InputArtifact, Path]]:
@@ -50,7 +50,7 @@ def train_job(ctx: JobContext) -> dict:
     from services.depth.models import DepthModel
     from services.depth.teacher import TEACHER_ARCHITECTURE, save_teacher, train_teacher
     from services.depth.training import DepthTrainConfig
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     params = ctx.params
     data = inputs_of_kind(ctx, "drive", "image")

@@ -4,8 +4,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.vocabulary import DeviceChoice
+from services.lib.artifact_kinds import FORMATS
 
 EPOCHS = 12
 
@@ -103,3 +105,20 @@ DEPTH_PREDICT = JobKind(
 )
 
 KINDS = (DEPTH_TRAIN, DEPTH_PREDICT)
+ARTIFACT_KINDS = (
+    ArtifactKind(
+        "depth",
+        "A depth map in KITTI's convention: 16-bit grey PNG, metres × 256, 0 = none.",
+        f"{FORMATS}:inspect_depth_png",
+    ),
+    ArtifactKind(
+        "drive",
+        "A camera drive in KITTI's layout as a zip or tar: image_02/ and its calibration "
+        "(calib.json or calib_cam_to_cam.txt), with image_03/, depth/, poses.txt as known.",
+        "services.depth.drive_archive:inspect_drive_artifact",
+    ),
+)
+"""The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
+
+CLI = "services.depth.cli:register"
+"""Its commands: `vista depth …` (``register(app, simulate_app, bench_app)``)."""

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.nn.onnx_io import read_model, session
+from services.lib.nn.onnx_io import read_model, session
 
 OUTPUT_KINDS = ("depth", "disparity", "sigmoid_disparity")
 FEATURE_OUTPUTS = ("encoder", "decoder")
@@ -200,7 +200,7 @@ def stamp_spec(path: Path, out: Path) -> ModelSpec:
     metadata (what a `model` artifact needs)."""
     import onnx
 
-    from services.nn.onnx_io import METADATA_KEY
+    from services.lib.nn.onnx_io import METADATA_KEY
 
     spec = read_spec(path)
     proto = onnx.load_model(str(path))

@@ -118,7 +118,7 @@ def colour_bar(width: int, top_inverse_m: float) -> np.ndarray:
 
 def depth_cloud(depth_m: np.ndarray, camera: Camera, image: np.ndarray):  # noqa: ANN201 - a PointCloud
     """The organised camera-frame cloud of a depth map (mm), coloured by ``image``."""
-    from services.pointcloud.ply import PointCloud
+    from services.lib.pointcloud.ply import PointCloud
 
     if camera.width != depth_m.shape[1] or camera.height != depth_m.shape[0]:
         camera = camera.resized(depth_m.shape[1], depth_m.shape[0])
@@ -145,7 +145,7 @@ def predict_folder(
     import cv2
 
     from services.depth.data import nominal_K
-    from services.pointcloud.ply import write_ply
+    from services.lib.pointcloud.ply import write_ply
 
     say = progress or (lambda fraction, message: None)
     out_dir.mkdir(parents=True, exist_ok=True)

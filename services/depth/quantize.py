@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from services.depth.models import DepthModel
-from services.nn.onnx_io import METADATA_KEY
+from services.lib.nn.onnx_io import METADATA_KEY
 
 CALIBRATION_IMAGES = 32
 

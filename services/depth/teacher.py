@@ -177,7 +177,7 @@ def load_teacher(path: Path):  # noqa: ANN201 - a nets.Teacher
     """A teacher ONNX file of vista's as a ``nets.Teacher`` to train further (batch norms
     folded); ValueError when the file holds another network."""
     from services.depth.nets import Teacher
-    from services.nn.onnx_io import fold_batch_norms, load_onnx_weights, read_model
+    from services.lib.nn.onnx_io import fold_batch_norms, load_onnx_weights, read_model
 
     architecture = read_model(path).metadata.get("architecture")
     if architecture != TEACHER_ARCHITECTURE:

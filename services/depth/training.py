@@ -1,5 +1,5 @@
 """The depth networks' training: seeded batches with Monodepth2's augmentation through the
-shared loop (``services.nn.fit``: Adam on a cosine schedule, validation after every epoch
+shared loop (``services.lib.nn.fit``: Adam on a cosine schedule, validation after every epoch
 choosing the weights kept, checkpoints resumed only by the same run, progress).
 
 A *step* function turns a ``Batch`` into a loss and a few logged numbers; a *validate*
@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from services.depth.data import FrameSet
-from services.nn.fit import FitResult, Progress
-from services.nn.fit import fit as shared_fit
+from services.lib.nn.fit import FitResult, Progress
+from services.lib.nn.fit import fit as shared_fit
 
 if TYPE_CHECKING:
     import torch
@@ -181,7 +181,7 @@ def fit(
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
 ) -> FitResult:
-    """The shared loop (``services.nn.fit``) over batches of ``frames`` with Monodepth2's
+    """The shared loop (``services.lib.nn.fit``) over batches of ``frames`` with Monodepth2's
     augmentation, the network's input channels last."""
     import torch
 

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.bench import print_verdict, say, write_document
+from services.lib.process import available_cores, prepare_process
 from services.odometry.camera import Camera
 from services.odometry.drive import Command
 from services.odometry.evaluate import evaluate
@@ -43,7 +44,6 @@ from services.odometry.render import Effects
 from services.odometry.run import run_odometry
 from services.odometry.simulate import simulate_sequence
 from services.odometry.tum import read_tum
-from services.process import available_cores, prepare_process
 
 METHODS = ("vista", "phase", "oenet")
 UNSEEN_FLOOR = "moon"
@@ -242,7 +242,7 @@ def _measure(folder: Path, method: str, model: Path | None, threads: int) -> dic
 
 
 def _train_oenet(model: Path, work: Path, threads: int) -> None:
-    from services.nn.train import TrainConfig
+    from services.lib.nn.train import TrainConfig
     from services.odometry.oenet import train_oenet, training_summary
 
     folders = [
@@ -395,7 +395,7 @@ def run_odometry_bench(
         if oenet_model is not None:
             if not oenet_model.exists():
                 _train_oenet(oenet_model, work, threads)
-            from services.nn.onnx_io import read_model
+            from services.lib.nn.onnx_io import read_model
 
             metrics = read_model(oenet_model).metadata.get("metrics") or {}
             thesis_protocol = metrics.get("test_rmse")

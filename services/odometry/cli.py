@@ -124,10 +124,10 @@ def run(
     """Estimate the camera's motion between consecutive frames and chain it into a
     trajectory: TRAJ.tum (metres, frame i at i / fps s, in camera 0's frame) and, beside it,
     TRAJ.json (each pair's motion, confidence and flag; the position's growing 1σ)."""
+    from services.lib.process import available_cores, prepare_process
     from services.odometry.report import write_run
     from services.odometry.run import METHODS, run_odometry
     from services.odometry.tum import read_tum
-    from services.process import available_cores, prepare_process
 
     prepare_process()
     if method not in METHODS:
@@ -192,10 +192,10 @@ def train(
     """Train a network on simulated sequences (each pair of consecutive frames is a
     sample) and export it as ONNX with its metadata (architecture, training data, input,
     validation error), checked against torch's output."""
-    from services.nn.device import DEVICES
-    from services.nn.train import TrainConfig
+    from services.lib.nn.device import DEVICES
+    from services.lib.nn.train import TrainConfig
+    from services.lib.process import available_cores
     from services.odometry.oenet import train_oenet, training_summary
-    from services.process import available_cores
 
     if arch != "oenet":
         fail(
@@ -303,6 +303,6 @@ def bench_odometry(
     )
 
 
-def register(app: typer.Typer, bench_app: typer.Typer) -> None:
+def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
     app.add_typer(odometry_app, name="odometry")
     bench_app.command("odometry")(bench_odometry)

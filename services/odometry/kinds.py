@@ -4,6 +4,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.vocabulary import DeviceChoice
 
@@ -83,3 +84,20 @@ ODOMETRY_TRAIN = JobKind(
 )
 
 KINDS = (ODOMETRY, ODOMETRY_TRAIN)
+ARTIFACT_KINDS = (
+    ArtifactKind(
+        "frames",
+        "A camera's frame sequence: a zip or tar of PNG frames in one folder with "
+        "camera.json (size, fps, mm/px) and, when known, truth.tum.",
+        "services.odometry.sequence:inspect_frames",
+    ),
+    ArtifactKind(
+        "trajectory",
+        "A camera trajectory in the TUM format (t tx ty tz qx qy qz qw).",
+        "services.odometry.tum:inspect_trajectory",
+    ),
+)
+"""The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
+
+CLI = "services.odometry.cli:register"
+"""Its commands: `vista odometry …` (``register(app, simulate_app, bench_app)``)."""

@@ -6,7 +6,7 @@ mean squared error by SGD with momentum 0.9 in batches of 256.
 The table gives no activations after the fully connected layers; ReLU follows each but the
 last. The 64 × 64 inputs are the frames' centre squares, area-averaged (the thesis
 downsampled its frames; a square keeps the floor's geometry), each scaled to zero mean and
-unit spread; the targets are learned standardised (``services.nn.train``), the exported
+unit spread; the targets are learned standardised (``services.lib.nn.train``), the exported
 model answers in mm and degrees.
 """
 
@@ -110,7 +110,7 @@ def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, Camera]:
 def train_oenet(
     folders: list[Path],
     out: Path,
-    config,  # noqa: ANN001 - services.nn.train.TrainConfig
+    config,  # noqa: ANN001 - services.lib.nn.train.TrainConfig
     *,
     checkpoint_dir: Path | None = None,
     sources: list[str] | None = None,
@@ -121,8 +121,8 @@ def train_oenet(
     their folders)."""
     import torch
 
-    from services.nn.onnx_io import export_onnx
-    from services.nn.train import train
+    from services.lib.nn.onnx_io import export_onnx
+    from services.lib.nn.train import train
 
     say = progress or (lambda fraction, message: None)
     parts = [pairs_of(folder) for folder in folders]
@@ -186,7 +186,7 @@ def oenet_motions(
     """(N−1, 3) motions (mm, mm, rad) of consecutive frames by an exported OE-Net; its
     translation rescaled when this camera's floor square differs from the training
     camera's. Only each frame's 64 × 64 input is kept."""
-    from services.nn.onnx_io import read_model, session
+    from services.lib.nn.onnx_io import read_model, session
 
     model = read_model(model_path)
     if model.metadata.get("architecture") != ARCHITECTURE:
@@ -206,7 +206,7 @@ def oenet_motions(
 def oenet_sigma(model_path: Path, camera: Camera) -> np.ndarray:
     """(3,) the expected error of one motion (mm, mm, rad): the model's test RMSE (its
     validation RMSE when it was trained without a test set), scaled to ``camera``."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     metadata = read_model(model_path).metadata
     metrics = metadata.get("metrics") or {}

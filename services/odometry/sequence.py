@@ -7,7 +7,7 @@ top); they are taken in name order, numbers by value (``2.png`` before ``10.png`
 desktop's leftovers (``__MACOSX/``, ``._*``) are skipped. Nothing is extracted by the
 archive's own paths: the members are read and written under names of vista's choosing, so a
 member called ``../../etc/passwd`` cannot land outside the folder. What the archive expands
-to is checked as it is read (``services.archive``); camera.json, truth.tum and each frame
+to is checked as it is read (``services.lib.archive``); camera.json, truth.tum and each frame
 have limits of their own, and at upload every frame is decoded once (a frame OpenCV cannot
 read, or of another size than camera.json says, is refused naming it).
 """
@@ -18,8 +18,9 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
-from services.archive import ArchiveError as SequenceError
-from services.archive import (
+from contract.artifacts import ArtifactRefused, Inspected
+from services.lib.archive import ArchiveError as SequenceError
+from services.lib.archive import (
     JsonTooDeep,
     Member,
     decode_image,
@@ -29,6 +30,7 @@ from services.archive import (
     read_in_order,
     read_member,
 )
+from services.lib.formats import text_of
 from services.odometry.camera import Camera
 from services.odometry.tum import parse_tum
 
@@ -167,3 +169,18 @@ def extract_sequence(path: Path, out_dir: Path) -> SequenceArchive:
                 limit = MAX_MEMBER_BYTES.get(targets[member.name].name, MAX_MEMBER_BYTES["frame"])
                 targets[member.name].write_bytes(read_member(form, archive, member, limit))
     return found
+
+
+def inspect_frames(path: Path, declared: str) -> Inspected:
+    """The ``frames`` kind's check (``contract.artifacts.Inspect``): the archive as a run
+    reads it, its frames counted and its camera read."""
+    try:
+        found = inspect_sequence(path)
+    except SequenceError as exc:
+        raise ArtifactRefused(f"is not a frame sequence: {text_of(exc)}") from exc
+    meta = {
+        "frames": len(found.frames),
+        "camera": found.camera.document(),
+        "truth": found.truth_member is not None,
+    }
+    return Inspected(found.media_type, meta)

@@ -13,6 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.artifacts import ArtifactRefused, Inspected
+from services.lib.formats import limit_size
+
 
 @dataclass(frozen=True)
 class Trajectory2D:
@@ -86,3 +89,17 @@ def parse_tum(text: str, path: str) -> Trajectory2D:
     theta = np.angle(np.exp(1j * theta))
     pose = np.column_stack([data[:, 1] * 1000, data[:, 2] * 1000, theta])
     return Trajectory2D(data[:, 0], pose, data[:, 3] * 1000)
+
+
+MAX_TUM_BYTES = 256 * 1024 * 1024
+
+
+def inspect_trajectory(path: Path, declared: str) -> Inspected:
+    """The ``trajectory`` kind's check (``contract.artifacts.Inspect``): parsed as a run's
+    evaluation reads it."""
+    limit_size(path, MAX_TUM_BYTES, "TUM trajectories")
+    try:
+        parse_tum(path.read_text(encoding="utf-8"), path.name)
+    except ValueError as exc:  # UnicodeDecodeError too
+        raise ArtifactRefused(f"is not a TUM trajectory: {exc}") from exc
+    return Inspected("text/plain")

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from services.pointcloud.ply import PointCloud
+from services.lib.pointcloud.ply import PointCloud
 
 
 @dataclass(frozen=True)

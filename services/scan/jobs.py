@@ -7,7 +7,7 @@ from pathlib import Path
 
 from contract.context import JobContext, inputs_of_kind
 from contract.errors import JobInputError
-from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
+from services.lib.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
 from services.scan.inspect import decimate, inspect_cloud
 from services.scan.kinds import PREVIEW, REPORT
 

@@ -2,7 +2,9 @@
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
+from services.lib.artifact_kinds import FORMATS
 
 
 class ScanInspectParams(BaseModel):
@@ -33,3 +35,10 @@ SCAN_INSPECT = JobKind(
 )
 
 KINDS = (SCAN_INSPECT,)
+ARTIFACT_KINDS = (
+    ArtifactKind(
+        "scan", "One scan as the sensor took it, sensor frame, mm.", f"{FORMATS}:inspect_cloud"
+    ),
+    ArtifactKind("preview", "A decimated copy of a cloud for viewers.", f"{FORMATS}:inspect_cloud"),
+)
+"""The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""

@@ -29,8 +29,8 @@ import numpy as np
 
 from contract.bench import print_verdict, write_document
 from contract.bench import say as say_progress
-from services.pointcloud.ply import read_ply
-from services.pointcloud.transforms import pose_error
+from services.lib.pointcloud.ply import read_ply
+from services.lib.pointcloud.transforms import pose_error
 from services.stitching.calibration import METHODS, OPENCV_METHODS, NoiseModel, calibrate
 from services.stitching.calibration_sim import simulate_calibration
 
@@ -163,7 +163,7 @@ def _run_pipeline(which: str, example: Path, out: Path) -> dict:
 
 
 def full_scale_bench(folder: Path, *, seed: int = 0, say: Callable = say_progress) -> dict:
-    from services.pointcloud.scan_sim import GOCATOR_GRID
+    from services.lib.pointcloud.scan_sim import GOCATOR_GRID
     from services.stitching.example import write_example
     from services.stitching.files import read_pairs, read_truth, write_handeye
     from services.stitching.report import distance_to_truth_mm

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from services.pointcloud.grid import grid_spacing_mm
-from services.pointcloud.ply import PointCloud, read_ply, write_ply
+from services.lib.pointcloud.grid import grid_spacing_mm
+from services.lib.pointcloud.ply import PointCloud, read_ply, write_ply
 from services.stitching.files import read_handeye, read_scans
 from services.stitching.quality import quality_report
 from services.stitching.stitch import StitchConfig, StitchResult, stitch

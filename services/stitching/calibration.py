@@ -27,7 +27,7 @@ from scipy import optimize
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from services.pointcloud.transforms import (
+from services.lib.pointcloud.transforms import (
     adjoint,
     from_rotvec,
     invert,

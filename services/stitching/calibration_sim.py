@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.pointcloud.transforms import from_rotvec, invert, look_at, perturb
+from services.lib.pointcloud.transforms import from_rotvec, invert, look_at, perturb
 
 ROBOT_SIGMA_MM = 0.05
 """UR10e pose repeatability ±0.05 mm, taken as σ per axis."""

@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import erf
 
-from services.pointcloud.grid import shifted, window_offsets
+from services.lib.pointcloud.grid import shifted, window_offsets
 
 KEY_BITS = 21
 """Voxel index bits per axis: 2²¹ voxels of 0.1 mm span 210 m, far beyond any cell."""

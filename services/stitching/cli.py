@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail
+from contract.cli import alias, fail
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands: every `vista` invocation
 # and every API process imports this module.
@@ -80,7 +80,7 @@ def simulate_stitching(
     """Write a complete stitching example with its ground truth: a calibration session
     (pairs.json), scans of a component along a workplan (scan_NNN.ply, scans.json), and
     truth.json (true mount, true robot poses, the part's pose and bounding box)."""
-    from services.pointcloud import scan_sim
+    from services.lib.pointcloud import scan_sim
     from services.stitching.example import write_example
 
     if corrupt >= poses:
@@ -122,7 +122,7 @@ def stitch(
     closest-vertex merge, final filter) and report the overlap quality (Fig. 6.2)."""
     from tqdm import tqdm
 
-    from services.pointcloud.ply import PlyError, read_ply, write_ply
+    from services.lib.pointcloud.ply import PlyError, read_ply, write_ply
     from services.stitching.files import (
         StitchingFileError,
         read_handeye,
@@ -197,7 +197,7 @@ def compare_handeye(
     """How far a calibration is from the simulated truth (translation mm, rotation deg)."""
     import numpy as np
 
-    from services.pointcloud.transforms import pose_error
+    from services.lib.pointcloud.transforms import pose_error
     from services.stitching.files import StitchingFileError, load_json, read_handeye
 
     try:
@@ -234,8 +234,14 @@ def bench_stitching(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
-    app.command("calibrate")(calibrate)
-    app.command("calibration-error")(compare_handeye)
-    app.command("stitch")(stitch)
+    stitching_app = typer.Typer(
+        help="Hand-eye calibration and scan stitching into the robot's base frame.",
+        no_args_is_help=True,
+    )
+    verbs = {"calibrate": calibrate, "calibration-error": compare_handeye, "stitch": stitch}
+    for verb, command in verbs.items():
+        stitching_app.command(verb)(command)
+        alias(app, verb, command, f"stitching {verb}")
+    app.add_typer(stitching_app, name="stitching")
     simulate_app.command("stitching")(simulate_stitching)
     bench_app.command("stitching")(bench_stitching)

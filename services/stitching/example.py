@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.pointcloud import scan_sim
-from services.pointcloud.ply import PointCloud, write_ply
-from services.pointcloud.transforms import to_json
+from services.lib.pointcloud import scan_sim
+from services.lib.pointcloud.ply import PointCloud, write_ply
+from services.lib.pointcloud.transforms import to_json
 from services.stitching.calibration_sim import CalibrationSession, simulate_calibration
 from services.stitching.files import write_pairs, write_scans
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from services.pointcloud.transforms import TransformError, check_rigid, to_json
+from services.lib.pointcloud.transforms import TransformError, check_rigid, to_json
 from services.stitching.calibration import HandEye
 
 

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from services.pointcloud.transforms import adjoint, apply, invert, make_transform
+from services.lib.pointcloud.transforms import adjoint, apply, invert, make_transform
 
 METHODS = ("point-to-point", "point-to-plane", "bounded")
 STARTS = ("kinematic", "none")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from contract.context import JobContext, input_error, one_input
 from contract.errors import JobInputError
-from services.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
+from services.lib.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
 from services.stitching.calibration import CalibrationError, NoiseModel, calibrate
 from services.stitching.files import (
     StitchingFileError,

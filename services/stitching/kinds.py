@@ -4,7 +4,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
+from services.lib.artifact_kinds import FORMATS
 
 CalibrationMethod = Literal["vista", "thesis", "tsai", "park", "horaud", "andreff", "daniilidis"]
 IcpMethod = Literal["none", "bounded", "point-to-point", "point-to-plane"]
@@ -68,3 +70,16 @@ STITCH = JobKind(
 )
 
 KINDS = (CALIBRATE, STITCH)
+ARTIFACT_KINDS = (
+    ArtifactKind(
+        "pairs", "Robot–plate pose pairs for hand-eye calibration.", f"{FORMATS}:inspect_json"
+    ),
+    ArtifactKind(
+        "scans", "The list of scans with each scan's robot pose.", f"{FORMATS}:inspect_json"
+    ),
+    ArtifactKind("handeye", "A hand-eye calibration (flange_T_sensor).", f"{FORMATS}:inspect_json"),
+)
+"""The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
+
+CLI = "services.stitching.cli:register"
+"""Its commands: `vista stitching …` (``register(app, simulate_app, bench_app)``)."""

@@ -7,7 +7,7 @@ from dataclasses import asdict
 
 import numpy as np
 
-from services.pointcloud.transforms import pose_error
+from services.lib.pointcloud.transforms import pose_error
 from services.stitching.files import SimulatedTruth
 from services.stitching.icp import IcpConfig
 from services.stitching.quality import QualityReport, quality_report
@@ -29,7 +29,7 @@ def icp_config(method: str, start: str, calibration: dict) -> IcpConfig | None:
 
 def distance_to_truth_mm(truth: SimulatedTruth, points_base: np.ndarray) -> np.ndarray:
     """Distance (mm) of base-frame points to the simulated part's true surface."""
-    from services.pointcloud.scan_sim import COMPONENTS, Scanner, SensorModel
+    from services.lib.pointcloud.scan_sim import COMPONENTS, Scanner, SensorModel
 
     scanner = Scanner(COMPONENTS[truth.component](), truth.base_T_part, SensorModel())
     return scanner.distance_to_surface_mm(points_base)

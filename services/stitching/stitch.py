@@ -14,9 +14,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from contract.vocabulary import Progress
-from services.pointcloud.grid import smooth_grid_normals, surrounded
-from services.pointcloud.ply import PointCloud
-from services.pointcloud.transforms import apply
+from services.lib.pointcloud.grid import smooth_grid_normals, surrounded
+from services.lib.pointcloud.ply import PointCloud
+from services.lib.pointcloud.transforms import apply
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
 from services.stitching.icp import Alignment, IcpConfig, refine_poses
 

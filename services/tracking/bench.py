@@ -277,7 +277,7 @@ def run_tracking_bench(
     siamese_model: Path | None,
     test_drives: int = TEST_DRIVES,
 ) -> dict:
-    from services.process import prepare_process
+    from services.lib.process import prepare_process
     from services.tracking.default_detector import simulated_drives, simulator_only
     from services.tracking.detect_geometric import GeometricDetector
     from services.tracking.detect_learned import DEFAULT_MODEL, LearnedDetector

@@ -121,7 +121,7 @@ def run(
     and the detector's cost (% of frames) and the frames per second."""
     import json
 
-    from services.process import prepare_process
+    from services.lib.process import prepare_process
     from services.tracking.kitti import KittiError
     from services.tracking.report import plot_run
     from services.tracking.run import parse_camera_box, run_tracking
@@ -213,7 +213,7 @@ def detect(
     frame, rotation_y, the score as the 16th field) — the cars in the camera's view, as
     KITTI's labels are. With --labels, their recall within 40 m (BEV IoU ≥ 0.5) and precision
     in the camera's view."""
-    from services.process import prepare_process
+    from services.lib.process import prepare_process
     from services.tracking.detect import detect_files
 
     prepare_process()
@@ -306,7 +306,7 @@ def train_detector_command(
     import shlex
     import sys
 
-    from services.process import prepare_process
+    from services.lib.process import prepare_process
     from services.tracking.detector_training import DetectorTrainConfig, train_detector
 
     prepare_process()
@@ -378,7 +378,7 @@ def train_default_detector_command(
     labelled object scans with cars pasted from them and from the drives, validated on a
     real drive it never saw; the metadata names the data, the seed and KITTI's licence (CC
     BY-NC-SA 3.0). About half an hour on 2 cores from an empty work folder."""
-    from services.process import prepare_process
+    from services.lib.process import prepare_process
     from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, build_default_detector
 
     prepare_process()
@@ -413,7 +413,7 @@ def train_siamese_command(
     """Train SC3D's Siamese PointNet on the car tracklets of labelled sequences (cosine
     similarity regressed to a Gaussian of the candidate's offset, with the shape-completion
     regulariser) and export its encoder as ONNX."""
-    from services.process import prepare_process
+    from services.lib.process import prepare_process
     from services.tracking.siamese import SiameseTrainConfig, train_siamese
 
     prepare_process()
@@ -481,6 +481,12 @@ def bench_tracking(
     )
 
 
-def register(app: typer.Typer, bench_app: typer.Typer) -> None:
-    app.add_typer(track_app, name="track")
+def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
+    app.add_typer(track_app, name="tracking")
+    app.add_typer(
+        track_app,
+        name="track",
+        deprecated=True,
+        help="Alias of `vista tracking` (kept for this release).",
+    )
     bench_app.command("tracking")(bench_tracking)

@@ -71,7 +71,7 @@ class LearnedDetector:
     name = "learned"
 
     def __init__(self, model: Path, *, threads: int = 1, threshold: float | None = None) -> None:
-        from services.nn.onnx_io import read_model, session
+        from services.lib.nn.onnx_io import read_model, session
 
         found = read_model(Path(model))
         if found.metadata.get("architecture") != ARCHITECTURE:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.nn.fit import Progress
+from services.lib.nn.fit import Progress
 from services.tracking import kitti
 from services.tracking.bev import CELL_M, CHANNELS, FULL_VIEW, STRIDE, Window, encode
 from services.tracking.boxes import YAW, inside
@@ -277,7 +277,7 @@ def _shares(own: int, others: int) -> np.ndarray | None:
 def detector_network(initial: Path | None = None):  # noqa: ANN201 - a torch module
     """A fresh ``BevDetector``, or the one in the model file ``initial`` (its batch norms
     folded into its convolutions, as the file holds it)."""
-    from services.nn.onnx_io import fold_batch_norms, load_onnx_weights, read_model
+    from services.lib.nn.onnx_io import fold_batch_norms, load_onnx_weights, read_model
     from services.tracking.nets import BevDetector
 
     if initial is None:
@@ -315,8 +315,8 @@ def train_detector(
     say it; ``command`` what built the model."""
     import torch
 
-    from services.nn.fit import fit
-    from services.nn.onnx_io import export_onnx
+    from services.lib.nn.fit import fit
+    from services.lib.nn.onnx_io import export_onnx
 
     say = progress or (lambda fraction, message: None)
     items = labelled_scans(folders, config.frame_step)
@@ -437,7 +437,7 @@ def _shown(folder: Path) -> str:
 
 def _origin(initial: Path) -> dict:
     """What a fine-tuned model started from: the file and what its metadata says of it."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     metadata = read_model(initial).metadata
     training = metadata.get("training", {})

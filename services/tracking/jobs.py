@@ -11,7 +11,7 @@ import numpy as np
 from contract.context import InputArtifact, JobContext, in_user_words, inputs_of_kind, one_input
 from contract.errors import JobInputError
 from contract.vocabulary import ONNX_MEDIA_TYPE
-from services.archive import ArchiveError
+from services.lib.archive import ArchiveError
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
     EVALUATION,
@@ -37,7 +37,7 @@ def _unpacked(ctx: JobContext, artifact: InputArtifact, folder: Path) -> Path:
 
 def _models(models: list[InputArtifact]) -> dict[str, InputArtifact]:
     """The model inputs by architecture."""
-    from services.nn.onnx_io import read_model
+    from services.lib.nn.onnx_io import read_model
 
     found = {}
     for artifact in models:

@@ -4,6 +4,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.vocabulary import DeviceChoice
 
@@ -139,3 +140,15 @@ TRACK_TRAIN = JobKind(
 )
 
 KINDS = (TRACK, TRACK_TRAIN)
+ARTIFACT_KINDS = (
+    ArtifactKind(
+        "lidar",
+        "A LiDAR sequence in KITTI's formats as a zip or tar: velodyne/NNNNNN.bin and "
+        "calib.txt, with label_02.txt and poses.txt as known.",
+        "services.tracking.lidar_archive:inspect_lidar_artifact",
+    ),
+)
+"""The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
+
+CLI = "services.tracking.cli:register"
+"""Its commands: `vista tracking …` (``register(app, simulate_app, bench_app)``)."""

@@ -6,7 +6,7 @@ one top folder of the archive.
 Checked before anything is kept: the scans' names (digits, ``.bin``) and sizes (whole
 16-byte points, at most ``MAX_SCAN_BYTES`` each), the calibration, the labels and the poses
 parsed. Members are written under names of vista's choosing, never by the archive's paths
-(``services.archive``).
+(``services.lib.archive``).
 """
 
 from __future__ import annotations
@@ -17,7 +17,16 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from services.archive import ArchiveError, Member, media_type, opened, read_in_order, read_member
+from contract.artifacts import ArtifactRefused, Inspected
+from services.lib.archive import (
+    ArchiveError,
+    Member,
+    media_type,
+    opened,
+    read_in_order,
+    read_member,
+)
+from services.lib.formats import text_of
 from services.tracking import kitti
 
 HINT = "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt poses.txt`"
@@ -136,3 +145,19 @@ def extract_lidar(path: Path, out_dir: Path) -> LidarArchive:
                 limit = MAX_SCAN_BYTES if target.endswith(".bin") else MAX_TEXT_BYTES
                 (out_dir / target).write_bytes(read_member(form, archive, member, limit))
     return plan
+
+
+def inspect_lidar_artifact(path: Path, declared: str) -> Inspected:
+    """The ``lidar`` kind's check (``contract.artifacts.Inspect``): the archive planned as
+    the tracking jobs read it."""
+    try:
+        found = inspect_lidar(path)
+    except ArchiveError as exc:
+        raise ArtifactRefused(f"is not a LiDAR sequence: {text_of(exc)}") from exc
+    meta = {
+        "frames": found.frames,
+        "labels": found.labels,
+        "tracks": found.tracks,
+        "poses": found.poses,
+    }
+    return Inspected(found.media_type, meta)

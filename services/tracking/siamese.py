@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.nn.fit import Progress
+from services.lib.nn.fit import Progress
 from services.tracking.boxes import YAW, from_box_frame, wrap
 from services.tracking.kinds import SIAMESE_EPOCHS
 from services.tracking.sequence import open_sequence, tracklets
@@ -199,8 +199,8 @@ def train_siamese(
     the encoder to ``out`` (ONNX with its metadata) and return the metadata."""
     import torch
 
-    from services.nn.fit import fit
-    from services.nn.onnx_io import export_onnx
+    from services.lib.nn.fit import fit
+    from services.lib.nn.onnx_io import export_onnx
     from services.tracking.datasets import split_groups
     from services.tracking.nets import PointEncoder, ShapeDecoder
 
@@ -302,7 +302,7 @@ class SiameseTracker:
     drifts onto the target's surroundings: it is no surer of a box than this."""
 
     def __init__(self, model: Path, *, threads: int = 1, seed: int = 0) -> None:
-        from services.nn.onnx_io import read_model, session
+        from services.lib.nn.onnx_io import read_model, session
 
         found = read_model(Path(model))
         if found.metadata.get("architecture") != ARCHITECTURE:

@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 
 from supervisor.artifacts import service
-from supervisor.artifacts.kinds import ARTIFACT_KINDS, ArtifactKindName
 from supervisor.artifacts.schemas import ARTIFACT_KIND_PATTERN, MEDIA_TYPES, ArtifactOut
 from supervisor.artifacts.validation import validate_upload
 from supervisor.db import after_commit
 from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, get_runtime, require
+from supervisor.engine.registry import artifact_kinds
 from supervisor.engine.runtime import Runtime
 from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
@@ -24,6 +26,8 @@ from supervisor.storage import UploadTooLarge
 router = APIRouter(tags=["artifacts"])
 readers = require(*READ_ROLES, action="read artifacts")
 editors = require(*EDIT_ROLES, action="upload or delete artifacts")
+ARTIFACT_KINDS = artifact_kinds()
+ArtifactKindName = Literal[tuple(ARTIFACT_KINDS)]  # the services' kinds, for the API schema
 
 _UPLOAD_BODY = {
     "requestBody": {

@@ -95,7 +95,7 @@ def _job_defects(inspection_id: int, count: int, rng: random.Random) -> list[dic
 
 def _cloud(path: Path, points: int, rng: np.random.Generator) -> None:
     """A coloured, gently curved 2 × 1 m sidewall (a stand-in for a stitched cloud)."""
-    from services.pointcloud.ply import PointCloud, write_ply
+    from services.lib.pointcloud.ply import PointCloud, write_ply
 
     uv = rng.random((points, 2)) * [2000.0, 1000.0]
     r = SIDEWALL_RADIUS_MM
@@ -160,7 +160,7 @@ def _trimesh_scene(cloud: Path, defects: list[dict], points: int, out: Path) -> 
     """The peer: the same decimated points and one sphere per defect, exported by trimesh."""
     import trimesh
 
-    from services.pointcloud.ply import read_ply_sample
+    from services.lib.pointcloud.ply import read_ply_sample
     from supervisor.exports.gltf import base_to_gltf
 
     started = time.perf_counter()

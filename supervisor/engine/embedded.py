@@ -19,7 +19,7 @@ import threading
 
 from sqlalchemy import or_, select
 
-from services.process import die_with_parent, parent_alive, prepare_process
+from services.lib.process import die_with_parent, parent_alive, prepare_process
 from supervisor.engine.maintenance import release_jobs_of_worker
 from supervisor.engine.runner import run_job
 from supervisor.engine.runtime import Runtime, worker_name

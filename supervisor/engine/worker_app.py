@@ -8,7 +8,7 @@ from functools import lru_cache
 import dramatiq
 from dramatiq.middleware import Middleware
 
-from services.process import prepare_process
+from services.lib.process import prepare_process
 from supervisor.engine.broker import actor_name, make_broker
 from supervisor.engine.maintenance import MaintenanceLoop
 from supervisor.engine.registry import load_kinds, queues

@@ -6,12 +6,9 @@ Node layout (names are stable; clients find things by them)::
     inspection-<id>
     ├── cloud                 POINTS with COLOR_0 (the newest `cloud` artifact)
     ├── panels-<artifact id>  triangles (each `mesh` artifact), if any
-    ├── outlines              the measured panels (the newest measurement's defects.json)
-    │   └── panel-<id>        a closed line around the panel's top; extras: panel id,
-    │                         centroid, normal, area (the ids seams and steps refer to)
-    ├── seams                 the measured seams (the same defects.json)
-    │   └── seam-<id>         a line through its sections from start to end; extras: seam
-    │                         id, panels, length, start and end (mm)
+    ├── <group>               each job kind's presented results, drawn from the newest
+    │   └── <line>            output it reads (``contract.scene``): the measurement's
+    │                         ``outlines`` (``panel-<id>``) and ``seams`` (``seam-<id>``)
     ├── defects
     │   └── defect-<id>       a ring around the defect at its extent, facing along its
     │                         normal (it circles what it marks); extras: id, type, value, …
@@ -21,7 +18,6 @@ Node layout (names are stable; clients find things by them)::
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,9 +25,11 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from services.defects.kinds import RESULT as MEASURE_RESULT  # whose panels and seams it draws
-from services.pointcloud.ply import PLY_MEDIA_TYPE
+from contract.kinds import Presenter
+from contract.scene import LineGroup
+from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 from supervisor.defects.service import reading
+from supervisor.engine.registry import all_kinds, load_kinds
 from supervisor.exports.gltf import (
     GLTF_R_BASE,
     GLTF_T_BASE,
@@ -66,8 +64,6 @@ TYPE_COLORS = {
 }
 """One distinct colour per type (the dashboard's legend uses the same ones)."""
 PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)
-OUTLINE_COLOR = (0.35, 0.85, 1.0, 1.0)
-SEAM_COLOR = (1.0, 1.0, 1.0, 1.0)
 
 
 def rgba(hex_colour: str) -> tuple[float, float, float, float]:
@@ -91,8 +87,8 @@ class SceneSource:
     cloud_path: Path | None
     cloud_artifact_id: int | None
     meshes: list[tuple[int, Path]]
-    report_path: Path | None = None
-    """The newest measurement's RESULT.json, if any."""
+    presented: tuple[tuple[Presenter, Path], ...] = ()
+    """Each presenting job kind with the newest file it reads, if the inspection has one."""
 
 
 def gather(session: Session, storage: Storage, *, inspection: Inspection) -> SceneSource:
@@ -126,16 +122,20 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
         )
         .order_by(Artifact.id)
     ).all()
-    report = session.scalar(
-        select(Artifact.storage_uri)
-        .where(
-            Artifact.inspection_id == inspection.id,
-            Artifact.kind == "report",
-            Artifact.name == MEASURE_RESULT.file_name(),
+    presented = []
+    for presenter in presenters():
+        newest = session.scalar(
+            select(Artifact.storage_uri)
+            .where(
+                Artifact.inspection_id == inspection.id,
+                Artifact.kind == presenter.reads.kind,
+                Artifact.name == presenter.reads.file_name(),
+            )
+            .order_by(Artifact.id.desc())
+            .limit(1)
         )
-        .order_by(Artifact.id.desc())
-        .limit(1)
-    )
+        if newest:
+            presented.append((presenter, storage.path(newest)))
     clouds = [a for a in artifacts if a.kind == "cloud"]
     return SceneSource(
         inspection_id=inspection.id,
@@ -145,8 +145,15 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
         cloud_path=storage.path(clouds[-1].storage_uri) if clouds else None,
         cloud_artifact_id=clouds[-1].id if clouds else None,
         meshes=[(a.id, storage.path(a.storage_uri)) for a in artifacts if a.kind == "mesh"],
-        report_path=storage.path(report) if report else None,
+        presented=tuple(presented),
     )
+
+
+def presenters() -> list[Presenter]:
+    """The job kinds' presenters, once each (kinds of one service may share one)."""
+    if not all_kinds():
+        load_kinds()
+    return list(dict.fromkeys(k.present for k in all_kinds() if k.present is not None))
 
 
 def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray:
@@ -180,52 +187,25 @@ def _defect_extras(defect: dict, consensus: dict | None) -> dict:
     }
 
 
-def _add_measured(
-    report_path: Path | None,
+def _add_presented(
+    groups: tuple[LineGroup, ...],
     meshes: list[Mesh],
     materials: list[Material],
     nodes: list[Node],
     top: list[int],
 ) -> None:
-    """The measured panels (a ``panel-<id>`` line loop each, under ``outlines``) and seams
-    (a ``seam-<id>`` line strip each, under ``seams``)."""
-    if report_path is None:
-        return
-    report = json.loads(report_path.read_text())
-    panels = [p for p in report.get("panels", []) if len(p["outline"]) >= 3]
-    lines = [
-        (
-            f"panel-{p['id']}",
-            p["outline"],
-            "loop",
-            {
-                "panel": p["id"],
-                "centroid_mm": p["centroid"],
-                "normal": p["normal"],
-                "area_mm2": p["area_mm2"],
-            },
+    """Each group's lines under a group node, a node per line with its extras."""
+    for group in groups:
+        lines = [(p.name, p.points_mm, p.shape, p.extras) for p in group.lines]
+        _add_lines(
+            group.name,
+            lines,
+            Material(group.material, group.colour_rgba),
+            meshes,
+            materials,
+            nodes,
+            top,
         )
-        for p in panels
-    ]
-    _add_lines(
-        "outlines", lines, Material("panel-outline", OUTLINE_COLOR), meshes, materials, nodes, top
-    )
-    seams = [
-        (
-            f"seam-{s['id']}",
-            [s["start"], *(section["at"] for section in s.get("sections", [])), s["end"]],
-            "strip",
-            {
-                "seam": s["id"],
-                "panels": s["panels"],
-                "length_mm": s["length_mm"],
-                "start_mm": s["start"],
-                "end_mm": s["end"],
-            },
-        )
-        for s in report.get("seams", [])
-    ]
-    _add_lines("seams", seams, Material("seam", SEAM_COLOR), meshes, materials, nodes, top)
 
 
 def _add_lines(
@@ -252,7 +232,7 @@ def _add_lines(
 
 def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
     """The GLB of ``source`` (see the module docstring for its layout)."""
-    from services.pointcloud.ply import read_mesh, read_ply_sample
+    from services.lib.pointcloud.ply import read_mesh, read_ply_sample
 
     meshes: list[Mesh] = []
     used = {d["type"] for d in source.defects}
@@ -293,7 +273,8 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         )
         nodes.append(Node(f"panels-{artifact_id}", mesh=len(meshes) - 1))
         top.append(len(nodes) - 1)
-    _add_measured(source.report_path, meshes, materials, nodes, top)
+    for presenter, path in source.presented:
+        _add_presented(presenter.load()(path), meshes, materials, nodes, top)
     ring_vertices, ring_faces = ring(RING_SEGMENTS)
     ring_normals = np.tile(np.float32([0, 1, 0]), (len(ring_vertices), 1))
     marker_mesh = {}

@@ -115,8 +115,8 @@ def train(
     the targets' units: export that one (``model`` alone then answers standardised)."""
     import torch
 
-    from services.nn.checkpoint import load_checkpoint, save_checkpoint
-    from services.nn.device import choose_device
+    from services.lib.nn.checkpoint import load_checkpoint, save_checkpoint
+    from services.lib.nn.device import choose_device
 
     say = progress or (lambda fraction, message: None)
     if len(inputs) != len(targets) or len(inputs) < 2:

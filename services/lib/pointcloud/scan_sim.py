@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.pointcloud.transforms import invert, look_at, make_transform, perturb
+from services.lib.pointcloud.transforms import invert, look_at, make_transform, perturb
 
 GOCATOR_GRID = (1288, 1936)
 """(rows, columns): about 2.5 M points over 100 × 154 mm, the Gocator 3210's snapshot."""

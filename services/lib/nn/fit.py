@@ -63,8 +63,8 @@ def fit(
     fifth faster so on the CPU."""
     import torch
 
-    from services.nn.checkpoint import load_checkpoint, save_checkpoint
-    from services.nn.device import choose_device
+    from services.lib.nn.checkpoint import load_checkpoint, save_checkpoint
+    from services.lib.nn.device import choose_device
 
     say = progress or (lambda fraction, message: None)
     device = choose_device(config.device)

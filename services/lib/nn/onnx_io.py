@@ -164,7 +164,7 @@ def read_model(path: Path) -> ModelFile:
 
 def _metadata(path: Path, text: str | bytes) -> dict:
     """vista's metadata document (protobuf hands a string that is not UTF-8 over as bytes)."""
-    from services.archive import parse_json
+    from services.lib.archive import parse_json
 
     try:
         metadata = parse_json(text if isinstance(text, bytes) else text.encode("utf-8"))
