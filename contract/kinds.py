@@ -62,6 +62,9 @@ class JobKind:
     checked against them, and ``GET /job-kinds`` lists them."""
     present: Presenter | None = None
     """How its results appear in the inspection's 3D scene, if they do."""
+    aliases: tuple[str, ...] = ()
+    """Older names still accepted (scripts, stored runs): a step given one runs this kind
+    and is stored under ``name``."""
 
     @property
     def input_kinds(self) -> tuple[str, ...]:

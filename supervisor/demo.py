@@ -156,15 +156,15 @@ def run_demo(
             json={
                 "name": "demo: calibrate → stitch → measure",
                 "steps": [
-                    {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
+                    {"name": "calibrate", "kind": "stitching.calibrate", "inputs": [pairs]},
                     {
                         "name": "stitch",
-                        "kind": "stitch",
+                        "kind": "stitching.stitch",
                         "inputs": [manifest, *scans],
                         "after": ["calibrate"],
                         "params": {"voxel_mm": 0.1},
                     },
-                    {"name": "measure", "kind": "measure", "after": ["stitch"]},
+                    {"name": "measure", "kind": "defects.measure", "after": ["stitch"]},
                 ],
             },
         )

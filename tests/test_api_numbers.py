@@ -32,7 +32,7 @@ BAD_NUMBERS = (
 NOT_JSON = {("POST", "/api/v1/inspections/{inspection_id}/artifacts")}
 """Bodies that are files, not JSON documents (their checks are in test_api_artifacts)."""
 REQUIRED_PARAMS = {
-    "track": ({"track_id": 0}, {"init_box": [1.5, 1.6, 3.9, 0.0, 1.7, 10.0, 0.0]}),
+    "tracking.track": ({"track_id": 0}, {"init_box": [1.5, 1.6, 3.9, 0.0, 1.7, 10.0, 0.0]}),
 }
 """The params a job kind cannot run without (all others have defaults), in each of the
 ways it takes them: each way's numbers are checked on a body holding it."""
@@ -56,7 +56,7 @@ def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
         ("POST", "/api/v1/inspections"): inspection,
         ("PATCH", "/api/v1/inspections/{inspection_id}"): inspection,
         ("POST", "/api/v1/inspections/{inspection_id}/runs"): {
-            "steps": [{"name": "m", "kind": "measure", "inputs": [ids["artifact_id"]]}]
+            "steps": [{"name": "m", "kind": "measure", "inputs": [ids["artifact_id"]]}]  # alias
         },
         ("POST", "/api/v1/defects"): {
             "inspection_id": ids["inspection_id"],

@@ -63,35 +63,40 @@ def test_steps_fed_the_wrong_inputs_are_refused_naming_the_step(upload, runtime,
             f"steps[0] (look).inputs: artifact {report} is a `report`, which scan.inspect",
         ),
         (
-            [{"name": "m", "kind": "measure", "inputs": [scan]}],
-            f"artifact {scan} is a `scan`, which measure does not read; it reads exactly 1 `cloud`",
+            [{"name": "m", "kind": "defects.measure", "inputs": [scan]}],
+            f"artifact {scan} is a `scan`, which defects.measure does not read; it reads exactly 1 `cloud`",
         ),
         (
-            [{"name": "cal", "kind": "calibrate", "inputs": [scan]}],
-            f"artifact {scan} is a `scan`, which calibrate does not read",
+            [{"name": "cal", "kind": "stitching.calibrate", "inputs": [scan]}],
+            f"artifact {scan} is a `scan`, which stitching.calibrate does not read",
         ),
         (
-            [{"name": "s", "kind": "stitch"}],
-            "steps[0] (s): stitch needs exactly 1 `scans` artifact",
+            [{"name": "s", "kind": "stitching.stitch"}],
+            "steps[0] (s): stitching.stitch needs exactly 1 `scans` artifact",
         ),
         (
-            [{"name": "s", "kind": "stitch", "inputs": [manifest, scan]}],
-            "stitch needs exactly 1 `handeye` artifact (the hand-eye calibration (uploaded or "
-            "from `calibrate`)) and gets none: upload it as kind `handeye` and list its id in "
-            "inputs or list a `calibrate` step in after.",
+            [{"name": "s", "kind": "stitching.stitch", "inputs": [manifest, scan]}],
+            "stitching.stitch needs exactly 1 `handeye` artifact (the hand-eye calibration (uploaded or "
+            "from `stitching.calibrate`)) and gets none: upload it as kind `handeye` and list its id in "
+            "inputs or list a `stitching.calibrate` step in after.",
         ),
         (
-            [{"name": "m", "kind": "measure", "inputs": [cloud, other_cloud]}],
-            f"measure reads exactly 1 `cloud` (the stitched point cloud); it would get 2: "
+            [{"name": "m", "kind": "defects.measure", "inputs": [cloud, other_cloud]}],
+            f"defects.measure reads exactly 1 `cloud` (the stitched point cloud); it would get 2: "
             f"artifact {cloud}, artifact {other_cloud}",
         ),
         (
             [
-                {"name": "cal", "kind": "calibrate", "inputs": [pairs]},
-                {"name": "s", "kind": "stitch", "inputs": [manifest, scan], "after": ["cal"]},
-                {"name": "m", "kind": "measure", "inputs": [cloud], "after": ["s"]},
+                {"name": "cal", "kind": "stitching.calibrate", "inputs": [pairs]},
+                {
+                    "name": "s",
+                    "kind": "stitching.stitch",
+                    "inputs": [manifest, scan],
+                    "after": ["cal"],
+                },
+                {"name": "m", "kind": "defects.measure", "inputs": [cloud], "after": ["s"]},
             ],
-            "steps[2] (m): measure reads exactly 1 `cloud` (the stitched point cloud); it "
+            "steps[2] (m): defects.measure reads exactly 1 `cloud` (the stitched point cloud); it "
             f"would get 2: artifact {cloud}, stitched.ply of step 's'.",
         ),
     ]
@@ -103,15 +108,19 @@ def test_steps_fed_the_wrong_inputs_are_refused_naming_the_step(upload, runtime,
 
     # The same steps fed rightly are accepted: the outputs of `after` steps count.
     chain = [
-        {"name": "cal", "kind": "calibrate", "inputs": [pairs]},
-        {"name": "s", "kind": "stitch", "inputs": [manifest, scan], "after": ["cal"]},
-        {"name": "m", "kind": "measure", "after": ["s"]},
+        {"name": "cal", "kind": "stitching.calibrate", "inputs": [pairs]},
+        {"name": "s", "kind": "stitching.stitch", "inputs": [manifest, scan], "after": ["cal"]},
+        {"name": "m", "kind": "defects.measure", "after": ["s"]},
         {"name": "look", "kind": "scan.inspect", "inputs": [scan, cloud]},
         {"name": "again", "kind": "scan.inspect", "after": ["s"]},
     ]
     accepted = upload.run(chain)
     assert accepted.status_code == 201, accepted.text
     assert _counts(runtime) == (1, len(chain))
+    # An older name is an alias: the step runs the kind and is stored under its name.
+    older = upload.run([{"name": "m", "kind": "measure", "inputs": [cloud]}])
+    assert older.status_code == 201, older.text
+    assert [job["kind"] for job in older.json()["jobs"]] == ["defects.measure"]
 
 
 def test_every_kinds_outputs_are_known_artifact_kinds(settings):
@@ -119,6 +128,8 @@ def test_every_kinds_outputs_are_known_artifact_kinds(settings):
     for kind in kinds.values():
         if kind.name.startswith("test."):
             continue
+        service, _, verb = kind.name.partition(".")
+        assert service.isidentifier() and verb, f"{kind.name} is not <service>.<verb>"
         assert {o.kind for o in kind.outputs} <= set(artifact_kinds()), kind.name
         assert {k for spec in kind.inputs for k in spec.kinds} <= set(artifact_kinds()), kind.name
 

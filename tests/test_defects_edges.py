@@ -181,7 +181,7 @@ def test_result_and_cli_report_unmeasured_sections(tmp_path) -> None:
     path = tmp_path / "cloud.ply"
     write_ply(path, seam_cloud(0.5, 1.5, ("square", 0), ("square", 0)))
     out = tmp_path / "result.json"
-    done = CliRunner().invoke(app, ["measure", str(path), "-o", str(out)])
+    done = CliRunner().invoke(app, ["defects", "measure", str(path), "-o", str(out)])
     assert done.exit_code == 0, done.output
     assert "UNMEASURED — only 0 of" in done.output and "panel 0: centre" in done.output
 

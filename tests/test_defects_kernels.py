@@ -1,4 +1,4 @@
-"""The fast building blocks of `vista measure` against plain NumPy/SciPy references: the
+"""The fast building blocks of `vista defects measure` against plain NumPy/SciPy references: the
 compiled passes over the points (binning, seam slabs, the frame's sample), square
 morphology, labelling, block sums, block interpolation, Gaussian smoothing, the robust
 reference fit and region shapes."""

@@ -335,9 +335,9 @@ def _upload_session(engine: Engine, example: Path) -> tuple[int, int, list[int]]
 
 def _calibrate_stitch(pairs: int, manifest: int, scans: list[int], params=None) -> list[dict]:
     """The steps of a calibrate → stitch run."""
-    stitch = {"name": "stitch", "kind": "stitch", "inputs": [manifest, *scans]}
+    stitch = {"name": "stitch", "kind": "stitching.stitch", "inputs": [manifest, *scans]}
     return [
-        {"name": "calibrate", "kind": "calibrate", "inputs": [pairs]},
+        {"name": "calibrate", "kind": "stitching.calibrate", "inputs": [pairs]},
         {**stitch, "after": ["calibrate"], "params": params or {}},
     ]
 
@@ -376,7 +376,9 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     # A stitch without a calibration is refused when the run is created, naming what is missing.
     lonely = engine.http.post(
         f"/api/v1/inspections/{engine.inspection}/runs",
-        json={"steps": [{"name": "stitch", "kind": "stitch", "inputs": [manifest, *scans]}]},
+        json={
+            "steps": [{"name": "stitch", "kind": "stitching.stitch", "inputs": [manifest, *scans]}]
+        },
     )
     assert lonely.status_code == 422 and "exactly 1 `handeye`" in lonely.json()["detail"]
 
@@ -406,7 +408,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     run = engine.run(
         [
             *_calibrate_stitch(pairs, manifest, scans),
-            {"name": "measure", "kind": "measure", "after": ["stitch"]},
+            {"name": "measure", "kind": "defects.measure", "after": ["stitch"]},
         ]
     )
     jobs = [engine.wait(j["id"], timeout=180) for j in run["jobs"]]
@@ -463,7 +465,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     points = np.random.default_rng(0).uniform(0, 50, (5000, 3)).astype(np.float32)
     write_ply(spray, PointCloud(points=points))
     cloud = _upload(engine, spray, "cloud", "application/x-ply")
-    lonely = engine.run([{"name": "measure", "kind": "measure", "inputs": [cloud]}])
+    lonely = engine.run([{"name": "measure", "kind": "defects.measure", "inputs": [cloud]}])
     failed = engine.wait(lonely["jobs"][0]["id"])
     assert failed["status"] == "failed" and "no panel top" in failed["error"]
     assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []
@@ -492,12 +494,12 @@ def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_
             },
             {
                 "name": "oenet",
-                "kind": "odometry",
+                "kind": "odometry.run",
                 "inputs": [frames],
                 "after": ["train"],
                 "params": {"method": "oenet"},
             },
-            {"name": "vista", "kind": "odometry", "inputs": [frames]},
+            {"name": "vista", "kind": "odometry.run", "inputs": [frames]},
         ]
     )
     train, oenet, vista = [engine.wait(j["id"], timeout=240) for j in run["jobs"]]
@@ -529,7 +531,12 @@ def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_
     refused = engine.run(
         [
             {"name": "train", "kind": "odometry.train", "inputs": [bare]},
-            {"name": "oenet", "kind": "odometry", "inputs": [bare], "params": {"method": "oenet"}},
+            {
+                "name": "oenet",
+                "kind": "odometry.run",
+                "inputs": [bare],
+                "params": {"method": "oenet"},
+            },
         ]
     )
     train, oenet = [engine.wait(j["id"], timeout=60) for j in refused["jobs"]]
@@ -673,7 +680,7 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
         [
             {
                 "name": "track",
-                "kind": "track",
+                "kind": "tracking.track",
                 "inputs": [sequence],
                 "params": {"track_id": 0, "reset": "adaptive:20"},
             }
@@ -692,7 +699,7 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
         [
             {
                 "name": "t",
-                "kind": "track",
+                "kind": "tracking.track",
                 "inputs": [sequence],
                 "params": {"track_id": 0, "tracker": "siamese"},
             }
@@ -704,7 +711,12 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
         f"/api/v1/inspections/{engine.inspection}/runs",
         json={
             "steps": [
-                {"name": "t", "kind": "track", "inputs": [sequence], "params": {"reset": "never"}}
+                {
+                    "name": "t",
+                    "kind": "tracking.track",
+                    "inputs": [sequence],
+                    "params": {"reset": "never"},
+                }
             ]
         },
     )
@@ -715,7 +727,14 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
     ):
         model = [] if "siamese" in params.values() else [_shipped_detector(engine)]
         refused = engine.run(
-            [{"name": "t", "kind": "track.train", "inputs": [sequence, *model], "params": params}]
+            [
+                {
+                    "name": "t",
+                    "kind": "tracking.train",
+                    "inputs": [sequence, *model],
+                    "params": params,
+                }
+            ]
         )
         failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
         assert failed["status"] == "failed" and phrase in failed["error"].lower(), failed

@@ -96,7 +96,9 @@ def test_the_shipped_detector_finds_the_cars_of_a_real_drive_it_never_saw() -> N
     training = metadata["training"]
     assert "CC BY-NC-SA 3.0" in training["licence"] and training["seed"] == 0
     assert training["data"] == ["../shared/data/kitti-object-sample"]
-    assert training["command"].startswith("vista track train default-detector")
+    assert training["command"].startswith(
+        ("vista track train default-detector", "vista tracking train default-detector")
+    )
     held_out = metadata["validation"]
     assert held_out["held_out"] and held_out["scan_names"][0].startswith(REAL_LABELLED_DRIVE.name)
     assert training["validated_on"] == ["../shared/data/kitti-raw-2011_09_26_drive_0048"]
@@ -106,7 +108,7 @@ def test_the_shipped_detector_finds_the_cars_of_a_real_drive_it_never_saw() -> N
 
 
 def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Path) -> None:
-    """`vista track train detector --from` on a few labelled scans, validated on others:
+    """`vista tracking train detector --from` on a few labelled scans, validated on others:
     the model starts as the shipped one (the same scores before as the shipped model
     gets), and the metadata holds both scores, the starting model and the licence."""
     from services.lib.nn.onnx_io import read_model
@@ -179,9 +181,9 @@ def test_the_geometric_detector_scores_a_cars_shape_above_a_hedge_and_a_trunk() 
 
 
 def test_the_defaults_track_the_real_drives_cars(tmp_path: Path) -> None:
-    """`vista track run` with its defaults (geometric tracker, the shipped detector,
+    """`vista tracking run` with its defaults (geometric tracker, the shipped detector,
     adaptive resets, ego motion from the scans: the drive has no poses) on each car of the
-    real labelled drive, and `vista track eval` on the labelled frames."""
+    real labelled drive, and `vista tracking eval` on the labelled frames."""
     runner = CliRunner()
     runs = []
     for track_id in (3, 4, 5, 6, 7):

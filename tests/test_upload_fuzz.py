@@ -62,7 +62,7 @@ def _drive_members(tmp: Path) -> dict[str, bytes]:
 
 def _lidar_members() -> dict[str, bytes]:
     """A three-scan LiDAR sequence of a few points each, with KITTI's calib, labels and
-    poses (what ``vista track simulate`` writes, at a fuzzable size)."""
+    poses (what ``vista tracking simulate`` writes, at a fuzzable size)."""
     calib = "\n".join(
         [f"P{k}: " + " ".join(["1"] * 12) for k in range(4)]
         + ["R_rect: 1 0 0 0 1 0 0 0 1", "Tr_velo_cam: 1 0 0 0 0 1 0 0 0 0 1 0"]

@@ -1,4 +1,4 @@
-"""``vista measure``, ``vista simulate defects`` and ``vista bench defects``."""
+"""``vista defects measure``, ``vista simulate defects`` and ``vista bench defects``."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from services.lib.wording import counted
 
 def measure(
     cloud: Path = typer.Argument(
-        ..., help="Stitched cloud (binary PLY, mm), e.g. from `vista stitch`."
+        ..., help="Stitched cloud (binary PLY, mm), e.g. from `vista stitching stitch`."
     ),
     config: Path = typer.Option(
         None,
@@ -208,7 +208,7 @@ def simulate_defects(
         "in truth.json, config.json"
     )
     typer.echo(
-        f"measure it: vista measure {out_dir}/cloud.ply --config {out_dir}/config.json "
+        f"measure it: vista defects measure {out_dir}/cloud.ply --config {out_dir}/config.json "
         f"-o {out_dir}/result.json --truth {out_dir}/truth.json"
     )
 

@@ -24,15 +24,16 @@ RESULT = Output("report", "defects.json")
 PROFILES = Output("plot", "seam-profiles.png")
 
 MEASURE = JobKind(
-    name="measure",
+    name="defects.measure",
+    aliases=("measure",),
     queue="defects",
     handler="services.defects.jobs:measure_job",
     params=MeasureParams,
     description=(
         "Gap, step, parallelism and mismatch of every seam and junction, and dents, "
         "bumps, scratches and colour patches, in a stitched `cloud` artifact (from a "
-        "`stitch` step or uploaded), judged against the inspection's tolerances. Writes the "
-        "result (as `vista measure`'s RESULT.json), the seam profiles and one defect per "
+        "`stitching.stitch` step or uploaded), judged against the inspection's tolerances. Writes the "
+        "result (as `vista defects measure`'s RESULT.json), the seam profiles and one defect per "
         "finding out of tolerance (severity `info` for seams within it)."
     ),
     inputs=(Inputs(("cloud",), "the stitched point cloud"),),

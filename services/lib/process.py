@@ -1,5 +1,5 @@
 """How a process that runs vista's algorithms is set up, once, where it starts (a job
-worker, `vista measure`, a bench): ``prepare_process``; and how a child process is tied
+worker, `vista defects measure`, a bench): ``prepare_process``; and how a child process is tied
 to its parent's life: ``die_with_parent``.
 
 BLAS runs one thread: the algorithms run their own threads (one per core they are given),

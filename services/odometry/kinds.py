@@ -51,7 +51,8 @@ MODEL = Output("model", "oenet.onnx")
 TRAINING_REPORT = Output("report", "training.json")
 
 ODOMETRY = JobKind(
-    name="odometry",
+    name="odometry.run",
+    aliases=("odometry",),
     queue="odometry",
     handler="services.odometry.jobs:odometry_job",
     params=OdometryParams,

@@ -1,4 +1,4 @@
-"""``vista calibrate`` and ``vista simulate stitching``."""
+"""``vista stitching calibrate`` and ``vista simulate stitching``."""
 
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def simulate_stitching(
 
 def stitch(
     scans: Path = typer.Argument(..., help='SCANS.json: {"scans": [{file, base_T_flange}, …]}'),
-    handeye: Path = typer.Option(..., help="HANDEYE.json from `vista calibrate`."),
+    handeye: Path = typer.Option(..., help="HANDEYE.json from `vista stitching calibrate`."),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write the stitched PLY."),
     report: Path = typer.Option(
         ..., help="Where to write REPORT.json (a .png plot goes beside it)."
@@ -191,7 +191,9 @@ def stitch(
 
 
 def compare_handeye(
-    handeye: Path = typer.Argument(..., help="HANDEYE.json written by `vista calibrate`."),
+    handeye: Path = typer.Argument(
+        ..., help="HANDEYE.json written by `vista stitching calibrate`."
+    ),
     truth: Path = typer.Argument(..., help="truth.json written by `vista simulate stitching`."),
 ) -> None:
     """How far a calibration is from the simulated truth (translation mm, rotation deg)."""

@@ -37,7 +37,8 @@ STITCH_REPORT = Output("report", "stitch-report.json")
 OVERLAP_PLOT = Output("plot", "overlap.png")
 
 CALIBRATE = JobKind(
-    name="calibrate",
+    name="stitching.calibrate",
+    aliases=("calibrate",),
     queue="stitching",
     handler="services.stitching.jobs:calibrate_job",
     params=CalibrateParams,
@@ -51,20 +52,21 @@ CALIBRATE = JobKind(
 )
 
 STITCH = JobKind(
-    name="stitch",
+    name="stitching.stitch",
+    aliases=("stitch",),
     queue="stitching",
     handler="services.stitching.jobs:stitch_job",
     params=StitchParams,
     description=(
         "Kinematic stitching: the scan list names the PLY scans by artifact name, each with "
-        "its robot pose; with the hand-eye calibration (uploaded or from a `calibrate` "
+        "its robot pose; with the hand-eye calibration (uploaded or from a `stitching.calibrate` "
         "step) the scans are merged into one cleaned cloud, with the overlap quality report "
         "and histogram."
     ),
     inputs=(
         Inputs(("scans",), "the scan list with each scan's robot pose (JSON)"),
         Inputs(("scan",), "the PLY scans it names", max=None),
-        Inputs(("handeye",), "the hand-eye calibration (uploaded or from `calibrate`)"),
+        Inputs(("handeye",), "the hand-eye calibration (uploaded or from `stitching.calibrate`)"),
     ),
     outputs=(STITCHED_CLOUD, STITCH_REPORT, OVERLAP_PLOT),
 )

@@ -1,5 +1,5 @@
 """REPORT.json of a stitch: overlap quality, what clean-up and ICP did, and (in simulation)
-the error against the truth. One builder for ``vista stitch`` and the ``stitch`` job."""
+the error against the truth. One builder for ``vista stitching stitch`` and the ``stitch`` job."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``vista track …``: the LiDAR car-tracking service's commands."""
+"""``vista tracking …``: the LiDAR car-tracking service's commands."""
 
 from __future__ import annotations
 
@@ -71,11 +71,11 @@ DETECTOR = typer.Option(
     "no model fits.",
 )
 SIAMESE_MODEL = typer.Option(
-    None, help="The Siamese tracker's ONNX encoder (vista track train siamese)."
+    None, help="The Siamese tracker's ONNX encoder (vista tracking train siamese)."
 )
 DETECTOR_MODEL = typer.Option(
     None,
-    help="A learned detector's ONNX model (vista track train detector; default: the shipped one).",
+    help="A learned detector's ONNX model (vista tracking train detector; default: the shipped one).",
 )
 THREADS = typer.Option(2, min=1, max=256, help="Threads for the networks.")
 
@@ -158,7 +158,7 @@ def run(
 @track_app.command("eval")
 def evaluate(
     sequence: Path = typer.Argument(..., help="The labelled sequence the runs tracked in."),
-    tracks: list[Path] = typer.Argument(..., help="TRACK.json files (vista track run)."),
+    tracks: list[Path] = typer.Argument(..., help="TRACK.json files (vista tracking run)."),
     out: Path = typer.Option(..., "-o", "--out", help="EVAL.json to write."),
     plot: Path = typer.Option(None, help="PNG of the success and precision curves."),
 ) -> None:
@@ -238,7 +238,7 @@ train_app = typer.Typer(help="Train the tracking service's networks.", no_args_i
 track_app.add_typer(train_app, name="train")
 DATA = typer.Argument(
     ...,
-    help="Labelled sequence folders (vista track simulate, KITTI tracking) or KITTI object folders (velodyne/, calib/, label_2/).",
+    help="Labelled sequence folders (vista tracking simulate, KITTI tracking) or KITTI object folders (velodyne/, calib/, label_2/).",
 )
 CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun resumes).")
 

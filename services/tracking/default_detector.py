@@ -1,9 +1,9 @@
-"""How vista's shipped car detector is built (``vista track train default-detector``), seeded,
+"""How vista's shipped car detector is built (``vista tracking train default-detector``), seeded,
 from data this repository reproduces:
 
-1. ``SIM_DRIVES`` simulated drives of ``SIM_FRAMES`` frames (``vista track simulate``,
+1. ``SIM_DRIVES`` simulated drives of ``SIM_FRAMES`` frames (``vista tracking simulate``,
    seeds ``SIM_SEED`` …), kept in the work folder;
-2. a detector trained on them alone (``vista track train detector``: the simulator-only
+2. a detector trained on them alone (``vista tracking train detector``: the simulator-only
    model, kept for contrast);
 3. that detector fine-tuned on KITTI's labelled object scans (``../shared/data/
    kitti-object-sample``) with cars pasted from them and from the simulated drives, and
@@ -84,7 +84,7 @@ def fine_tuned(
     say: Say,
     epochs: int = FINE_TUNE_EPOCHS,
     windows: int = 512,
-    command: str = "vista track train default-detector",
+    command: str = "vista tracking train default-detector",
 ) -> dict:
     """``base`` fine-tuned on the labelled scans of ``real`` (the metadata)."""
     config = DetectorTrainConfig(

@@ -1,4 +1,4 @@
-"""Detections as KITTI's result files (``vista track detect``): one ``label_2`` file a scan,
+"""Detections as KITTI's result files (``vista tracking detect``): one ``label_2`` file a scan,
 a line a car in the camera's view, scored against labels when they are given."""
 
 from __future__ import annotations

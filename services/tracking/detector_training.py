@@ -304,7 +304,7 @@ def train_detector(
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
     sources: list[str] | None = None,
-    command: str = "vista track train detector",
+    command: str = "vista tracking train detector",
 ) -> dict:
     """Train on the labelled scans of ``folders`` (fine-tune ``config.initial`` when given),
     export to ``out`` (ONNX with its metadata) and return the metadata. Validation is on the

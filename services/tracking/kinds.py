@@ -100,7 +100,8 @@ MODEL = Output("model", "tracking.onnx")
 TRAINING_REPORT = Output("report", "training.json")
 
 TRACK = JobKind(
-    name="track",
+    name="tracking.track",
+    aliases=("track",),
     queue="tracking",
     handler="services.tracking.jobs:track_job",
     params=TrackParams,
@@ -123,7 +124,8 @@ TRACK = JobKind(
 )
 
 TRACK_TRAIN = JobKind(
-    name="track.train",
+    name="tracking.train",
+    aliases=("track.train",),
     queue="training",
     handler="services.tracking.jobs:train_job",
     params=TrainParams,

@@ -1,5 +1,5 @@
 """A LiDAR sequence in one file: a zip or tar (plain, gzip, bzip2 or xz) of a sequence folder
-as ``vista track simulate`` writes it — ``velodyne/NNNNNN.bin`` and ``calib.txt`` (a KITTI
+as ``vista tracking simulate`` writes it — ``velodyne/NNNNNN.bin`` and ``calib.txt`` (a KITTI
 tracking or object calib file), and as known ``label_02.txt`` and ``poses.txt`` — under any
 one top folder of the archive.
 

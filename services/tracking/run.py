@@ -1,5 +1,5 @@
-"""One tracking run from a sequence folder (what ``vista track run`` and the ``track`` job
-do), and the evaluation of runs against a sequence's labels (``vista track eval``)."""
+"""One tracking run from a sequence folder (what ``vista tracking run`` and the ``track`` job
+do), and the evaluation of runs against a sequence's labels (``vista tracking eval``)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def make_tracker(name: str, model: Path | None, threads: int = 1) -> Tracker:
         if model is None:
             raise ValueError(
                 "the siamese tracker needs its encoder: --siamese-model SIAMESE.onnx (build one with "
-                "`vista track train siamese DATA… -o SIAMESE.onnx`)"
+                "`vista tracking train siamese DATA… -o SIAMESE.onnx`)"
             )
         from services.tracking.siamese import SiameseTracker
 
@@ -50,7 +50,7 @@ def make_detector(name: str, model: Path | None, threads: int = 1) -> Detector:
         if model is None and not DEFAULT_MODEL.is_file():
             raise ValueError(
                 f"this installation lacks vista's shipped detector ({DEFAULT_MODEL}): give "
-                "--detector-model DETECTOR.onnx (build one with `vista track train detector`) "
+                "--detector-model DETECTOR.onnx (build one with `vista tracking train detector`) "
                 "or use --detector geometric"
             )
         if model is not None and not Path(model).is_file():

@@ -1,6 +1,6 @@
 """A LiDAR sequence on disk, in any of the layouts users have:
 
-- vista's (``vista track simulate`` writes it): ``SEQ/velodyne/*.bin``, ``SEQ/calib.txt``,
+- vista's (``vista tracking simulate`` writes it): ``SEQ/velodyne/*.bin``, ``SEQ/calib.txt``,
   and as known ``SEQ/label_02.txt`` and ``SEQ/poses.txt``;
 - a KITTI tracking download as it unpacks: ``SEQ_DIR`` is ``…/training/velodyne/0011``,
   its calibration ``…/training/calib/0011.txt``, its labels ``…/training/label_02/0011.txt``;

@@ -278,7 +278,7 @@ def train_siamese(
             "validation_similarity_mse": round(result.best_score, 5),
             "seconds": round(result.seconds, 1),
             "history": result.history,
-            "command": "vista track train siamese",
+            "command": "vista tracking train siamese",
         },
     }
     export_onnx(
@@ -308,7 +308,7 @@ class SiameseTracker:
         if found.metadata.get("architecture") != ARCHITECTURE:
             raise ValueError(
                 f"{model}: a {found.metadata.get('architecture')!r} model, not the Siamese tracker's "
-                f"encoder ({ARCHITECTURE}); build one with `vista track train siamese`"
+                f"encoder ({ARCHITECTURE}); build one with `vista tracking train siamese`"
             )
         self.session = session(Path(model), threads=threads)
         self.poses = candidate_poses()

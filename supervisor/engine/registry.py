@@ -28,6 +28,7 @@ SERVICE_KIND_MODULES = (
 
 _KINDS: dict[str, JobKind] = {}
 _ARTIFACT_KINDS: dict[str, ArtifactKind] = {}
+_ALIASES: dict[str, str] = {}
 
 
 def load_kinds(extra_modules: list[str] | tuple[str, ...] = ()) -> dict[str, JobKind]:
@@ -45,6 +46,11 @@ def load_kinds(extra_modules: list[str] | tuple[str, ...] = ()) -> dict[str, Job
             )
         _add(_KINDS, declared or (), "job kind")
         _add(_ARTIFACT_KINDS, files or (), "artifact kind")
+        for kind in declared or ():
+            for alias in kind.aliases:
+                if alias in _KINDS or _ALIASES.get(alias, kind.name) != kind.name:
+                    raise ValueError(f"job kind alias {alias!r} names another kind too")
+                _ALIASES[alias] = kind.name
     return dict(_KINDS)
 
 
@@ -57,7 +63,8 @@ def _add(known: dict, declared: tuple, what: str) -> None:
 
 
 def get_kind(name: str) -> JobKind | None:
-    return _KINDS.get(name)
+    """The kind called ``name`` or, for an older name, the kind it now names."""
+    return _KINDS.get(_ALIASES.get(name, name))
 
 
 def all_kinds() -> list[JobKind]:

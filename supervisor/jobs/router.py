@@ -51,6 +51,7 @@ def list_job_kinds(
     return [
         JobKindOut(
             name=k.name,
+            aliases=list(k.aliases),
             queue=k.queue,
             description=k.description,
             input_kinds=list(k.input_kinds),

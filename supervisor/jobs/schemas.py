@@ -84,6 +84,9 @@ class OutputOut(BaseModel):
 
 class JobKindOut(BaseModel):
     name: str
+    aliases: list[str] = Field(
+        description="Older names a step may still give; its job is stored under `name`."
+    )
     queue: str
     description: str
     input_kinds: list[str]
