@@ -1,12 +1,18 @@
-"""How every `vista` command refuses (a red sentence on stderr and exit status 2) and
-reports a long task's progress."""
+"""How every `vista` command refuses (a red sentence on stderr and exit status 2), reports a
+long task's progress, and takes a job's parameters: the options of a command that does what
+a job kind does are made from the kind's ``Params`` model (``params_options``), so a
+parameter is declared once — type, default, range and help alike."""
 
 from __future__ import annotations
 
+import functools
+import inspect
 from collections.abc import Callable
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import typer
+from annotated_types import Ge, Le
+from pydantic import BaseModel, ValidationError
 
 
 def fail(message: str) -> NoReturn:
@@ -25,3 +31,72 @@ def alias(app: typer.Typer, old: str, command: Callable[..., None], new: str) ->
     app.command(old, deprecated=True, help=f"Alias of `vista {new}` (kept for this release).")(
         command
     )
+
+
+def params_options(
+    model: type[BaseModel],
+    *,
+    skip: tuple[str, ...] = (),
+    text: dict[str, tuple[str, Callable[[str], Any]]] | None = None,
+) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Decorate a command taking ``params: model``: its options become one per field of
+    ``model`` (``--field-name``, the field's type, default, range and description), checked
+    by the model (a refusal names the option) and handed over as one ``params``. ``skip``:
+    fields the command sets itself (left to their defaults); ``text``: fields typed on the
+    command line as one string, with the option's help and the parser to the field's value
+    (``--init-box "h w l x y z ry"``)."""
+    text = text or {}
+
+    def decorate(command: Callable[..., None]) -> Callable[..., None]:
+        signature = inspect.signature(command)
+        own = [p for p in signature.parameters.values() if p.name != "params"]
+        fields = {n: f for n, f in model.model_fields.items() if n not in skip}
+        made = [_option(name, info, text.get(name)) for name, info in fields.items()]
+
+        @functools.wraps(command)
+        def run(**given: Any) -> None:
+            values = {name: given.pop(name) for name in fields}
+            try:
+                for name, (_, parse) in text.items():
+                    if values.get(name) is not None:
+                        values[name] = parse(values[name])
+                params = model.model_validate({k: v for k, v in values.items() if v is not None})
+            except ValidationError as exc:
+                fail(_in_option_words(exc))
+            except ValueError as exc:
+                fail(str(exc))
+            return command(params=params, **given)
+
+        run.__signature__ = signature.replace(parameters=[*own, *made])
+        return run
+
+    return decorate
+
+
+def _option(name: str, info: Any, text: tuple[str, Callable[[str], Any]] | None) -> Any:
+    optional = not info.is_required() and info.default is None
+    if text is not None:
+        annotation, help_text = (str | None), text[0]
+    else:
+        annotation, help_text = info.annotation, info.description
+    bounds = {}  # shown in --help and checked by typer; gt/lt are the model's to check
+    for item in info.metadata:
+        if isinstance(item, Ge):
+            bounds["min"] = item.ge
+        elif isinstance(item, Le):
+            bounds["max"] = item.le
+    default = ... if info.is_required() else info.default
+    return inspect.Parameter(
+        name,
+        inspect.Parameter.KEYWORD_ONLY,
+        annotation=annotation,
+        default=typer.Option(default, help=help_text, show_default=not optional, **bounds),
+    )
+
+
+def _in_option_words(error: ValidationError) -> str:
+    """A model's first refusal as the option's: "--pitch-mm: Input should be ≥ 0.2"."""
+    first = error.errors()[0]
+    message = first["msg"].removeprefix("Value error, ")
+    field = next((str(p) for p in first["loc"] if isinstance(p, str)), None)
+    return f"--{field.replace('_', '-')}: {message}" if field else message

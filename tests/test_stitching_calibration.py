@@ -149,7 +149,7 @@ def test_cli_simulate_then_calibrate(tmp_path) -> None:
     bad_method = runner.invoke(
         app, ["calibrate", str(tmp_path / "pairs.json"), "-o", str(out), "--method", "x"]
     )
-    assert bad_method.exit_code == 2 and "--method must be one of" in bad_method.output
+    assert bad_method.exit_code == 2 and "Invalid value for '--method'" in bad_method.output
     missing = runner.invoke(app, ["calibrate", str(tmp_path / "nope.json"), "-o", str(out)])
     assert missing.exit_code == 2 and "no such file" in missing.output
 

@@ -438,7 +438,7 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
     done = runner.invoke(
         app,
         [
-            "track",
+            "tracking",
             "run",
             str(drive),
             "--track-id",
@@ -470,14 +470,14 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
     by_box = tmp_path / "by_box.json"
     done = runner.invoke(
         app,
-        ["track", "run", str(drive), "--init-box", " ".join(map(str, given)), "-o", str(by_box)],
+        ["tracking", "run", str(drive), "--init-box", " ".join(map(str, given)), "-o", str(by_box)],
     )
     assert done.exit_code == 0, done.output
     evaluated = tmp_path / "eval.json"
     done = runner.invoke(
         app,
         [
-            "track",
+            "tracking",
             "eval",
             str(drive),
             str(out),
@@ -495,17 +495,20 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
     for arguments, phrase in (
         (["--track-id", "999"], "track 999 is not in"),
         (["--init-box", "1 2 3"], "give seven numbers"),
-        (["--track-id", "0", "--init-box", " ".join(map(str, given))], "either by --track-id"),
-        (["--track-id", "0", "--reset", "every:0"], "every:N needs a whole N"),
+        (
+            ["--track-id", "0", "--init-box", " ".join(map(str, given))],
+            "either by track_id (--track-id)",
+        ),
+        (["--track-id", "0", "--reset", "every:0"], "every:N (N a whole number from 1)"),
         (["--track-id", "0", "--tracker", "siamese"], "needs its encoder"),
         (["--track-id", "0", "--detector-model", str(tmp_path / "no.onnx")], "no such model file"),
     ):
         refused = runner.invoke(
-            app, ["track", "run", str(drive), *arguments, "-o", str(tmp_path / "x.json")]
+            app, ["tracking", "run", str(drive), *arguments, "-o", str(tmp_path / "x.json")]
         )
         assert refused.exit_code == 2 and phrase in refused.output, (arguments, refused.output)
     refused = runner.invoke(
-        app, ["track", "run", str(tmp_path), "--track-id", "0", "-o", str(tmp_path / "x.json")]
+        app, ["tracking", "run", str(tmp_path), "--track-id", "0", "-o", str(tmp_path / "x.json")]
     )
     assert refused.exit_code == 2 and "not a LiDAR sequence" in refused.output
 
@@ -516,7 +519,7 @@ def test_detect_command_writes_kittis_results_and_scores_them(tmp_path: Path) ->
     done = CliRunner().invoke(
         app,
         [
-            "track",
+            "tracking",
             "detect",
             str(REAL_OBJECTS / "velodyne"),
             "--calib",

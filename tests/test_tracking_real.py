@@ -122,7 +122,7 @@ def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Pat
     done = CliRunner().invoke(
         app,
         [
-            "track", "train", "detector", str(train), "--from", str(DEFAULT_MODEL),
+            "tracking", "train", "detector", str(train), "--from", str(DEFAULT_MODEL),
             "--validate", str(held), "--epochs", "1", "--windows", "4", "--batch", "2",
             "--window", "96", "--licence", "KITTI, CC BY-NC-SA 3.0", "-o", str(out),
         ],
@@ -135,7 +135,7 @@ def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Pat
     before = metadata["validation"]["before_fine_tuning"]
     assert before["cars_near"] == metadata["validation"]["cars_near"] == 7
     refused = CliRunner().invoke(
-        app, ["track", "train", "detector", str(train), "--from", "nowhere.onnx", "-o", str(out)]
+        app, ["tracking", "train", "detector", str(train), "--from", "nowhere.onnx", "-o", str(out)]
     )
     assert refused.exit_code == 2 and "no such model file" in refused.output
 
@@ -190,7 +190,15 @@ def test_the_defaults_track_the_real_drives_cars(tmp_path: Path) -> None:
         out = tmp_path / f"t{track_id}.json"
         done = runner.invoke(
             app,
-            ["track", "run", str(REAL_LABELLED_DRIVE), "--track-id", str(track_id), "-o", str(out)],
+            [
+                "tracking",
+                "run",
+                str(REAL_LABELLED_DRIVE),
+                "--track-id",
+                str(track_id),
+                "-o",
+                str(out),
+            ],
         )
         assert done.exit_code == 0, done.output
         document = json.loads(out.read_text())
@@ -198,7 +206,7 @@ def test_the_defaults_track_the_real_drives_cars(tmp_path: Path) -> None:
         runs.append(str(out))
     evaluated = tmp_path / "eval.json"
     done = runner.invoke(
-        app, ["track", "eval", str(REAL_LABELLED_DRIVE), *runs, "-o", str(evaluated)]
+        app, ["tracking", "eval", str(REAL_LABELLED_DRIVE), *runs, "-o", str(evaluated)]
     )
     assert done.exit_code == 0, done.output
     scores = json.loads(evaluated.read_text())

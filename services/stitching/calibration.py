@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import get_args
 
 import numpy as np
 from scipy import optimize
@@ -34,9 +35,11 @@ from services.lib.pointcloud.transforms import (
     make_transform,
     to_rotvec,
 )
+from services.stitching.kinds import CalibrateParams, CalibrationMethod
 
-OPENCV_METHODS = ("tsai", "park", "horaud", "andreff", "daniilidis")
-METHODS = ("vista", "thesis", *OPENCV_METHODS)
+METHODS: tuple[str, ...] = get_args(CalibrationMethod)
+OPENCV_METHODS = METHODS[2:]
+"""OpenCV's calibrateHandEye: tsai, park, horaud, andreff, daniilidis."""
 MIN_PAIRS = 3
 
 _axis = np.linspace(-50.0, 50.0, 5)
@@ -67,6 +70,16 @@ class NoiseModel:
         for name, value in vars(self).items():
             if not (np.isfinite(value) and value > 0):
                 raise CalibrationError(f"{name} must be a positive number, got {value}")
+
+    @classmethod
+    def of(cls, params: CalibrateParams) -> NoiseModel:
+        """The noise a calibrate job's or command's parameters state."""
+        return cls(
+            params.robot_sigma_mm,
+            params.robot_sigma_deg,
+            params.sensor_sigma_mm,
+            params.sensor_sigma_deg,
+        )
 
 
 @dataclass(frozen=True)

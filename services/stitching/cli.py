@@ -7,42 +7,32 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import alias, fail
+from contract.cli import alias, fail, params_options
+from services.stitching.kinds import CalibrateParams, StitchParams
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands: every `vista` invocation
 # and every API process imports this module.
 
 
+@params_options(CalibrateParams)
 def calibrate(
     pairs: Path = typer.Argument(
         ..., help='PAIRS.json: {"pairs": [{base_T_flange, sensor_T_target}, …]}'
     ),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write HANDEYE.json."),
-    method: str = typer.Option(
-        "vista", help="vista | thesis | tsai | park | horaud | andreff | daniilidis"
-    ),
-    robot_sigma_mm: float = typer.Option(0.05, help="Robot repeatability, 1σ per axis (mm)."),
-    robot_sigma_deg: float = typer.Option(0.005, help="Robot orientation noise, 1σ per axis."),
-    sensor_sigma_mm: float = typer.Option(0.02, help="Plate-pose noise of the sensor (mm)."),
-    sensor_sigma_deg: float = typer.Option(0.02, help="Plate-pose noise of the sensor (deg)."),
+    *,
+    params: CalibrateParams,
 ) -> None:
     """Robot–sensor calibration: flange_T_sensor (and the plate's base_T_target) from pairs of
     reported robot pose and measured plate pose. The noise options weigh the vista method."""
-    from services.stitching.calibration import (
-        METHODS,
-        CalibrationError,
-        NoiseModel,
-    )
-    from services.stitching.calibration import (
-        calibrate as run_calibration,
-    )
+    from services.stitching.calibration import CalibrationError, NoiseModel
+    from services.stitching.calibration import calibrate as run_calibration
     from services.stitching.files import StitchingFileError, read_pairs, write_handeye
 
-    if method not in METHODS:
-        fail(f"--method must be one of {', '.join(METHODS)}; got {method!r}")
+    method = params.method
     try:
         base_T_flange, sensor_T_target = read_pairs(pairs)
-        noise = NoiseModel(robot_sigma_mm, robot_sigma_deg, sensor_sigma_mm, sensor_sigma_deg)
+        noise = NoiseModel.of(params)
         result = run_calibration(base_T_flange, sensor_T_target, method=method, noise=noise)
     except (StitchingFileError, CalibrationError) as exc:
         fail(str(exc))
@@ -97,6 +87,7 @@ def simulate_stitching(
     )
 
 
+@params_options(StitchParams)
 def stitch(
     scans: Path = typer.Argument(..., help='SCANS.json: {"scans": [{file, base_T_flange}, …]}'),
     handeye: Path = typer.Option(..., help="HANDEYE.json from `vista stitching calibrate`."),
@@ -104,19 +95,11 @@ def stitch(
     report: Path = typer.Option(
         ..., help="Where to write REPORT.json (a .png plot goes beside it)."
     ),
-    voxel_mm: float = typer.Option(0.2, help="Merge the points within one voxel of this edge."),
-    loop_threshold: float = typer.Option(0.8, help="Drop points with a higher LoOP."),
-    icp: str = typer.Option(
-        "none",
-        help="none (kinematic poses) | bounded (refine within the kinematic uncertainty) | "
-        "point-to-point | point-to-plane (plain ICP, as the thesis tried).",
-    ),
-    icp_start: str = typer.Option(
-        "kinematic", help="kinematic | none (no initial transform: the thesis's Fig. 6.4 b)."
-    ),
     truth: Path = typer.Option(
         None, help="truth.json of `vista simulate stitching`: adds the true errors."
     ),
+    *,
+    params: StitchParams,
 ) -> None:
     """Stitch scans into the robot base frame with the calibration, clean them (LoOP,
     closest-vertex merge, final filter) and report the overlap quality (Fig. 6.2)."""
@@ -130,18 +113,13 @@ def stitch(
         read_truth,
     )
     from services.stitching.quality import histogram_png
-    from services.stitching.report import icp_config, stitch_report
-    from services.stitching.stitch import StitchConfig
+    from services.stitching.report import stitch_config, stitch_report
     from services.stitching.stitch import stitch as run_stitch
 
     try:
         files, base_T_flange = read_scans(scans)
         flange_T_sensor, calibration = read_handeye(handeye)
-        config = StitchConfig(
-            voxel_mm=voxel_mm,
-            loop_threshold=loop_threshold,
-            icp=icp_config(icp, icp_start, calibration),
-        )
+        config = stitch_config(params, calibration)
         simulated = None if truth is None else read_truth(truth)
         if simulated is not None and len(simulated.scan_base_T_flange) != len(files):
             fail(f"{truth} holds {len(simulated.scan_base_T_flange)} scans, {scans} {len(files)}")
@@ -176,7 +154,7 @@ def stitch(
     if result.alignments is not None:
         worst = max(result.alignments, key=lambda a: a.moved_mm)
         typer.echo(
-            f"ICP {icp}: moved scans by up to {worst.moved_mm:.3f} mm, "
+            f"ICP {params.icp}: moved scans by up to {worst.moved_mm:.3f} mm, "
             f"{max(a.moved_deg for a in result.alignments):.4f}°; "
             f"{sum(a.clipped for a in result.alignments)} cut back to the kinematic bound"
         )

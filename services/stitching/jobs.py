@@ -18,8 +18,8 @@ from services.stitching.files import (
 )
 from services.stitching.kinds import HANDEYE, OVERLAP_PLOT, STITCH_REPORT, STITCHED_CLOUD
 from services.stitching.quality import histogram_png
-from services.stitching.report import icp_config, stitch_report
-from services.stitching.stitch import StitchConfig, stitch
+from services.stitching.report import stitch_config, stitch_report
+from services.stitching.stitch import stitch
 
 
 def calibrate_job(ctx: JobContext) -> dict:
@@ -31,13 +31,8 @@ def calibrate_job(ctx: JobContext) -> dict:
     except StitchingFileError as exc:
         raise input_error(pairs, exc) from exc
     ctx.progress(0.1, f"calibrating ({params.method}) from {len(base_T_flange)} pairs")
-    noise = NoiseModel(
-        params.robot_sigma_mm,
-        params.robot_sigma_deg,
-        params.sensor_sigma_mm,
-        params.sensor_sigma_deg,
-    )
     try:
+        noise = NoiseModel.of(params)
         result = calibrate(base_T_flange, sensor_T_target, method=params.method, noise=noise)
     except CalibrationError as exc:
         raise input_error(pairs, exc) from exc
@@ -74,11 +69,7 @@ def stitch_job(ctx: JobContext) -> dict:
             f"PLY inputs: {sorted(scans) or 'none'}"
         )
     try:
-        config = StitchConfig(
-            voxel_mm=params.voxel_mm,
-            loop_threshold=params.loop_threshold,
-            icp=icp_config(params.icp, params.icp_start, calibration),
-        )
+        config = stitch_config(params, calibration)
     except ValueError as exc:
         raise JobInputError(str(exc)) from exc
     clouds = []

@@ -15,20 +15,39 @@ IcpMethod = Literal["none", "bounded", "point-to-point", "point-to-plane"]
 class CalibrateParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    method: CalibrationMethod = "vista"
-    robot_sigma_mm: float = Field(0.05, gt=0, le=10, description="Robot repeatability, 1σ/axis.")
-    robot_sigma_deg: float = Field(0.005, gt=0, le=5, description="Robot orientation noise.")
-    sensor_sigma_mm: float = Field(0.02, gt=0, le=10, description="Plate-pose noise (mm).")
-    sensor_sigma_deg: float = Field(0.02, gt=0, le=5, description="Plate-pose noise (deg).")
+    method: CalibrationMethod = Field(
+        "vista", description="vista (weighs the noise below), the thesis's, or a classic solver."
+    )
+    robot_sigma_mm: float = Field(
+        0.05, gt=0, le=10, description="Robot repeatability, 1σ per axis (mm)."
+    )
+    robot_sigma_deg: float = Field(
+        0.005, gt=0, le=5, description="Robot orientation noise, 1σ per axis (deg)."
+    )
+    sensor_sigma_mm: float = Field(
+        0.02, gt=0, le=10, description="Plate-pose noise of the sensor (mm)."
+    )
+    sensor_sigma_deg: float = Field(
+        0.02, gt=0, le=5, description="Plate-pose noise of the sensor (deg)."
+    )
 
 
 class StitchParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    voxel_mm: float = Field(0.2, gt=0, le=10, description="Closest-vertex merge voxel edge.")
+    voxel_mm: float = Field(
+        0.2, gt=0, le=10, description="Merge the points within one voxel of this edge (mm)."
+    )
     loop_threshold: float = Field(0.8, gt=0, le=1, description="Drop points with a higher LoOP.")
-    icp: IcpMethod = Field("none", description="Refine the kinematic poses by ICP.")
-    icp_start: Literal["kinematic", "none"] = "kinematic"
+    icp: IcpMethod = Field(
+        "none",
+        description="none (kinematic poses) | bounded (refine within the kinematic "
+        "uncertainty) | point-to-point | point-to-plane (plain ICP, as the thesis tried).",
+    )
+    icp_start: Literal["kinematic", "none"] = Field(
+        "kinematic",
+        description="kinematic | none (no initial transform: the thesis's Fig. 6.4 b).",
+    )
 
 
 HANDEYE = Output("handeye", "handeye.json")

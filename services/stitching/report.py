@@ -10,6 +10,7 @@ import numpy as np
 from services.lib.pointcloud.transforms import pose_error
 from services.stitching.files import SimulatedTruth
 from services.stitching.icp import IcpConfig
+from services.stitching.kinds import StitchParams
 from services.stitching.quality import QualityReport, quality_report
 from services.stitching.stitch import StitchConfig, StitchResult
 
@@ -24,6 +25,16 @@ def icp_config(method: str, start: str, calibration: dict) -> IcpConfig | None:
         start=start,
         calibration_sigma_mm=float(calibration.get("sigma_translation_mm") or 0.0),
         calibration_sigma_deg=float(calibration.get("sigma_rotation_deg") or 0.0),
+    )
+
+
+def stitch_config(params: StitchParams, calibration: dict) -> StitchConfig:
+    """The stitch a job's or command's parameters ask for, with the calibration's
+    uncertainty bounding a ``bounded`` ICP."""
+    return StitchConfig(
+        voxel_mm=params.voxel_mm,
+        loop_threshold=params.loop_threshold,
+        icp=icp_config(params.icp, params.icp_start, calibration),
     )
 
 

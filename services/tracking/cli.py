@@ -6,13 +6,14 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import echo_progress, fail
+from contract.cli import echo_progress, fail, params_options
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
     DETECTOR_LEARNING_RATE,
     FINE_TUNE_EPOCHS,
     FINE_TUNE_LEARNING_RATE,
     SIAMESE_EPOCHS,
+    TrackParams,
 )
 
 # Heavy imports (numpy, open3d, torch, onnxruntime) stay inside the commands.
@@ -57,10 +58,6 @@ def simulate(
     )
 
 
-TRACKER = typer.Option(
-    "geometric",
-    help="geometric (point-model registration) or siamese (SC3D, needs --siamese-model).",
-)
 DETECTOR = typer.Option(
     "learned",
     help="learned (the default): the BEV network — vista's shipped model unless "
@@ -70,6 +67,15 @@ DETECTOR = typer.Option(
     "geometric: ground, clusters, L-shape boxes scored by shape — no model, for a sensor "
     "no model fits.",
 )
+INIT_BOX_HELP = "Or start from this box: 'h w l x y z ry' (KITTI camera frame, metres, radians)."
+
+
+def _camera_box(text: str) -> list[float]:
+    from services.tracking.run import parse_camera_box
+
+    return parse_camera_box(text).tolist()
+
+
 SIAMESE_MODEL = typer.Option(
     None, help="The Siamese tracker's ONNX encoder (vista tracking train siamese)."
 )
@@ -81,36 +87,21 @@ THREADS = typer.Option(2, min=1, max=256, help="Threads for the networks.")
 
 
 @track_app.command("run")
+@params_options(TrackParams, text={"init_box": (INIT_BOX_HELP, _camera_box)})
 def run(
     sequence: Path = typer.Argument(
         ...,
         help="A sequence folder: vista's (velodyne/, calib.txt), a KITTI tracking download's training/velodyne/NNNN, or a raw drive.",
     ),
     out: Path = typer.Option(..., "-o", "--out", help="TRACK.json to write."),
-    track_id: int = typer.Option(
-        None, help="Track this labelled object (label_02's track id) over its frames."
-    ),
-    init_box: str = typer.Option(
-        None, help="Or start from this box: 'h w l x y z ry' (KITTI camera frame, metres, radians)."
-    ),
-    start_frame: int = typer.Option(
-        None, help="With --init-box: the frame it is in (default the first)."
-    ),
-    end_frame: int = typer.Option(
-        None, help="With --init-box: the last frame to track (default the last)."
-    ),
-    reset: str = typer.Option(
-        "adaptive:10",
-        help="adaptive[:BUDGET] (the default: the detector only when the tracker is unsure, on at most BUDGET percent of the frames — on the real drive and the simulated bench never below the tracker alone, at under 1 % of the frames for the geometric tracker), every:N (the thesis's fixed frequency 1/N) or never.",
-    ),
-    tracker: str = TRACKER,
-    detector: str = DETECTOR,
     siamese_model: Path = SIAMESE_MODEL,
     detector_model: Path = DETECTOR_MODEL,
     plot: Path = typer.Option(
         None, help="PNG: the target's path, its confidence and the detector's runs."
     ),
     threads: int = THREADS,
+    *,
+    params: TrackParams,
 ) -> None:
     """Track one car through a LiDAR sequence: the tracker each frame, the detector when the
     reset policy says so (the target picked among its cars by distance, size and the shape
@@ -121,15 +112,17 @@ def run(
     and the detector's cost (% of frames) and the frames per second."""
     import json
 
+    import numpy as np
+
     from services.lib.process import prepare_process
     from services.tracking.kitti import KittiError
     from services.tracking.report import plot_run
-    from services.tracking.run import parse_camera_box, run_tracking
+    from services.tracking.run import run_tracking
 
     prepare_process()
 
     try:
-        box = parse_camera_box(init_box) if init_box is not None else None
+        box = None if params.init_box is None else np.array(params.init_box)
         with typer.progressbar(length=1, label="tracking") as bar:
 
             def advance(done: int, total: int) -> None:
@@ -137,9 +130,10 @@ def run(
                 bar.update(1)
 
             document = run_tracking(
-                sequence, track_id=track_id, init_box=box, start_frame=start_frame, end_frame=end_frame,
-                tracker=tracker, detector=detector, reset=reset, siamese_model=siamese_model,
-                detector_model=detector_model, threads=threads, progress=advance,
+                sequence, track_id=params.track_id, init_box=box, start_frame=params.start_frame,
+                end_frame=params.end_frame, tracker=params.tracker, detector=params.detector,
+                reset=params.reset, siamese_model=siamese_model, detector_model=detector_model,
+                threads=threads, progress=advance,
             )  # fmt: skip
     except (ValueError, KittiError) as exc:
         fail(str(exc))

@@ -1,8 +1,9 @@
 """Job kinds of the tracking service (imported by the API: keep it light)."""
 
+import re
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
@@ -18,6 +19,7 @@ MAX_FRAME = 10_000_000
 BoxNumber = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
 """A box's size (m), position (m) or rotation (rad): finite and within 10 km."""
 
+RESET_POLICY = re.compile(r"never|every:[1-9]\d*|adaptive(:\d+(\.\d+)?)?")
 SEQUENCE = Inputs(
     ("lidar",),
     "a LiDAR sequence: a zip or tar of velodyne/NNNNNN.bin and calib.txt (label_02.txt, poses.txt as known)",
@@ -28,7 +30,10 @@ class TrackParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     track_id: int | None = Field(
-        None, ge=0, le=2**31 - 1, description="Track this labelled object (label_02's track id)."
+        None,
+        ge=0,
+        le=2**31 - 1,
+        description="Track this labelled object (label_02's track id) over its frames.",
     )
     init_box: list[BoxNumber] | None = Field(
         None,
@@ -47,22 +52,34 @@ class TrackParams(BaseModel):
     )
     reset: str = Field(
         "adaptive:10",
-        pattern=r"^(never|every:[1-9]\d*|adaptive(:\d+(\.\d+)?)?)$",
-        description="adaptive[:BUDGET] (the detector when the tracker is unsure, on at most BUDGET percent of the frames), every:N (the thesis's fixed frequency 1/N) or never.",
+        description="adaptive[:BUDGET] (the default: the detector only when the tracker is unsure, on at most BUDGET percent of the frames — on the real drive and the simulated bench never below the tracker alone, at under 1 % of the frames for the geometric tracker), every:N (the thesis's fixed frequency 1/N) or never.",
     )
     tracker: Literal["geometric", "siamese"] = Field(
         "geometric",
-        description="geometric: point-model registration; siamese: SC3D (needs a `model` input).",
+        description="geometric: point-model registration; siamese: SC3D (needs its encoder: a `model` input, or --siamese-model on the command line).",
     )
     detector: Literal["geometric", "learned"] = Field(
         "learned",
-        description="learned: the BEV network — vista's shipped model, or a `model` input; geometric: clusters and L-shape boxes scored by shape.",
+        description="learned: the BEV network — vista's shipped model, or a `model` input (--detector-model); trained on simulated drives and fine-tuned on KITTI's labelled scans, on real scans it never saw it found 0.87 of the cars within 40 m at precision 0.82, in 22 ms a scan (the geometric detector: 0.65 and 0.53, in 170 ms). geometric: ground, clusters, L-shape boxes scored by shape — no model, for a sensor no model fits.",
     )
+
+    @field_validator("reset")
+    @classmethod
+    def _reset_policy(cls, value: str) -> str:
+        if not RESET_POLICY.fullmatch(value):
+            raise ValueError(
+                f"{value!r} is not a reset policy: give adaptive[:BUDGET] (a percentage), "
+                "every:N (N a whole number from 1) or never"
+            )
+        return value
 
     @model_validator(mode="after")
     def _one_target(self) -> "TrackParams":
         if (self.track_id is None) == (self.init_box is None):
-            raise ValueError("give the target by track_id or by init_box (one of them)")
+            raise ValueError(
+                "give the target either by track_id (--track-id) or by init_box (--init-box), "
+                "one of them"
+            )
         if self.init_box is not None and min(self.init_box[:3]) <= 0:
             raise ValueError("init_box's h, w and l must be positive")
         return self
