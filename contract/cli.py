@@ -36,26 +36,26 @@ def alias(app: typer.Typer, old: str, command: Callable[..., None], new: str) ->
 def params_options(
     model: type[BaseModel],
     *,
-    skip: tuple[str, ...] = (),
+    fixed: dict[str, Any] | None = None,
     text: dict[str, tuple[str, Callable[[str], Any]]] | None = None,
 ) -> Callable[[Callable[..., None]], Callable[..., None]]:
     """Decorate a command taking ``params: model``: its options become one per field of
     ``model`` (``--field-name``, the field's type, default, range and description), checked
-    by the model (a refusal names the option) and handed over as one ``params``. ``skip``:
-    fields the command sets itself (left to their defaults); ``text``: fields typed on the
+    by the model (a refusal names the option) and handed over as one ``params``. ``fixed``:
+    fields the command sets itself (``network="teacher"``); ``text``: fields typed on the
     command line as one string, with the option's help and the parser to the field's value
     (``--init-box "h w l x y z ry"``)."""
-    text = text or {}
+    text, fixed = text or {}, fixed or {}
 
     def decorate(command: Callable[..., None]) -> Callable[..., None]:
         signature = inspect.signature(command)
         own = [p for p in signature.parameters.values() if p.name != "params"]
-        fields = {n: f for n, f in model.model_fields.items() if n not in skip}
+        fields = {n: f for n, f in model.model_fields.items() if n not in fixed}
         made = [_option(name, info, text.get(name)) for name, info in fields.items()]
 
         @functools.wraps(command)
         def run(**given: Any) -> None:
-            values = {name: given.pop(name) for name in fields}
+            values = {name: given.pop(name) for name in fields} | fixed
             try:
                 for name, (_, parse) in text.items():
                     if values.get(name) is not None:

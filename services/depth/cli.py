@@ -7,7 +7,9 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import echo_progress, fail
+from contract.cli import echo_progress, fail, params_options
+from contract.training import config_from
+from services.depth.kinds import TrainParams
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
 
@@ -112,19 +114,6 @@ def evaluate(
     typer.echo(f"wrote {out}")
 
 
-def _config(epochs: int, batch: int, learning_rate: float, seed: int, threads: int, device: str):  # noqa: ANN202 - a DepthTrainConfig
-    from services.depth.training import DepthTrainConfig
-
-    return DepthTrainConfig(
-        epochs=epochs,
-        batch=batch,
-        learning_rate=learning_rate,
-        seed=seed,
-        threads=threads,
-        device=device,
-    )
-
-
 def _load(folders: list[Path], width: int, height: int, lidar: bool = False):  # noqa: ANN202 - a FrameSet
     from services.depth.data import load_frames
 
@@ -134,45 +123,27 @@ def _load(folders: list[Path], width: int, height: int, lidar: bool = False):  #
         fail(str(exc))
 
 
-SIZE_HELP = "multiple of 32; Monodepth2 trains at 640 × 192, vista's CPU default is 320 × 96"
-# the training options train-teacher and distill share
-WIDTH = typer.Option(320, min=64, max=4096, help=f"Training width ({SIZE_HELP}).")
-HEIGHT = typer.Option(96, min=64, max=4096, help="Training height.")
-EPOCHS = typer.Option(12, min=1, max=1000)
-BATCH = typer.Option(8, min=1, max=512)
-LEARNING_RATE = typer.Option(3e-4, min=1e-7, max=1.0, help="Adam's step (cosine schedule).")
-SEED = typer.Option(0, min=0)
-THREADS = typer.Option(2, min=1, max=256)
-DEVICE = typer.Option("auto", help="auto, cpu or cuda.")
+THREADS = typer.Option(2, min=1, max=256, help="Threads for torch.")
 CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun resumes).")
 
 
 @depth_app.command("train-teacher")
+@params_options(TrainParams, fixed={"network": "teacher", "method": "vista"})
 def train_teacher_command(
     data: list[Path] = typer.Argument(
         ...,
         help="Drive folders (image_02/, and image_03/, depth/, velodyne/, poses.txt as the supervision needs).",
     ),
     out: Path = typer.Option(..., "-o", "--out", help="TEACHER.onnx to write."),
-    supervision: str = typer.Option(
-        "depth",
-        help="stereo, mono (pose network), both, depth (ground-truth maps) or lidar (the "
-        "drives' velodyne/ scans through their calibration; simulated drives give depth/).",
-    ),
     initial: Path = typer.Option(
         None,
         "--from",
         help="A teacher to adapt (e.g. one trained on the simulator) instead of starting from scratch.",
     ),
-    width: int = WIDTH,
-    height: int = HEIGHT,
-    epochs: int = EPOCHS,
-    batch: int = BATCH,
-    learning_rate: float = LEARNING_RATE,
-    seed: int = SEED,
     threads: int = THREADS,
-    device: str = DEVICE,
     checkpoints: Path = CHECKPOINTS,
+    *,
+    params: TrainParams,
 ) -> None:
     """Train Monodepth2's network (ResNet-18 encoder, 14.3 M parameters) as a teacher:
     self-supervised from stereo, from video with a pose network, or both (photometric
@@ -181,19 +152,17 @@ def train_teacher_command(
     --from, adapts a trained teacher to your camera (e.g. the simulator's, on your own
     scans or video). Writes ONNX with its encoder and decoder features as extra outputs
     (for vista's distillation) and the validation AbsRel."""
-    from services.depth.teacher import SUPERVISIONS, save_teacher, train_teacher
+    from services.depth.teacher import save_teacher, train_teacher
+    from services.depth.training import DepthTrainConfig
 
-    if supervision not in SUPERVISIONS:
-        fail(f"--supervision {supervision!r}: one of {', '.join(SUPERVISIONS)}")
-    if width % 32 or height % 32:
-        fail(f"--width {width} --height {height}: both must be multiples of 32 (at least 64)")
+    supervision, width, height = params.supervision, params.width, params.height
     if initial is not None and not initial.is_file():
         fail(f"--from {initial}: no such file")
     frames = _load(data, width, height, lidar=supervision == "lidar")
     typer.echo(
         f"{len(frames)} frames from {len(data)} folder{'s' * (len(data) > 1)} at {width} × {height}"
     )
-    config = _config(epochs, batch, learning_rate, seed, threads, device)
+    config = config_from(DepthTrainConfig, params, threads=threads)
     try:
         result = train_teacher(
             frames,
@@ -223,6 +192,7 @@ def train_teacher_command(
 
 
 @depth_app.command("distill")
+@params_options(TrainParams, fixed={"network": "student", "supervision": "depth"})
 def distill_command(
     images: list[Path] = typer.Argument(
         ...,
@@ -232,30 +202,19 @@ def distill_command(
         ..., help="TEACHER.onnx: vista's, or any depth model with its spec JSON beside it."
     ),
     out: Path = typer.Option(..., "-o", "--out", help="STUDENT.onnx to write."),
-    method: str = typer.Option(
-        "vista",
-        help="thesis (L1 on the teacher's depth) or vista (log + gradients + feature hints + photometric).",
-    ),
-    width: int = WIDTH,
-    height: int = HEIGHT,
-    epochs: int = EPOCHS,
-    batch: int = BATCH,
-    learning_rate: float = LEARNING_RATE,
-    seed: int = SEED,
     threads: int = THREADS,
-    device: str = DEVICE,
     checkpoints: Path = CHECKPOINTS,
+    *,
+    params: TrainParams,
 ) -> None:
     """Distil TEACHER into the student, DeepLabv3+ with MobileNetV2 (2.67 M parameters),
     on the given images, by the thesis's L1 or vista's method; writes ONNX and the student's
     AbsRel against the teacher on held-out images."""
-    from services.depth.distill import METHODS, distill, save_student
+    from services.depth.distill import distill, save_student
     from services.depth.models import DepthModel
+    from services.depth.training import DepthTrainConfig
 
-    if method not in METHODS:
-        fail(f"--method {method!r}: one of {', '.join(METHODS)}")
-    if width % 32 or height % 32:
-        fail(f"--width {width} --height {height}: both must be multiples of 32 (at least 64)")
+    method, width, height = params.method, params.width, params.height
     try:
         model = DepthModel(teacher, threads)
     except ValueError as exc:
@@ -264,7 +223,7 @@ def distill_command(
     typer.echo(
         f"{len(frames)} frames at {width} × {height}; teacher {teacher} ({model.spec.width} × {model.spec.height})"
     )
-    config = _config(epochs, batch, learning_rate, seed, threads, device)
+    config = config_from(DepthTrainConfig, params, threads=threads)
     try:
         result = distill(
             model, frames, method, config, checkpoint_dir=checkpoints, progress=echo_progress
@@ -406,7 +365,9 @@ def build_default_command(
     ),
     width: int = typer.Option(320, min=64, max=4096),
     height: int = typer.Option(96, min=64, max=4096),
-    seed: int = SEED,
+    seed: int = typer.Option(
+        0, min=0, help="Random seed (simulation, initial weights, shuffling)."
+    ),
     threads: int = THREADS,
 ) -> None:
     """Build the depth model vista ships: a teacher trained on simulated drives, adapted to a

@@ -45,6 +45,7 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
 
 
 def train_job(ctx: JobContext) -> dict:
+    from contract.training import config_from
     from services.depth.data import load_frames
     from services.depth.distill import STUDENT_ARCHITECTURE, distill, save_student
     from services.depth.models import DepthModel
@@ -63,14 +64,7 @@ def train_job(ctx: JobContext) -> dict:
         raise JobInputError(f"one `model` input at most; got {len(teachers)}")
     ctx.progress(0.01, f"unpacking {len(data)} input{'s' * (len(data) > 1)}")
     folders = _folders(ctx, data)
-    config = DepthTrainConfig(
-        epochs=params.epochs,
-        batch=params.batch,
-        learning_rate=params.learning_rate,
-        seed=params.seed,
-        threads=ctx.threads,
-        device=params.device,
-    )
+    config = config_from(DepthTrainConfig, params, threads=ctx.threads)
     say = lambda fraction, message: ctx.progress(0.1 + 0.85 * fraction, message)  # noqa: E731 - a one-line adapter
     path = ctx.workdir / MODEL.file_name()
     inputs = [a.label for a in data]

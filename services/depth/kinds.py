@@ -6,15 +6,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
-from contract.vocabulary import DeviceChoice
+from contract.training import TrainSettings
 from services.lib.artifact_kinds import FORMATS
 
 EPOCHS = 12
 
 
-class TrainParams(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class TrainParams(TrainSettings):
     network: Literal["teacher", "student"] = Field(
         "student",
         description="teacher: Monodepth2's network trained on the drives (adapting the `model` "
@@ -25,20 +23,27 @@ class TrainParams(BaseModel):
         "depth",
         description="A teacher's: stereo (image_03/), mono (video, pose network), both, depth "
         "(the drives' depth maps) or lidar (the drives' velodyne/ scans through their "
-        "calibration).",
+        "calibration; simulated drives give depth/).",
     )
     method: Literal["thesis", "vista"] = Field(
-        "vista", description="A student's: the thesis's L1, or vista's distillation."
+        "vista",
+        description="A student's: thesis (L1 on the teacher's depth) or vista (log + gradients "
+        "+ feature hints + photometric).",
     )
-    width: int = Field(320, ge=64, le=4096, multiple_of=32, description="Training width, px.")
-    height: int = Field(96, ge=64, le=4096, multiple_of=32, description="Training height, px.")
+    width: int = Field(
+        320,
+        ge=64,
+        le=4096,
+        multiple_of=32,
+        description="Training width, px (a multiple of 32; Monodepth2 trains at 640 × 192, "
+        "vista's CPU default is 320 × 96).",
+    )
+    height: int = Field(
+        96, ge=64, le=4096, multiple_of=32, description="Training height, px (a multiple of 32)."
+    )
     epochs: int = Field(EPOCHS, ge=1, le=10_000, description="Passes over the frames.")
     batch: int = Field(8, ge=1, le=4096, description="Frames per step.")
     learning_rate: float = Field(3e-4, gt=0, le=1, description="Adam's step (cosine schedule).")
-    seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")
-    device: DeviceChoice = Field(
-        "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
-    )
 
 
 class PredictParams(BaseModel):

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail
-from services.odometry.kinds import OENET_EPOCHS, OENET_LEARNING_RATE
+from contract.cli import fail, params_options
+from services.odometry.kinds import OdometryParams, TrainParams
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
 
@@ -104,15 +104,10 @@ def _camera(path: Path):  # noqa: ANN202 - a Camera (imported inside: keep the C
 
 
 @odometry_app.command("run")
+@params_options(OdometryParams)
 def run(
     frames_dir: Path = typer.Argument(..., help="Folder of frames (PNG, in name order)."),
     camera: Path = typer.Option(..., "--camera", help="camera.json of the frames."),
-    method: str = typer.Option(
-        "vista",
-        help="vista: direct alignment at full resolution (no training needed); phase: "
-        "phase correlation with a Fourier–Mellin turn (the classical peer); oenet: the "
-        "thesis's network (needs --model).",
-    ),
     model: Path = typer.Option(None, help="MODEL.onnx of `vista odometry train` (oenet)."),
     threads: int = typer.Option(
         None, min=1, max=256, help="Threads (default: one per available core)."
@@ -120,18 +115,19 @@ def run(
     out: Path = typer.Option(..., "-o", "--out", help="Where to write the trajectory (TUM)."),
     plot: Path = typer.Option(None, help="Also draw the trajectory as a PNG."),
     truth: Path = typer.Option(None, help="truth.tum: drawn beside the estimate in the plot."),
+    *,
+    params: OdometryParams,
 ) -> None:
     """Estimate the camera's motion between consecutive frames and chain it into a
     trajectory: TRAJ.tum (metres, frame i at i / fps s, in camera 0's frame) and, beside it,
     TRAJ.json (each pair's motion, confidence and flag; the position's growing 1σ)."""
     from services.lib.process import available_cores, prepare_process
     from services.odometry.report import write_run
-    from services.odometry.run import METHODS, run_odometry
+    from services.odometry.run import run_odometry
     from services.odometry.tum import read_tum
 
     prepare_process()
-    if method not in METHODS:
-        fail(f"--method {method!r}: known methods are {', '.join(METHODS)}")
+    method = params.method
     settings = _camera(camera)
     true = None
     if truth is not None:
@@ -172,46 +168,27 @@ def run(
 
 
 @odometry_app.command("train")
+@params_options(TrainParams)
 def train(
     data_dirs: list[Path] = typer.Argument(
         ..., help="Sequences of `vista odometry simulate` (frames/, camera.json, truth.tum)."
     ),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write MODEL.onnx."),
-    arch: str = typer.Option("oenet", help="oenet: the thesis's Table 6.1."),
-    epochs: int = typer.Option(OENET_EPOCHS, min=1, max=10_000, help="Passes over the pairs."),
-    batch: int = typer.Option(256, min=1, max=65_536, help="Pairs per step (thesis: 256)."),
-    learning_rate: float = typer.Option(
-        OENET_LEARNING_RATE, min=1e-6, max=10, help="SGD step (momentum 0.9)."
-    ),
-    seed: int = typer.Option(0, help="Random seed (split, initial weights, shuffling)."),
-    device: str = typer.Option("auto", help="auto, cpu or cuda."),
     checkpoints: Path = typer.Option(
         None, help="Folder for each epoch's checkpoint; a run with the same folder resumes."
     ),
+    *,
+    params: TrainParams,
 ) -> None:
     """Train a network on simulated sequences (each pair of consecutive frames is a
     sample) and export it as ONNX with its metadata (architecture, training data, input,
     validation error), checked against torch's output."""
-    from services.lib.nn.device import DEVICES
+    from contract.training import config_from
     from services.lib.nn.train import TrainConfig
     from services.lib.process import available_cores
     from services.odometry.oenet import train_oenet, training_summary
 
-    if arch != "oenet":
-        fail(
-            f"--arch {arch!r}: only oenet is a network here; vista's method is direct "
-            "alignment and needs no training"
-        )
-    if device not in DEVICES:
-        fail(f"--device {device!r}: known devices are {', '.join(DEVICES)}")
-    config = TrainConfig(
-        epochs=epochs,
-        batch=batch,
-        learning_rate=learning_rate,
-        seed=seed,
-        device=device,
-        threads=available_cores(),
-    )
+    config = config_from(TrainConfig, params, threads=available_cores())
     try:
         metadata = train_oenet(
             data_dirs,

@@ -119,6 +119,7 @@ def odometry_job(ctx: JobContext) -> dict:
 
 
 def train_job(ctx: JobContext) -> dict:
+    from contract.training import config_from
     from services.lib.nn.train import TrainConfig
     from services.odometry.oenet import train_oenet, training_summary
 
@@ -135,14 +136,7 @@ def train_job(ctx: JobContext) -> dict:
                 f"{artifact.label} has no truth.tum: training needs each pair's true motion"
             )
         folders.append(folder)
-    config = TrainConfig(
-        epochs=params.epochs,
-        batch=params.batch,
-        learning_rate=params.learning_rate,
-        seed=params.seed,
-        device=params.device,
-        threads=ctx.threads,
-    )
+    config = config_from(TrainConfig, params, threads=ctx.threads)
     model = ctx.workdir / MODEL.file_name()
     try:
         metadata = train_oenet(

@@ -6,7 +6,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
-from contract.vocabulary import DeviceChoice
+from contract.training import TrainSettings
 
 OENET_EPOCHS = 40
 OENET_LEARNING_RATE = 0.02
@@ -23,23 +23,22 @@ class OdometryParams(BaseModel):
 
     method: Literal["vista", "phase", "oenet"] = Field(
         "vista",
-        description="vista: direct alignment (no model needed); phase: phase correlation with "
-        "a Fourier–Mellin turn; oenet: the thesis's network (needs a `model` input).",
+        description="vista: direct alignment at full resolution (no training needed); phase: "
+        "phase correlation with a Fourier–Mellin turn (the classical peer); oenet: the "
+        "thesis's network (needs its model: a `model` input, or --model on the command line).",
     )
 
 
-class TrainParams(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-    arch: Literal["oenet"] = Field("oenet", description="oenet: the thesis's Table 6.1.")
+class TrainParams(TrainSettings):
+    arch: Literal["oenet"] = Field(
+        "oenet",
+        description="oenet: the thesis's Table 6.1 (vista's own method is direct alignment "
+        "and needs no training).",
+    )
     epochs: int = Field(OENET_EPOCHS, ge=1, le=10_000, description="Passes over the pairs.")
     batch: int = Field(256, ge=1, le=65_536, description="Pairs per step (thesis: 256).")
     learning_rate: float = Field(
         OENET_LEARNING_RATE, gt=0, le=10, description="SGD step (momentum 0.9)."
-    )
-    seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, shuffling.")
-    device: DeviceChoice = Field(
-        "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
     )
 
 

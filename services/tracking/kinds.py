@@ -7,7 +7,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
-from contract.vocabulary import DeviceChoice
+from contract.training import TrainSettings
 
 DETECTOR_EPOCHS = 12
 DETECTOR_LEARNING_RATE = 2e-3
@@ -85,9 +85,7 @@ class TrackParams(BaseModel):
         return self
 
 
-class TrainParams(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class TrainParams(TrainSettings):
     network: Literal["detector", "siamese"] = Field(
         "detector", description="detector: the BEV car detector; siamese: SC3D's PointNet encoder."
     )
@@ -95,18 +93,14 @@ class TrainParams(BaseModel):
         None,
         ge=1,
         le=10_000,
-        description=f"Passes (default {DETECTOR_EPOCHS} for the detector, {SIAMESE_EPOCHS} for the Siamese).",
+        description=f"Passes (default {DETECTOR_EPOCHS} for the detector, {FINE_TUNE_EPOCHS} to fine-tune it, {SIAMESE_EPOCHS} for the Siamese).",
     )
     learning_rate: float | None = Field(
         None, gt=0, le=1, description="Adam's step (default the network's)."
     )
-    seed: int = Field(0, ge=0, le=2**31 - 1, description="Split, initial weights, sampling.")
     fine_tune: bool = Field(
         False,
         description="detector only: fine-tune a model — a `model` input, or else vista's shipped detector — on the sequences instead of training from scratch.",
-    )
-    device: DeviceChoice = Field(
-        "auto", description="auto: CUDA on a worker that has a GPU, else the CPU."
     )
 
 
