@@ -14,10 +14,11 @@ import pytest
 from typer.testing import CliRunner
 
 from services.depth.camera import Camera, kitti_camera
-from services.depth.kitti import read_calibration, read_depth_png, read_drive, write_depth_png
+from services.depth.drive import read_calibration, read_drive
 from services.depth.metrics import evaluate_image
 from services.depth.render import render
 from services.depth.scene import random_scene
+from services.lib.kitti import read_depth_png, write_depth_png
 from supervisor.cli import app
 
 KITTI_RAW = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-raw-2011_09_26"
@@ -442,7 +443,8 @@ def test_lidar_depth_is_kittis_projection_at_any_size(tmp_path: Path) -> None:
     """The scans through calib.json give the drive's own depth PNGs pixel for pixel; KITTI
     raw's text calibration gives the same; at the training size the nearest return wins."""
     from services.depth.data import load_frames
-    from services.depth.lidar import lidar_depth, read_lidar_calibration, read_velodyne
+    from services.depth.lidar import lidar_depth, read_lidar_calibration
+    from services.lib.kitti import read_velodyne
 
     drive = read_drive(KITTI_RAW)
     assert drive.velodyne is not None and all(drive.velodyne)

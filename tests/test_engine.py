@@ -559,7 +559,7 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
     student on the drive and on a single image: depth PNGs at the images' size, previews,
     camera-frame clouds and a report. A student without a teacher, and a drive without
     calibration, are refused with what is missing."""
-    from services.depth.kitti import read_depth_png
+    from services.lib.kitti import read_depth_png
     from tests.depthfiles import pack_drive, small_drive
 
     folder = small_drive(tmp_path / "drive")

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.tracking import kitti
-from services.tracking.boxes import bev_iou, inside, iou_3d
+from services.lib import kitti
+from services.lib.boxes import bev_iou, inside, iou_3d
 from supervisor.cli import app
 from tests.lidarfiles import REAL_DRIVE, REAL_OBJECTS, small_drive
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.tracking import kitti
+from services.lib import kitti
 from services.tracking.bench_real import linked_object_folder
 from supervisor.cli import app
 from tests.lidarfiles import REAL_LABELLED_DRIVE, REAL_OBJECTS
@@ -44,7 +44,7 @@ def test_pasted_cars_keep_their_range_and_hide_what_is_behind_them() -> None:
     """Cars cut from one real scan pasted into another: each keeps its distance from the
     sensor (turned about it), stands clear of the labelled objects, and the returns its
     body shadows are gone."""
-    from services.tracking.boxes import bev_iou, inside
+    from services.lib.boxes import bev_iou, inside
     from services.tracking.datasets import labelled_scans
     from services.tracking.detector_training import labels_speak
     from services.tracking.ground import estimate_ground

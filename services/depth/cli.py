@@ -278,7 +278,7 @@ def predict_command(
 
     from services.depth.data import image_files
     from services.depth.default_model import default_model
-    from services.depth.kitti import read_calibration, read_image
+    from services.depth.drive import read_calibration, read_image
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
     from services.depth.quantize import quantize_int8

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from contract.vocabulary import Progress
-from services.depth.kitti import IMAGE_SUFFIXES, read_depth_png, read_drive, read_image
+from services.depth.drive import IMAGE_SUFFIXES, read_drive, read_image
+from services.lib.kitti import read_depth_png
 
 
 @dataclass(frozen=True)
@@ -86,7 +87,8 @@ def image_files(folder: Path) -> list[Path]:
 
 def _scan_depths(drive, width: int, height: int) -> list[np.ndarray] | None:  # noqa: ANN001 - a kitti.Drive
     """Each frame's LiDAR scan projected at (width, height), when every frame has one."""
-    from services.depth.lidar import lidar_depth, read_lidar_calibration, read_velodyne
+    from services.depth.lidar import lidar_depth, read_lidar_calibration
+    from services.lib.kitti import read_velodyne
 
     if drive.velodyne is None or any(p is None for p in drive.velodyne):
         return None

@@ -80,7 +80,8 @@ class HeldOut:
 def read_held_out(folder: Path) -> HeldOut:
     """KITTI object-benchmark frames: ``image_2/NAME.png``, ``depth/NAME.png`` (uint16 m ×
     256) and ``calib/NAME.txt`` (``P2``); ValueError naming what is missing."""
-    from services.depth.kitti import _calib_txt, read_depth_png, read_image
+    from services.depth.drive import read_image
+    from services.lib.kitti import read_depth_png, read_key_values
 
     folder = Path(folder)
     images_dir, depth_dir = folder / "image_2", folder / "depth"
@@ -93,7 +94,7 @@ def read_held_out(folder: Path) -> HeldOut:
     Ks = []
     for name in names:
         calib = folder / "calib" / f"{name}.txt"
-        Ks.append(_calib_txt(calib)["P2"].reshape(3, 4)[:, :3] if calib.is_file() else None)
+        Ks.append(read_key_values(calib)["P2"].reshape(3, 4)[:, :3] if calib.is_file() else None)
     return HeldOut(
         names,
         [read_image(images_dir / f"{n}.png") for n in names],

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.depth.kitti import _calib_txt
+from services.lib.kitti import read_key_values
 
 MIN_DEPTH_M = 1e-3
 
@@ -65,7 +65,7 @@ def read_lidar_calibration(folder: Path) -> LidarCalibration:
                 ) from None
         velo_txt, cam_txt = place / "calib_velo_to_cam.txt", place / "calib_cam_to_cam.txt"
         if velo_txt.is_file() and cam_txt.is_file():
-            velo, cam = _calib_txt(velo_txt), _calib_txt(cam_txt)
+            velo, cam = read_key_values(velo_txt), read_key_values(cam_txt)
             try:
                 return LidarCalibration(
                     cam["P_rect_02"].reshape(3, 4),
@@ -78,7 +78,7 @@ def read_lidar_calibration(folder: Path) -> LidarCalibration:
                 ) from None
         object_txt = place / "calib.txt"
         if object_txt.is_file():
-            values = _calib_txt(object_txt)
+            values = read_key_values(object_txt)
             try:
                 velo_to_cam = np.vstack((values["Tr_velo_to_cam"].reshape(3, 4), [0, 0, 0, 1]))
                 return LidarCalibration(
@@ -92,14 +92,6 @@ def read_lidar_calibration(folder: Path) -> LidarCalibration:
         f"{folder}: no LiDAR calibration here or in its parent (calib.json with P_rect_02, "
         "R_rect_00 and cam0_T_velo; calib_velo_to_cam.txt + calib_cam_to_cam.txt; or calib.txt)"
     )
-
-
-def read_velodyne(path: Path) -> np.ndarray:
-    """(N, 4) float32 ``x y z reflectance`` of a KITTI ``.bin`` scan."""
-    raw = np.fromfile(path, dtype="<f4")
-    if raw.size % 4:
-        raise ValueError(f"{path}: {raw.size} floats, not x y z reflectance per point")
-    return raw.reshape(-1, 4)
 
 
 def lidar_depth(

@@ -147,7 +147,7 @@ def evaluate_folders(
     """Every ground-truth depth PNG in ``gt_dir`` against the prediction of the same name in
     ``pred_dir`` (KITTI depth PNGs; a prediction's ``*.color.png`` preview is ignored); the
     names on one side only are listed in the result (``missing``, ``unmatched``)."""
-    from services.depth.kitti import read_depth_png
+    from services.lib.kitti import read_depth_png
 
     for folder, what in ((pred_dir, "predictions"), (gt_dir, "ground truth")):
         if not Path(folder).is_dir():

@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from services.depth.camera import Camera
-from services.depth.kitti import read_image, write_depth_png
+from services.depth.drive import read_image
 from services.depth.models import DepthModel
+from services.lib.kitti import write_depth_png
 
 CLOUD_MAX_DEPTH_M = 80.0
 """Beyond this the cloud leaves a point out (KITTI's evaluation cap)."""

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.boxes import YAW, H, L, W, Z, wrap
+from services.lib.boxes import YAW, H, L, W, Z, wrap
 from services.tracking.detections import Detections
 
 GATE_M = 3.0

@@ -230,7 +230,7 @@ def _pipeline_speed(
 
 def _windowed_ms(detector: Detector, items: list[LabelledScan]) -> float:
     """Milliseconds of a reset's detection: the 24 m window around each labelled car."""
-    from services.tracking import kitti
+    from services.lib import kitti
     from services.tracking.association import search_window
 
     seconds, runs = 0.0, 0

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.bench import say
-from services.tracking import kitti
+from services.lib import kitti
 from services.tracking.datasets import LabelledScan, labelled_scans
 from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, fine_tuned
 from services.tracking.detection_eval import combine, tally_scan

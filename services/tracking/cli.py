@@ -114,8 +114,8 @@ def run(
 
     import numpy as np
 
+    from services.lib.kitti import KittiError
     from services.lib.process import prepare_process
-    from services.tracking.kitti import KittiError
     from services.tracking.report import plot_run
     from services.tracking.run import run_tracking
 
@@ -162,7 +162,7 @@ def evaluate(
     runs' frames, in percent; each run's own figures beside."""
     import json
 
-    from services.tracking.kitti import KittiError
+    from services.lib.kitti import KittiError
     from services.tracking.report import plot_ope, read_track
     from services.tracking.run import evaluate_runs
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking import kitti
+from services.lib import kitti
 from services.tracking.sequence import open_sequence
 
 NEIGHBOURS = ("Van", "Truck")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking import kitti
+from services.lib import kitti
 from services.tracking.detection_eval import combine, in_view, tally_scan
 from services.tracking.detections import Detections
 from services.tracking.run import make_detector

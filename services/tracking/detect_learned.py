@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from services.lib.boxes import bev_iou
 from services.tracking.bev import CELL_M, FULL_VIEW, STRIDE, Window, encode
-from services.tracking.boxes import bev_iou
 from services.tracking.detections import Detections, empty_detections
 
 ARCHITECTURE = "bev-centre"

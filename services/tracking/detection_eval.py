@@ -15,8 +15,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.tracking import kitti
-from services.tracking.boxes import bev_iou
+from services.lib import kitti
+from services.lib.boxes import bev_iou
 from services.tracking.detections import Detections
 
 IOU_MATCH = 0.5

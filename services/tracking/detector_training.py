@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from services.lib import kitti
+from services.lib.boxes import YAW, inside
 from services.lib.nn.fit import Progress
-from services.tracking import kitti
 from services.tracking.bev import CELL_M, CHANNELS, FULL_VIEW, STRIDE, Window, encode
-from services.tracking.boxes import YAW, inside
 from services.tracking.datasets import LabelledScan, data_fingerprint, labelled_scans, split_groups
 from services.tracking.detect_learned import ARCHITECTURE, THRESHOLD
 from services.tracking.ground import Ground, estimate_ground

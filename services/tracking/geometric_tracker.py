@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.boxes import YAW, H, L, W, Z, from_box_frame, inside, wrap
+from services.lib.boxes import YAW, H, L, W, Z, from_box_frame, inside, wrap
 from services.tracking.correlation import best_shift
 from services.tracking.tracker import MotionModel, PointModel, TrackStep, crop, in_box
 

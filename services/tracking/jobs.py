@@ -52,8 +52,8 @@ def _models(models: list[InputArtifact]) -> dict[str, InputArtifact]:
 
 
 def track_job(ctx: JobContext) -> dict:
+    from services.lib.kitti import KittiError
     from services.tracking.detect_learned import ARCHITECTURE as DETECTOR
-    from services.tracking.kitti import KittiError
     from services.tracking.report import plot_run
     from services.tracking.run import evaluate_runs, run_tracking
     from services.tracking.siamese import ARCHITECTURE as SIAMESE

@@ -18,6 +18,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from contract.artifacts import ArtifactRefused, Inspected
+from services.lib import kitti
 from services.lib.archive import (
     ArchiveError,
     Member,
@@ -27,7 +28,6 @@ from services.lib.archive import (
     read_member,
 )
 from services.lib.formats import text_of
-from services.tracking import kitti
 
 HINT = "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt poses.txt`"
 MAX_SCAN_BYTES = 64 << 20

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.boxes import centre_distance, iou_3d
+from services.lib.boxes import centre_distance, iou_3d
 
 SUCCESS_THRESHOLDS = np.linspace(0.0, 1.0, 21)
 PRECISION_THRESHOLDS_M = np.linspace(0.0, 2.0, 21)

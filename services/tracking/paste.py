@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.tracking.boxes import YAW, H, L, Z, bev_iou, inside, wrap
+from services.lib.boxes import YAW, H, L, Z, bev_iou, inside, wrap
 from services.tracking.ground import Ground
 
 MIN_RETURNS = 20

@@ -19,8 +19,8 @@ from typing import Protocol
 import numpy as np
 
 from contract.vocabulary import Count
+from services.lib.boxes import inside
 from services.tracking.association import associate, fuse, search_window
-from services.tracking.boxes import inside
 from services.tracking.detections import Detections
 from services.tracking.resets import UNSURE_BELOW, AdaptiveGate, ResetPolicy
 from services.tracking.tracker import Tracker, TrackStep

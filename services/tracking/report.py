@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking import kitti
-from services.tracking.boxes import BOX_FIELDS
+from services.lib import kitti
+from services.lib.boxes import BOX_FIELDS
 from services.tracking.ope import PRECISION_THRESHOLDS_M, SUCCESS_THRESHOLDS, OPEResult
 from services.tracking.pipeline import TrackResult
 

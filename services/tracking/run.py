@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking import kitti
-from services.tracking.boxes import check_boxes, iou_3d
+from services.lib import kitti
+from services.lib.boxes import check_boxes, iou_3d
 from services.tracking.ope import OPEResult, frame_scores, one_pass
 from services.tracking.pipeline import Detector, track
 from services.tracking.report import lidar_boxes, track_document

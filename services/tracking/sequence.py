@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking import kitti
+from services.lib import kitti
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from services.lib.boxes import YAW, from_box_frame, wrap
 from services.lib.nn.fit import Progress
-from services.tracking.boxes import YAW, from_box_frame, wrap
 from services.tracking.kinds import SIAMESE_EPOCHS
 from services.tracking.sequence import open_sequence, tracklets
 from services.tracking.tracker import MotionModel, TrackStep, crop, in_box

@@ -22,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking import kitti, lidar
-from services.tracking.boxes import YAW, H, L, W, corners, to_box_frame, wrap
+from services.lib import kitti
+from services.lib.boxes import YAW, H, L, W, corners, to_box_frame, wrap
+from services.tracking import lidar
 from services.tracking.scene import Agent, Road, Street, placements, random_street
 
 FPS = 10.0

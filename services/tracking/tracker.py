@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from services.tracking.boxes import YAW, H, to_box_frame, transform_boxes, wrap
+from services.lib.boxes import YAW, H, to_box_frame, transform_boxes, wrap
 
 VOXEL_M = 0.1
 MODEL_POINTS = 4000

@@ -1,4 +1,7 @@
-"""KITTI's LiDAR formats, so users run vista on their own downloads as they are.
+"""KITTI's file formats, so users run vista on their own downloads as they are (the one
+module that reads and writes them; the depth service's drive layout is ``depth/drive.py``).
+
+- Depth PNG (the depth benchmark's convention): uint16, metres × 256, 0 = no measurement.
 
 - ``velodyne/NNNNNN.bin``: float32 little-endian ``x y z reflectance`` per point, metres,
   the Velodyne's frame (x forward, y left, z up).
@@ -24,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.tracking.boxes import YAW, H, L, W, corners, wrap
+from services.lib.boxes import YAW, H, L, W, corners, wrap
 
 POINT_BYTES = 16
 DONT_CARE = "DontCare"
@@ -103,7 +106,8 @@ def _read_text(path: Path, what: str) -> str:
         raise KittiError(f"{path}: cannot read the {what} ({exc})") from None
 
 
-def _key_values(text: str, path: Path | str) -> dict[str, np.ndarray]:
+def key_values(text: str, path: Path | str) -> dict[str, np.ndarray]:
+    """A calibration file's ``key: numbers`` lines (``calib_time`` and blank lines skipped)."""
     values = {}
     for number, line in enumerate(text.splitlines(), 1):
         if not line.strip():
@@ -148,12 +152,12 @@ def read_calibration(path: Path) -> Calibration:
     path = Path(path)
     if path.suffix == ".json":
         return _read_calibration_json(path)
-    values = _key_values(_read_text(path, "calibration"), path)
+    values = key_values(_read_text(path, "calibration"), path)
     if path.name == "calib_cam_to_cam.txt":
         velo = path.with_name("calib_velo_to_cam.txt")
         if not velo.exists():
             raise KittiError(f"{path}: a raw drive's calibration needs {velo.name} beside it")
-        rigid = _key_values(_read_text(velo, "calibration"), velo)
+        rigid = key_values(_read_text(velo, "calibration"), velo)
         values["Tr_velo_to_cam"] = np.column_stack(
             [_shaped(rigid, velo, "R", (3, 3)), _shaped(rigid, velo, "T", (3, 1))]
         ).ravel()
@@ -162,7 +166,7 @@ def read_calibration(path: Path) -> Calibration:
 
 def parse_calibration(text: str, name: str) -> Calibration:
     """An object or tracking calib file's text (``name`` for the errors)."""
-    return _calibration(_key_values(text, name), name)
+    return _calibration(key_values(text, name), name)
 
 
 def _calibration(values: dict[str, np.ndarray], path: Path | str) -> Calibration:
@@ -426,6 +430,11 @@ def image_boxes(
     )
 
 
+def read_key_values(path: Path) -> dict[str, np.ndarray]:
+    """``key_values`` of a calibration file (``calib_cam_to_cam.txt`` …)."""
+    return key_values(_read_text(path, "calibration"), path)
+
+
 def read_poses(path: Path) -> np.ndarray:
     """(N, 4, 4) ``cam0_T_cami`` from an odometry-format ``poses.txt`` (12 numbers a line)."""
     return parse_poses(_read_text(path, "poses"), path)
@@ -464,3 +473,37 @@ def lidar_poses(camera_poses: np.ndarray, calibration: Calibration) -> np.ndarra
 def boxes_in_lidar(labels: Labels, calibration: Calibration) -> np.ndarray:
     """(N, 7) the labels' boxes in the LiDAR frame."""
     return camera_to_lidar(labels.camera_box, calibration)
+
+
+DEPTH_SCALE = 256.0
+MAX_STORED_M = 65535 / DEPTH_SCALE
+
+
+def write_depth_png(path: Path, depth_m: np.ndarray) -> None:
+    """Depth (H, W) metres as KITTI's uint16 PNG; 0, negative, non-finite or beyond
+    ``MAX_STORED_M`` (256 m) is stored as 0 (no measurement)."""
+    import cv2
+
+    depth = np.asarray(depth_m, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"depth must be (H, W), got {depth.shape}")
+    valid = np.isfinite(depth) & (depth > 0) & (depth <= MAX_STORED_M)
+    stored = np.where(valid, np.rint(np.where(valid, depth, 0) * DEPTH_SCALE), 0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), stored.astype(np.uint16)):
+        raise ValueError(f"{path}: could not write the PNG")
+
+
+def read_depth_png(path: Path) -> np.ndarray:
+    """(H, W) float32 metres from a KITTI depth PNG (0 = no measurement)."""
+    import cv2
+
+    stored = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if stored is None:
+        raise ValueError(f"{path}: not a readable PNG")
+    if stored.dtype != np.uint16 or stored.ndim != 2:
+        raise ValueError(
+            f"{path}: a depth PNG is one 16-bit channel (KITTI: metres × 256), this one is "
+            f"{stored.dtype} with shape {stored.shape}"
+        )
+    return stored.astype(np.float32) / DEPTH_SCALE

@@ -1,7 +1,6 @@
-"""KITTI's formats, so users point vista at their own folders: depth PNGs, the raw layout's
-images and calibration, and poses in the odometry format.
+"""A camera drive in KITTI's layout, so users point the depth service at their own folders
+(KITTI's file formats themselves are ``services.lib.kitti``'s).
 
-- Depth PNG (the depth benchmark's convention): uint16, metres × 256, 0 = no measurement.
 - A *drive* folder holds ``image_02/`` (left colour camera, ``*.png``; KITTI raw's
   ``image_02/data/`` also works), optionally ``image_03/`` (right), ``depth/`` (or the depth
   benchmark's ``proj_depth/groundtruth/image_02/``), ``velodyne/`` (or KITTI raw's
@@ -22,40 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from services.depth.camera import KITTI_BASELINE_M, Camera
+from services.lib.kitti import read_key_values, read_poses
 
-DEPTH_SCALE = 256.0
-MAX_STORED_M = 65535 / DEPTH_SCALE
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-
-
-def write_depth_png(path: Path, depth_m: np.ndarray) -> None:
-    """Depth (H, W) metres as KITTI's uint16 PNG; 0, negative, non-finite or beyond
-    ``MAX_STORED_M`` (256 m) is stored as 0 (no measurement)."""
-    import cv2
-
-    depth = np.asarray(depth_m, dtype=np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"depth must be (H, W), got {depth.shape}")
-    valid = np.isfinite(depth) & (depth > 0) & (depth <= MAX_STORED_M)
-    stored = np.where(valid, np.rint(np.where(valid, depth, 0) * DEPTH_SCALE), 0)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), stored.astype(np.uint16)):
-        raise ValueError(f"{path}: could not write the PNG")
-
-
-def read_depth_png(path: Path) -> np.ndarray:
-    """(H, W) float32 metres from a KITTI depth PNG (0 = no measurement)."""
-    import cv2
-
-    stored = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if stored is None:
-        raise ValueError(f"{path}: not a readable PNG")
-    if stored.dtype != np.uint16 or stored.ndim != 2:
-        raise ValueError(
-            f"{path}: a depth PNG is one 16-bit channel (KITTI: metres × 256), this one is "
-            f"{stored.dtype} with shape {stored.shape}"
-        )
-    return stored.astype(np.float32) / DEPTH_SCALE
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -82,17 +50,6 @@ def write_image(path: Path, image: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), np.ascontiguousarray(image[..., ::-1])):
         raise ValueError(f"{path}: could not write the image")
-
-
-def _calib_txt(path: Path) -> dict[str, np.ndarray]:
-    values = {}
-    for line in path.read_text().splitlines():
-        key, _, rest = line.partition(":")
-        try:
-            values[key.strip()] = np.array([float(x) for x in rest.split()])
-        except ValueError:
-            continue  # calib_time and other non-numeric entries
-    return values
 
 
 def _camera_from(
@@ -128,7 +85,7 @@ def read_calibration(folder: Path, size: tuple[int, int]) -> Camera:
                 ) from None
         txt_path = place / "calib_cam_to_cam.txt"
         if txt_path.is_file():
-            values = _calib_txt(txt_path)
+            values = read_key_values(txt_path)
             if "P_rect_02" not in values or values["P_rect_02"].size != 12:
                 raise ValueError(f"{txt_path}: no P_rect_02 (3 × 4)")
             return _camera_from(values["P_rect_02"], values.get("P_rect_03"), size, None)
@@ -198,22 +155,3 @@ def read_drive(folder: Path) -> Drive:
             velodyne = tuple(by_name.get(n) for n in names)
             break
     return Drive(folder, camera, names, tuple(left), right, depth, poses, velodyne)
-
-
-def write_poses(path: Path, cam0_T_cam: np.ndarray) -> None:
-    """(N, 4, 4) poses in KITTI's odometry format."""
-    rows = np.asarray(cam0_T_cam)[:, :3, :].reshape(len(cam0_T_cam), 12)
-    path.write_text("".join(" ".join(f"{v:.9e}" for v in row) + "\n" for row in rows))
-
-
-def read_poses(path: Path) -> np.ndarray:
-    """(N, 4, 4) poses from KITTI's odometry format."""
-    try:
-        rows = np.loadtxt(path, ndmin=2)
-    except ValueError as exc:
-        raise ValueError(f"{path}: not KITTI poses (12 numbers a line): {exc}") from None
-    if rows.shape[1] != 12 or not np.all(np.isfinite(rows)):
-        raise ValueError(f"{path}: a KITTI pose line is 12 finite numbers, got {rows.shape[1]}")
-    poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    poses[:, :3, :] = rows.reshape(-1, 3, 4)
-    return poses
