@@ -6,15 +6,19 @@ these members, and a test may give them any other.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 from pydantic import BaseModel
 
 from contract.errors import JobInputError
+from contract.kinds import Output
 from contract.tolerances import Tolerances
-from contract.vocabulary import DefectType, Severity
+from contract.vocabulary import ONNX_MEDIA_TYPE, DefectType, Severity
+
+Unpacked = TypeVar("Unpacked")
 
 
 @dataclass(frozen=True)
@@ -107,3 +111,31 @@ def in_user_words(message: str, ctx: JobContext, artifacts: list[InputArtifact])
     for artifact in artifacts:
         message = message.replace(str(artifact.path), artifact.label)
     return message.replace(str(ctx.workdir), "the job's folder")
+
+
+def unpacked(
+    artifact: InputArtifact, folder: Path, extract: Callable[[Path, Path], Unpacked]
+) -> Unpacked:
+    """An archive input unpacked into ``folder`` by ``extract``; its refusal (a
+    ``ValueError``) is the job's, naming the artifact."""
+    try:
+        return extract(artifact.path, folder)
+    except ValueError as exc:
+        raise JobInputError(f"{artifact.label}: {exc}") from exc
+
+
+def store_model(
+    ctx: JobContext, path: Path, metadata: dict, *, model: Output, report: Output
+) -> None:
+    """A trained network kept as the ``model`` output (ONNX; its architecture, scores and
+    size as the artifact's metadata) and its whole metadata — data, settings, each epoch's
+    losses — as the ``report`` output."""
+    summary = ("architecture", "metrics", "parameters")
+    ctx.add_artifact_file(
+        path,
+        kind=model.kind,
+        name=path.name,
+        media_type=ONNX_MEDIA_TYPE,
+        meta={key: metadata[key] for key in summary if key in metadata},
+    )
+    ctx.add_artifact_json(metadata, kind=report.kind, name=report.file_name())

@@ -7,10 +7,10 @@ import tarfile
 import zipfile
 from pathlib import Path
 
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.simulate import simulate_sequence
 
-SMALL_CAMERA = Camera(width=200, height=150, fps=60.0, mm_per_px=0.6)
+SMALL_CAMERA = FloorCamera(width=200, height=150, fps=60.0, mm_per_px=0.6)
 
 
 def small_sequence(out: Path, *, seconds: float = 0.3, seed: int = 5) -> Path:

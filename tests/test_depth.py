@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from services.depth.camera import Camera, kitti_camera
+from services.depth.camera import PinholeCamera, kitti_camera
 from services.depth.drive import read_calibration, read_drive
 from services.depth.metrics import evaluate_image
 from services.depth.render import render
@@ -110,7 +110,7 @@ def test_simulated_road_depth_is_the_ground_plane() -> None:
     assert (depth[0] == 0).any()  # sky
 
 
-def _stereo_pair(camera: Camera):
+def _stereo_pair(camera: PinholeCamera):
     """A noise-free simulated stereo pair of one street and the right camera's pose."""
     scene = random_scene(11)
     street_T_left = np.eye(4)

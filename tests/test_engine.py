@@ -720,7 +720,7 @@ def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_
             ]
         },
     )
-    assert response.status_code == 422 and "track_id or by init_box" in response.text
+    assert response.status_code == 422 and "either by track_id" in response.text
     for params, phrase in (
         ({"network": "siamese", "fine_tune": True}, "fine_tune applies to the detector"),
         ({"network": "detector"}, "only used with fine_tune"),

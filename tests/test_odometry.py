@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from services.odometry import se2
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.drive import (
     THESIS_PATH_MM,
     Command,
@@ -25,7 +25,7 @@ from services.odometry.render import Effects, render
 from services.odometry.tum import Trajectory2D, read_tum, write_tum
 from supervisor.cli import app
 
-SMALL = Camera(width=240, height=180, fps=60.0, mm_per_px=0.6)
+SMALL = FloorCamera(width=240, height=180, fps=60.0, mm_per_px=0.6)
 STILL = Effects(exposure_ms=0.0, vignetting=0.0, noise=0.0)
 
 
@@ -111,13 +111,13 @@ def test_tum_round_trip_and_errors(tmp_path) -> None:
 
 
 def test_camera_json_round_trip_and_errors() -> None:
-    camera = Camera.thesis()
-    assert Camera.from_document(json.loads(json.dumps(camera.document()))) == camera
+    camera = FloorCamera.thesis()
+    assert FloorCamera.from_document(json.loads(json.dumps(camera.document()))) == camera
     assert np.hypot(*camera.footprint_mm) == pytest.approx(189.7)
     with pytest.raises(ValueError, match="no 'fps'"):
-        Camera.from_document({k: v for k, v in camera.document().items() if k != "fps"})
+        FloorCamera.from_document({k: v for k, v in camera.document().items() if k != "fps"})
     with pytest.raises(ValueError, match="width must be a whole number"):
-        Camera.from_document({**camera.document(), "width": 640.5})
+        FloorCamera.from_document({**camera.document(), "width": 640.5})
 
 
 def test_image_floors(tmp_path) -> None:
@@ -170,7 +170,7 @@ def test_phase_correlation_peer_against_truth(short_sequence) -> None:
     from services.odometry.evaluate import evaluate
     from services.odometry.run import run_odometry
 
-    camera = Camera.from_document(json.loads((short_sequence / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((short_sequence / "camera.json").read_text()))
     result = run_odometry(short_sequence / "frames", camera, "phase")
     scores = evaluate(result.trajectory, read_tum(short_sequence / "truth.tum"))
     assert scores.poses == 31 and result.flagged == 0
@@ -230,7 +230,7 @@ def test_vista_direct_alignment_against_truth(short_sequence) -> None:
     from services.odometry.evaluate import evaluate
     from services.odometry.run import run_odometry
 
-    camera = Camera.from_document(json.loads((short_sequence / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((short_sequence / "camera.json").read_text()))
     truth = read_tum(short_sequence / "truth.tum")
     one = run_odometry(short_sequence / "frames", camera)
     scores = evaluate(one.trajectory, truth)
@@ -407,7 +407,7 @@ def test_a_faint_floor_is_measured_with_a_warning_not_guessed(tmp_path) -> None:
     from services.odometry.simulate import simulate_sequence
 
     simulate_sequence(tmp_path, floor="low-texture", path="lawnmower", seconds=0.4, seed=2)
-    camera = Camera.from_document(json.loads((tmp_path / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((tmp_path / "camera.json").read_text()))
     result = run_odometry(tmp_path / "frames", camera, threads=1)
     scores = evaluate(result.trajectory, read_tum(tmp_path / "truth.tum"))
     assert result.flagged == 0 and result.warned == 24
@@ -432,7 +432,7 @@ def test_vista_on_a_real_camera_frame_as_the_floor(tmp_path) -> None:
     from services.odometry.simulate import simulate_sequence
 
     simulate_sequence(tmp_path, floor=str(KITTI_FRAME), path="random", seconds=1.0, seed=0)
-    camera = Camera.from_document(json.loads((tmp_path / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((tmp_path / "camera.json").read_text()))
     truth = read_tum(tmp_path / "truth.tum")
     vista = evaluate(run_odometry(tmp_path / "frames", camera, threads=2).trajectory, truth)
     phase = evaluate(
@@ -507,7 +507,7 @@ def test_a_straight_run_on_a_real_photograph_keeps_its_heading(tmp_path) -> None
         commands=[Command(3.0, 400.0)],
         seed=1,
     )
-    camera = Camera.from_document(json.loads((tmp_path / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((tmp_path / "camera.json").read_text()))
     run = run_odometry(tmp_path / "frames", camera, threads=2)
     scores = evaluate(run.trajectory, read_tum(tmp_path / "truth.tum"), run.covariance[-1])
     assert abs(scores.heading_bias_deg) < 0.0002, scores

@@ -1,4 +1,4 @@
-"""Job handler ``measure``: a stitched cloud and the inspection's tolerances in; RESULT.json,
+"""Job handler ``defects.measure``: a stitched cloud and the inspection's tolerances in; RESULT.json,
 the profile plot and the defects out."""
 
 from __future__ import annotations

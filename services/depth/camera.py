@@ -20,7 +20,10 @@ KITTI_HEIGHT_M = 1.65
 
 
 @dataclass(frozen=True)
-class Camera:
+class PinholeCamera:
+    """A perspective camera known by its intrinsics at an image size (the depth service's:
+    a car's colour camera; the odometry service's floor camera is ``FloorCamera``)."""
+
     width: int
     height: int
     K: np.ndarray
@@ -35,7 +38,7 @@ class Camera:
             raise ValueError(f"K must be a finite 3 × 3 matrix with positive focal lengths: {K}")
         object.__setattr__(self, "K", K)
 
-    def resized(self, width: int, height: int) -> Camera:
+    def resized(self, width: int, height: int) -> PinholeCamera:
         """The same camera for the image resized to (width, height) (pixel centres kept)."""
         sx, sy = width / self.width, height / self.height
         K = self.K.copy()
@@ -43,7 +46,7 @@ class Camera:
         K[1, 1] *= sy
         K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
-        return Camera(width, height, K, self.baseline_m)
+        return PinholeCamera(width, height, K, self.baseline_m)
 
     def rays(self) -> np.ndarray:
         """(height, width, 3) float32 directions with z = 1: a point at depth z along pixel
@@ -66,7 +69,7 @@ class Camera:
         }
 
     @classmethod
-    def from_json(cls, data: dict) -> Camera:
+    def from_json(cls, data: dict) -> PinholeCamera:
         try:
             return cls(
                 int(data["width"]),
@@ -78,7 +81,7 @@ class Camera:
             raise ValueError(f"not a camera (width, height, K, baseline_m): {exc}") from None
 
 
-def kitti_camera() -> Camera:
+def kitti_camera() -> PinholeCamera:
     """KITTI's rectified left colour camera (2011_09_26) at 1242 × 375."""
     K = np.array(
         [
@@ -87,4 +90,4 @@ def kitti_camera() -> Camera:
             [0.0, 0.0, 1.0],
         ]
     )
-    return Camera(KITTI_WIDTH, KITTI_HEIGHT, K)
+    return PinholeCamera(KITTI_WIDTH, KITTI_HEIGHT, K)

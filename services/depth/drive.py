@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.depth.camera import KITTI_BASELINE_M, Camera
+from services.depth.camera import KITTI_BASELINE_M, PinholeCamera
 from services.lib.kitti import read_key_values, read_poses
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -57,15 +57,17 @@ def _camera_from(
     projection_3: np.ndarray | None,
     size: tuple[int, int],
     baseline_m: float | None,
-) -> Camera:
+) -> PinholeCamera:
     P2 = np.asarray(projection_2, dtype=np.float64).reshape(3, 4)
     if baseline_m is None and projection_3 is not None:
         P3 = np.asarray(projection_3, dtype=np.float64).reshape(3, 4)
         baseline_m = float((P2[0, 3] - P3[0, 3]) / P2[0, 0])
-    return Camera(size[0], size[1], P2[:, :3], baseline_m if baseline_m else KITTI_BASELINE_M)
+    return PinholeCamera(
+        size[0], size[1], P2[:, :3], baseline_m if baseline_m else KITTI_BASELINE_M
+    )
 
 
-def read_calibration(folder: Path, size: tuple[int, int]) -> Camera:
+def read_calibration(folder: Path, size: tuple[int, int]) -> PinholeCamera:
     """The left camera of a drive whose images are ``size`` (width, height): from
     ``calib.json`` or ``calib_cam_to_cam.txt`` in ``folder`` or its parent."""
     for place in (folder, folder.parent):
@@ -103,7 +105,7 @@ class Drive:
     """A drive folder's frames, matched by name."""
 
     folder: Path
-    camera: Camera
+    camera: PinholeCamera
     names: tuple[str, ...]
     """Frame names (file stems), in order."""
     left: tuple[Path, ...]

@@ -7,11 +7,16 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from contract.context import InputArtifact, JobContext, in_user_words, inputs_of_kind
+from contract.context import (
+    InputArtifact,
+    JobContext,
+    in_user_words,
+    inputs_of_kind,
+    store_model,
+    unpacked,
+)
 from contract.errors import JobInputError
-from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.depth.kinds import CLOUD, DEPTH_MAP, MODEL, PREDICT_REPORT, PREVIEW, TRAINING_REPORT
-from services.lib.archive import ArchiveError
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 
 
@@ -24,10 +29,7 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
     for number, artifact in enumerate(artifacts):
         if artifact.kind == "drive":
             folder = ctx.workdir / f"drive-{number}"
-            try:
-                extract_drive(artifact.path, folder)
-            except ArchiveError as exc:
-                raise JobInputError(f"{artifact.label}: {exc}") from exc
+            unpacked(artifact, folder, extract_drive)
             out.append((artifact, folder))
         else:
             images.mkdir(exist_ok=True)
@@ -116,18 +118,8 @@ def train_job(ctx: JobContext) -> dict:
             architecture = STUDENT_ARCHITECTURE
     except ValueError as exc:
         raise JobInputError(in_user_words(str(exc), ctx, data + teachers)) from exc
-    ctx.add_artifact_file(
-        path,
-        kind=MODEL.kind,
-        name=path.name,
-        media_type=ONNX_MEDIA_TYPE,
-        meta={"architecture": architecture, "metrics": metrics},
-    )
-    ctx.add_artifact_json(
-        read_model(path).metadata,  # the spec, the training with its history, the metrics
-        kind=TRAINING_REPORT.kind,
-        name=TRAINING_REPORT.file_name(),
-    )
+    # the metadata: the spec, the training with its history, the metrics
+    store_model(ctx, path, read_model(path).metadata, model=MODEL, report=TRAINING_REPORT)
     ctx.progress(1.0, f"{architecture}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
     return {"architecture": architecture, **metrics}
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.depth.camera import Camera
+from services.depth.camera import PinholeCamera
 from services.depth.drive import read_image
 from services.depth.models import DepthModel
 from services.lib.kitti import write_depth_png
@@ -117,7 +117,7 @@ def colour_bar(width: int, top_inverse_m: float) -> np.ndarray:
     return bar
 
 
-def depth_cloud(depth_m: np.ndarray, camera: Camera, image: np.ndarray):  # noqa: ANN201 - a PointCloud
+def depth_cloud(depth_m: np.ndarray, camera: PinholeCamera, image: np.ndarray):  # noqa: ANN201 - a PointCloud
     """The organised camera-frame cloud of a depth map (mm), coloured by ``image``."""
     from services.lib.pointcloud.ply import PointCloud
 
@@ -137,7 +137,7 @@ def predict_folder(
     images: list[Path],
     out_dir: Path,
     *,
-    camera: Camera | None = None,
+    camera: PinholeCamera | None = None,
     clouds: bool = False,
     progress: Callable[[float, str], None] | None = None,
 ) -> list[PredictedImage]:
@@ -161,7 +161,7 @@ def predict_folder(
         cloud_path = None
         if clouds:
             height, width = depth.shape
-            lens = camera or Camera(width, height, nominal_K(width, height))
+            lens = camera or PinholeCamera(width, height, nominal_K(width, height))
             cloud_path = out_dir / f"{name}.ply"
             write_ply(
                 cloud_path,

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from services.depth import raycast
-from services.depth.camera import Camera
+from services.depth.camera import PinholeCamera
 from services.depth.scene import (
     CABIN,
     CAR,
@@ -302,7 +302,7 @@ def _shade(
 
 def render(
     scene: Scene,
-    camera: Camera,
+    camera: PinholeCamera,
     street_T_camera: np.ndarray,
     *,
     time_s: float = 0.0,
@@ -347,7 +347,7 @@ def render(
 
 
 def _expose(
-    scene: Scene, camera: Camera, radiance: np.ndarray, noise_seed: int | None
+    scene: Scene, camera: PinholeCamera, radiance: np.ndarray, noise_seed: int | None
 ) -> np.ndarray:
     """Tone curve, vignetting, white balance and sensor noise, to 8 bits."""
     x = radiance * scene.lighting.exposure

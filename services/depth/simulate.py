@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.vocabulary import Say
-from services.depth.camera import KITTI_HEIGHT_M, Camera, kitti_camera
+from services.depth.camera import KITTI_HEIGHT_M, PinholeCamera, kitti_camera
 from services.depth.drive import write_image
 from services.depth.render import render
 from services.depth.scene import random_scene
@@ -64,7 +64,7 @@ def simulate_drive(
     frames: int = 5,
     stereo: bool = False,
     seed: int = 0,
-    camera: Camera | None = None,
+    camera: PinholeCamera | None = None,
     progress: Say | None = None,
 ) -> Path:
     """Render one drive of ``frames`` frames at 10 Hz into ``out_dir`` (see the module's
@@ -101,7 +101,7 @@ def simulate_dataset(
     frames: int,
     stereo: bool,
     seed: int,
-    camera: Camera,
+    camera: PinholeCamera,
     progress: Say | None = None,
 ) -> list[Path]:
     """``drives`` drives of ``frames`` frames in ``root/drive_NNNN`` (seeds ``seed`` + k);

@@ -35,7 +35,7 @@ import numpy as np
 
 from contract.bench import print_verdict, say, write_document
 from services.lib.process import available_cores, prepare_process
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.drive import Command
 from services.odometry.evaluate import evaluate
 from services.odometry.floors import PROCEDURAL, SAMPLE_IMAGES
@@ -224,7 +224,7 @@ def _sequence(case: Case, work: Path) -> Path:
 
 
 def _measure(folder: Path, method: str, model: Path | None, threads: int) -> dict:
-    camera = Camera.from_document(json.loads((folder / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((folder / "camera.json").read_text()))
     run = run_odometry(
         folder / "frames",
         camera,

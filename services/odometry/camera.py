@@ -18,7 +18,10 @@ THESIS_DIAGONAL_MM = 189.7
 
 
 @dataclass(frozen=True)
-class Camera:
+class FloorCamera:
+    """A camera looking straight down at a planar floor, known by the floor's millimetres
+    per pixel at its height (the depth service's perspective camera is ``PinholeCamera``)."""
+
     width: int
     height: int
     fps: float
@@ -28,7 +31,7 @@ class Camera:
     focal_mm: float = THESIS_FOCAL_MM
 
     @classmethod
-    def thesis(cls, width: int = 640, height: int = 480, fps: float = 60.0) -> Camera:
+    def thesis(cls, width: int = 640, height: int = 480, fps: float = 60.0) -> FloorCamera:
         """The thesis's camera at ``width`` × ``height`` pixels."""
         return cls(width, height, fps, THESIS_DIAGONAL_MM / math.hypot(width, height))
 
@@ -41,7 +44,7 @@ class Camera:
         return asdict(self)
 
     @classmethod
-    def from_document(cls, doc: object) -> Camera:
+    def from_document(cls, doc: object) -> FloorCamera:
         """camera.json read back; ValueError naming the field that is missing or wrong."""
         if not isinstance(doc, dict):
             raise ValueError("camera.json: not a JSON object")

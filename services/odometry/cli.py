@@ -90,11 +90,11 @@ def simulate(
     )
 
 
-def _camera(path: Path):  # noqa: ANN202 - a Camera (imported inside: keep the CLI light)
-    from services.odometry.camera import Camera
+def _camera(path: Path):  # noqa: ANN202 - a FloorCamera (imported inside: keep the CLI light)
+    from services.odometry.camera import FloorCamera
 
     try:
-        return Camera.from_document(json.loads(path.read_text()))
+        return FloorCamera.from_document(json.loads(path.read_text()))
     except OSError as exc:
         fail(f"{path}: {exc.strerror or exc}")
     except json.JSONDecodeError as exc:

@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 
 
 def frame_files(folder: Path) -> list[Path]:
@@ -22,7 +22,7 @@ def frame_files(folder: Path) -> list[Path]:
     return files
 
 
-def read_frames(files: list[Path], camera: Camera) -> Iterator[np.ndarray]:
+def read_frames(files: list[Path], camera: FloorCamera) -> Iterator[np.ndarray]:
     for path in files:
         image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if image is None:

@@ -1,4 +1,4 @@
-"""Job handlers ``odometry`` (a frame sequence in; trajectory, report, plot and, with the
+"""Job handlers ``odometry.run`` (a frame sequence in; trajectory, report, plot and, with the
 truth, the evaluation out) and ``odometry.train`` (sequences with truth in; an ONNX model
 and its training history out)."""
 
@@ -7,9 +7,15 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from contract.context import InputArtifact, JobContext, inputs_of_kind, one_input
+from contract.context import (
+    InputArtifact,
+    JobContext,
+    inputs_of_kind,
+    one_input,
+    store_model,
+    unpacked,
+)
 from contract.errors import JobInputError
-from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.odometry.kinds import (
     EVALUATION,
     MODEL,
@@ -18,16 +24,9 @@ from services.odometry.kinds import (
     TRAJECTORY,
     TRAJECTORY_PLOT,
 )
-from services.odometry.sequence import SequenceArchive, SequenceError, extract_sequence
+from services.odometry.sequence import SequenceArchive, extract_sequence
 
 TUM_MEDIA_TYPE = "text/plain"
-
-
-def _unpacked(artifact: InputArtifact, folder: Path) -> SequenceArchive:
-    try:
-        return extract_sequence(artifact.path, folder)
-    except SequenceError as exc:
-        raise JobInputError(f"{artifact.label}: {exc}") from exc
 
 
 def _named(
@@ -69,7 +68,7 @@ def odometry_job(ctx: JobContext) -> dict:
         raise JobInputError(f"method {method} uses no model; leave the `model` input out")
     ctx.progress(0.01, f"unpacking {sequence.name}")
     folder = ctx.workdir / "sequence"
-    found = _unpacked(sequence, folder)
+    found = unpacked(sequence, folder, extract_sequence)
     truth = read_tum(folder / "truth.tum") if found.truth_member else None
     try:
         result = run_odometry(
@@ -131,7 +130,7 @@ def train_job(ctx: JobContext) -> dict:
     for number, artifact in enumerate(sequences):
         ctx.progress(0.1 * number / len(sequences), f"unpacking {artifact.name}")
         folder = ctx.workdir / f"sequence-{number}"
-        if _unpacked(artifact, folder).truth_member is None:
+        if unpacked(artifact, folder, extract_sequence).truth_member is None:
             raise JobInputError(
                 f"{artifact.label} has no truth.tum: training needs each pair's true motion"
             )
@@ -149,13 +148,6 @@ def train_job(ctx: JobContext) -> dict:
         )
     except ValueError as exc:
         raise JobInputError(str(exc).replace(str(ctx.workdir), "the job's folder")) from exc
-    ctx.add_artifact_file(
-        model,
-        kind=MODEL.kind,
-        name=model.name,
-        media_type=ONNX_MEDIA_TYPE,
-        meta={"architecture": metadata["architecture"], "metrics": metadata["metrics"]},
-    )
-    ctx.add_artifact_json(metadata, kind=TRAINING_REPORT.kind, name=TRAINING_REPORT.file_name())
+    store_model(ctx, model, metadata, model=MODEL, report=TRAINING_REPORT)
     ctx.progress(1.0, training_summary(metadata))
     return {"architecture": metadata["architecture"], **metadata["metrics"]}

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from services.odometry import se2
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.frames import frame_files, read_frames
 from services.odometry.tum import read_tum
 
@@ -90,12 +90,12 @@ def network_input(frame: np.ndarray) -> np.ndarray:
     return (small - small.mean()) / (small.std() + 1.0)
 
 
-def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, Camera]:
+def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, FloorCamera]:
     """A simulated sequence (frames/, camera.json, truth.tum) as network inputs
     (N−1, 2, 64, 64) and targets (N−1, 3): δx mm, δy mm, δθ °."""
     import json
 
-    camera = Camera.from_document(json.loads((folder / "camera.json").read_text()))
+    camera = FloorCamera.from_document(json.loads((folder / "camera.json").read_text()))
     truth = read_tum(folder / "truth.tum")
     files = frame_files(folder / "frames")
     if len(files) != len(truth):
@@ -181,7 +181,7 @@ def train_oenet(
 
 
 def oenet_motions(
-    model_path: Path, frames: Iterable[np.ndarray], camera: Camera, threads: int
+    model_path: Path, frames: Iterable[np.ndarray], camera: FloorCamera, threads: int
 ) -> np.ndarray:
     """(N−1, 3) motions (mm, mm, rad) of consecutive frames by an exported OE-Net; its
     translation rescaled when this camera's floor square differs from the training
@@ -203,7 +203,7 @@ def oenet_motions(
     return np.column_stack([out[:, 0] * scale, out[:, 1] * scale, np.radians(out[:, 2])])
 
 
-def oenet_sigma(model_path: Path, camera: Camera) -> np.ndarray:
+def oenet_sigma(model_path: Path, camera: FloorCamera) -> np.ndarray:
     """(3,) the expected error of one motion (mm, mm, rad): the model's test RMSE (its
     validation RMSE when it was trained without a test set), scaled to ``camera``."""
     from services.lib.nn.onnx_io import read_model
@@ -220,16 +220,16 @@ def oenet_sigma(model_path: Path, camera: Camera) -> np.ndarray:
     return np.array([rmse["dx_mm"] * scale, rmse["dy_mm"] * scale, np.radians(rmse["dtheta_deg"])])
 
 
-def square_mm(camera: Camera) -> float:
+def square_mm(camera: FloorCamera) -> float:
     """The side of the floor square the network sees (the frame's centre square)."""
     return camera.mm_per_px * min(camera.width, camera.height)
 
 
-def _scale(camera: Camera, metadata: dict) -> float:
+def _scale(camera: FloorCamera, metadata: dict) -> float:
     """How much more floor one input pixel covers with ``camera`` than in training."""
     if "camera" not in metadata:
         raise ValueError("the model's metadata has no training camera: retrain it")
-    return square_mm(camera) / square_mm(Camera.from_document(metadata["camera"]))
+    return square_mm(camera) / square_mm(FloorCamera.from_document(metadata["camera"]))
 
 
 def training_summary(metadata: dict) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 from scipy import ndimage
 
 from services.odometry import se2
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.drive import Motion
 from services.odometry.floors import Floor
 
@@ -55,7 +55,7 @@ class Exposure:
 
 
 def exposures(
-    camera: Camera, times_s: np.ndarray, effects: Effects, rng: np.random.Generator
+    camera: FloorCamera, times_s: np.ndarray, effects: Effects, rng: np.random.Generator
 ) -> Exposure:
     """The height, light and shadow of each frame: slow waves with random phases, and the
     light also in steps (a lamp switching)."""
@@ -72,7 +72,7 @@ def exposures(
     return Exposure(height, gain, shadow_at)
 
 
-def _prefiltered(floor: Floor, camera: Camera) -> np.ndarray:
+def _prefiltered(floor: Floor, camera: FloorCamera) -> np.ndarray:
     """The floor low-passed to a pixel's footprint (a Gaussian of 0.45 pixel)."""
     sigma_texels = 0.45 * camera.mm_per_px / floor.texel_mm
     return ndimage.gaussian_filter(floor.albedo, sigma_texels, mode="wrap", truncate=3.0)
@@ -80,7 +80,7 @@ def _prefiltered(floor: Floor, camera: Camera) -> np.ndarray:
 
 def render(
     floor: Floor,
-    camera: Camera,
+    camera: FloorCamera,
     motion: Motion,
     times_s: np.ndarray,
     effects: Effects,

@@ -22,7 +22,7 @@ import numpy as np
 
 from contract.vocabulary import Progress
 from services.odometry import se2
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px
 from services.odometry.frames import frame_files, read_frames
 from services.odometry.oenet import oenet_motions, oenet_sigma
@@ -97,7 +97,7 @@ class OdometryRun:
         return sum(w is not None for w in self.steps.warnings)
 
 
-def _phase_run(files: list[Path], camera: Camera, tick: Callable[[], None]) -> Steps:
+def _phase_run(files: list[Path], camera: FloorCamera, tick: Callable[[], None]) -> Steps:
     """The peer on consecutive frames: phase correlation with a Fourier–Mellin turn."""
     motion, confidence, reasons = [], [], []
     frames = read_frames(files, camera)
@@ -122,7 +122,7 @@ def _implausible(motion_mm: np.ndarray, expected_mm: np.ndarray) -> bool:
 
 
 def _direct_run(
-    files: list[Path], camera: Camera, flat: np.ndarray, tick: Callable[[], None]
+    files: list[Path], camera: FloorCamera, flat: np.ndarray, tick: Callable[[], None]
 ) -> Steps:
     """vista's method on consecutive frames: each pair aligned from the previous pair's
     motion, or from phase correlation when that failed or jumped implausibly."""
@@ -201,7 +201,7 @@ def in_parts(
     )
 
 
-def direct_steps(files: list[Path], camera: Camera, threads: int, progress: Progress) -> Steps:
+def direct_steps(files: list[Path], camera: FloorCamera, threads: int, progress: Progress) -> Steps:
     """vista's method on ``threads`` threads, all with the light's fixed pattern taken out
     (``flat_field`` of frames spread over the run)."""
     sample = files[:: max(1, len(files) // FLAT_FIELD_FRAMES)][:FLAT_FIELD_FRAMES]
@@ -229,7 +229,7 @@ def pose_covariance(steps: Steps) -> np.ndarray:
     return se2.pose_covariances(steps.motion, steps.sigma, SCALE_SIGMA)
 
 
-def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) -> Steps:
+def oenet_steps(files: list[Path], camera: FloorCamera, model: Path, threads: int) -> Steps:
     """OE-Net's motions; its σ is the test RMSE it was exported with (it gives no
     confidence of its own, so nothing is flagged)."""
 
@@ -241,7 +241,7 @@ def oenet_steps(files: list[Path], camera: Camera, model: Path, threads: int) ->
 
 def run_odometry(
     folder: Path,
-    camera: Camera,
+    camera: FloorCamera,
     method: str = "vista",
     *,
     model: Path | None = None,

@@ -31,7 +31,7 @@ from services.lib.archive import (
     read_member,
 )
 from services.lib.formats import text_of
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.tum import parse_tum
 
 MAX_MEMBER_BYTES = {"camera.json": 1 << 20, "truth.tum": 256 << 20, "frame": 256 << 20}
@@ -46,7 +46,7 @@ class SequenceArchive:
     """``zip`` or ``tar``."""
     frames: tuple[str, ...]
     """The frames' member names in order."""
-    camera: Camera
+    camera: FloorCamera
     camera_member: str
     truth_member: str | None
     """``None``: the archive has no truth."""
@@ -71,7 +71,7 @@ def _one(members: list[Member], file_name: str, *, required: bool) -> Member | N
     return found[0] if found else None
 
 
-def _camera(member: Member, data: bytes) -> Camera:
+def _camera(member: Member, data: bytes) -> FloorCamera:
     try:
         document = parse_json(data)
     except JsonTooDeep as exc:
@@ -79,7 +79,7 @@ def _camera(member: Member, data: bytes) -> Camera:
     except ValueError as exc:
         raise SequenceError(f"{member.name} is not JSON ({exc})") from None
     try:
-        return Camera.from_document(document)
+        return FloorCamera.from_document(document)
     except (ValueError, OverflowError) as exc:  # int() of an infinite size overflows
         detail = str(exc).removeprefix("camera.json: ")
         raise SequenceError(f"{member.name}: {detail}") from None

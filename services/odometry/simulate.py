@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from contract.vocabulary import Count, Say
-from services.odometry.camera import Camera
+from services.odometry.camera import FloorCamera
 from services.odometry.drive import Command, Robot, drive, path_commands
 from services.odometry.floors import IMAGE_MM_PER_PX, make_floor
 from services.odometry.render import Effects, exposures, render
@@ -24,7 +24,7 @@ from services.odometry.tum import Trajectory2D, write_tum
 @dataclass(frozen=True)
 class Simulated:
     folder: Path
-    camera: Camera
+    camera: FloorCamera
     truth: Trajectory2D
     distance_mm: float
 
@@ -42,7 +42,7 @@ def simulate_sequence(
     seconds: float | None = None,
     fps: float = 60.0,
     seed: int = 0,
-    camera: Camera | None = None,
+    camera: FloorCamera | None = None,
     effects: Effects = Effects(),
     robot: Robot = Robot(),
     commands: list[Command] | None = None,
@@ -53,7 +53,7 @@ def simulate_sequence(
     covering ``floor_mm_per_px``) and write what the camera saw and where it was;
     ``frame_progress(done, total)`` hears of every frame written."""
     say = progress or (lambda message: None)
-    camera = camera or Camera.thesis(fps=fps)
+    camera = camera or FloorCamera.thesis(fps=fps)
     rng = np.random.default_rng(seed)
     say(f"floor {floor}")
     ground = make_floor(floor, seed, floor_mm_per_px)

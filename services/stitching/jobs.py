@@ -1,4 +1,4 @@
-"""Job handlers ``calibrate`` and ``stitch``: artifacts in, artifacts out, progress between."""
+"""Job handlers ``stitching.calibrate`` and ``stitching.stitch``: artifacts in, artifacts out, progress between."""
 
 from __future__ import annotations
 

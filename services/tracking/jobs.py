@@ -1,5 +1,5 @@
-"""Job handlers ``track`` (a LiDAR sequence and the target in; TRACK.json, its plot and, with
-labels, the evaluation out) and ``track.train`` (labelled sequences in; an ONNX model and its
+"""Job handlers ``tracking.track`` (a LiDAR sequence and the target in; TRACK.json, its plot and, with
+labels, the evaluation out) and ``tracking.train`` (labelled sequences in; an ONNX model and its
 training history out)."""
 
 from __future__ import annotations
@@ -8,10 +8,16 @@ from pathlib import Path
 
 import numpy as np
 
-from contract.context import InputArtifact, JobContext, in_user_words, inputs_of_kind, one_input
+from contract.context import (
+    InputArtifact,
+    JobContext,
+    in_user_words,
+    inputs_of_kind,
+    one_input,
+    store_model,
+    unpacked,
+)
 from contract.errors import JobInputError
-from contract.vocabulary import ONNX_MEDIA_TYPE
-from services.lib.archive import ArchiveError
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
     EVALUATION,
@@ -25,13 +31,10 @@ from services.tracking.kinds import (
 )
 
 
-def _unpacked(ctx: JobContext, artifact: InputArtifact, folder: Path) -> Path:
+def _unpacked(artifact: InputArtifact, folder: Path) -> Path:
     from services.tracking.lidar_archive import extract_lidar
 
-    try:
-        extract_lidar(artifact.path, folder)
-    except ArchiveError as exc:
-        raise JobInputError(f"{artifact.label}: {exc}") from exc
+    unpacked(artifact, folder, extract_lidar)
     return folder
 
 
@@ -70,14 +73,14 @@ def track_job(ctx: JobContext) -> dict:
             "the Siamese tracker's encoder" if architecture == SIAMESE else "the learned detector"
         )
         raise JobInputError(
-            f"{what} is needed as a `model` input (a track.train {architecture} model)"
+            f"{what} is needed as a `model` input (a tracking.train {architecture} model)"
         )
     for architecture in set(models) - usable:
         raise JobInputError(
             f"the {architecture} model input is not used by these params; leave it out"
         )
     ctx.progress(0.01, f"unpacking {sequence.name}")
-    folder = _unpacked(ctx, sequence, ctx.workdir / "sequence")
+    folder = _unpacked(sequence, ctx.workdir / "sequence")
     try:
         document = run_tracking(
             folder,
@@ -153,11 +156,11 @@ def train_job(ctx: JobContext) -> dict:
     params = ctx.params
     sequences = inputs_of_kind(ctx, "lidar")
     if not sequences:
-        raise JobInputError("track.train needs labelled `lidar` sequences")
+        raise JobInputError("tracking.train needs labelled `lidar` sequences")
     folders = []
     for number, artifact in enumerate(sequences):
         ctx.progress(0.05 * number / len(sequences), f"unpacking {artifact.name}")
-        folder = _unpacked(ctx, artifact, ctx.workdir / f"sequence-{number}")
+        folder = _unpacked(artifact, ctx.workdir / f"sequence-{number}")
         if not (folder / "label_02.txt").exists():
             raise JobInputError(f"{artifact.label} has no label_02.txt: nothing to learn from")
         folders.append(folder)
@@ -183,14 +186,7 @@ def train_job(ctx: JobContext) -> dict:
             metadata = train_siamese(folders, model, config, **options)
     except ValueError as exc:
         raise JobInputError(in_user_words(str(exc), ctx, sequences)) from exc
-    ctx.add_artifact_file(
-        model,
-        kind=MODEL.kind,
-        name=model.name,
-        media_type=ONNX_MEDIA_TYPE,
-        meta={"architecture": metadata["architecture"], "parameters": metadata["parameters"]},
-    )
-    ctx.add_artifact_json(metadata, kind=TRAINING_REPORT.kind, name=TRAINING_REPORT.file_name())
+    store_model(ctx, model, metadata, model=MODEL, report=TRAINING_REPORT)
     ctx.progress(1.0, f"{metadata['architecture']} trained")
     return {
         "architecture": metadata["architecture"],

@@ -1,6 +1,9 @@
-"""Where torch runs: CUDA when present and allowed, else the CPU."""
+"""Where torch runs: CUDA when present and allowed, else the CPU; on how many threads."""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from contract.vocabulary import DEVICE_CHOICES as DEVICES
 from contract.vocabulary import DeviceChoice
@@ -18,3 +21,17 @@ def choose_device(setting: DeviceChoice | str = "auto"):  # noqa: ANN201 - a tor
     if setting == "cpu" or not torch.cuda.is_available():
         return torch.device("cpu")
     return torch.device("cuda")
+
+
+@contextmanager
+def torch_threads(threads: int) -> Iterator[None]:
+    """torch's intra-op threads set to ``threads`` while the block runs and given back
+    after, so a library function never leaves the process's thread count changed."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

@@ -61,6 +61,30 @@ def fit(
     ``keep_best`` off, the last epoch's (when the validation data must stay unseen by every
     choice, as a user's held-out scans). ``channels_last``: image networks train about a
     fifth faster so on the CPU."""
+    from services.lib.nn.device import torch_threads
+
+    with torch_threads(config.threads):
+        return _fit(
+            modules, step, validate, train_index, batches, config,
+            run=run, checkpoint_dir=checkpoint_dir, progress=progress,
+            channels_last=channels_last, keep_best=keep_best,
+        )  # fmt: skip
+
+
+def _fit(
+    modules: dict,
+    step: Callable[[object], tuple[object, dict]],
+    validate: Callable[[], float],
+    train_index: np.ndarray,
+    batches: Callable[[np.ndarray, np.random.Generator, object], object],
+    config: FitSettings,
+    *,
+    run: str,
+    checkpoint_dir: Path | None,
+    progress: Progress | None,
+    channels_last: bool,
+    keep_best: bool,
+) -> FitResult:
     import torch
 
     from services.lib.nn.checkpoint import load_checkpoint, save_checkpoint
@@ -68,7 +92,6 @@ def fit(
 
     say = progress or (lambda fraction, message: None)
     device = choose_device(config.device)
-    torch.set_num_threads(config.threads)
     layout = torch.channels_last if channels_last else torch.contiguous_format
     for module in modules.values():
         module.to(device, memory_format=layout)

@@ -113,6 +113,20 @@ def train(
     targets when ``config.standardize_targets``). The result's ``model`` — ``model`` itself,
     or ``model`` inside ``Rescaled`` — ends with the best validation weights and answers in
     the targets' units: export that one (``model`` alone then answers standardised)."""
+    from services.lib.nn.device import torch_threads
+
+    with torch_threads(config.threads):
+        return _train(model, inputs, targets, config, checkpoint_dir, progress)
+
+
+def _train(
+    model,  # noqa: ANN001 - a torch.nn.Module
+    inputs: np.ndarray,
+    targets: np.ndarray,
+    config: TrainConfig,
+    checkpoint_dir: Path | None,
+    progress: Progress | None,
+) -> TrainResult:
     import torch
 
     from services.lib.nn.checkpoint import load_checkpoint, save_checkpoint
@@ -122,7 +136,6 @@ def train(
     if len(inputs) != len(targets) or len(inputs) < 2:
         raise ValueError(f"{len(inputs)} inputs and {len(targets)} targets: need ≥ 2 pairs")
     torch.manual_seed(config.seed)
-    torch.set_num_threads(config.threads)
     device = choose_device(config.device)
     train_idx, val_idx, test_idx = split(
         len(inputs), config.val_fraction, config.test_fraction, config.seed
