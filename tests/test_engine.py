@@ -569,6 +569,21 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
     )
     image = _upload(engine, folder / "image_02" / "0000000001.png", "image", "image/png")
     base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    # a camera calibration for the single image, in KITTI's own text format
+    (tmp_path / "calib_cam_to_cam.txt").write_text(
+        "calib_time: 09-Jan-2012 13:57:47\n"
+        "P_rect_02: 360.0 0 64.0 0 0 360.0 32.0 0 0 0 1 0\n"
+    )
+    calibration = _upload(engine, tmp_path / "calib_cam_to_cam.txt", "calibration", "text/plain")
+    assert engine.http.get(f"{base}/{calibration}").json()["meta"]["focal_px"] == 360.0
+    (tmp_path / "bad.txt").write_text("P_rect_02: 1 2 3\n")
+    refused = engine.http.post(
+        base,
+        params={"kind": "calibration", "name": "bad.txt"},
+        content=(tmp_path / "bad.txt").read_bytes(),
+        headers={"content-type": "text/plain"},
+    )
+    assert refused.status_code == 422 and "no P_rect_02 (3 × 4)" in refused.json()["detail"]
     uploaded = engine.http.get(f"{base}/{drive}").json()
     assert uploaded["meta"] == {
         "frames": 3,
@@ -606,7 +621,7 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
                 "after": ["teacher"],
                 "params": {**small, "network": "teacher", "supervision": "depth"},
             },
-            {"name": "shipped", "kind": "depth.predict", "inputs": [image]},
+            {"name": "shipped", "kind": "depth.predict", "inputs": [image, calibration]},
         ]
     )
     teacher, student, predict, adapt, shipped = [

@@ -20,10 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from services.depth.camera import KITTI_BASELINE_M, PinholeCamera
+from contract.artifacts import ArtifactRefused, Inspected
+from services.depth.camera import KITTI_BASELINE_M, KITTI_HEIGHT, KITTI_WIDTH, PinholeCamera
+from services.lib.formats import limit_size, text_of
 from services.lib.kitti import read_key_values, read_poses
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+CALIBRATION_FILES = ("calib.json", "calib_cam_to_cam.txt")
+MAX_CALIBRATION_BYTES = 1 << 20
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -71,27 +75,46 @@ def read_calibration(folder: Path, size: tuple[int, int]) -> PinholeCamera:
     """The left camera of a drive whose images are ``size`` (width, height): from
     ``calib.json`` or ``calib_cam_to_cam.txt`` in ``folder`` or its parent."""
     for place in (folder, folder.parent):
-        json_path = place / "calib.json"
-        if json_path.is_file():
-            try:
-                data = json.loads(json_path.read_text())
-                if "K" in data:
-                    K = np.asarray(data["K"], dtype=np.float64)
-                    projection = np.hstack((K, np.zeros((3, 1))))
-                else:
-                    projection = np.asarray(data["P_rect_02"], dtype=np.float64)
-                return _camera_from(projection, data.get("P_rect_03"), size, data.get("baseline_m"))
-            except (KeyError, ValueError, TypeError) as exc:
-                raise ValueError(
-                    f"{json_path}: not a calibration (K or P_rect_02): {exc}"
-                ) from None
-        txt_path = place / "calib_cam_to_cam.txt"
-        if txt_path.is_file():
-            values = read_key_values(txt_path)
-            if "P_rect_02" not in values or values["P_rect_02"].size != 12:
-                raise ValueError(f"{txt_path}: no P_rect_02 (3 × 4)")
-            return _camera_from(values["P_rect_02"], values.get("P_rect_03"), size, None)
+        for name in CALIBRATION_FILES:
+            if (place / name).is_file():
+                return read_calibration_file(place / name, size)
     raise ValueError(f"{folder}: no calib.json or calib_cam_to_cam.txt here or in its parent")
+
+
+def read_calibration_file(path: Path, size: tuple[int, int]) -> PinholeCamera:
+    """The left camera from one calibration file, whatever its name: vista's JSON (``K`` or
+    ``P_rect_02``, optional ``baseline_m`` or ``P_rect_03``) or KITTI's
+    ``calib_cam_to_cam.txt`` (``P_rect_02``, ``P_rect_03``), for images of ``size``."""
+    text = path.read_text(encoding="utf-8")
+    if text.lstrip().startswith("{"):
+        try:
+            data = json.loads(text)
+            if "K" in data:
+                K = np.asarray(data["K"], dtype=np.float64)
+                projection = np.hstack((K, np.zeros((3, 1))))
+            else:
+                projection = np.asarray(data["P_rect_02"], dtype=np.float64)
+            return _camera_from(projection, data.get("P_rect_03"), size, data.get("baseline_m"))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ValueError(f"{path}: not a calibration (K or P_rect_02): {exc}") from None
+    values = read_key_values(path)
+    if "P_rect_02" not in values or values["P_rect_02"].size != 12:
+        raise ValueError(f"{path}: no P_rect_02 (3 × 4)")
+    return _camera_from(values["P_rect_02"], values.get("P_rect_03"), size, None)
+
+
+def inspect_calibration(path: Path, declared: str) -> Inspected:
+    """The ``calibration`` kind's check (``contract.artifacts.Inspect``): read as a
+    prediction job reads it; its focal length and stereo baseline kept."""
+    limit_size(path, MAX_CALIBRATION_BYTES, "calibration files")
+    try:
+        camera = read_calibration_file(path, (KITTI_WIDTH, KITTI_HEIGHT))
+    except ValueError as exc:  # UnicodeDecodeError too
+        reason = text_of(exc).replace(f"{path}: ", "")
+        raise ArtifactRefused(f"is not a camera calibration: {reason}") from exc
+    is_json = path.read_bytes().lstrip().startswith(b"{")
+    meta = {"focal_px": float(camera.K[0, 0]), "baseline_m": camera.baseline_m}
+    return Inspected("application/json" if is_json else "text/plain", meta)
 
 
 def _images_in(folder: Path) -> list[Path]:

@@ -129,13 +129,15 @@ def predict_job(ctx: JobContext) -> dict:
 
     from services.depth.data import image_files
     from services.depth.default_model import default_model
-    from services.depth.drive import read_calibration, read_image
+    from services.depth.drive import read_calibration, read_calibration_file, read_image
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
     from services.depth.quantize import quantize_int8
 
     given = inputs_of_kind(ctx, "model")
     images = inputs_of_kind(ctx, "image", "drive")
+    calibrations = inputs_of_kind(ctx, "calibration")
+    calibration = calibrations[0] if calibrations else None
     try:
         model = DepthModel(given[0].path if given else default_model(), ctx.threads)
     except ValueError as exc:
@@ -169,9 +171,14 @@ def predict_job(ctx: JobContext) -> dict:
             drive = artifact is not None
             paths = image_files(folder / "image_02") if drive else image_files(folder)
             camera = None
-            if drive:
+            if drive or calibration is not None:
                 first = read_image(paths[0])
-                camera = read_calibration(folder, (first.shape[1], first.shape[0]))
+                size = (first.shape[1], first.shape[0])
+                camera = (
+                    read_calibration(folder, size)
+                    if drive
+                    else read_calibration_file(calibration.path, size)
+                )
             target = out / f"group-{number}"
             done = predict_folder(
                 model,
@@ -218,7 +225,7 @@ def predict_job(ctx: JobContext) -> dict:
                     }
                 )
     except ValueError as exc:
-        raise JobInputError(in_user_words(str(exc), ctx, [*given, *images])) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, [*given, *images, *calibrations])) from exc
     ctx.add_artifact_json(report, kind=PREDICT_REPORT.kind, name=PREDICT_REPORT.file_name())
     seconds = [i["seconds"] for i in report["images"]]
     ctx.progress(

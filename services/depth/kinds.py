@@ -95,7 +95,7 @@ DEPTH_PREDICT = JobKind(
     description=(
         "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "
         "depth `model` (without one, the model vista ships): per image a KITTI depth PNG (uint16, metres × 256) at its own size, a "
-        "colour preview and the camera-frame point cloud (PLY, mm), and a report with each "
+        "colour preview and the camera-frame point cloud (PLY, mm; the images' `calibration` when given), and a report with each "
         "image's time and median depth."
     ),
     inputs=(
@@ -105,6 +105,11 @@ DEPTH_PREDICT = JobKind(
             min=0,
         ),
         Inputs(("image", "drive"), "the images", max=None),
+        Inputs(
+            ("calibration",),
+            "the `image`s' camera; none: KITTI's (a drive has its own)",
+            min=0,
+        ),
     ),
     outputs=(DEPTH_MAP, PREVIEW, CLOUD, PREDICT_REPORT),
 )
@@ -115,6 +120,13 @@ ARTIFACT_KINDS = (
         "depth",
         "A depth map in KITTI's convention: 16-bit grey PNG, metres × 256, 0 = none.",
         f"{FORMATS}:inspect_depth_png",
+    ),
+    ArtifactKind(
+        "calibration",
+        "A camera calibration: vista's calib.json (K or P_rect_02, optional baseline_m or "
+        "P_rect_03) or KITTI's calib_cam_to_cam.txt; depth.predict places its images' clouds "
+        "with it.",
+        "services.depth.drive:inspect_calibration",
     ),
     ArtifactKind(
         "drive",
