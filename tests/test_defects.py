@@ -207,7 +207,7 @@ def test_config_errors_name_the_key() -> None:
         parse_config({"gap_mm": {"min": 2, "max": 1}})
     with pytest.raises(ConfigError, match=r"min \(0.5\) must be below max \(0.3\) \(the default"):
         parse_config({"gap_mm": {"max": 0.3}})
-    with pytest.raises(ConfigError, match=r"measurement: unknown key 'speed'"):
+    with pytest.raises(ConfigError, match=r"config.measurement.speed: Extra inputs are not"):
         parse_config({"measurement": {"speed": 2}})
     config = parse_config({"gap_mm": {"max": 4}, "measurement": {"pitch_mm": 5}})
     assert config.tolerances.gap_max_mm == 4 and config.tolerances.gap_min_mm == 0.5

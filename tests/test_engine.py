@@ -571,8 +571,7 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
     base = f"/api/v1/inspections/{engine.inspection}/artifacts"
     # a camera calibration for the single image, in KITTI's own text format
     (tmp_path / "calib_cam_to_cam.txt").write_text(
-        "calib_time: 09-Jan-2012 13:57:47\n"
-        "P_rect_02: 360.0 0 64.0 0 0 360.0 32.0 0 0 0 1 0\n"
+        "calib_time: 09-Jan-2012 13:57:47\nP_rect_02: 360.0 0 64.0 0 0 360.0 32.0 0 0 0 1 0\n"
     )
     calibration = _upload(engine, tmp_path / "calib_cam_to_cam.txt", "calibration", "text/plain")
     assert engine.http.get(f"{base}/{calibration}").json()["meta"]["focal_px"] == 360.0

@@ -34,24 +34,24 @@ def measure(
 ) -> None:
     """Measure every seam (gap, step, parallelism), junction (mismatch) and surface defect
     (dents, bumps, scratches, colour) of a panel-assembly cloud against the tolerances."""
-    from services.defects.config import ConfigError, MeasureConfig, parse_config
+    from services.defects.config import MeasureConfig, parse_config
     from services.defects.measure import MeasureError
     from services.defects.measure import measure as run_measure
     from services.defects.report import profile_png, result_document
     from services.defects.truth import Truth
-    from services.lib.pointcloud.ply import PlyError, read_ply
+    from services.lib.archive import read_json
+    from services.lib.pointcloud.ply import read_ply
     from services.lib.process import available_cores, prepare_process
-    from services.stitching.files import StitchingFileError, load_json
 
     prepare_process()
 
     try:
         settings = (
-            MeasureConfig() if config is None else parse_config(load_json(config), str(config))
+            MeasureConfig() if config is None else parse_config(read_json(config), str(config))
         )
-        truth_json = None if truth is None else load_json(truth)
+        truth_json = None if truth is None else read_json(truth)
         points = read_ply(cloud)
-    except (ConfigError, StitchingFileError, PlyError, OSError) as exc:
+    except (ValueError, OSError) as exc:  # ConfigError, PlyError, a file's JSON
         fail(str(exc))
     try:
         true = None if truth_json is None else Truth.from_document(truth_json)

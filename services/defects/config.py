@@ -14,14 +14,18 @@ Every key is optional: what is missing takes the default below.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from contract.tolerances import Limits, Tolerances, limits_of, tolerances_of
-from services.defects.sections import EDGE_MODELS, GAP_MODES, SectionConfig
+from contract.training import config_from
+from services.defects.kinds import MeasureSettings
+from services.defects.sections import SETTINGS, SectionConfig
 from services.defects.surface import SurfaceConfig
+
+Model = TypeVar("Model", bound=BaseModel)
 
 
 class ConfigError(ValueError):
@@ -31,13 +35,13 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class MeasureConfig:
     tolerances: Limits = field(default_factory=Limits)
-    cell_mm: float = 0.2
+    cell_mm: float = SETTINGS["cell_mm"].default
     """Height-map cell; raised to 1.5 × the point spacing for sparser clouds."""
     max_slope_deg: float = 30.0
-    min_panel_area_mm2: float = 1000.0
+    min_panel_area_mm2: float = SETTINGS["min_panel_area_mm2"].default
     background_drop_mm: float = 8.0
-    max_gap_mm: float = 10.0
-    min_seam_length_mm: float = 20.0
+    max_gap_mm: float = SETTINGS["max_gap_mm"].default
+    min_seam_length_mm: float = SETTINGS["min_seam_length_mm"].default
     min_measured_share: float = 0.5
     """A seam with fewer measured sections than this share (or than three) yields no gap,
     parallelism or mismatch: it says it is unmeasured instead."""
@@ -46,75 +50,41 @@ class MeasureConfig:
     """None: seams and junctions only."""
 
 
-_MEASUREMENT_KEYS = {
-    "cell_mm": ("", "cell_mm"),
-    "max_gap_mm": ("", "max_gap_mm"),
-    "min_seam_length_mm": ("", "min_seam_length_mm"),
-    "min_panel_area_mm2": ("", "min_panel_area_mm2"),
-    "pitch_mm": ("sections", "pitch_mm"),
-    "slab_mm": ("sections", "slab_mm"),
-    "edge_band_mm": ("sections", "edge_band_mm"),
-    "top_band_mm": ("sections", "top_band_mm"),
-    "max_view_deg": ("sections", "max_view_deg"),
-}
-_CHOICE_KEYS = {"edge_model": EDGE_MODELS, "gap_mode": GAP_MODES}
-"""Settings that name a choice (``sections.py`` says what each means)."""
-
-
-def _positive(value: Any, where: str) -> float:
-    number = isinstance(value, int | float) and not isinstance(value, bool)
-    if not number or not value > 0 or value != value:
-        raise ConfigError(f"{where} must be a positive number, got {value!r}")
-    return float(value)
-
-
 def parse_config(document: Any, where: str = "config") -> MeasureConfig:
     """The MeasureConfig a CONFIG.json (or an inspection's tolerances) asks for."""
     if not isinstance(document, dict):
         raise ConfigError(f"{where}: expected a JSON object")
+    limits = {k: v for k, v in document.items() if k != "measurement"}
+    tolerances = _validated(Tolerances, limits, where)
+    settings = _validated(
+        MeasureSettings, document.get("measurement") or {}, f"{where}.measurement"
+    )
+    return measure_config(limits_of(tolerances), settings)
+
+
+def _validated(model: type[Model], document: Any, where: str) -> Model:
+    """``document`` as ``model``; its first refusal a ConfigError naming the key."""
     try:
-        document_tolerances = Tolerances.model_validate(
-            {k: v for k, v in document.items() if k != "measurement"}
-        )
+        return model.model_validate(document)
     except ValidationError as exc:
         first = exc.errors()[0]
         at = ".".join([where, *(str(p) for p in first["loc"])])
         raise ConfigError(f"{at}: {first['msg']}") from exc
-    config = MeasureConfig(tolerances=limits_of(document_tolerances))
-    settings = document.get("measurement") or {}
-    if not isinstance(settings, dict):
-        raise ConfigError(f"{where}.measurement must be an object")
-    for key, value in settings.items():
-        if key in _CHOICE_KEYS:
-            if value not in _CHOICE_KEYS[key]:
-                raise ConfigError(
-                    f"{where}.measurement.{key} must be one of {list(_CHOICE_KEYS[key])}, "
-                    f"got {value!r}"
-                )
-            config = replace(config, sections=replace(config.sections, **{key: value}))
-            continue
-        if key not in _MEASUREMENT_KEYS:
-            known = sorted([*_MEASUREMENT_KEYS, *_CHOICE_KEYS])
-            raise ConfigError(f"{where}.measurement: unknown key {key!r}; known: {known}")
-        part, name = _MEASUREMENT_KEYS[key]
-        number = _positive(value, f"{where}.measurement.{key}")
-        if part:
-            config = replace(config, **{part: replace(getattr(config, part), **{name: number})})
-        else:
-            config = replace(config, **{name: number})
-    return config
+
+
+def measure_config(tolerances: Limits, settings: MeasureSettings) -> MeasureConfig:
+    """The measurement ``settings`` ask for (a job's params or CONFIG.json's), judged
+    against ``tolerances``."""
+    sections = config_from(SectionConfig, settings)
+    return config_from(MeasureConfig, settings, tolerances=tolerances, sections=sections)
 
 
 def config_document(config: MeasureConfig) -> dict:
-    """The CONFIG.json that gives ``config``'s tolerances and section settings."""
+    """The CONFIG.json that gives ``config``'s tolerances and measurement settings."""
     return {
         **tolerances_of(config.tolerances).model_dump(exclude_none=True),
         "measurement": {
-            "cell_mm": config.cell_mm,
-            **{
-                f.name: getattr(config.sections, f.name)
-                for f in fields(config.sections)
-                if f.name in _MEASUREMENT_KEYS or f.name in _CHOICE_KEYS
-            },
+            name: getattr(config.sections if hasattr(config.sections, name) else config, name)
+            for name in SETTINGS
         },
     }

@@ -3,12 +3,10 @@ the profile plot and the defects out."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 from contract.context import JobContext, NewDefect, input_error, one_input
 from contract.errors import JobInputError
 from contract.tolerances import limits_of
-from services.defects.config import MeasureConfig
+from services.defects.config import measure_config
 from services.defects.kinds import PROFILES, RESULT
 from services.defects.measure import Finding, MeasureError, MeasureResult, measure
 from services.defects.report import finding_document, profile_png, result_document
@@ -52,13 +50,7 @@ def _in_tolerance_seams(result: MeasureResult) -> list[NewDefect]:
 def measure_job(ctx: JobContext) -> dict:
     params = ctx.params
     cloud = one_input(ctx, "cloud", "the stitched point cloud")
-    config = MeasureConfig(tolerances=limits_of(ctx.tolerances))
-    config = replace(
-        config,
-        cell_mm=params.cell_mm,
-        max_gap_mm=params.max_gap_mm,
-        sections=replace(config.sections, pitch_mm=params.pitch_mm),
-    )
+    config = measure_config(limits_of(ctx.tolerances), params)
     ctx.progress(0.02, f"reading {cloud.name}")
     try:
         points = read_ply(cloud.path)

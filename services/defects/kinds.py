@@ -1,13 +1,21 @@
 """Job kind of the defects service (imported by the API: keep it light)."""
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output, Presenter
 from services.lib.artifact_kinds import FORMATS
 
+EdgeModel = Literal["auto", "square", "chamfer", "round", "free", "void"]
+GapMode = Literal["walls", "surface", "distance", "sharp"]
 
-class MeasureParams(BaseModel):
+
+class MeasureSettings(BaseModel):
+    """How a measurement is taken: the `measurement` block of CONFIG.json and the measure
+    job's parameters alike (the algorithm's configs take their defaults from here)."""
+
     model_config = ConfigDict(extra="forbid")
 
     pitch_mm: float = Field(2.0, ge=0.2, le=100, description="Distance between seam sections.")
@@ -15,6 +23,39 @@ class MeasureParams(BaseModel):
         0.2, ge=0.05, le=5, description="Height-map cell (raised for sparse clouds)."
     )
     max_gap_mm: float = Field(10.0, gt=0, le=100, description="Widest gap to look for.")
+    min_seam_length_mm: float = Field(
+        20.0, gt=0, le=10_000, description="Shorter shared borders are not seams."
+    )
+    min_panel_area_mm2: float = Field(
+        1000.0, gt=0, le=1e8, description="Smaller surfaces are not panels."
+    )
+    slab_mm: float = Field(1.0, gt=0, le=50, description="Thickness of a seam section.")
+    edge_band_mm: float = Field(
+        2.5, gt=0, le=50, description="A panel's top is fitted from this far inside its end."
+    )
+    top_band_mm: float = Field(6.0, gt=0, le=100, description="Width of the top fitted.")
+    max_view_deg: float = Field(
+        30.0,
+        gt=0,
+        lt=90,
+        description="How far off the normal a view may have been (a lower corner closer to "
+        "the higher panel's edge than step × tan(this) may be in its shadow).",
+    )
+    edge_model: EdgeModel = Field(
+        "auto",
+        description="auto: each side's edge model by the information criterion; square, "
+        "chamfer, round, free: that model on every side; void: the last measured point "
+        "(what a single-profile gap gauge reports).",
+    )
+    gap_mode: GapMode = Field(
+        "walls",
+        description="walls: between the side faces along the tops' mean direction; surface: "
+        "between the edge points along panel a's top; distance: straight between the edge "
+        "points; sharp: straight between the virtual sharp edges.",
+    )
+
+
+class MeasureParams(MeasureSettings):
     keep_in_tolerance: bool = Field(
         True, description="Store seams within tolerance as `info` measurements too."
     )

@@ -29,16 +29,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import get_args
 
 import numpy as np
 from numba import njit
 
 from services.defects import edges
+from services.defects.kinds import EdgeModel, GapMode, MeasureSettings
 from services.defects.seams import SeamLine
 
 MIN_POINTS = 8
-GAP_MODES = ("walls", "surface", "distance", "sharp")
-EDGE_MODELS = ("auto", "square", "chamfer", "round", "free", "void")
+GAP_MODES: tuple[str, ...] = get_args(GapMode)
+EDGE_MODELS: tuple[str, ...] = get_args(EdgeModel)
+SETTINGS = MeasureSettings.model_fields
 TOP_JUMP_MM = 0.3
 """A panel's top points are followed towards the gap until a jump this wide."""
 START_WINDOW_MM = 2.0
@@ -51,24 +54,24 @@ SELECTION_SECTIONS = 12
 
 @dataclass(frozen=True)
 class SectionConfig:
-    pitch_mm: float = 2.0
-    slab_mm: float = 1.0
-    edge_band_mm: float = 2.5
+    pitch_mm: float = SETTINGS["pitch_mm"].default
+    slab_mm: float = SETTINGS["slab_mm"].default
+    edge_band_mm: float = SETTINGS["edge_band_mm"].default
     """The top is fitted from this far inside its end (where it leaves the top by 3σ;
     a 10 mm arc leaves it 1.1 mm after its tangent point)."""
-    top_band_mm: float = 6.0
+    top_band_mm: float = SETTINGS["top_band_mm"].default
     end_margin_mm: float = 3.0
     """Sections stop this far (plus the half band of the seams around) from a seam's ends,
     clear of crossing seams and the corners."""
     decision_sections: int = 5
     """Gap and step are judged against the tolerances on their running median over this
     many sections (10 mm at the default pitch)."""
-    edge_model: str = "auto"
+    edge_model: str = SETTINGS["edge_model"].default
     """``auto``: each side's edge model chosen by the information criterion. ``square``,
     ``chamfer``, ``round``, ``free``: that model on every side (the user's choice, as in
     profile gap/flush tools). ``void``: the last measured point of each panel, what a
     single-profile gap gauge reports (the peer in ``vista bench defects``)."""
-    gap_mode: str = "walls"
+    gap_mode: str = SETTINGS["gap_mode"].default
     """``walls``: between the two side faces along the mean direction of the tops (the
     default). ``surface``: between the edge points along panel a's top (Gocator's
     "Surface" axis; its "Edge" axis is the same here, side faces being square to their
@@ -83,7 +86,7 @@ class SectionConfig:
     max_edge_sigma_mm: float = 0.05
     """An edge placed with a larger 1σ uncertainty (the free fallback over an unexplained
     profile) is not measured."""
-    max_view_deg: float = 30.0
+    max_view_deg: float = SETTINGS["max_view_deg"].default
     """How far off the normal a view may have been: a square corner on the lower panel
     closer to the higher panel's edge than step × tan(this) may be in its shadow."""
 

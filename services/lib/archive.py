@@ -421,3 +421,13 @@ def parse_json(data: bytes) -> object:
         raise ValueError("not UTF-8 text") from None
     except ValueError as exc:  # also Python's limit of 4300 digits on an integer
         raise ValueError(str(exc)) from None
+
+
+def read_json(path: Path) -> object:
+    """A JSON file parsed as ``parse_json`` parses; ValueError naming the file and why."""
+    try:
+        return parse_json(Path(path).read_bytes())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file") from None
+    except ValueError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from services.lib.archive import read_json
 from services.lib.pointcloud.transforms import TransformError, check_rigid, to_json
 from services.stitching.calibration import HandEye
 
@@ -23,11 +24,9 @@ class StitchingFileError(ValueError):
 
 def load_json(path: Path) -> Any:
     try:
-        return json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise StitchingFileError(f"{path}: no such file") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise StitchingFileError(f"{path}: not valid JSON ({exc})") from None
+        return read_json(path)
+    except ValueError as exc:
+        raise StitchingFileError(str(exc)) from None
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
