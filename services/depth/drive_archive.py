@@ -20,7 +20,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from contract.artifacts import ArtifactRefused, Inspected
+from contract.artifacts import Inspected
 from services.lib.archive import (
     ArchiveError,
     Member,
@@ -30,7 +30,7 @@ from services.lib.archive import (
     read_in_order,
     read_member,
 )
-from services.lib.formats import text_of
+from services.lib.formats import checked
 
 HINT = "pack a drive folder with `tar czf drive.tar.gz -C DRIVE .` (image_02/ inside)"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -170,15 +170,6 @@ def extract_drive(path: Path, out_dir: Path) -> DriveArchive:
 def inspect_drive_artifact(path: Path, declared: str) -> Inspected:
     """The ``drive`` kind's check (``contract.artifacts.Inspect``): the archive planned as
     the depth jobs read it."""
-    try:
-        found = inspect_drive(path)
-    except ArchiveError as exc:
-        raise ArtifactRefused(f"is not a drive: {text_of(exc)}") from exc
-    meta = {
-        "frames": found.frames,
-        "stereo": found.stereo,
-        "depth": found.depth,
-        "scans": found.scans,
-        "poses": found.poses,
-    }
-    return Inspected(found.media_type, meta)
+    found = checked(inspect_drive, path, "a drive")
+    kept = ("frames", "stereo", "depth", "scans", "poses")
+    return Inspected(found.media_type, {name: getattr(found, name) for name in kept})

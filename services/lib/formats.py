@@ -5,13 +5,16 @@ with a sentence (``ArtifactRefused``) what a job could not read."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
+from typing import TypeVar
 
 from contract.artifacts import ArtifactRefused, Inspected
 from contract.vocabulary import ONNX_MEDIA_TYPE
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 
+Found = TypeVar("Found")
 MAX_JSON_BYTES = 256 * 1024 * 1024
 MAX_IMAGE_BYTES = 256 * 1024 * 1024
 MAX_MODEL_BYTES = 512 * 1024 * 1024
@@ -27,6 +30,15 @@ def text_of(exc: Exception) -> str:
     """An error's sentence as it can be sent: a tar member's name that is not UTF-8 comes
     with surrogates (tarfile's ``surrogateescape``), which no JSON response can encode."""
     return str(exc).encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def checked(read: Callable[[Path], Found], path: Path, what: str) -> Found:
+    """``read(path)`` as a kind's check: its refusal (a ``ValueError``) is "is not {what}:
+    …"."""
+    try:
+        return read(path)
+    except ValueError as exc:
+        raise ArtifactRefused(f"is not {what}: {text_of(exc)}") from exc
 
 
 def limit_size(path: Path, limit_bytes: int, what: str) -> None:

@@ -18,7 +18,7 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
-from contract.artifacts import ArtifactRefused, Inspected
+from contract.artifacts import Inspected
 from services.lib.archive import ArchiveError as SequenceError
 from services.lib.archive import (
     JsonTooDeep,
@@ -30,7 +30,7 @@ from services.lib.archive import (
     read_in_order,
     read_member,
 )
-from services.lib.formats import text_of
+from services.lib.formats import checked
 from services.odometry.camera import FloorCamera
 from services.odometry.tum import parse_tum
 
@@ -174,10 +174,7 @@ def extract_sequence(path: Path, out_dir: Path) -> SequenceArchive:
 def inspect_frames(path: Path, declared: str) -> Inspected:
     """The ``frames`` kind's check (``contract.artifacts.Inspect``): the archive as a run
     reads it, its frames counted and its camera read."""
-    try:
-        found = inspect_sequence(path)
-    except SequenceError as exc:
-        raise ArtifactRefused(f"is not a frame sequence: {text_of(exc)}") from exc
+    found = checked(inspect_sequence, path, "a frame sequence")
     meta = {
         "frames": len(found.frames),
         "camera": found.camera.document(),

@@ -17,7 +17,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from contract.artifacts import ArtifactRefused, Inspected
+from contract.artifacts import Inspected
 from services.lib import kitti
 from services.lib.archive import (
     ArchiveError,
@@ -27,7 +27,7 @@ from services.lib.archive import (
     read_in_order,
     read_member,
 )
-from services.lib.formats import text_of
+from services.lib.formats import checked
 
 HINT = "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt poses.txt`"
 MAX_SCAN_BYTES = 64 << 20
@@ -150,14 +150,6 @@ def extract_lidar(path: Path, out_dir: Path) -> LidarArchive:
 def inspect_lidar_artifact(path: Path, declared: str) -> Inspected:
     """The ``lidar`` kind's check (``contract.artifacts.Inspect``): the archive planned as
     the tracking jobs read it."""
-    try:
-        found = inspect_lidar(path)
-    except ArchiveError as exc:
-        raise ArtifactRefused(f"is not a LiDAR sequence: {text_of(exc)}") from exc
-    meta = {
-        "frames": found.frames,
-        "labels": found.labels,
-        "tracks": found.tracks,
-        "poses": found.poses,
-    }
-    return Inspected(found.media_type, meta)
+    found = checked(inspect_lidar, path, "a LiDAR sequence")
+    kept = ("frames", "labels", "tracks", "poses")
+    return Inspected(found.media_type, {name: getattr(found, name) for name in kept})

@@ -113,124 +113,111 @@ def train(
     targets when ``config.standardize_targets``). The result's ``model`` — ``model`` itself,
     or ``model`` inside ``Rescaled`` — ends with the best validation weights and answers in
     the targets' units: export that one (``model`` alone then answers standardised)."""
-    from services.lib.nn.device import torch_threads
-
-    with torch_threads(config.threads):
-        return _train(model, inputs, targets, config, checkpoint_dir, progress)
-
-
-def _train(
-    model,  # noqa: ANN001 - a torch.nn.Module
-    inputs: np.ndarray,
-    targets: np.ndarray,
-    config: TrainConfig,
-    checkpoint_dir: Path | None,
-    progress: Progress | None,
-) -> TrainResult:
     import torch
 
     from services.lib.nn.checkpoint import load_checkpoint, save_checkpoint
-    from services.lib.nn.device import choose_device
+    from services.lib.nn.device import choose_device, torch_threads
 
-    say = progress or (lambda fraction, message: None)
-    if len(inputs) != len(targets) or len(inputs) < 2:
-        raise ValueError(f"{len(inputs)} inputs and {len(targets)} targets: need ≥ 2 pairs")
-    torch.manual_seed(config.seed)
-    device = choose_device(config.device)
-    train_idx, val_idx, test_idx = split(
-        len(inputs), config.val_fraction, config.test_fraction, config.seed
-    )
-    x = torch.from_numpy(np.ascontiguousarray(inputs, dtype=np.float32))
-    y = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float32))
-    scale = torch.ones(y.shape[1])
-    if config.standardize_targets:
-        mean, std = targets[train_idx].mean(axis=0), targets[train_idx].std(axis=0)
-        std = np.where(std > 1e-12, std, 1.0)
-        model = rescaled(model, mean, std)
-        scale = torch.as_tensor(std, dtype=torch.float32)
-    # images (N, C, H, W) train about a fifth faster with their channels last on the CPU
-    layout = torch.channels_last if x.ndim == 4 else torch.contiguous_format
-    model.to(device, memory_format=layout)
-    weight = (1.0 / scale**2).to(device)
-    optimiser = torch.optim.SGD(
-        model.parameters(),
-        lr=config.learning_rate,
-        momentum=config.momentum,
-        weight_decay=config.weight_decay,
-    )
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
-    result = TrainResult(model, 0, -1, float("inf"))
-    best_state = None
-    start_epoch = 0
-    run = _fingerprint(config, inputs, targets)
-    saved = load_checkpoint(checkpoint_dir, run, say)
-    if saved is not None:
-        model.load_state_dict(saved["model"])
-        optimiser.load_state_dict(saved["optimiser"])
-        schedule.load_state_dict(saved["schedule"])
-        schedule.T_max = config.epochs
-        start_epoch = saved["epoch"] + 1
-        result = replace(saved["result"], model=model)
-        best_state = saved["best_state"]
-        say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
-    started, earlier_s = time.perf_counter(), result.seconds
-    for epoch in range(start_epoch, config.epochs):
-        model.train()
-        order = train_idx[
-            np.random.default_rng([config.seed + 1, epoch]).permutation(len(train_idx))
-        ]
-        total = 0.0
-        for first in range(0, len(order), config.batch):
-            batch = torch.from_numpy(order[first : first + config.batch])
-            xb, yb = x[batch].to(device, memory_format=layout), y[batch].to(device)
-            optimiser.zero_grad()
-            loss = ((model(xb) - yb).pow(2) * weight).mean()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), config.clip_norm)
-            optimiser.step()
-            total += float(loss.detach()) * len(batch)
-        schedule.step()
-        train_loss = total / len(order)
-        if not np.isfinite(train_loss):
-            raise ValueError(
-                f"training diverged in epoch {epoch + 1} (loss {train_loss}): lower the "
-                f"learning rate (now {config.learning_rate})"
-            )
-        val_loss = evaluate_loss(model, x[val_idx], y[val_idx], config.batch, device, weight)
-        result.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
-        if val_loss < result.best_val_loss:
-            result.best_val_loss, result.best_epoch = val_loss, epoch
-            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
-        result.epochs_run = epoch + 1
-        result.seconds = earlier_s + time.perf_counter() - started
-        per_epoch_s = (time.perf_counter() - started) / (epoch + 1 - start_epoch)
-        left_min = per_epoch_s * (config.epochs - epoch - 1) / 60
-        say(
-            (epoch + 1) / config.epochs,
-            f"epoch {epoch + 1}/{config.epochs}: train {train_loss:.5f}, val {val_loss:.5f} "
-            f"({per_epoch_s:.0f} s an epoch, about {left_min:.0f} min left)",
+    with torch_threads(config.threads):
+        say = progress or (lambda fraction, message: None)
+        if len(inputs) != len(targets) or len(inputs) < 2:
+            raise ValueError(f"{len(inputs)} inputs and {len(targets)} targets: need ≥ 2 pairs")
+        torch.manual_seed(config.seed)
+        device = choose_device(config.device)
+        train_idx, val_idx, test_idx = split(
+            len(inputs), config.val_fraction, config.test_fraction, config.seed
         )
-        if checkpoint_dir is not None:
-            save_checkpoint(
-                checkpoint_dir,
-                {
-                    "run": run,
-                    "model": model.state_dict(),
-                    "optimiser": optimiser.state_dict(),
-                    "schedule": schedule.state_dict(),
-                    "epoch": epoch,
-                    "result": replace(result, model=None),
-                    "best_state": best_state,
-                },
+        x = torch.from_numpy(np.ascontiguousarray(inputs, dtype=np.float32))
+        y = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float32))
+        scale = torch.ones(y.shape[1])
+        if config.standardize_targets:
+            mean, std = targets[train_idx].mean(axis=0), targets[train_idx].std(axis=0)
+            std = np.where(std > 1e-12, std, 1.0)
+            model = rescaled(model, mean, std)
+            scale = torch.as_tensor(std, dtype=torch.float32)
+        # images (N, C, H, W) train about a fifth faster with their channels last on the CPU
+        layout = torch.channels_last if x.ndim == 4 else torch.contiguous_format
+        model.to(device, memory_format=layout)
+        weight = (1.0 / scale**2).to(device)
+        optimiser = torch.optim.SGD(
+            model.parameters(),
+            lr=config.learning_rate,
+            momentum=config.momentum,
+            weight_decay=config.weight_decay,
+        )
+        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, T_max=config.epochs)
+        result = TrainResult(model, 0, -1, float("inf"))
+        best_state = None
+        start_epoch = 0
+        run = _fingerprint(config, inputs, targets)
+        saved = load_checkpoint(checkpoint_dir, run, say)
+        if saved is not None:
+            model.load_state_dict(saved["model"])
+            optimiser.load_state_dict(saved["optimiser"])
+            schedule.load_state_dict(saved["schedule"])
+            schedule.T_max = config.epochs
+            start_epoch = saved["epoch"] + 1
+            result = replace(saved["result"], model=model)
+            best_state = saved["best_state"]
+            say(start_epoch / config.epochs, f"resuming after epoch {start_epoch}")
+        started, earlier_s = time.perf_counter(), result.seconds
+        for epoch in range(start_epoch, config.epochs):
+            model.train()
+            order = train_idx[
+                np.random.default_rng([config.seed + 1, epoch]).permutation(len(train_idx))
+            ]
+            total = 0.0
+            for first in range(0, len(order), config.batch):
+                batch = torch.from_numpy(order[first : first + config.batch])
+                xb, yb = x[batch].to(device, memory_format=layout), y[batch].to(device)
+                optimiser.zero_grad()
+                loss = ((model(xb) - yb).pow(2) * weight).mean()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), config.clip_norm)
+                optimiser.step()
+                total += float(loss.detach()) * len(batch)
+            schedule.step()
+            train_loss = total / len(order)
+            if not np.isfinite(train_loss):
+                raise ValueError(
+                    f"training diverged in epoch {epoch + 1} (loss {train_loss}): lower the "
+                    f"learning rate (now {config.learning_rate})"
+                )
+            val_loss = evaluate_loss(model, x[val_idx], y[val_idx], config.batch, device, weight)
+            result.history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val_loss})
+            if val_loss < result.best_val_loss:
+                result.best_val_loss, result.best_epoch = val_loss, epoch
+                best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            result.epochs_run = epoch + 1
+            result.seconds = earlier_s + time.perf_counter() - started
+            per_epoch_s = (time.perf_counter() - started) / (epoch + 1 - start_epoch)
+            left_min = per_epoch_s * (config.epochs - epoch - 1) / 60
+            say(
+                (epoch + 1) / config.epochs,
+                f"epoch {epoch + 1}/{config.epochs}: train {train_loss:.5f}, val {val_loss:.5f} "
+                f"({per_epoch_s:.0f} s an epoch, about {left_min:.0f} min left)",
             )
-    if best_state is not None:
-        model.load_state_dict(best_state)
-    result.val_rmse = column_rmse(model, x[val_idx], y[val_idx], config.batch, device)
-    if len(test_idx):
-        result.test_rmse = column_rmse(model, x[test_idx], y[test_idx], config.batch, device)
-    result.split = {"train": len(train_idx), "val": len(val_idx), "test": len(test_idx)}
-    model.to("cpu", memory_format=torch.contiguous_format).eval()
-    return result
+            if checkpoint_dir is not None:
+                save_checkpoint(
+                    checkpoint_dir,
+                    {
+                        "run": run,
+                        "model": model.state_dict(),
+                        "optimiser": optimiser.state_dict(),
+                        "schedule": schedule.state_dict(),
+                        "epoch": epoch,
+                        "result": replace(result, model=None),
+                        "best_state": best_state,
+                    },
+                )
+        if best_state is not None:
+            model.load_state_dict(best_state)
+        result.val_rmse = column_rmse(model, x[val_idx], y[val_idx], config.batch, device)
+        if len(test_idx):
+            result.test_rmse = column_rmse(model, x[test_idx], y[test_idx], config.batch, device)
+        result.split = {"train": len(train_idx), "val": len(val_idx), "test": len(test_idx)}
+        model.to("cpu", memory_format=torch.contiguous_format).eval()
+        return result
 
 
 def predict(model, x, batch: int, device):  # noqa: ANN001, ANN201 - torch objects
