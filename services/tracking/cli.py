@@ -7,12 +7,12 @@ from pathlib import Path
 import typer
 
 from contract.cli import echo_progress, fail, params_options
+from contract.training import TrainSettings, config_from
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
     DETECTOR_LEARNING_RATE,
     FINE_TUNE_EPOCHS,
     FINE_TUNE_LEARNING_RATE,
-    SIAMESE_EPOCHS,
     TrackParams,
 )
 
@@ -238,6 +238,7 @@ CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun
 
 
 @train_app.command("detector")
+@params_options(TrainSettings)
 def train_detector_command(
     data: list[Path] = DATA,
     out: Path = typer.Option(..., "-o", "--out", help="DETECTOR.onnx to write."),
@@ -260,19 +261,7 @@ def train_detector_command(
     paste: int = typer.Option(
         8, min=0, max=50, help="The most cars pasted into a training scan (0: none)."
     ),
-    epochs: int = typer.Option(
-        None,
-        min=1,
-        max=1000,
-        help=f"Passes (default {DETECTOR_EPOCHS}; {FINE_TUNE_EPOCHS} with --from).",
-    ),
     batch: int = typer.Option(8, min=1, max=256),
-    learning_rate: float = typer.Option(
-        None,
-        min=1e-6,
-        max=1.0,
-        help=f"Adam's step, cosine schedule (default {DETECTOR_LEARNING_RATE}; {FINE_TUNE_LEARNING_RATE} with --from).",
-    ),
     windows: int = typer.Option(
         512, min=1, max=1_000_000, help="Training windows an epoch at least (few scans repeat)."
     ),
@@ -286,10 +275,10 @@ def train_detector_command(
         None,
         help="The training data's licence, written into the model's metadata (KITTI's is CC BY-NC-SA 3.0).",
     ),
-    seed: int = typer.Option(0, min=0),
     threads: int = THREADS,
-    device: str = typer.Option("auto", help="auto, cpu or cuda."),
     checkpoints: Path = CHECKPOINTS,
+    *,
+    params: TrainSettings,
 ) -> None:
     """Train the BEV car detector (PIXOR/CenterPoint-style, 0.62 M parameters) on labelled
     scans — KITTI object folders (velodyne/, calib/, label_2/), labelled sequences
@@ -311,13 +300,13 @@ def train_detector_command(
         fail(f"--from {start_from}: no such model file")
     tuning = start_from is not None
     config = DetectorTrainConfig(
-        epochs=epochs or (FINE_TUNE_EPOCHS if tuning else DETECTOR_EPOCHS),
+        epochs=params.epochs or (FINE_TUNE_EPOCHS if tuning else DETECTOR_EPOCHS),
         batch=batch,
-        learning_rate=learning_rate
+        learning_rate=params.learning_rate
         or (FINE_TUNE_LEARNING_RATE if tuning else DETECTOR_LEARNING_RATE),
-        seed=seed,
+        seed=params.seed,
         threads=threads,
-        device=device,
+        device=params.device,
         window_cells=window,
         frame_step=frame_step,
         paste=paste,
@@ -388,21 +377,18 @@ def train_default_detector_command(
 
 
 @train_app.command("siamese")
+@params_options(TrainSettings)
 def train_siamese_command(
     data: list[Path] = DATA,
     out: Path = typer.Option(..., "-o", "--out", help="SIAMESE.onnx to write (the encoder)."),
-    epochs: int = typer.Option(SIAMESE_EPOCHS, min=1, max=1000),
     batch: int = typer.Option(64, min=2, max=4096),
     samples: int = typer.Option(
         6000, min=16, max=10_000_000, help="Model–candidate pairs an epoch."
     ),
-    learning_rate: float = typer.Option(
-        1e-3, min=1e-6, max=1.0, help="Adam's step (cosine schedule)."
-    ),
-    seed: int = typer.Option(0, min=0),
     threads: int = THREADS,
-    device: str = typer.Option("auto", help="auto, cpu or cuda."),
     checkpoints: Path = CHECKPOINTS,
+    *,
+    params: TrainSettings,
 ) -> None:
     """Train SC3D's Siamese PointNet on the car tracklets of labelled sequences (cosine
     similarity regressed to a Gaussian of the candidate's offset, with the shape-completion
@@ -416,14 +402,8 @@ def train_siamese_command(
         fail(
             "the Siamese tracker learns from tracklets: give sequences with label_02, not object folders"
         )
-    config = SiameseTrainConfig(
-        epochs=epochs,
-        batch=batch,
-        samples_per_epoch=samples,
-        learning_rate=learning_rate,
-        seed=seed,
-        threads=threads,
-        device=device,
+    config = config_from(
+        SiameseTrainConfig, params, batch=batch, samples_per_epoch=samples, threads=threads
     )
     try:
         metadata = train_siamese(
