@@ -1,8 +1,10 @@
-"""A job kind as data: its name, queue, handler, parameters, what it reads and writes.
+"""A job kind as data: its name (``<service>.<verb>``, older names as aliases), queue,
+handler, parameters, what it reads and writes, and how its results appear in the scene.
 
 A service lists its kinds in ``KINDS`` in its ``kinds`` module; the supervisor's registry
-collects them. Handlers are named by import path and imported only inside a worker, so
-the API process never loads a service's heavy libraries.
+collects them. Handlers and presenters are named by import path and imported only where
+they run (a handler inside a worker), so the API process never loads a service's heavy
+libraries.
 """
 
 from __future__ import annotations

@@ -124,10 +124,21 @@ def engine_factory(request, tmp_path, start_server):
         pytest.skip(NO_BROKER)
     if request.param == "dramatiq" and not os.environ.get("VISTA_TEST_DATABASE_URL"):
         pytest.skip(NO_POSTGRES)
+    yield from _engines(request.param, request, tmp_path, start_server)
+
+
+@pytest.fixture
+def embedded_engine_factory(request, tmp_path, start_server):
+    """The embedded engine alone: for a service's learned jobs, whose handlers run alike on
+    either engine (the transport is tested on both by the other tests) and which train."""
+    yield from _engines("embedded", request, tmp_path, start_server)
+
+
+def _engines(kind: str, request, tmp_path, start_server):
     made: list[Engine] = []
 
     def make(**overrides) -> Engine:
-        engine = Engine(request.param, tmp_path, request, start_server, **overrides)
+        engine = Engine(kind, tmp_path, request, start_server, **overrides)
         made.append(engine)
         return engine
 
@@ -471,7 +482,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []
 
 
-def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_path):
+def test_odometry_train_then_run_with_the_model_and_without(embedded_engine_factory, tmp_path):
     """A frame sequence uploaded as a tar.gz: `odometry.train` builds OE-Net from it, an
     `odometry` step after it runs that model, another runs vista's method; with the
     archive's truth both are evaluated. A sequence without truth cannot train, and oenet
@@ -479,7 +490,7 @@ def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_
     from tests.sequences import pack, small_sequence
 
     folder = small_sequence(tmp_path / "seq", seconds=0.3)
-    engine = engine_factory()
+    engine = embedded_engine_factory()
     frames = _upload(engine, pack(folder, tmp_path / "seq.tar.gz"), "frames", "application/gzip")
     base = f"/api/v1/inspections/{engine.inspection}/artifacts"
     uploaded = engine.http.get(f"{base}/{frames}").json()
@@ -553,7 +564,7 @@ def test_odometry_train_then_run_with_the_model_and_without(engine_factory, tmp_
     assert "seq/frames/000002.png is neither a PNG nor a JPEG" in broken.json()["detail"]
 
 
-def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
+def test_depth_teacher_then_student_then_predict(embedded_engine_factory, tmp_path):
     """A simulated drive uploaded as a tar.gz: `depth.train` builds a teacher from it, a
     second `depth.train` distils a student from that teacher, `depth.predict` runs the
     student on the drive and on a single image: depth PNGs at the images' size, previews,
@@ -563,7 +574,7 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
     from tests.depthfiles import pack_drive, small_drive
 
     folder = small_drive(tmp_path / "drive")
-    engine = engine_factory()
+    engine = embedded_engine_factory()
     drive = _upload(
         engine, pack_drive(folder, tmp_path / "drive.tar.gz"), "drive", "application/gzip"
     )
@@ -677,14 +688,14 @@ def test_depth_teacher_then_student_then_predict(engine_factory, tmp_path):
     assert response.status_code == 422 and "no calib.json" in response.json()["detail"]
 
 
-def test_track_job_follows_a_car_and_refuses_missing_models(engine_factory, tmp_path):
+def test_track_job_follows_a_car_and_refuses_missing_models(embedded_engine_factory, tmp_path):
     """A packed drive uploaded as `lidar`: `track` follows track 0 with resets by the
     shipped detector and writes TRACK.json, its plot and the evaluation; a run without the
     target, and a Siamese tracker without its encoder, are refused."""
     from tests.lidarfiles import pack_sequence, small_drive
 
     drive = small_drive(tmp_path / "drive")
-    engine = engine_factory()
+    engine = embedded_engine_factory()
     sequence = _upload(
         engine, pack_sequence(drive, tmp_path / "drive.tar.gz"), "lidar", "application/gzip"
     )

@@ -134,7 +134,7 @@ def test_the_api_answers_as_its_document_says(tmp_path, sqlite_url, start_server
             "run",
             f"{server.url}/api/v1/openapi.json",
             "--max-examples",
-            "30",
+            "15",
             "--seed",
             "7",
             "--exclude-path",
