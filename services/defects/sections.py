@@ -29,18 +29,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import get_args
 
 import numpy as np
 from numba import njit
 
 from services.defects import edges
-from services.defects.kinds import EdgeModel, GapMode, MeasureSettings
+from services.defects.kinds import MeasureSettings
 from services.defects.seams import SeamLine
 
 MIN_POINTS = 8
-GAP_MODES: tuple[str, ...] = get_args(GapMode)
-EDGE_MODELS: tuple[str, ...] = get_args(EdgeModel)
 SETTINGS = MeasureSettings.model_fields
 TOP_JUMP_MM = 0.3
 """A panel's top points are followed towards the gap until a jump this wide."""

@@ -269,7 +269,7 @@ def predict_command(
     ),
     calib: Path = typer.Option(
         None,
-        help="calib.json or calib_cam_to_cam.txt folder for the clouds (default: the drive's, else KITTI's camera).",
+        help="calib.json or calib_cam_to_cam.txt (the file, or its folder) for the clouds (default: the drive's, else KITTI's camera).",
     ),
     threads: int = typer.Option(2, min=1, max=256, help="onnxruntime threads."),
 ) -> None:
@@ -278,7 +278,7 @@ def predict_command(
 
     from services.depth.data import image_files
     from services.depth.default_model import default_model
-    from services.depth.drive import read_calibration, read_image
+    from services.depth.drive import read_calibration, read_calibration_file, read_image
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
     from services.depth.quantize import quantize_int8
@@ -299,7 +299,9 @@ def predict_command(
         if clouds:
             first = read_image(paths[0])
             place = calib or (images_dir if folder != images_dir else None)
-            camera = read_calibration(place, (first.shape[1], first.shape[0])) if place else None
+            size = (first.shape[1], first.shape[0])
+            read = read_calibration_file if place and place.is_file() else read_calibration
+            camera = read(place, size) if place else None
         if int8:
             sample = np.stack(
                 [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]

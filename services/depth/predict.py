@@ -12,12 +12,12 @@ when asked, a point cloud.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from contract.vocabulary import Progress
 from services.depth.camera import PinholeCamera
 from services.depth.drive import read_image
 from services.depth.models import DepthModel
@@ -139,7 +139,7 @@ def predict_folder(
     *,
     camera: PinholeCamera | None = None,
     clouds: bool = False,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> list[PredictedImage]:
     """Predict every image of ``images`` into ``out_dir`` (module docstring); clouds need
     the ``camera`` (its K is scaled to each image's size)."""
