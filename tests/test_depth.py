@@ -609,6 +609,7 @@ def test_predict_uses_the_shipped_model(tmp_path: Path, monkeypatch: pytest.Monk
     depth = read_depth_png(tmp_path / "p" / "000000.png")
     preview = cv2.imread(str(tmp_path / "p" / "000000.color.png"))
     assert depth.shape == (375, 1242) and preview.shape[0] > 375  # the colour bar below
+    assert (tmp_path / "p" / "000000.ply").stat().st_size > 1000  # clouds, as the job's default
     from services.depth.models import DepthModel
 
     raw = np.full((1, 1, 4, 4), 0.5, np.float32)

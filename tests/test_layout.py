@@ -165,6 +165,49 @@ def test_libraries_import_no_service():
     assert {k: v for k, v in reaching_services.items() if v} == {}
 
 
+def services_reaching_others(graph: dict[str, set[str]], uses: dict[str, tuple]) -> dict:
+    """Service modules importing another service's code that their service does not name
+    in its ``kinds.USES`` (a library is anyone's to use)."""
+    found = {}
+    for name, targets in graph.items():
+        own = _service_of(name)
+        if own is None:
+            continue
+        others = sorted(
+            t
+            for t in targets
+            if _service_of(t) not in (None, own) and _service_of(t) not in uses.get(own, ())
+        )
+        if others:
+            found[name] = others
+    return found
+
+
+def _service_of(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] != "services" or len(parts) < 2 or _within(module, LIBRARIES):
+        return None
+    return parts[1]
+
+
+def _declared_uses() -> dict[str, tuple]:
+    import importlib
+
+    services = [p.name for p in (ROOT / "services").iterdir() if (p / "kinds.py").exists()]
+    return {
+        s: getattr(importlib.import_module(f"services.{s}.kinds"), "USES", ()) for s in services
+    }
+
+
+def test_a_service_reaches_another_only_when_it_names_it():
+    graph, uses = import_graph(), _declared_uses()
+    assert uses["defects"] == ("stitching",) and len(uses) >= 6
+    assert "services.stitching.stitch" in graph["services.defects.example"]
+    assert services_reaching_others(graph, uses) == {}
+    undeclared = {**uses, "defects": ()}
+    assert "services.defects.example" in services_reaching_others(graph, undeclared)
+
+
 def _within(module: str, package: str) -> bool:
     return module == package or module.startswith(package + ".")
 

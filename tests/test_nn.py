@@ -11,7 +11,7 @@ import torch
 
 from services.lib.nn.device import choose_device
 from services.lib.nn.onnx_io import export_onnx, read_model, session
-from services.lib.nn.train import TrainConfig, train
+from services.lib.nn.regression import TrainConfig, train
 
 
 def _data(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -32,7 +32,7 @@ def test_training_learns_and_is_seeded() -> None:
     first, second = _model(), _model()
     result = train(first, x, y, config)
     train(second, x, y, config)
-    losses = [h["val_loss"] for h in result.history]
+    losses = [h["val"] for h in result.history]
     assert losses[-1] < 0.2 * losses[0] and result.best_val_loss == min(losses)
     for a, b in zip(first.parameters(), second.parameters(), strict=True):
         assert torch.equal(a, b)  # the same seed gives the same weights

@@ -94,3 +94,7 @@ CLI = "services.defects.cli:register"
 """Its commands: `vista defects …` (``register(app, simulate_app, bench_app)``)."""
 DEMO_EXAMPLE = "services.defects.example:write_demo_assembly"
 """What `vista demo` simulates and runs: a cabin sidewall whose seams stray out of tolerance."""
+USES = ("stitching",)
+"""The services whose code this one calls (its simulator writes a stitching session and
+merges the scans by ``services.stitching.stitch``, as a real inspection does): a service
+reaches another only when it names it here (``tests/test_layout.py``)."""

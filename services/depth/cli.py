@@ -9,7 +9,7 @@ import typer
 
 from contract.cli import echo_progress, fail, params_options
 from contract.training import config_from
-from services.depth.kinds import TrainParams
+from services.depth.kinds import PredictParams, TrainParams
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
 
@@ -244,6 +244,7 @@ def distill_command(
 
 
 @depth_app.command("predict")
+@params_options(PredictParams)
 def predict_command(
     images_dir: Path = typer.Argument(
         ..., help="Folder of PNG or JPEG images (or a drive folder: its image_02/)."
@@ -257,23 +258,17 @@ def predict_command(
         help="MODEL.onnx (vista's, or any with its spec JSON); default: the model vista ships "
         "(trained on the simulator, adapted to KITTI's camera by its LiDAR; see the README).",
     ),
-    int8: bool = typer.Option(
-        False,
-        "--int8",
-        help="Quantize to int8 first (weights and activations, onnxruntime's QOperator format: "
-        "about 2× faster on 2 cores), calibrated on these images (kept as OUT/model.int8.onnx); "
-        "check it on frames with ground truth: on some models and frames it costs much accuracy.",
-    ),
-    clouds: bool = typer.Option(
-        False, "--clouds", help="Also write each image's point cloud (PLY, mm, camera frame)."
-    ),
     calib: Path = typer.Option(
         None,
         help="calib.json or calib_cam_to_cam.txt (the file, or its folder) for the clouds (default: the drive's, else KITTI's camera).",
     ),
     threads: int = typer.Option(2, min=1, max=256, help="onnxruntime threads."),
+    *,
+    params: PredictParams,
 ) -> None:
-    """Depth maps at each image's own size, in KITTI's convention, with colour previews."""
+    """Depth maps at each image's own size, in KITTI's convention, with colour previews (and
+    each image's point cloud, as the `depth.predict` job; the int8 model is kept as
+    OUT/model.int8.onnx)."""
     import numpy as np
 
     from services.depth.data import image_files
@@ -296,13 +291,13 @@ def predict_command(
     try:
         model = DepthModel(model_path, threads)
         camera = None
-        if clouds:
+        if params.clouds:
             first = read_image(paths[0])
             place = calib or (images_dir if folder != images_dir else None)
             size = (first.shape[1], first.shape[0])
             read = read_calibration_file if place and place.is_file() else read_calibration
             camera = read(place, size) if place else None
-        if int8:
+        if params.int8:
             sample = np.stack(
                 [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]
             )
@@ -310,13 +305,13 @@ def predict_command(
                 quantize_int8(model, sample, out_dir / "model.int8.onnx", operators=True), threads
             )
         done = predict_folder(
-            model, paths, out_dir, camera=camera, clouds=clouds, progress=echo_progress
+            model, paths, out_dir, camera=camera, clouds=params.clouds, progress=echo_progress
         )
     except ValueError as exc:
         fail(str(exc))
     mean_ms = 1000 * sum(p.seconds for p in done) / len(done)
     typer.echo(
-        f"wrote {len(done)} depth maps to {out_dir} ({mean_ms:.0f} ms a frame at {model.spec.width} × {model.spec.height}{', int8' if int8 else ''})"
+        f"wrote {len(done)} depth maps to {out_dir} ({mean_ms:.0f} ms a frame at {model.spec.width} × {model.spec.height}{', int8' if params.int8 else ''})"
     )
 
 

@@ -89,11 +89,7 @@ def train_job(ctx: JobContext) -> dict:
                 progress=say,
             )
             ctx.progress(0.96, "exporting to ONNX")
-            adapted = (
-                {"adapted_from": f"artifact {teachers[0].id} ({teachers[0].name})"}
-                if teachers
-                else {}
-            )
+            adapted = {"adapted_from": teachers[0].label} if teachers else {}
             metrics = save_teacher(result, path, config, **size, inputs=inputs, **adapted)
             architecture = TEACHER_ARCHITECTURE
         else:
@@ -112,7 +108,7 @@ def train_job(ctx: JobContext) -> dict:
                 path,
                 config,
                 **size,
-                teacher=f"artifact {teachers[0].id} ({teachers[0].name})",
+                teacher=teachers[0].label,
                 inputs=inputs,
             )
             architecture = STUDENT_ARCHITECTURE

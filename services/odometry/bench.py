@@ -242,7 +242,7 @@ def _measure(folder: Path, method: str, model: Path | None, threads: int) -> dic
 
 
 def _train_oenet(model: Path, work: Path, threads: int) -> None:
-    from services.lib.nn.train import TrainConfig
+    from services.lib.nn.regression import TrainConfig
     from services.odometry.oenet import train_oenet, training_summary
 
     folders = [

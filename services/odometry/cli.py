@@ -184,7 +184,7 @@ def train(
     sample) and export it as ONNX with its metadata (architecture, training data, input,
     validation error), checked against torch's output."""
     from contract.training import config_from
-    from services.lib.nn.train import TrainConfig
+    from services.lib.nn.regression import TrainConfig
     from services.lib.process import available_cores
     from services.odometry.oenet import train_oenet, training_summary
 

@@ -119,7 +119,7 @@ def odometry_job(ctx: JobContext) -> dict:
 
 def train_job(ctx: JobContext) -> dict:
     from contract.training import config_from
-    from services.lib.nn.train import TrainConfig
+    from services.lib.nn.regression import TrainConfig
     from services.odometry.oenet import train_oenet, training_summary
 
     params = ctx.params

@@ -6,7 +6,7 @@ mean squared error by SGD with momentum 0.9 in batches of 256.
 The table gives no activations after the fully connected layers; ReLU follows each but the
 last. The 64 × 64 inputs are the frames' centre squares, area-averaged (the thesis
 downsampled its frames; a square keeps the floor's geometry), each scaled to zero mean and
-unit spread; the targets are learned standardised (``services.lib.nn.train``), the exported
+unit spread; the targets are learned standardised (``services.lib.nn.regression``), the exported
 model answers in mm and degrees.
 """
 
@@ -110,7 +110,7 @@ def pairs_of(folder: Path) -> tuple[np.ndarray, np.ndarray, FloorCamera]:
 def train_oenet(
     folders: list[Path],
     out: Path,
-    config,  # noqa: ANN001 - services.lib.nn.train.TrainConfig
+    config,  # noqa: ANN001 - services.lib.nn.regression.TrainConfig
     *,
     checkpoint_dir: Path | None = None,
     sources: list[str] | None = None,
@@ -122,7 +122,7 @@ def train_oenet(
     import torch
 
     from services.lib.nn.onnx_io import export_onnx
-    from services.lib.nn.train import train
+    from services.lib.nn.regression import train
 
     say = progress or (lambda fraction, message: None)
     parts = [pairs_of(folder) for folder in folders]
@@ -241,7 +241,7 @@ def training_summary(metadata: dict) -> str:
 
     line = (
         f"{training['pairs']} pairs, {training['epochs']} epochs in {training['seconds']:.0f} s "
-        f"(best epoch {metrics['best_epoch'] + 1}); validation RMSE {columns(metrics['val_rmse'])}"
+        f"(best epoch {metrics['best_epoch']}); validation RMSE {columns(metrics['val_rmse'])}"
     )
     if metrics.get("test_rmse"):
         line += f"; test RMSE {columns(metrics['test_rmse'])}"

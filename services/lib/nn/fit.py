@@ -1,5 +1,6 @@
-"""A seeded training loop for networks trained by a loss of their own (depth, tracking):
-Adam on a cosine schedule over the steps, gradients clipped, validation after every epoch
+"""The one training loop of every learned service (depth, tracking, odometry's OE-Net by
+``services.lib.nn.regression``): a seeded optimiser (Adam unless the caller builds another)
+on a cosine schedule over the steps, gradients clipped, validation after every epoch
 choosing the weights kept, checkpoints written atomically after every epoch and resumed
 only by the same run (its fingerprint ``run``), progress with the time left.
 
@@ -53,6 +54,8 @@ def fit(
     progress: Progress | None = None,
     channels_last: bool = True,
     keep_best: bool = True,
+    make_optimiser: Callable[[list], object] | None = None,
+    clip_norm: float = 10.0,
 ) -> FitResult:
     """Train every module of ``modules`` (name → torch module) by Adam on a cosine schedule
     on ``step``'s loss over the samples ``train_index`` for ``config.epochs`` (each step's
@@ -60,7 +63,8 @@ def fit(
     lowest (it runs after every epoch, modules in eval mode, without gradients) — or, with
     ``keep_best`` off, the last epoch's (when the validation data must stay unseen by every
     choice, as a user's held-out scans). ``channels_last``: image networks train about a
-    fifth faster so on the CPU."""
+    fifth faster so on the CPU. ``make_optimiser`` builds the optimiser from the parameters
+    (default: Adam at ``config.learning_rate``); gradients are clipped to ``clip_norm``."""
     import torch
 
     from services.lib.nn.checkpoint import load_checkpoint, save_checkpoint
@@ -73,7 +77,10 @@ def fit(
         for module in modules.values():
             module.to(device, memory_format=layout)
         parameters = [p for m in modules.values() for p in m.parameters()]
-        optimiser = torch.optim.Adam(parameters, lr=config.learning_rate)
+        if make_optimiser is None:
+            optimiser = torch.optim.Adam(parameters, lr=config.learning_rate)
+        else:
+            optimiser = make_optimiser(parameters)
         steps_per_epoch = max(1, len(train_index) // config.batch)
         schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
             optimiser, T_max=config.epochs * steps_per_epoch
@@ -119,7 +126,7 @@ def fit(
                     loss, logs = step(batch)
                     optimiser.zero_grad()
                     loss.backward()
-                    torch.nn.utils.clip_grad_norm_(parameters, 10.0)
+                    torch.nn.utils.clip_grad_norm_(parameters, clip_norm)
                     optimiser.step()
                     schedule.step()
                     value = float(loss.detach())
