@@ -17,6 +17,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from contract.scene import Present
+from contract.views import View
 
 ANY_KIND = "*"
 
@@ -67,6 +68,9 @@ class JobKind:
     aliases: tuple[str, ...] = ()
     """Older names still accepted (scripts, stored runs): a step given one runs this kind
     and is stored under ``name``."""
+    view: str | None = None
+    """``module:function`` (a ``contract.views.View``): its results on the job's run page —
+    figures, plots, pictures — drawn from its stored outputs; None: the outputs' list only."""
 
     @property
     def input_kinds(self) -> tuple[str, ...]:
@@ -74,6 +78,9 @@ class JobKind:
 
     def load_handler(self) -> Callable[[Any], dict]:
         return load_hook(self.handler)
+
+    def load_view(self) -> View | None:
+        return None if self.view is None else load_hook(self.view)
 
 
 @dataclass(frozen=True)

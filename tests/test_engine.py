@@ -532,6 +532,22 @@ def test_odometry_train_then_run_with_the_model_and_without(embedded_engine_fact
             (job["id"], "trajectory.png", "plot"),
             (job["id"], "evaluation.json", "report"),
         } <= made
+    view = engine.http.get(f"/api/v1/jobs/{vista['id']}/view").json()  # its run page
+    path, error, figures = view["panels"]
+    assert [p["type"] for p in view["panels"]] == ["plot", "plot", "figures"]
+    estimate, truth = path["lines"][:2]
+    assert path["equal_axes"] and len(estimate["x"]) == len(estimate["band"]) == 19
+    assert truth["name"] == "truth" and abs(truth["x"][-1] - estimate["x"][-1]) < 0.01
+    assert error["lines"][0]["y"][0] == 0 and max(error["lines"][0]["y"]) < 1  # mm
+    shown = {f["label"]: f for f in figures["figures"]}
+    assert shown["frames"]["value"] == 19 and shown["drift"]["value"] is not None
+    assert {a["name"] for a in view["outputs"]} >= {"trajectory.tum", "evaluation.json"}
+    assert [a["id"] for a in view["inputs"]] == [frames]
+    trained = engine.http.get(f"/api/v1/jobs/{train['id']}/view").json()["panels"]
+    assert trained[0]["title"] == "Training" and trained[0]["lines"][0]["x"] == [1.0]
+    assert {"label": "architecture", "value": "oenet", "unit": "", "note": ""} in trained[1][
+        "figures"
+    ]
     tum = next(a for a in listed if a["job_id"] == vista["id"] and a["kind"] == "trajectory")
     assert tum["media_type"] == "text/plain"
     assert len(engine.http.get(f"{base}/{tum['id']}/content").text.splitlines()) == 19

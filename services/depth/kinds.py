@@ -7,6 +7,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.training import TrainSettings
+from contract.views import TRAINING_REPORT_NAME
 from services.lib.artifact_kinds import FORMATS
 
 EPOCHS = 12
@@ -61,7 +62,7 @@ class PredictParams(BaseModel):
 
 
 MODEL = Output("model", "depth.onnx")
-TRAINING_REPORT = Output("report", "training.json")
+TRAINING_REPORT = Output("report", TRAINING_REPORT_NAME)
 DEPTH_MAP = Output("depth", "{stem}.depth.png", per_input=True)
 PREVIEW = Output("plot", "{stem}.color.png", per_input=True)
 CLOUD = Output("cloud", "{stem}.ply", per_input=True)
@@ -71,6 +72,7 @@ DEPTH_TRAIN = JobKind(
     name="depth.train",
     queue="training",
     handler="services.depth.jobs:train_job",
+    view="contract.views:training_view",
     params=TrainParams,
     description=(
         "Trains a monocular depth network on `drive` archives (KITTI layout) or `image`s: a "
@@ -94,6 +96,7 @@ DEPTH_PREDICT = JobKind(
     name="depth.predict",
     queue="depth",
     handler="services.depth.jobs:predict_job",
+    view="services.depth.views:predict_view",
     params=PredictParams,
     description=(
         "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "

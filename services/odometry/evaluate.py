@@ -73,16 +73,38 @@ def align_rigid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([t[0], t[1], theta])
 
 
+def _matched(estimate: Trajectory2D, truth: Trajectory2D) -> tuple[np.ndarray, ...]:
+    """The estimate's indices matched in time, its poses moved to start where the first
+    matched true pose is, and those true poses."""
+    est_index, true_index = match(estimate, truth)
+    est, true = estimate.pose[est_index], truth.pose[true_index]
+    return est_index, se2.compose(se2.compose(true[:1], se2.inverse(est[:1])), est), true
+
+
+def error_along_path(estimate: Trajectory2D, truth: Trajectory2D, most: int = 2000) -> dict:
+    """The position error against the distance travelled, and the true path in the
+    estimate's frame (both start at the first matched pose), at most ``most`` points (a run
+    page's plots): metres."""
+    est_index, est, true = _matched(estimate, truth)
+    travelled_mm = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(true[:, :2], axis=0).T))])
+    error_mm = np.hypot(*(est[:, :2] - true[:, :2]).T)
+    start = estimate.pose[est_index[:1]]
+    true_in_estimate = se2.compose(se2.compose(start, se2.inverse(true[:1])), true)
+    keep = np.unique(np.linspace(0, len(est) - 1, min(most, len(est))).round().astype(int))
+    return {
+        "distance_m": np.round(travelled_mm[keep] / 1000, 5).tolist(),
+        "error_m": np.round(error_mm[keep] / 1000, 6).tolist(),
+        "truth_x_m": np.round(true_in_estimate[keep, 0] / 1000, 5).tolist(),
+        "truth_y_m": np.round(true_in_estimate[keep, 1] / 1000, 5).tolist(),
+    }
+
+
 def evaluate(
     estimate: Trajectory2D, truth: Trajectory2D, final_covariance: np.ndarray | None = None
 ) -> OdometryEval:
     """The estimate against the truth; ``final_covariance`` (3 × 3: mm², mm·rad, rad²) of
     the estimate's last pose, when known."""
-    est_index, true_index = match(estimate, truth)
-    est = estimate.pose[est_index]
-    true = truth.pose[true_index]
-    # both start where the first matched true pose is
-    est = se2.compose(se2.compose(true[:1], se2.inverse(est[:1])), est)
+    est_index, est, true = _matched(estimate, truth)
     step_error = se2.relative(est) - se2.relative(true)
     step_error[:, 2] = se2.wrap(step_error[:, 2])
     distance_mm = float(np.hypot(*np.diff(truth.pose[:, :2], axis=0).T).sum())

@@ -51,7 +51,7 @@ def _named(
 
 
 def odometry_job(ctx: JobContext) -> dict:
-    from services.odometry.evaluate import evaluate
+    from services.odometry.evaluate import error_along_path, evaluate
     from services.odometry.report import write_run
     from services.odometry.run import run_odometry
     from services.odometry.tum import read_tum
@@ -108,7 +108,8 @@ def odometry_job(ctx: JobContext) -> dict:
     }
     if truth is not None:
         scores = evaluate(result.trajectory, truth, result.covariance[-1]).document()
-        ctx.add_artifact_json(scores, kind=EVALUATION.kind, name=EVALUATION.file_name())
+        along = {"along_path": error_along_path(result.trajectory, truth)}
+        ctx.add_artifact_json(scores | along, kind=EVALUATION.kind, name=EVALUATION.file_name())
         summary["evaluation"] = scores
     ctx.progress(
         1.0,

@@ -7,6 +7,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.training import TrainSettings
+from contract.views import TRAINING_REPORT_NAME
 
 OENET_EPOCHS = 40
 OENET_LEARNING_RATE = 0.02
@@ -47,13 +48,14 @@ RUN_REPORT = Output("report", "odometry.json")
 TRAJECTORY_PLOT = Output("plot", "trajectory.png")
 EVALUATION = Output("report", "evaluation.json")
 MODEL = Output("model", "oenet.onnx")
-TRAINING_REPORT = Output("report", "training.json")
+TRAINING_REPORT = Output("report", TRAINING_REPORT_NAME)
 
 ODOMETRY = JobKind(
     name="odometry.run",
     aliases=("odometry",),
     queue="odometry",
     handler="services.odometry.jobs:odometry_job",
+    view="services.odometry.views:run_view",
     params=OdometryParams,
     description=(
         "Floor-camera visual odometry of a `frames` sequence: the camera's trajectory (TUM, "
@@ -72,6 +74,7 @@ ODOMETRY_TRAIN = JobKind(
     name="odometry.train",
     queue="training",
     handler="services.odometry.jobs:train_job",
+    view="contract.views:training_view",
     params=TrainParams,
     description=(
         "Trains OE-Net (thesis Table 6.1) on the consecutive frame pairs of `frames` "

@@ -8,6 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.training import TrainSettings
+from contract.views import TRAINING_REPORT_NAME
 
 DETECTOR_EPOCHS = 12
 DETECTOR_LEARNING_RATE = 2e-3
@@ -108,13 +109,14 @@ TRACK_REPORT = Output("report", "track.json")
 TRACK_PLOT = Output("plot", "track.png")
 EVALUATION = Output("report", "evaluation.json")
 MODEL = Output("model", "tracking.onnx")
-TRAINING_REPORT = Output("report", "training.json")
+TRAINING_REPORT = Output("report", TRAINING_REPORT_NAME)
 
 TRACK = JobKind(
     name="tracking.track",
     aliases=("track",),
     queue="tracking",
     handler="services.tracking.jobs:track_job",
+    view="services.tracking.views:track_view",
     params=TrackParams,
     description=(
         "Tracks one car through a `lidar` sequence (thesis 5.1): the tracker every frame, the "
@@ -139,6 +141,7 @@ TRACK_TRAIN = JobKind(
     aliases=("track.train",),
     queue="training",
     handler="services.tracking.jobs:train_job",
+    view="contract.views:training_view",
     params=TrainParams,
     description=(
         "Trains the learned car detector or SC3D's Siamese encoder on labelled `lidar` "

@@ -31,6 +31,7 @@ from supervisor.jobs.schemas import (
     RunCreate,
     RunOut,
 )
+from supervisor.jobs.view import JobViewOut, job_view
 from supervisor.models import Job, Run
 from supervisor.models.jobs import FINISHED
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
@@ -154,6 +155,18 @@ def get_job(
     job_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> JobOut:
     return service.job_out(session, service.get_job(session, job_id=job_id))
+
+
+@router.get("/jobs/{job_id}/view", response_model=JobViewOut)
+def get_job_view(
+    job_id: IdPath,
+    session: Session = SESSION,
+    runtime: Runtime = Depends(get_runtime),
+    _: CurrentUser = Depends(readers),
+) -> JobViewOut:
+    """The job's run page: the job, its input and output artifacts, and its results as
+    its kind draws them (figures, plots, pictures: ``contract.views``)."""
+    return job_view(session, runtime.storage, job_id)
 
 
 @router.post("/jobs/{job_id}/cancel", response_model=JobOut)

@@ -53,6 +53,18 @@ export const api = {
   judge: (defectId, body) => request("PUT", `/defects/${defectId}/judgments/me`, { body }),
   judgments: (defectId) => request("GET", `/defects/${defectId}/judgments`),
   feedback: (id) => request("GET", "/feedback", { params: { inspection: id } }),
+  jobView: (jobId) => request("GET", `/jobs/${jobId}/view`),
+  artifactContent: async (id, artifactId) => (await request("GET", `/inspections/${id}/artifacts/${artifactId}/content`, { raw: true })).blob(),
+  // Save an artifact's file as the user's download (the token cannot ride on a plain link).
+  download: async (id, artifact) => {
+    const blob = await api.artifactContent(id, artifact.id);
+    const url = URL.createObjectURL(blob);
+    const link = Object.assign(document.createElement("a"), { href: url, download: artifact.name });
+    document.body.append(link);
+    link.click();
+    link.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10_000);
+  },
   scene: (id, points) => request("GET", `/inspections/${id}/scene.glb`, { raw: true, params: { points } }),
 };
 

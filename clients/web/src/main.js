@@ -1,6 +1,8 @@
 // vista's dashboard: sign in, inspections, the run timeline with live progress, defects
 // with filters and sort, the 3D scene, judgments and consensus, and the feedback loop.
 import { api, ApiError, followJob, session } from "./api.js";
+import { el } from "./dom.js";
+import { showJob } from "./runpage.js";
 import { SceneView } from "./scene.js";
 
 const TYPES = ["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"];
@@ -33,21 +35,10 @@ const state = {
   jobStreams: new AbortController(),
   scene: null,
   sceneFacts: { markers: 0, panels: 0, seams: 0 }, // what the scene on show holds
+  stopJob: null, // ends the live updates of the job page on show
 };
 
 // ---- small helpers ------------------------------------------------------------------
-
-function el(tag, attributes = {}, ...children) {
-  const node = document.createElement(tag);
-  for (const [key, value] of Object.entries(attributes)) {
-    if (key === "class") node.className = value;
-    else if (key.startsWith("on")) node.addEventListener(key.slice(2), value);
-    else if (key === "dataset") Object.assign(node.dataset, value);
-    else node.setAttribute(key, value);
-  }
-  node.append(...children.filter((c) => c !== null && c !== undefined));
-  return node;
-}
 
 function show(view) {
   for (const node of document.querySelectorAll(".view")) node.hidden = node.id !== `view-${view}`;
@@ -502,7 +493,7 @@ function jobRow(job) {
   const bar = el("progress", { max: "1", value: String(job.progress) });
   const status = el("span", { class: `status-${job.status}` }, job.status);
   const message = el("div", { class: job.error ? "job-error" : "job-message muted" }, job.error || job.message || "");
-  const name = el("span", { class: "job-step", title: `job ${job.id}` }, `${job.step} `, el("span", { class: "muted" }, job.kind));
+  const name = el("a", { class: "job-step", title: `job ${job.id}: its page`, href: `#/inspections/${job.inspection_id}/jobs/${job.id}` }, `${job.step} `, el("span", { class: "muted" }, job.kind));
   return { node: el("div", { class: "job", dataset: { job: job.id } }, name, bar, status, message), bar, status, message };
 }
 
@@ -531,6 +522,24 @@ async function loadTimeline() {
     );
   }));
   $("#runs-empty").hidden = page.items.length > 0;
+}
+
+// A job's own page (runpage.js): reached from its row in the Runs tab.
+async function showJobPage(inspectionId, jobId) {
+  resetInspection();
+  state.inspection = null;
+  show("job");
+  $("#crumbs").replaceChildren(
+    el("a", { href: "#/inspections" }, "inspections"), " / ",
+    el("a", { href: `#/inspections/${inspectionId}` }, `inspection ${inspectionId}`), ` / job ${jobId}`,
+  );
+  const root = $("#job-page");
+  root.replaceChildren(el("p", { class: "muted" }, "loading…"));
+  try {
+    state.stopJob = await guarded(() => showJob(root, jobId, { onFinished: () => route() }));
+  } catch (error) {
+    root.replaceChildren(el("p", { class: "error", role: "alert" }, `job ${jobId}: ${error.message}`));
+  }
 }
 
 // ---- feedback ---------------------------------------------------------------------------
@@ -572,8 +581,12 @@ async function route() {
   }
   $("#who").textContent = `${state.me.username} (${state.me.role})`;
   $("#sign-out").hidden = false;
+  if (state.stopJob) state.stopJob();
+  state.stopJob = null;
+  const job = /^#\/inspections\/(\d+)\/jobs\/(\d+)$/.exec(location.hash);
   const match = /^#\/inspections\/(\d+)(?:\/defects\/(\d+))?$/.exec(location.hash);
-  if (match) await showInspection(Number(match[1]), match[2] ? Number(match[2]) : null);
+  if (job) await showJobPage(Number(job[1]), Number(job[2]));
+  else if (match) await showInspection(Number(match[1]), match[2] ? Number(match[2]) : null);
   else {
     resetInspection();
     state.inspection = null;

@@ -1,0 +1,232 @@
+// A job's run page: its inputs and parameters, its progress, its output files, and its
+// results as its kind declares them (GET /jobs/{id}/view: figures, plots, pictures —
+// contract/views.py). Nothing here knows a service: a new kind's panels draw the same way.
+import { api, followJob } from "./api.js";
+import { el } from "./dom.js";
+
+const SVG = "http://www.w3.org/2000/svg";
+const COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b"];
+const PLOT = { width: 640, height: 360, left: 76, right: 16, top: 16, bottom: 44 };
+
+function svg(tag, attributes = {}, ...children) {
+  const node = document.createElementNS(SVG, tag);
+  for (const [key, value] of Object.entries(attributes)) node.setAttribute(key, String(value));
+  node.append(...children);
+  return node;
+}
+
+function sizeText(bytes) {
+  if (bytes < 1024) return `${bytes} B`;
+  if (bytes < 1024 ** 2) return `${(bytes / 1024).toFixed(1)} kB`;
+  return `${(bytes / 1024 ** 2).toFixed(1)} MB`;
+}
+
+function valueText(figure) {
+  if (figure.value === null || figure.value === undefined) return `unmeasured${figure.note ? ` (${figure.note})` : ""}`;
+  const value = typeof figure.value === "number" && !Number.isInteger(figure.value)
+    ? String(Number(figure.value.toPrecision(6))) : String(figure.value);
+  return figure.unit ? `${value} ${figure.unit}` : value;
+}
+
+// ---- axes -----------------------------------------------------------------------------
+
+// About five round steps between lo and hi.
+function ticks(lo, hi) {
+  const span = hi - lo || Math.abs(hi) || 1;
+  const raw = span / 5;
+  const power = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 5, 10].map((m) => m * power).find((s) => s >= raw);
+  const out = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) out.push(Number(v.toPrecision(12)));
+  return out;
+}
+
+function extent(values) {
+  let lo = Infinity;
+  let hi = -Infinity;
+  for (const v of values) {
+    if (Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+  }
+  if (!Number.isFinite(lo)) return [0, 1];
+  if (lo === hi) return [lo - 0.5, hi + 0.5];
+  return [lo, hi];
+}
+
+// The plot's data ranges: with equal axes one metre is as long across as up (a straight
+// path stays a straight line, not a diagonal stretched to fill the box).
+function ranges(plot) {
+  const xs = [];
+  const ys = [];
+  for (const line of plot.lines) {
+    line.x.forEach((x, k) => {
+      const band = line.band ? line.band[k] : 0;
+      xs.push(x - (plot.equal_axes ? band : 0), x + (plot.equal_axes ? band : 0));
+      ys.push(line.y[k] - band, line.y[k] + band);
+    });
+  }
+  let [x0, x1] = extent(xs);
+  let [y0, y1] = extent(plot.log_y ? ys.filter((v) => v > 0).map(Math.log10) : ys);
+  const pad = (lo, hi) => [lo - 0.04 * (hi - lo), hi + 0.04 * (hi - lo)];
+  [x0, x1] = pad(x0, x1);
+  [y0, y1] = pad(y0, y1);
+  if (plot.equal_axes) {
+    const w = PLOT.width - PLOT.left - PLOT.right;
+    const h = PLOT.height - PLOT.top - PLOT.bottom;
+    const perPixel = Math.max((x1 - x0) / w, (y1 - y0) / h);
+    const cx = (x0 + x1) / 2;
+    const cy = (y0 + y1) / 2;
+    [x0, x1] = [cx - (perPixel * w) / 2, cx + (perPixel * w) / 2];
+    [y0, y1] = [cy - (perPixel * h) / 2, cy + (perPixel * h) / 2];
+  }
+  return { x0, x1, y0, y1 };
+}
+
+function plotPanel(plot) {
+  const r = ranges(plot);
+  const w = PLOT.width - PLOT.left - PLOT.right;
+  const h = PLOT.height - PLOT.top - PLOT.bottom;
+  const X = (x) => PLOT.left + ((x - r.x0) / (r.x1 - r.x0)) * w;
+  const yOf = (y) => (plot.log_y ? Math.log10(Math.max(y, 1e-300)) : y);
+  const Y = (y) => PLOT.top + h - ((yOf(y) - r.y0) / (r.y1 - r.y0)) * h;
+  const root = svg("svg", {
+    viewBox: `0 0 ${PLOT.width} ${PLOT.height}`, class: "plot", role: "img", "aria-label": plot.title,
+    "data-units-per-px": `${(r.x1 - r.x0) / w} ${(r.y1 - r.y0) / h}`,
+  });
+  const grid = svg("g", { class: "axes" });
+  for (const t of ticks(r.x0, r.x1)) {
+    grid.append(svg("line", { x1: X(t), x2: X(t), y1: PLOT.top, y2: PLOT.top + h }),
+      svg("text", { x: X(t), y: PLOT.top + h + 16, "text-anchor": "middle" }, String(t)));
+  }
+  for (const t of ticks(r.y0, r.y1)) {
+    const y = PLOT.top + h - ((t - r.y0) / (r.y1 - r.y0)) * h;
+    grid.append(svg("line", { x1: PLOT.left, x2: PLOT.left + w, y1: y, y2: y }),
+      svg("text", { x: PLOT.left - 6, y: y + 4, "text-anchor": "end" }, plot.log_y ? `1e${t}` : String(t)));
+  }
+  grid.append(
+    svg("text", { x: PLOT.left + w / 2, y: PLOT.height - 6, "text-anchor": "middle", class: "axis-label" }, plot.x_label),
+    svg("text", { x: 12, y: PLOT.top + h / 2, "text-anchor": "middle", class: "axis-label", transform: `rotate(-90 12 ${PLOT.top + h / 2})` }, plot.y_label),
+  );
+  root.append(grid);
+  const legend = el("ul", { class: "plot-legend" });
+  plot.lines.forEach((line, k) => {
+    const colour = COLOURS[k % COLOURS.length];
+    const g = svg("g", { class: "series", "data-name": line.name });
+    if (line.band && plot.equal_axes) {
+      // the position's 1σ: a circle at each pose, together a band around the path
+      const scale = w / (r.x1 - r.x0);
+      const step = Math.max(1, Math.floor(line.x.length / 400));
+      for (let i = 0; i < line.x.length; i += step) {
+        g.append(svg("circle", { cx: X(line.x[i]), cy: Y(line.y[i]), r: Math.max(0.5, line.band[i] * scale), fill: colour, "fill-opacity": 0.08, stroke: "none", class: "band" }));
+      }
+    } else if (line.band) {
+      const upper = line.x.map((x, i) => `${X(x)},${Y(line.y[i] + line.band[i])}`);
+      const lower = line.x.map((x, i) => `${X(x)},${Y(line.y[i] - line.band[i])}`).reverse();
+      g.append(svg("polygon", { points: [...upper, ...lower].join(" "), fill: colour, "fill-opacity": 0.15, class: "band" }));
+    }
+    if (line.style === "points") {
+      for (let i = 0; i < line.x.length; i += 1) {
+        g.append(svg("circle", { cx: X(line.x[i]), cy: Y(line.y[i]), r: 4, fill: "none", stroke: colour, "stroke-width": 2, class: "mark" }));
+      }
+    } else {
+      const points = line.x.map((x, i) => `${X(x).toFixed(1)},${Y(line.y[i]).toFixed(1)}`).join(" ");
+      g.append(svg("polyline", { points, fill: "none", stroke: colour, "stroke-width": 1.5 }));
+    }
+    root.append(g);
+    legend.append(el("li", {}, el("span", { class: "swatch", style: `background:${colour}` }), `${line.name}${line.style === "points" ? ` (${line.x.length})` : ""}`));
+  });
+  return [root, legend];
+}
+
+// ---- pictures: layers of one image, a slider between them ---------------------------------
+
+function picturePanel(panel, inspectionId, urls) {
+  return panel.pictures.map((picture) => {
+    const layers = picture.layers.map((name, k) => ({ name: picture.layer_names[k], id: picture.artifact_ids[k] }))
+      .filter((layer) => layer.id > 0);
+    const images = layers.map((layer) => el("img", { alt: `${picture.label}: ${layer.name}`, "data-layer": layer.name }));
+    layers.forEach((layer, k) => {
+      api.artifactContent(inspectionId, layer.id).then((blob) => {
+        const url = URL.createObjectURL(blob);
+        urls.push(url);
+        images[k].src = url;
+      }).catch((error) => { images[k].alt = `${layer.name}: ${error.message}`; });
+    });
+    const stack = el("div", { class: "layers" }, ...images);
+    const caption = el("span", { class: "muted" });
+    const slider = el("input", { type: "range", min: "0", max: String(Math.max(0, layers.length - 1) * 100), value: "0", "aria-label": `${picture.label}: blend the layers` });
+    const blend = () => {
+      const at = Number(slider.value) / 100;
+      images.forEach((image, k) => { image.style.opacity = String(Math.max(0, Math.min(1, 1 - Math.abs(at - k)))); });
+      caption.textContent = layers.map((layer) => layer.name).join(" ↔ ");
+    };
+    slider.addEventListener("input", blend);
+    blend();
+    return el("figure", { class: "picture" }, stack, layers.length > 1 ? slider : null, el("figcaption", {}, picture.label, " ", caption));
+  });
+}
+
+function figuresPanel(panel) {
+  return el("table", { class: "grid figures" }, el("tbody", {}, ...panel.figures.map((f) => el(
+    "tr", {}, el("th", {}, f.label), el("td", { class: f.value === null ? "muted" : "" }, valueText(f)),
+  ))));
+}
+
+function panelNode(panel, inspectionId, urls) {
+  const body = panel.type === "plot" ? plotPanel(panel)
+    : panel.type === "figures" ? [figuresPanel(panel)]
+      : panel.type === "pictures" ? picturePanel(panel, inspectionId, urls)
+        : [el("p", { class: "muted" }, `a ${panel.type} panel this dashboard cannot draw yet`)];
+  return el("section", { class: `card panel panel-${panel.type}`, dataset: { title: panel.title } }, el("h2", {}, panel.title), ...body);
+}
+
+// ---- the page ---------------------------------------------------------------------------
+
+function fileList(artifacts, inspectionId) {
+  if (!artifacts.length) return el("p", { class: "muted" }, "none");
+  return el("ul", { class: "files" }, ...artifacts.map((a) => el(
+    "li", {},
+    el("button", { class: "link", dataset: { artifact: a.id }, onclick: () => api.download(inspectionId, a) }, a.name),
+    el("span", { class: "muted" }, ` ${a.kind}, ${sizeText(a.size_bytes)}`),
+  )));
+}
+
+// Draw job `jobId`'s page into `root`; returns a function that stops its live updates.
+export async function showJob(root, jobId, { onFinished } = {}) {
+  const stop = new AbortController();
+  const urls = [];
+  const view = await api.jobView(jobId);
+  const { job } = view;
+  const bar = el("progress", { max: "1", value: String(job.progress) });
+  const status = el("span", { class: `status-${job.status}`, id: "job-status" }, job.status);
+  const message = el("p", { class: job.error ? "job-error" : "muted", id: "job-message" }, job.error || job.message || "");
+  const params = Object.entries(job.params || {});
+  root.replaceChildren(...[
+    el("div", { class: "run-page-head" },
+      el("h1", {}, `${job.step} `, el("span", { class: "muted" }, `${job.kind} · job ${job.id} · run ${job.run_id}`)),
+      el("a", { href: `#/inspections/${job.inspection_id}`, class: "back" }, "← the inspection")),
+    el("section", { class: "card" }, el("h2", {}, "Progress"), el("div", { class: "job-progress" }, bar, status), message,
+      el("p", { class: "muted" }, job.finished_at ? `finished ${new Date(job.finished_at).toLocaleString()}` : job.started_at ? `started ${new Date(job.started_at).toLocaleString()}` : "waiting")),
+    el("div", { class: "run-columns" },
+      el("section", { class: "card" }, el("h2", {}, "Inputs"), fileList(view.inputs, job.inspection_id),
+        el("h2", {}, "Parameters"), params.length
+          ? el("table", { class: "grid figures", id: "job-params" }, el("tbody", {}, ...params.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, typeof v === "object" ? JSON.stringify(v) : String(v))))))
+          : el("p", { class: "muted" }, "defaults")),
+      el("section", { class: "card", id: "job-outputs" }, el("h2", {}, "Outputs"), fileList(view.outputs, job.inspection_id))),
+    view.note ? el("p", { class: "muted", id: "view-note" }, view.note) : null,
+    el("div", { class: "panels", id: "panels" }, ...view.panels.map((p) => panelNode(p, job.inspection_id, urls))),
+  ].filter((node) => node !== null));
+  if (!["succeeded", "failed", "cancelled"].includes(job.status)) {
+    followJob(job.id, (event, data) => {
+      if (event === "progress") {
+        bar.value = data.progress;
+        status.textContent = data.status;
+        status.className = `status-${data.status}`;
+        message.textContent = data.error || data.message || "";
+      } else if (event === "end" && onFinished) onFinished();
+    }, stop.signal).catch(() => {});
+  }
+  return () => {
+    stop.abort();
+    for (const url of urls) URL.revokeObjectURL(url);
+  };
+}

@@ -1,0 +1,157 @@
+"""What a job's run page shows of its results: a few typed panels that a service builds from
+its own outputs (its kind's ``view`` hook, named by import path as the handler is) and that
+every client draws alike. The supervisor knows no file's layout: it calls the hook on the
+job's stored outputs and serves the panels (``GET /jobs/{id}/view``); a new service gets its
+run page by declaring a hook, without editing the dashboard.
+
+Units are in the labels: a panel carries numbers and says what they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+
+@dataclass(frozen=True)
+class Figure:
+    label: str
+    value: float | int | str | None
+    """None: unmeasured (``note`` says why)."""
+    unit: str = ""
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Figures:
+    """A run's headline numbers, as a two-column table."""
+
+    title: str
+    figures: list[Figure]
+    type: Literal["figures"] = "figures"
+
+
+@dataclass(frozen=True)
+class Line:
+    name: str
+    x: list[float]
+    y: list[float]
+    band: list[float] | None = None
+    """± this much around each point, in the axes' unit (a 1σ band; on ``equal_axes`` plots a
+    circle of this radius, the position's uncertainty)."""
+    style: Literal["line", "points"] = "line"
+    """``points``: marks (flagged pairs, resets) rather than a curve."""
+
+
+@dataclass(frozen=True)
+class Plot:
+    """Curves and marks over two axes (a path in the floor plane, a loss per epoch, an
+    error against distance)."""
+
+    title: str
+    x_label: str
+    y_label: str
+    lines: list[Line]
+    equal_axes: bool = False
+    """A path: one unit is as long on both axes (a straight path stays straight)."""
+    log_y: bool = False
+    type: Literal["plot"] = "plot"
+
+
+@dataclass(frozen=True)
+class Picture:
+    label: str
+    layers: list[str]
+    """Files (outputs, or inputs, by name) drawn in place of one another, a slider between
+    them: an image, its depth map, its error map."""
+    layer_names: list[str]
+    artifact_ids: list[int] = field(default_factory=list)
+    """Filled by the supervisor: the stored artifact of each layer (0: not stored)."""
+
+
+@dataclass(frozen=True)
+class Pictures:
+    title: str
+    pictures: list[Picture]
+    type: Literal["pictures"] = "pictures"
+
+
+Panel = Annotated[Figures | Plot | Pictures, Field(discriminator="type")]
+
+
+@dataclass(frozen=True)
+class JobFiles:
+    """What a view hook is given: the job's result and its stored outputs by name."""
+
+    result: dict
+    outputs: dict[str, Path]
+    """Output file name → its stored file (what the job wrote, as it named it)."""
+    inputs: dict[str, Path] = field(default_factory=dict)
+    """The artifacts it was given, by name (a picture may show an input beside an output)."""
+
+    def json(self, name: str) -> dict | None:
+        """The output ``name`` read as JSON; None when the job wrote none."""
+        import json
+
+        path = self.outputs.get(name)
+        return None if path is None else json.loads(path.read_text())
+
+
+View = Callable[[JobFiles], list[Figures | Plot | Pictures]]
+"""A kind's view hook: its job's outputs to the panels of its run page."""
+
+
+TRAINING_REPORT_NAME = "training.json"
+"""The output every training kind writes its model's whole metadata to (``store_model``)."""
+
+
+def training_view(files: JobFiles) -> list[Figures | Plot | Pictures]:
+    """The view hook of every training kind (``view="contract.views:training_view"``)."""
+    return training_panels(files.json(TRAINING_REPORT_NAME))
+
+
+def training_panels(report: dict | None) -> list[Figures | Plot | Pictures]:
+    """A trained model's run page, from its training report (the model's metadata, as
+    ``contract.context.store_model`` keeps it): the loss and validation per epoch of the
+    shared training loop, and the model's figures."""
+    if not report:
+        return []
+    training = report.get("training", {})
+    history = training.get("history", [])
+    epochs = [float(h["epoch"]) for h in history]
+    curves = [
+        Line(name, epochs, [float(h[key]) for h in history])
+        for key, name in (("loss", "training loss"), ("val", "validation score"))
+        if history and all(key in h for h in history)
+    ]
+    panels: list[Figures | Plot | Pictures] = []
+    if curves:
+        panels.append(Plot("Training", "epoch", "loss / score (lower is better)", curves))
+    figures = [
+        Figure("architecture", str(report.get("architecture", "–"))),
+        Figure("epochs", training.get("epochs")),
+        Figure(
+            "best epoch", training.get("best_epoch", report.get("metrics", {}).get("best_epoch"))
+        ),
+        Figure("training time", training.get("seconds"), "s"),
+    ]
+    for key, value in _flat(report.get("metrics", {})):
+        figures.append(Figure(key, value))
+    panels.append(Figures("Model", [f for f in figures if f.value is not None]))
+    return panels
+
+
+def _flat(values: dict, prefix: str = "") -> list[tuple[str, float | int | str]]:
+    """Nested figures as (dotted name, number or word) pairs; lists and None left out."""
+    found = []
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            found += _flat(value, name + ".")
+        elif isinstance(value, bool | int | float | str):
+            found.append((name, value))
+    return found

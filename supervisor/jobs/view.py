@@ -1,0 +1,76 @@
+"""A job's run page: the job, its inputs and outputs, and its results drawn as the job's
+kind declares (``JobKind.view``, a ``contract.views.View`` hook called on the stored
+outputs). A hook that cannot read a file says so in ``note``: the page still lists the
+files."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from pydantic import BaseModel
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from contract.views import JobFiles, Panel, Pictures
+from supervisor.artifacts.schemas import ArtifactOut
+from supervisor.engine.registry import get_kind
+from supervisor.jobs.schemas import JobOut
+from supervisor.jobs.service import get_job, job_out
+from supervisor.models import Artifact
+from supervisor.storage import Storage
+
+
+class JobViewOut(BaseModel):
+    job: JobOut
+    inputs: list[ArtifactOut]
+    """The artifacts the job was given (a later step's also reads its predecessors' outputs)."""
+    outputs: list[ArtifactOut]
+    panels: list[Panel]
+    """The results as the kind draws them (empty until the job has succeeded)."""
+    note: str | None = None
+    """Why no panels are shown, when that is not plain from the job's status."""
+
+
+def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
+    job = get_job(session, job_id=job_id)
+    outputs = session.scalars(
+        select(Artifact).where(Artifact.job_id == job.id).order_by(Artifact.id)
+    ).all()
+    given = session.scalars(
+        select(Artifact).where(Artifact.id.in_(job.input_artifact_ids or [])).order_by(Artifact.id)
+    ).all()
+    panels, note = [], None
+    kind = get_kind(job.kind)
+    view = kind.load_view() if kind is not None else None
+    if view is None:
+        note = "this kind of job declares no view of its results: its files are listed"
+    elif job.status == "succeeded":
+        files = JobFiles(
+            job.result or {},
+            {a.name: storage.path(a.storage_uri) for a in outputs},
+            {a.name: storage.path(a.storage_uri) for a in given},
+        )
+        try:
+            panels = view(files)
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            note = f"the results could not be drawn ({type(exc).__name__}: {exc}); the files are listed"
+        ids = {a.name: a.id for a in given} | {a.name: a.id for a in outputs}
+        panels = [_with_ids(p, ids) for p in panels]
+    return JobViewOut(
+        job=job_out(session, job),
+        inputs=[ArtifactOut.model_validate(a) for a in given],
+        outputs=[ArtifactOut.model_validate(a) for a in outputs],
+        panels=panels,
+        note=note,
+    )
+
+
+def _with_ids(panel, ids: dict[str, int]):  # noqa: ANN001, ANN202 - a contract.views panel
+    """Pictures name their layers by file (an output's, else an input's): the stored
+    artifact of each (0: none)."""
+    if not isinstance(panel, Pictures):
+        return panel
+    pictures = [
+        replace(p, artifact_ids=[ids.get(name, 0) for name in p.layers]) for p in panel.pictures
+    ]
+    return replace(panel, pictures=pictures)
