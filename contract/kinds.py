@@ -16,7 +16,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from contract.scene import Present
+from contract.scene import Present, SceneHook
 from contract.views import View
 
 ANY_KIND = "*"
@@ -71,6 +71,9 @@ class JobKind:
     view: str | None = None
     """``module:function`` (a ``contract.views.View``): its results on the job's run page —
     figures, plots, pictures — drawn from its stored outputs; None: the outputs' list only."""
+    scene: str | None = None
+    """``module:function`` (a ``contract.scene.SceneHook``): its results in 3D, served as
+    glTF (``GET /jobs/{id}/scene.glb``) for the headset, Unity and the dashboard."""
 
     @property
     def input_kinds(self) -> tuple[str, ...]:
@@ -81,6 +84,9 @@ class JobKind:
 
     def load_view(self) -> View | None:
         return None if self.view is None else load_hook(self.view)
+
+    def load_scene(self) -> SceneHook | None:
+        return None if self.scene is None else load_hook(self.scene)
 
 
 @dataclass(frozen=True)

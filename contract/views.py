@@ -92,6 +92,11 @@ class JobFiles:
     """Output file name → its stored file (what the job wrote, as it named it)."""
     inputs: dict[str, Path] = field(default_factory=dict)
     """The artifacts it was given, by name (a picture may show an input beside an output)."""
+    kinds: dict[str, str] = field(default_factory=dict)
+    """Every input's and output's artifact kind, by name."""
+
+    def inputs_of_kind(self, kind: str) -> list[Path]:
+        return [path for name, path in self.inputs.items() if self.kinds.get(name) == kind]
 
     def json(self, name: str) -> dict | None:
         """The output ``name`` read as JSON; None when the job wrote none."""

@@ -1,7 +1,9 @@
-"""Each job's run page in Debian's Chromium, on results made by the real jobs: an odometry
-run on a short simulated sequence (its path, 1σ band, truth and error against distance,
-figures), its OE-Net training (loss and validation per epoch) and a depth prediction on
-two real KITTI frames (the camera image and its depth map, a slider between them)."""
+"""Each job's run page in Debian's Chromium, and its glTF scene through the Khronos
+validator, on results made by the real jobs: an odometry run on a short simulated sequence
+(its path, 1σ band, truth and error against distance, figures), its OE-Net training (loss
+and validation per epoch), a track through a simulated LiDAR drive (confidence, the box's
+path; in 3D the scans and the box moving through them) and a depth prediction on two real
+KITTI frames (the camera image and its depth map, a slider between them; the clouds)."""
 
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ KITTI_IMAGES = (
 @pytest.fixture
 def finished_jobs(start_server, tmp_path, sqlite_url):
     """A live server whose engine ran the jobs: (server URL, token, inspection, jobs by step)."""
+    from tests.lidarfiles import pack_sequence, small_drive
     from tests.sequences import pack, small_sequence
 
     server = start_server(make_settings(tmp_path, sqlite_url, embedded_workers=1))
@@ -49,6 +52,11 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         {"name": "odometry", "kind": "odometry.run", "inputs": [frames]},
         {"name": "train", "kind": "odometry.train", "inputs": [frames], "params": {"epochs": 2, "batch": 8, "device": "cpu"}},
     ]  # fmt: skip
+    drive = pack_sequence(small_drive(tmp_path / "drive"), tmp_path / "drive.tar.gz")
+    lidar = upload(drive, "lidar", "application/gzip")
+    steps.append(
+        {"name": "track", "kind": "tracking.track", "inputs": [lidar], "params": {"track_id": 0}}
+    )
     if KITTI_IMAGES.is_dir():
         images = [upload(KITTI_IMAGES / f"{n:06d}.png", "image", "image/png") for n in (0, 1)]
         steps.append({"name": "depth", "kind": "depth.predict", "inputs": images})
@@ -79,7 +87,7 @@ def _open(browser, url: str, token: str, inspection: int, job: dict, errors: lis
     return page
 
 
-def test_run_pages_draw_each_result(finished_jobs, tmp_path):
+def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
     url, token, inspection, jobs = finished_jobs
     errors: list[str] = []
     with launch_chromium() as browser:
@@ -111,6 +119,21 @@ def test_run_pages_draw_each_result(finished_jobs, tmp_path):
         assert len(points.split()) == 2  # one per epoch
         assert "oenet" in page.text_content(".panel-figures")
 
+        page = _open(browser, url, token, inspection, jobs["track"], errors)
+        page.wait_for_selector(".panel-plot[data-title='Confidence over the drive']")
+        titles = page.locator(".panel").evaluate_all("(p) => p.map(x => x.dataset.title)")
+        assert titles == [
+            "Confidence over the drive",
+            "The box's path from above (LiDAR frame)",
+            "Success (OPE)",
+            "Precision (OPE)",
+            "Run",
+        ]
+        points = page.locator(".series[data-name='confidence'] polyline").get_attribute("points")
+        assert len(points.split()) == 12
+        assert "success (OPE, AUC of IoU)" in page.text_content(".panel-figures")
+        page.screenshot(path=str(tmp_path / "track.png"), full_page=True)
+
         if "depth" in jobs:
             page = _open(browser, url, token, inspection, jobs["depth"], errors)
             page.wait_for_selector(".picture")
@@ -128,3 +151,54 @@ def test_run_pages_draw_each_result(finished_jobs, tmp_path):
             assert opacities == ["0", "1"]  # slid over to the depth map
             page.screenshot(path=str(tmp_path / "depth.png"), full_page=True)
     assert errors == []
+    _check_scenes(url, token, jobs, tmp_path)
+
+
+def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
+    """Each result's glTF passes the Khronos validator and holds what it shows."""
+    from tests.test_scene_export import validate
+
+    http = httpx.Client(base_url=url, headers=auth(token), timeout=60)
+    documents = {}
+    for step in ("odometry", "track", "depth"):
+        if step not in jobs:
+            continue
+        response = http.get(f"/api/v1/jobs/{jobs[step]['id']}/scene.glb", params={"points": 50_000})
+        assert response.status_code == 200, response.text
+        assert response.headers["content-type"] == "model/gltf-binary"
+        path = tmp_path / f"{step}.glb"
+        path.write_bytes(response.content)
+        report = validate(path)
+        assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:5]
+        documents[step] = gltf_json(response.content)
+    odometry = documents["odometry"]
+    names = [n["name"] for n in odometry["nodes"]]
+    assert names[0] == f"job-{jobs['odometry']['id']}" and "estimate" in names and "truth" in names
+    estimate = next(n for n in odometry["nodes"] if n["name"] == "estimate")
+    assert len(estimate["extras"]["sigma_xy_mm"]) == 19
+    assert odometry["asset"]["extras"]["units"] == "metre"
+    track = documents["track"]
+    scans = [n for n in track["nodes"] if n["name"].startswith("scan-")]
+    assert len(scans) == jobs["track"]["result"]["frames"] == 12
+    (animation,) = track["animations"]
+    paths = {(c["target"]["node"], c["target"]["path"]) for c in animation["channels"]}
+    box = next(i for i, n in enumerate(track["nodes"]) if n["name"] == "tracked-box")
+    assert {(box, "translation"), (box, "rotation")} <= paths
+    assert any(n["name"] == "true-box" for n in track["nodes"])  # the drive has labels
+    key_times = track["accessors"][animation["samplers"][-1]["input"]]
+    assert key_times["count"] == 12 and key_times["max"] == [pytest.approx(1.1)]
+    if "depth" in documents:
+        clouds = [n for n in documents["depth"]["nodes"] if n["name"].startswith("cloud-")]
+        assert len(clouds) == 2
+    missing = http.get(f"/api/v1/jobs/{jobs['train']['id']}/scene.glb")
+    assert missing.status_code == 404 and "no 3D scene" in missing.json()["detail"]
+    http.close()
+
+
+def gltf_json(glb: bytes) -> dict:
+    import json
+    import struct
+
+    length, kind = struct.unpack_from("<II", glb, 12)
+    assert kind == 0x4E4F534A
+    return json.loads(glb[20 : 20 + length])

@@ -97,6 +97,7 @@ DEPTH_PREDICT = JobKind(
     queue="depth",
     handler="services.depth.jobs:predict_job",
     view="services.depth.views:predict_view",
+    scene="services.depth.views:predict_scene",
     params=PredictParams,
     description=(
         "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "

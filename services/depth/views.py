@@ -1,13 +1,16 @@
 """What a depth prediction's page shows: per image, the camera image and its depth map (the
 colour preview with its scale in metres), a slider between them; the run's figures
-(``contract.views``)."""
+(``contract.views``); and its 3D scene, each image's cloud (``contract.scene``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
+from contract.scene import JobScene, PointSet
 from contract.views import Figure, Figures, JobFiles, Picture, Pictures
-from services.depth.kinds import PREDICT_REPORT, PREVIEW
+from services.depth.kinds import CLOUD, PREDICT_REPORT, PREVIEW
 
 
 def predict_view(files: JobFiles) -> list:
@@ -37,3 +40,31 @@ def predict_view(files: JobFiles) -> list:
         ),
     ]
     return [Pictures("Depth per image", pictures), Figures("Prediction", figures)]
+
+
+def predict_scene(files: JobFiles, max_points: int) -> JobScene:
+    """Each image's cloud as coloured points (the point budget shared among them), turned
+    from the camera's frame (x right, y down, z forward) to +Z up (x forward, y left)."""
+    from services.lib.pointcloud.ply import read_ply_sample
+
+    report = files.json(PREDICT_REPORT.file_name()) or {}
+    images = [i["name"] for i in report.get("images", [])]
+    clouds = [(stem, files.outputs.get(CLOUD.file_name(stem))) for stem in images]
+    clouds = [(stem, path) for stem, path in clouds if path is not None]
+    if not clouds:
+        raise ValueError("the prediction wrote no clouds (it ran with clouds off)")
+    budget = max(1, max_points // len(clouds))
+    points = []
+    for stem, path in clouds:
+        cloud = read_ply_sample(path, budget)
+        x, y, z = cloud.points.T
+        points.append(
+            PointSet(
+                f"cloud-{stem}", np.column_stack([z, -x, -y]), cloud.colors, extras={"image": stem}
+            )
+        )
+    return JobScene(
+        points=tuple(points),
+        frame="the camera's (x forward, y left, z up)",
+        extras={"figures": {k: v for k, v in files.result.items() if not isinstance(v, dict)}},
+    )

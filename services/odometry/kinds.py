@@ -56,6 +56,7 @@ ODOMETRY = JobKind(
     queue="odometry",
     handler="services.odometry.jobs:odometry_job",
     view="services.odometry.views:run_view",
+    scene="services.odometry.views:run_scene",
     params=OdometryParams,
     description=(
         "Floor-camera visual odometry of a `frames` sequence: the camera's trajectory (TUM, "

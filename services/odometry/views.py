@@ -1,11 +1,13 @@
 """What an odometry run's page shows: the path in the floor plane with its 1σ band, the
 flagged and warned pairs on it, the true path and the error against distance when the
-sequence had truth, and the run's figures (``contract.views``)."""
+sequence had truth, and the run's figures (``contract.views``); and its 3D scene, the path
+as a line strip (``contract.scene``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from contract.scene import JobScene, LineGroup, Polyline
 from contract.views import Figure, Figures, JobFiles, Line, Plot
 from services.odometry.kinds import EVALUATION, RUN_REPORT, TRAJECTORY
 from services.odometry.tum import read_tum
@@ -83,3 +85,39 @@ def _list(values: np.ndarray) -> list[float]:
 
 def _rounded(value: float | None, digits: int) -> float | None:
     return None if value is None or not np.isfinite(value) else round(float(value), digits)
+
+
+def run_scene(files: JobFiles, max_points: int) -> JobScene:
+    """The path as a line strip on the floor (its 1σ per pose in the line's extras), the
+    true path beside it when the sequence had truth; the run's figures in the extras."""
+    report = files.json(RUN_REPORT.file_name()) or {}
+    evaluation = files.json(EVALUATION.file_name())
+    trajectory = read_tum(files.outputs[TRAJECTORY.file_name()])
+    on_floor = np.column_stack([trajectory.pose[:, :2], np.zeros(len(trajectory))])
+    path = Polyline(
+        "estimate",
+        on_floor.tolist(),
+        "strip",
+        {"sigma_xy_mm": report.get("sigma_xy_mm", []), "frames": len(trajectory)},
+    )
+    groups = [LineGroup("path", "path", (0.12, 0.47, 0.71, 1.0), (path,))]
+    if evaluation and "along_path" in evaluation:
+        along = evaluation["along_path"]
+        xy_mm = 1000 * np.column_stack([along["truth_x_m"], along["truth_y_m"]])
+        truth = np.column_stack([xy_mm, np.zeros(len(xy_mm))])
+        groups.append(
+            LineGroup(
+                "truth",
+                "truth",
+                (0.84, 0.15, 0.16, 1.0),
+                (Polyline("truth", truth.tolist(), "strip", {}),),
+            )
+        )
+    figures = {k: v for k, v in files.result.items() if not isinstance(v, dict)}
+    if evaluation:
+        figures |= {k: v for k, v in evaluation.items() if isinstance(v, int | float)}
+    return JobScene(
+        lines=tuple(groups),
+        frame="the first camera's floor frame (x, y on the floor)",
+        extras={"figures": figures},
+    )

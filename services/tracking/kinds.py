@@ -117,6 +117,7 @@ TRACK = JobKind(
     queue="tracking",
     handler="services.tracking.jobs:track_job",
     view="services.tracking.views:track_view",
+    scene="services.tracking.views:track_scene",
     params=TrackParams,
     description=(
         "Tracks one car through a `lidar` sequence (thesis 5.1): the tracker every frame, the "

@@ -1,5 +1,5 @@
-"""A binary glTF 2.0 (GLB) writer for inspection scenes: points, triangle meshes, marker
-nodes and anchor nodes. Pure: arrays and dicts in, bytes out.
+"""A binary glTF 2.0 (GLB) writer for inspection and job scenes: points, triangle meshes,
+lines, marker and anchor nodes, node animations. Pure: arrays and dicts in, bytes out.
 
 Everything given here is already in glTF's frame (metres, +Y up); ``base_to_gltf`` and
 ``pose_to_gltf`` convert from vista's base frame (millimetres, +Z up).
@@ -88,6 +88,25 @@ class Mesh:
 
 
 @dataclass(frozen=True)
+class Channel:
+    """One animated property of one node: its values at the key times."""
+
+    node: int
+    path: Literal["translation", "rotation", "scale"]
+    times_s: np.ndarray
+    """(K,) increasing."""
+    values: np.ndarray
+    """(K, 3) translations or scales, (K, 4) rotations (x, y, z, w)."""
+    interpolation: Literal["LINEAR", "STEP"] = "LINEAR"
+
+
+@dataclass(frozen=True)
+class Animation:
+    name: str
+    channels: list[Channel]
+
+
+@dataclass(frozen=True)
 class Node:
     name: str
     mesh: int | None = None
@@ -107,11 +126,13 @@ class _Buffer:
         self.views: list[dict] = []
         self.accessors: list[dict] = []
 
-    def add(self, array: np.ndarray, *, target: int, component: int, kind: str, **extra) -> int:
+    def add(
+        self, array: np.ndarray, *, target: int | None, component: int, kind: str, **extra
+    ) -> int:
+        """An accessor of ``array``; ``target`` None for animation data (no GPU buffer)."""
         data = np.ascontiguousarray(array).tobytes()
-        self.views.append(
-            {"buffer": 0, "byteOffset": self.length, "byteLength": len(data), "target": target}
-        )
+        view = {"buffer": 0, "byteOffset": self.length, "byteLength": len(data)}
+        self.views.append(view if target is None else {**view, "target": target})
         padding = -len(data) % 4
         self.parts += [data, b"\0" * padding]
         self.length += len(data) + padding
@@ -168,6 +189,33 @@ def _primitive(buffer: _Buffer, mesh: Mesh) -> dict:
     return primitive
 
 
+def _animation(buffer: _Buffer, animation: Animation) -> dict:
+    samplers, channels = [], []
+    for channel in animation.channels:
+        times = np.asarray(channel.times_s, dtype=np.float32)
+        values = np.asarray(channel.values, dtype=np.float32)
+        if times.ndim != 1 or len(times) != len(values) or np.any(np.diff(times) <= 0):
+            raise ValueError(f"animation {animation.name}: key times must increase, one a value")
+        key_times = buffer.add(
+            times,
+            target=None,
+            component=FLOAT,
+            kind="SCALAR",
+            min=[float(times.min())],
+            max=[float(times.max())],
+        )
+        output = buffer.add(
+            values, target=None, component=FLOAT, kind="VEC4" if values.shape[1] == 4 else "VEC3"
+        )
+        samplers.append(
+            {"input": key_times, "output": output, "interpolation": channel.interpolation}
+        )
+        channels.append(
+            {"sampler": len(samplers) - 1, "target": {"node": channel.node, "path": channel.path}}
+        )
+    return {"name": animation.name, "samplers": samplers, "channels": channels}
+
+
 def _node_json(node: Node) -> dict:
     out: dict = {"name": node.name}
     for key in ("mesh", "translation", "rotation", "scale", "extras"):
@@ -186,14 +234,17 @@ def write_glb(
     nodes: list[Node],
     roots: list[int],
     asset_extras: dict,
+    animations: list[Animation] = (),
+    scene_name: str = "inspection",
 ) -> bytes:
     """The GLB file of one scene whose top-level nodes are ``roots``."""
     buffer = _Buffer()
     meshes_json = [{"name": m.name, "primitives": [_primitive(buffer, m)]} for m in meshes]
+    animations_json = [_animation(buffer, a) for a in animations]
     document = {
         "asset": {"version": "2.0", "generator": "vista supervisor", "extras": asset_extras},
         "scene": 0,
-        "scenes": [{"name": "inspection", "nodes": roots}],
+        "scenes": [{"name": scene_name, "nodes": roots}],
         "nodes": [_node_json(n) for n in nodes],
         "meshes": meshes_json,
         "materials": [
@@ -212,10 +263,11 @@ def write_glb(
         "accessors": buffer.accessors,
         "bufferViews": buffer.views,
         "buffers": [{"byteLength": buffer.length}],
+        "animations": animations_json,
     }
     if not buffer.length:
         del document["buffers"]
-    for key in ("meshes", "materials", "accessors", "bufferViews"):
+    for key in ("meshes", "materials", "accessors", "bufferViews", "animations"):
         if not document[key]:
             del document[key]  # glTF forbids empty arrays
     payload = json.dumps(document, separators=(",", ":")).encode()

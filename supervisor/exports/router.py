@@ -8,6 +8,7 @@ from fastapi.responses import FileResponse
 
 from supervisor.deps import READ_ROLES, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
+from supervisor.exports.job_scene import job_scene_file
 from supervisor.exports.service import scene_file
 from supervisor.ids import IdPath
 
@@ -54,3 +55,31 @@ async def scene_glb(
     if path is None:
         return Response(status_code=304, headers=headers)
     return SceneFile(path, media_type=GLB_MEDIA_TYPE, headers=headers)
+
+
+@router.get(
+    "/jobs/{job_id}/scene.glb",
+    response_class=Response,
+    responses={
+        200: {"content": {GLB_MEDIA_TYPE: {}}, "description": "The job's scene (binary glTF 2.0)."},
+        404: {"description": "No such job, or its kind has no 3D scene."},
+        409: {"description": "The job has not succeeded."},
+    },
+)
+async def job_scene_glb(
+    job_id: IdPath,
+    points: int | None = Query(
+        None, ge=1000, le=20_000_000, description="Point budget (default: the server's)."
+    ),
+    runtime: Runtime = Depends(get_runtime),
+    _: CurrentUser = Depends(readers),
+) -> Response:
+    """A job's results in 3D as glTF 2.0 (metres, +Y up), as its kind declares them: an
+    odometry run's path with its σ, a depth prediction's clouds, a track's scans with the
+    box moving one key a frame (the animation ``frames``; each scan shown for its frame)
+    and the true box when the drive had labels. Node ``job-<id>``'s extras hold the run's
+    figures."""
+    path = await run_in_threadpool(
+        job_scene_file, runtime, job_id, points or runtime.settings.scene_max_points
+    )
+    return SceneFile(path, media_type=GLB_MEDIA_TYPE, headers={"Cache-Control": "private"})

@@ -187,7 +187,7 @@ def _defect_extras(defect: dict, consensus: dict | None) -> dict:
     }
 
 
-def _add_presented(
+def add_line_groups(
     groups: tuple[LineGroup, ...],
     meshes: list[Mesh],
     materials: list[Material],
@@ -274,7 +274,7 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         nodes.append(Node(f"panels-{artifact_id}", mesh=len(meshes) - 1))
         top.append(len(nodes) - 1)
     for presenter, path in source.presented:
-        _add_presented(presenter.load()(path), meshes, materials, nodes, top)
+        add_line_groups(presenter.load()(path), meshes, materials, nodes, top)
     ring_vertices, ring_faces = ring(RING_SEGMENTS)
     ring_normals = np.tile(np.float32([0, 1, 0]), (len(ring_vertices), 1))
     marker_mesh = {}

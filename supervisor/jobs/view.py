@@ -16,7 +16,7 @@ from supervisor.artifacts.schemas import ArtifactOut
 from supervisor.engine.registry import get_kind
 from supervisor.jobs.schemas import JobOut
 from supervisor.jobs.service import get_job, job_out
-from supervisor.models import Artifact
+from supervisor.models import Artifact, Job
 from supervisor.storage import Storage
 
 
@@ -31,25 +31,34 @@ class JobViewOut(BaseModel):
     """Why no panels are shown, when that is not plain from the job's status."""
 
 
-def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
-    job = get_job(session, job_id=job_id)
+def job_files(
+    session: Session, storage: Storage, job: Job
+) -> tuple[list[Artifact], list[Artifact], JobFiles]:
+    """The job's input and output artifacts, and what its kind's hooks read of them."""
     outputs = session.scalars(
         select(Artifact).where(Artifact.job_id == job.id).order_by(Artifact.id)
     ).all()
     given = session.scalars(
         select(Artifact).where(Artifact.id.in_(job.input_artifact_ids or [])).order_by(Artifact.id)
     ).all()
+    files = JobFiles(
+        job.result or {},
+        {a.name: storage.path(a.storage_uri) for a in outputs},
+        {a.name: storage.path(a.storage_uri) for a in given},
+        {a.name: a.kind for a in [*given, *outputs]},
+    )
+    return list(given), list(outputs), files
+
+
+def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
+    job = get_job(session, job_id=job_id)
+    given, outputs, files = job_files(session, storage, job)
     panels, note = [], None
     kind = get_kind(job.kind)
     view = kind.load_view() if kind is not None else None
     if view is None:
         note = "this kind of job declares no view of its results: its files are listed"
     elif job.status == "succeeded":
-        files = JobFiles(
-            job.result or {},
-            {a.name: storage.path(a.storage_uri) for a in outputs},
-            {a.name: storage.path(a.storage_uri) for a in given},
-        )
         try:
             panels = view(files)
         except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:

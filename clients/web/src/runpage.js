@@ -209,7 +209,7 @@ export async function showJob(root, jobId, { onFinished } = {}) {
     el("div", { class: "run-columns" },
       el("section", { class: "card" }, el("h2", {}, "Inputs"), fileList(view.inputs, job.inspection_id),
         el("h2", {}, "Parameters"), params.length
-          ? el("table", { class: "grid figures", id: "job-params" }, el("tbody", {}, ...params.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, typeof v === "object" ? JSON.stringify(v) : String(v))))))
+          ? el("table", { class: "grid figures", id: "job-params" }, el("tbody", {}, ...params.map(([k, v]) => el("tr", {}, el("th", {}, k), el("td", {}, v === null ? "–" : typeof v === "object" ? JSON.stringify(v) : String(v))))))
           : el("p", { class: "muted" }, "defaults")),
       el("section", { class: "card", id: "job-outputs" }, el("h2", {}, "Outputs"), fileList(view.outputs, job.inspection_id))),
     view.note ? el("p", { class: "muted", id: "view-note" }, view.note) : null,

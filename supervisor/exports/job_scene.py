@@ -1,0 +1,179 @@
+"""A job's results in 3D as binary glTF 2.0: what its kind's ``scene`` hook returns
+(``contract.scene.JobScene``), in metres with +Y up. Built once per job and point budget
+(a finished job's files do not change) and cached beside the inspection's scenes.
+
+Node layout (names are stable; clients find things by them)::
+
+    job-<id>                  extras: the job's kind, the run's figures, the frame
+    ├── <group>/<line>        line groups (a trajectory: ``path``, with σ in extras)
+    ├── <points>              POINTS with COLOR_0; a drive's scans ``scan-<frame>``, each
+    │                         shown for its frame by a STEP animation of its scale
+    └── <box>                 a wire box, its pose animated one key a frame
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from contract.scene import JobScene, MovingBox, PointSet
+from supervisor.engine.registry import get_kind
+from supervisor.engine.runtime import Runtime
+from supervisor.exports.gltf import (
+    Animation,
+    Channel,
+    Material,
+    Mesh,
+    Node,
+    base_to_gltf,
+    pose_to_gltf,
+    write_glb,
+)
+from supervisor.exports.scene import add_line_groups
+from supervisor.jobs.service import get_job
+from supervisor.jobs.view import job_files
+from supervisor.problems import Problem
+
+# a unit cube's twelve edges as one line strip (some edges drawn twice), centred at 0
+_CORNERS = np.array(
+    [[x, y, z] for z in (-0.5, 0.5) for y in (-0.5, 0.5) for x in (-0.5, 0.5)], np.float32
+)
+WIRE_BOX = _CORNERS[[0, 1, 3, 2, 0, 4, 5, 1, 5, 7, 3, 7, 6, 2, 6, 4]]
+"""(16, 3) in the box's own frame (x along its length, y its width, z its height)."""
+
+
+def job_scene_file(runtime: Runtime, job_id: int, max_points: int) -> Path:
+    """The cached GLB of job ``job_id``'s scene at ``max_points``, built if missing; a
+    problem (404, 409) when the job has none."""
+    with runtime.db.read() as session:
+        job = get_job(session, job_id=job_id)
+        kind = get_kind(job.kind)
+        hook = kind.load_scene() if kind is not None else None
+        if hook is None:
+            raise Problem(404, f"Job {job_id} ({job.kind}) has no 3D scene.")
+        if job.status != "succeeded":
+            raise Problem(
+                409, f"Job {job_id} has not succeeded (it is {job.status}): no scene yet."
+            )
+        key = f"{job.id}:{job.finished_at}:{max_points}"
+        folder = runtime.storage.export_dir(job.inspection_id)
+        path = folder / f"job-{job.id}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.glb"
+        if path.exists():
+            return path
+        files = job_files(session, runtime.storage, job)[2]
+        about = {"job_id": job.id, "kind": job.kind, "step": job.step}
+    try:
+        scene = hook(files, max_points)
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        raise Problem(409, f"Job {job_id}'s results could not be drawn: {exc}") from exc
+    data = job_scene_glb(scene, about)
+    folder.mkdir(parents=True, exist_ok=True)
+    temp = path.with_suffix(f".{os.getpid()}.part")
+    temp.write_bytes(data)
+    os.replace(temp, path)
+    return path
+
+
+def job_scene_glb(scene: JobScene, about: dict) -> bytes:
+    """The GLB of ``scene`` (see the module docstring for its layout)."""
+    meshes: list[Mesh] = []
+    materials: list[Material] = []
+    root = Node(f"job-{about['job_id']}", children=[], extras={**about, **scene.extras})
+    nodes: list[Node] = [root]
+    channels: list[Channel] = []
+    add_line_groups(scene.lines, meshes, materials, nodes, root.children)
+    for points in scene.points:
+        _add_points(points, scene.frame_s, meshes, nodes, root.children, channels)
+    for box in scene.boxes:
+        _add_box(box, meshes, materials, nodes, root.children, channels)
+    extras = {
+        "units": "metre",
+        "up": "+Y",
+        "converted_from": f"{scene.frame or 'the job frame'}: millimetres, +Z up",
+        "frame_s": scene.frame_s,
+        **about,
+    }
+    animations = [Animation("frames", channels)] if channels else []
+    return write_glb(
+        meshes=meshes,
+        materials=materials,
+        nodes=nodes,
+        roots=[0],
+        asset_extras=extras,
+        animations=animations,
+        scene_name=f"job-{about['job_id']}",
+    )
+
+
+def _add_points(
+    points: PointSet,
+    frame_s: float,
+    meshes: list[Mesh],
+    nodes: list[Node],
+    children: list[int],
+    channels: list[Channel],
+) -> None:
+    if not len(points.points_mm):
+        return
+    colours = None
+    if points.colours_rgb is not None:
+        rgb = np.asarray(points.colours_rgb, np.uint8)
+        colours = np.column_stack([rgb, np.full(len(rgb), 255, np.uint8)])
+    meshes.append(Mesh(points.name, base_to_gltf(points.points_mm), colors=colours))
+    shown = points.shown_at_s
+    scale = None if shown is None or shown <= 0 else [0.0, 0.0, 0.0]
+    children.append(len(nodes))
+    nodes.append(Node(points.name, mesh=len(meshes) - 1, scale=scale, extras=points.extras))
+    if shown is None:
+        return
+    on, off = np.ones(3), np.zeros(3)
+    if shown <= 0:
+        times, values = [0.0, frame_s], [on, off]
+    else:
+        times, values = [0.0, shown, shown + frame_s], [off, on, off]
+    channels.append(Channel(len(nodes) - 1, "scale", np.array(times), np.array(values), "STEP"))
+
+
+def _add_box(
+    box: MovingBox,
+    meshes: list[Mesh],
+    materials: list[Material],
+    nodes: list[Node],
+    children: list[int],
+    channels: list[Channel],
+) -> None:
+    materials.append(Material(box.name, box.colour_rgba))
+    # the wire box in glTF's axes (its height along +Y), scaled by the node
+    meshes.append(
+        Mesh(box.name, base_to_gltf(WIRE_BOX * 1000.0), material=len(materials) - 1, lines="strip")
+    )
+    poses = np.tile(np.eye(4), (len(box.times_s), 1, 1))
+    c, s = np.cos(box.yaw_rad), np.sin(box.yaw_rad)
+    poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = c, -s, s, c
+    poses[:, :3, 3] = box.centres_mm
+    keyed = [pose_to_gltf(p) for p in poses]
+    quaternions = np.array([k[1] for k in keyed])
+    # one sign for neighbouring keys, so that each step turns the short way
+    flips = np.cumprod(np.where(np.sum(quaternions[1:] * quaternions[:-1], axis=1) < 0, -1, 1))
+    quaternions[1:] *= flips[:, None]
+    length, width, height = (v / 1000 for v in box.size_mm)
+    translation, rotation = keyed[0]
+    children.append(len(nodes))
+    nodes.append(
+        Node(
+            box.name,
+            mesh=len(meshes) - 1,
+            translation=translation,
+            rotation=rotation,
+            scale=[length, height, width],
+            extras={"size_m": [length, width, height], **box.extras},
+        )
+    )
+    if len(box.times_s) > 1:
+        node = len(nodes) - 1
+        times = np.asarray(box.times_s, float)
+        channels.append(Channel(node, "translation", times, np.array([k[0] for k in keyed])))
+        channels.append(Channel(node, "rotation", times, quaternions))
