@@ -152,6 +152,7 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
             page.screenshot(path=str(tmp_path / "depth.png"), full_page=True)
     assert errors == []
     _check_scenes(url, token, jobs, tmp_path)
+    _check_headset_reads_the_scenes(url, inspection, jobs, tmp_path)
 
 
 def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
@@ -202,3 +203,41 @@ def gltf_json(glb: bytes) -> dict:
     length, kind = struct.unpack_from("<II", glb, 12)
     assert kind == 0x4E4F534A
     return json.loads(glb[20 : 20 + length])
+
+
+def _check_headset_reads_the_scenes(url: str, inspection: int, jobs: dict, tmp_path: Path) -> None:
+    """The Unity client's protocol core (compiled by Mono, warnings as errors) lists the job
+    scenes of a sync page, downloads each and reads its figures and animation."""
+    import json
+    import shutil
+    import subprocess
+
+    from tests.test_unity_client import CORE, NO_MONO, UNITY
+
+    mcs, mono = shutil.which("mcs"), shutil.which("mono")
+    if not (mcs and mono):
+        pytest.fail(NO_MONO)
+    exe = tmp_path / "scenes.exe"
+    sources = [str(p) for p in sorted(CORE.glob("*.cs"))] + [
+        str(UNITY / "Tests" / "JobScenesSmoke.cs")
+    ]
+    built = subprocess.run(
+        [mcs, "-target:exe", f"-out:{exe}", "-r:System.Net.Http.dll", "-warnaserror", *sources],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stdout + built.stderr
+    done = subprocess.run(
+        [mono, str(exe), url, "perception", "perception-pw", str(inspection)],
+        capture_output=True, encoding="utf-8", timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    scenes = {s["kind"]: s for s in json.loads(done.stdout.strip().splitlines()[-1])["scenes"]}
+    expected = {"odometry.run", "tracking.track"} | (
+        {"depth.predict"} if "depth" in jobs else set()
+    )
+    assert set(scenes) == expected
+    track = scenes["tracking.track"]
+    assert track["root"] == f"job-{jobs['track']['id']}" and track["units"] == "metre"
+    assert track["box_keys"] == 12 and track["duration_s"] == pytest.approx(1.2, abs=1e-6)  # 12 frames
+    assert track["frame_s"] == pytest.approx(0.1) and "frames" in track["figures"]
+    assert scenes["odometry.run"]["box_keys"] == 0 and "method" in scenes["odometry.run"]["figures"]

@@ -42,6 +42,15 @@ class SyncConsensus(Consensus):
     defect_id: int
 
 
+class JobSceneRef(BaseModel):
+    job_id: int
+    run_id: int
+    kind: str
+    step: str
+    finished_at: str | None
+    url: str = Field(description="Its glTF: `GET` it with the same token.")
+
+
 class SyncOut(BaseModel):
     inspection: dict | None = Field(
         description="The inspection, when this page starts a full sync or it changed."
@@ -52,6 +61,11 @@ class SyncOut(BaseModel):
         description="The consensus of every defect whose judgments are in this page."
     )
     scene_etag: str = Field(description="The ETag of the inspection's scene.glb right now.")
+    job_scenes: list[JobSceneRef] = Field(
+        default_factory=list,
+        description="The inspection's finished jobs with a 3D scene of their own (a "
+        "trajectory, depth clouds, a track through a drive), newest first.",
+    )
     next_cursor: str = Field(description="Pass as `since` next time.")
     more: bool = Field(description="More is waiting: call again at once with next_cursor.")
 

@@ -28,6 +28,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.db import Database
 from supervisor.defects.service import READING_KEYS, reading
+from supervisor.engine.registry import all_kinds
 from supervisor.exports.etag import scene_etag
 from supervisor.inspections.schemas import InspectionOut
 from supervisor.judgments.consensus import consensus_docs
@@ -37,6 +38,7 @@ from supervisor.models import (
     Change,
     Defect,
     Inspection,
+    Job,
     Judgment,
     SyncReceipt,
     User,
@@ -203,7 +205,34 @@ def changes_since(
     else:
         page = _change_page(session, inspection, cursor, limit, now)
     page["scene_etag"] = scene_etag(session, inspection_id=inspection_id, max_points=scene_points)
+    page["job_scenes"] = job_scenes(session, inspection_id)
     return page
+
+
+def job_scenes(session: Session, inspection_id: int) -> list[dict]:
+    """The inspection's finished jobs that have a 3D scene (a trajectory, depth clouds, a
+    track), newest first: what a headset lists beside the inspection's scene."""
+    with_scene = [k.name for k in all_kinds() if k.scene is not None]
+    jobs = session.execute(
+        select(Job.id, Job.run_id, Job.kind, Job.step, Job.finished_at)
+        .where(
+            Job.inspection_id == inspection_id,
+            Job.status == "succeeded",
+            Job.kind.in_(with_scene),
+        )
+        .order_by(Job.id.desc())
+    ).all()
+    return [
+        {
+            "job_id": j.id,
+            "run_id": j.run_id,
+            "kind": j.kind,
+            "step": j.step,
+            "finished_at": j.finished_at.isoformat() if j.finished_at else None,
+            "url": f"/api/v1/jobs/{j.id}/scene.glb",
+        }
+        for j in jobs
+    ]
 
 
 def _snapshot_page(session: Session, inspection: Inspection, cursor: Cursor, limit: int) -> dict:

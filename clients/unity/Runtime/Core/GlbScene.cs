@@ -55,6 +55,13 @@ namespace Vista.Client
         /// not one.</summary>
         public static GlbScene Parse(byte[] glb)
         {
+            return new GlbScene(JsonChunkOf(glb));
+        }
+
+        /// <summary>The glTF document of a binary glTF 2.0 file (its JSON chunk); throws
+        /// <see cref="FormatException"/> when it is not one.</summary>
+        public static Dictionary<string, object> JsonChunkOf(byte[] glb)
+        {
             if (glb == null || glb.Length < HeaderBytes + ChunkHeaderBytes)
             {
                 throw new FormatException("GLB: too short for a binary glTF file");
@@ -74,7 +81,7 @@ namespace Vista.Client
                 throw new FormatException("GLB: the first chunk is not JSON");
             }
             string json = Encoding.UTF8.GetString(glb, HeaderBytes + ChunkHeaderBytes, (int)jsonLength);
-            return new GlbScene(Json.ParseObject(json));
+            return Json.ParseObject(json);
         }
 
         static uint UInt32At(byte[] bytes, int offset)

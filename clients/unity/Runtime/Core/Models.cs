@@ -394,6 +394,35 @@ namespace Vista.Client
         }
     }
 
+    /// <summary>A finished job with a 3D scene (a trajectory, depth clouds, a track), as a sync
+    /// page lists it.</summary>
+    public sealed class JobSceneRef
+    {
+        /// <summary>The job.</summary>
+        public long JobId;
+        /// <summary>Its run.</summary>
+        public long RunId;
+        /// <summary>Its kind (<c>odometry.run</c>, <c>depth.predict</c>, <c>tracking.track</c>, …).</summary>
+        public string Kind;
+        /// <summary>Its step's name in the run.</summary>
+        public string Step;
+        /// <summary>When it finished (RFC 3339), or null.</summary>
+        public string FinishedAt;
+
+        /// <summary>Reads <c>{job_id, run_id, kind, step, finished_at, url}</c>.</summary>
+        public static JobSceneRef FromJson(IDictionary<string, object> json)
+        {
+            return new JobSceneRef
+            {
+                JobId = json.GetInt64("job_id"),
+                RunId = json.GetInt64("run_id"),
+                Kind = json.GetRequiredString("kind"),
+                Step = json.GetString("step"),
+                FinishedAt = json.GetString("finished_at"),
+            };
+        }
+    }
+
     /// <summary>One page of <c>GET /api/v1/sync</c>: what changed after a cursor.</summary>
     public sealed class SyncPage
     {
@@ -407,6 +436,8 @@ namespace Vista.Client
         public List<Consensus> Consensus;
         /// <summary>The ETag of the inspection's scene.glb now.</summary>
         public string SceneEtag;
+        /// <summary>The inspection's finished jobs with a 3D scene of their own, newest first.</summary>
+        public List<JobSceneRef> JobScenes;
         /// <summary>Pass as <c>since</c> next time.</summary>
         public string NextCursor;
         /// <summary>Another page waits: call again at once with <see cref="NextCursor"/>.</summary>
@@ -423,6 +454,7 @@ namespace Vista.Client
                 Judgments = json.GetObjects("judgments").Select(Judgment.FromJson).ToList(),
                 Consensus = json.GetObjects("consensus").Select(Vista.Client.Consensus.FromJson).ToList(),
                 SceneEtag = json.GetString("scene_etag"),
+                JobScenes = json.GetObjects("job_scenes").Select(JobSceneRef.FromJson).ToList(),
                 NextCursor = json.GetRequiredString("next_cursor"),
                 More = json.GetBoolean("more", false),
             };

@@ -143,6 +143,23 @@ namespace Vista.Client
             }
         }
 
+        /// <summary><c>GET /jobs/{id}/scene.glb</c>: a finished job's scene (read it with
+        /// <see cref="JobScene"/>, show it with glTFast).</summary>
+        public async Task<byte[]> GetJobSceneAsync(long jobId)
+        {
+            string path = "jobs/" + jobId.ToString(CultureInfo.InvariantCulture) + "/scene.glb";
+            using (var request = new HttpRequestMessage(HttpMethod.Get, path))
+            using (HttpResponseMessage response = await SendAsync(request).ConfigureAwait(false))
+            {
+                byte[] body = await response.Content.ReadAsByteArrayAsync().ConfigureAwait(false);
+                if (!response.IsSuccessStatusCode)
+                {
+                    throw ProblemOf(response, body);
+                }
+                return body;
+            }
+        }
+
         /// <summary>Releases the HTTP connection pool.</summary>
         public void Dispose()
         {
