@@ -132,6 +132,18 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
         points = page.locator(".series[data-name='confidence'] polyline").get_attribute("points")
         assert len(points.split()) == 12
         assert "success (OPE, AUC of IoU)" in page.text_content(".panel-figures")
+        # the drive in 3D: its scans and the box, played from the scene's own animation
+        page.wait_for_selector("#scene-note:has-text('12 frames')")
+        first = page.locator("#job-scene canvas").screenshot()
+        page.click("#player-next")
+        assert page.text_content("#player-frame") == "frame 2 / 12"
+        page.locator("#player-scrub").fill("11")
+        assert page.text_content("#player-frame") == "frame 12 / 12"
+        wait_for(lambda: page.locator("#job-scene canvas").screenshot() != first, what="frame 12 drawn")
+        page.click("#player-play")
+        wait_for(lambda: page.text_content("#player-frame") != "frame 12 / 12", what="playing on")
+        page.click("#player-play")  # pause
+        assert "frames/s shown" in page.text_content("#player-fps")
         page.screenshot(path=str(tmp_path / "track.png"), full_page=True)
 
         if "depth" in jobs:

@@ -29,6 +29,8 @@ class JobViewOut(BaseModel):
     """The results as the kind draws them (empty until the job has succeeded)."""
     note: str | None = None
     """Why no panels are shown, when that is not plain from the job's status."""
+    scene: str | None = None
+    """Its 3D scene's URL (glTF), when its kind has one and it succeeded."""
 
 
 def job_files(
@@ -71,6 +73,11 @@ def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
         outputs=[ArtifactOut.model_validate(a) for a in outputs],
         panels=panels,
         note=note,
+        scene=(
+            f"/api/v1/jobs/{job.id}/scene.glb"
+            if kind is not None and kind.scene is not None and job.status == "succeeded"
+            else None
+        ),
     )
 
 

@@ -3,6 +3,7 @@
 // contract/views.py). Nothing here knows a service: a new kind's panels draw the same way.
 import { api, followJob } from "./api.js";
 import { el } from "./dom.js";
+import { JobPlayer } from "./player.js";
 
 const SVG = "http://www.w3.org/2000/svg";
 const COLOURS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b"];
@@ -213,8 +214,18 @@ export async function showJob(root, jobId, { onFinished } = {}) {
           : el("p", { class: "muted" }, "defaults")),
       el("section", { class: "card", id: "job-outputs" }, el("h2", {}, "Outputs"), fileList(view.outputs, job.inspection_id))),
     view.note ? el("p", { class: "muted", id: "view-note" }, view.note) : null,
+    view.scene ? el("section", { class: "card", id: "job-scene" }, el("h2", {}, "3D"), el("p", { class: "muted", id: "scene-note" }, "loading the scene…")) : null,
     el("div", { class: "panels", id: "panels" }, ...view.panels.map((p) => panelNode(p, job.inspection_id, urls))),
   ].filter((node) => node !== null));
+  let player = null;
+  if (view.scene) {
+    player = new JobPlayer(root.querySelector("#job-scene"));
+    api.jobScene(job.id).then((data) => player.load(data)).then((loaded) => {
+      root.querySelector("#scene-note").textContent = loaded.frames > 1
+        ? `${loaded.frames} frames: play, step or scrub; drag to turn, scroll to zoom`
+        : "drag to turn, scroll to zoom";
+    }).catch((error) => { root.querySelector("#scene-note").textContent = `the scene could not be shown: ${error.message}`; });
+  }
   if (!["succeeded", "failed", "cancelled"].includes(job.status)) {
     followJob(job.id, (event, data) => {
       if (event === "progress") {
@@ -227,6 +238,7 @@ export async function showJob(root, jobId, { onFinished } = {}) {
   }
   return () => {
     stop.abort();
+    if (player) player.dispose();
     for (const url of urls) URL.revokeObjectURL(url);
   };
 }
