@@ -14,6 +14,7 @@ import pytest
 
 from supervisor.bench.browser import launch_chromium
 from tests.conftest import add_user, auth, make_settings, wait_for
+from tests.lidarfiles import REAL_LABELLED_DRIVE
 
 KITTI_IMAGES = (
     Path(__file__).resolve().parents[2] / "shared/data/kitti-object-testing-sample/image_2"
@@ -57,6 +58,11 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
     steps.append(
         {"name": "track", "kind": "tracking.track", "inputs": [lidar], "params": {"track_id": 0}}
     )
+    if REAL_LABELLED_DRIVE.is_dir():  # real KITTI scans, held out of the detector's training
+        real = upload(
+            _packed_real_drive(tmp_path / "kitti-0048.tar.gz"), "lidar", "application/gzip"
+        )
+        steps.append({"name": "real-track", "kind": "tracking.track", "inputs": [real], "params": {"track_id": 3}})  # fmt: skip
     if KITTI_IMAGES.is_dir():
         images = [upload(KITTI_IMAGES / f"{n:06d}.png", "image", "image/png") for n in (0, 1)]
         steps.append({"name": "depth", "kind": "depth.predict", "inputs": images})
@@ -75,6 +81,29 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         assert jobs[job["step"]]["status"] == "succeeded", jobs[job["step"]]
     yield server.url, token, inspection, jobs
     http.close()
+
+
+def _packed_real_drive(out: Path) -> Path:
+    """KITTI raw drive 0048 (22 real scans, cars labelled every other frame) as a `lidar`
+    archive: its scans, calibration and labels linked into tracks (label_02.txt)."""
+    import io
+    import tarfile
+
+    from services.lib import kitti
+    from services.tracking.sequence import linked_object_labels
+
+    labels = kitti.format_labels(
+        linked_object_labels(REAL_LABELLED_DRIVE / "label_2"), tracking=True
+    )
+    with tarfile.open(out, "w:gz") as archive:
+        for scan in sorted((REAL_LABELLED_DRIVE / "velodyne").glob("*.bin")):
+            archive.add(scan, arcname=f"0048/velodyne/{scan.name}")
+        archive.add(REAL_LABELLED_DRIVE / "calib.txt", arcname="0048/calib.txt")
+        data = labels.encode()
+        member = tarfile.TarInfo("0048/label_02.txt")
+        member.size = len(data)
+        archive.addfile(member, io.BytesIO(data))
+    return out
 
 
 def _open(browser, url: str, token: str, inspection: int, job: dict, errors: list[str]):
@@ -139,12 +168,25 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
         assert page.text_content("#player-frame") == "frame 2 / 12"
         page.locator("#player-scrub").fill("11")
         assert page.text_content("#player-frame") == "frame 12 / 12"
-        wait_for(lambda: page.locator("#job-scene canvas").screenshot() != first, what="frame 12 drawn")
+        wait_for(
+            lambda: page.locator("#job-scene canvas").screenshot() != first, what="frame 12 drawn"
+        )
         page.click("#player-play")
         wait_for(lambda: page.text_content("#player-frame") != "frame 12 / 12", what="playing on")
         page.click("#player-play")  # pause
         assert "frames/s shown" in page.text_content("#player-fps")
         page.screenshot(path=str(tmp_path / "track.png"), full_page=True)
+
+        if "real-track" in jobs:  # real KITTI scans: ~120 000 points each
+            page = _open(browser, url, token, inspection, jobs["real-track"], errors)
+            frames = jobs["real-track"]["result"]["frames"]
+            page.wait_for_selector(f"#scene-note:has-text('{frames} frames')", timeout=60_000)
+            assert "success (OPE, AUC of IoU)" in page.text_content(".panel-figures")
+            page.locator("#player-scrub").fill(str(frames // 2))
+            assert page.text_content("#player-frame") == f"frame {frames // 2 + 1} / {frames}"
+            drawn = page.get_attribute("#job-scene canvas", "data-render-ms")
+            assert drawn is not None and float(drawn) > 0
+            page.screenshot(path=str(tmp_path / "real-track.png"), full_page=True)
 
         if "depth" in jobs:
             page = _open(browser, url, token, inspection, jobs["depth"], errors)
@@ -173,7 +215,7 @@ def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
 
     http = httpx.Client(base_url=url, headers=auth(token), timeout=60)
     documents = {}
-    for step in ("odometry", "track", "depth"):
+    for step in ("odometry", "track", "depth", "real-track"):
         if step not in jobs:
             continue
         response = http.get(f"/api/v1/jobs/{jobs[step]['id']}/scene.glb", params={"points": 50_000})
@@ -243,13 +285,16 @@ def _check_headset_reads_the_scenes(url: str, inspection: int, jobs: dict, tmp_p
         capture_output=True, encoding="utf-8", timeout=60,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
-    scenes = {s["kind"]: s for s in json.loads(done.stdout.strip().splitlines()[-1])["scenes"]}
-    expected = {"odometry.run", "tracking.track"} | (
-        {"depth.predict"} if "depth" in jobs else set()
-    )
-    assert set(scenes) == expected
-    track = scenes["tracking.track"]
-    assert track["root"] == f"job-{jobs['track']['id']}" and track["units"] == "metre"
-    assert track["box_keys"] == 12 and track["duration_s"] == pytest.approx(1.2, abs=1e-6)  # 12 frames
+    listed = json.loads(done.stdout.strip().splitlines()[-1])["scenes"]
+    scenes = {s["job_id"]: s for s in listed}
+    with_scenes = [j for step, j in jobs.items() if step != "train"]
+    assert sorted(scenes) == sorted(j["id"] for j in with_scenes)
+    track = scenes[jobs["track"]["id"]]
+    assert track["kind"] == "tracking.track" and track["units"] == "metre"
+    assert track["root"] == f"job-{jobs['track']['id']}"
+    assert track["box_keys"] == 12 and track["duration_s"] == pytest.approx(
+        1.2, abs=1e-6
+    )  # 12 frames
     assert track["frame_s"] == pytest.approx(0.1) and "frames" in track["figures"]
-    assert scenes["odometry.run"]["box_keys"] == 0 and "method" in scenes["odometry.run"]["figures"]
+    odometry = scenes[jobs["odometry"]["id"]]
+    assert odometry["box_keys"] == 0 and "method" in odometry["figures"]
