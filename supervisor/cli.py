@@ -175,15 +175,35 @@ def bench_clients(
     points: int = typer.Option(2_500_000, min=10_000, help="Points of the stitched cloud."),
     scene_defects: int = typer.Option(1000, min=1, help="Defects in the scene's inspection."),
     sync_defects: int = typer.Option(10_000, min=1, help="Defects in the synced inspection."),
+    frames: int = typer.Option(
+        150, min=2, max=2000, help="Frames of the services' sample drive and sequence."
+    ),
+    real_data: Path = typer.Option(
+        None,
+        help="A folder of real data (e.g. ../shared/data): a KITTI raw drive with labels in it "
+        "is tracked too, its scans drawn with every point.",
+    ),
+    only_perception: bool = typer.Option(
+        False, "--only-perception", help="Only the services' results: scenes, run pages, player."
+    ),
 ) -> None:
     """scene.glb export time and the Khronos validator's verdict (trimesh as the peer),
     sync from cursor 0 and after one change (paged GET /defects as the peer), and the
     dashboard's first meaningful paint in headless Chromium (a screenshot beside the JSON),
-    against a real `vista serve` process."""
+    against a real `vista serve` process; then every service's sample run on a `vista serve`
+    with its engine: each job's glTF (seconds, MB, validator), each run page's first paint at
+    1440 px (screenshots in run-pages/ beside the JSON) and a drive's frame drawn with every
+    point."""
     from supervisor.bench.clients import run_clients_bench
 
     run_clients_bench(
-        out=out, points=points, scene_defects=scene_defects, sync_defects=sync_defects
+        out=out,
+        points=points,
+        scene_defects=scene_defects,
+        sync_defects=sync_defects,
+        frames=frames,
+        real_data=real_data,
+        only_perception=only_perception,
     )
 
 

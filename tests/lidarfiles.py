@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import tarfile
 from pathlib import Path
 
 REAL_OBJECTS = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-object-sample"
@@ -20,12 +19,7 @@ def small_drive(folder: Path, *, frames: int = 12, cars: int = 3, seed: int = 3)
 
 
 def pack_sequence(folder: Path, out: Path, *, labels: bool = True) -> Path:
-    """``folder``'s velodyne/, calib.txt, poses.txt (and label_02.txt) as a tar.gz under a top
-    folder named like the sequence."""
-    names = ["calib.txt", "poses.txt", *(["label_02.txt"] if labels else [])]
-    with tarfile.open(out, "w:gz") as archive:
-        for path in sorted((folder / "velodyne").glob("*.bin")):
-            archive.add(path, arcname=f"{folder.name}/velodyne/{path.name}")
-        for name in names:
-            archive.add(folder / name, arcname=f"{folder.name}/{name}")
-    return out
+    """``folder`` as the `lidar` archive (``services.tracking.lidar_archive``)."""
+    from services.tracking.lidar_archive import write_lidar_archive
+
+    return write_lidar_archive(folder, out, labels=labels)

@@ -298,3 +298,28 @@ def _check_headset_reads_the_scenes(url: str, inspection: int, jobs: dict, tmp_p
     assert track["frame_s"] == pytest.approx(0.1) and "frames" in track["figures"]
     odometry = scenes[jobs["odometry"]["id"]]
     assert odometry["box_keys"] == 0 and "method" in odometry["figures"]
+
+
+def test_every_sample_run_is_accepted_as_it_is_declared(tmp_path):
+    """The services' sample runs (what `vista bench clients` runs) at a tiny scale: each
+    upload passes its artifact kind's check, each step names a known kind and its uploads."""
+    from contract.kinds import load_hook
+    from supervisor.engine.registry import artifact_kinds, declared_hooks, get_kind, load_kinds
+
+    load_kinds()
+    makers = declared_hooks("SAMPLE_RUN")
+    assert {m.__module__ for m in makers} == {
+        "services.odometry.sample",
+        "services.depth.sample",
+        "services.tracking.sample",
+    }
+    for maker in makers:
+        sample = maker(tmp_path / maker.__module__, 3, None)
+        for upload in sample.uploads.values():
+            inspected = load_hook(artifact_kinds()[upload.kind].inspect)(
+                upload.path, upload.media_type
+            )
+            assert inspected.media_type
+        for step in sample.steps:
+            assert get_kind(step.kind) is not None and set(step.inputs) <= set(sample.uploads)
+            get_kind(step.kind).params.model_validate(step.params)

@@ -146,3 +146,6 @@ ARTIFACT_KINDS = (
 
 CLI = "services.depth.cli:register"
 """Its commands: `vista depth …` (``register(app, simulate_app, bench_app)``)."""
+
+SAMPLE_RUN = "services.depth.sample:sample_run"
+"""A run of its jobs on files it makes (``contract.samples``): `vista bench clients` draws their pages and scenes."""

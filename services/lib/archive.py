@@ -431,3 +431,13 @@ def read_json(path: Path) -> object:
         raise ValueError(f"{path}: no such file") from None
     except ValueError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
+
+
+def write_tar_gz(out: Path, files: list[tuple[Path, str]]) -> Path:
+    """``files`` (path, name in the archive), in that order, as a tar.gz at ``out``."""
+    import tarfile
+
+    with tarfile.open(out, "w:gz") as archive:
+        for path, name in files:
+            archive.add(path, arcname=name)
+    return out

@@ -105,3 +105,6 @@ ARTIFACT_KINDS = (
 
 CLI = "services.odometry.cli:register"
 """Its commands: `vista odometry …` (``register(app, simulate_app, bench_app)``)."""
+
+SAMPLE_RUN = "services.odometry.sample:sample_run"
+"""A run of its jobs on files it makes (``contract.samples``): `vista bench clients` draws their pages and scenes."""

@@ -29,6 +29,7 @@ from services.lib.archive import (
     parse_json,
     read_in_order,
     read_member,
+    write_tar_gz,
 )
 from services.lib.formats import checked
 from services.odometry.camera import FloorCamera
@@ -181,3 +182,11 @@ def inspect_frames(path: Path, declared: str) -> Inspected:
         "truth": found.truth_member is not None,
     }
     return Inspected(found.media_type, meta)
+
+
+def write_sequence_archive(folder: Path, out: Path, *, truth: bool = True) -> Path:
+    """A simulated sequence's frames/, camera.json (and truth.tum) as the tar.gz a `frames`
+    artifact takes, under a top folder named like the sequence."""
+    names = ["camera.json", *(["truth.tum"] if truth else [])]
+    files = [*sorted((folder / "frames").glob("*.png")), *(folder / n for n in names)]
+    return write_tar_gz(out, [(p, f"{folder.name}/{p.relative_to(folder)}") for p in files])

@@ -169,3 +169,6 @@ ARTIFACT_KINDS = (
 
 CLI = "services.tracking.cli:register"
 """Its commands: `vista tracking …` (``register(app, simulate_app, bench_app)``)."""
+
+SAMPLE_RUN = "services.tracking.sample:sample_run"
+"""A run of its jobs on files it makes (``contract.samples``): `vista bench clients` draws their pages and scenes."""

@@ -26,6 +26,7 @@ from services.lib.archive import (
     opened,
     read_in_order,
     read_member,
+    write_tar_gz,
 )
 from services.lib.formats import checked
 
@@ -153,3 +154,13 @@ def inspect_lidar_artifact(path: Path, declared: str) -> Inspected:
     found = checked(inspect_lidar, path, "a LiDAR sequence")
     kept = ("frames", "labels", "tracks", "poses")
     return Inspected(found.media_type, {name: getattr(found, name) for name in kept})
+
+
+def write_lidar_archive(folder: Path, out: Path, *, labels: bool = True) -> Path:
+    """A sequence folder's velodyne/, calib.txt, poses.txt (and label_02.txt) as the tar.gz
+    a `lidar` artifact takes, under a top folder named like the sequence."""
+    names = ["calib.txt", *(n for n in ("poses.txt",) if (folder / n).exists())]
+    names += ["label_02.txt"] if labels and (folder / "label_02.txt").exists() else []
+    scans = sorted((folder / "velodyne").glob("*.bin"))
+    files = [(p, f"{folder.name}/velodyne/{p.name}") for p in scans]
+    return write_tar_gz(out, files + [(folder / n, f"{folder.name}/{n}") for n in names])

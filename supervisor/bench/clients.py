@@ -143,7 +143,8 @@ def _seed(url: str, *, defects: int, cloud: Path, storage_root: Path) -> tuple:
     return seeded
 
 
-def _validate(path: Path) -> dict:
+def validate_gltf(path: Path) -> dict:
+    """The Khronos validator's counts for one glTF file."""
     done = subprocess.run(
         ["node", str(WEB / "tools" / "validate-gltf.mjs"), str(path)],
         capture_output=True,
@@ -215,7 +216,7 @@ def _scene_part(base: str, token: str, inspection: int, storage: Path, work: Pat
         "cached_seconds": round(cached_s, 4),
         "not_modified_status": not_modified.status_code,
         "bytes": size,
-        "validator": _validate(work / "scene.glb"),
+        "validator": validate_gltf(work / "scene.glb"),
     }
 
 
@@ -330,7 +331,34 @@ def _paint_part(base: str, token: str, inspection: int, screenshot: Path) -> dic
     }
 
 
-def run_clients_bench(*, out: Path, points: int, scene_defects: int, sync_defects: int) -> dict:
+def run_clients_bench(
+    *,
+    out: Path,
+    points: int,
+    scene_defects: int,
+    sync_defects: int,
+    frames: int = 150,
+    real_data: Path | None = None,
+    only_perception: bool = False,
+) -> dict:
+    from supervisor.bench.perception import (
+        DRAW_TARGET_MS,
+        PAINT_TARGET_S,
+        perception_verdict,
+        print_perception,
+        run_perception_part,
+    )
+
+    if only_perception:
+        with tempfile.TemporaryDirectory(prefix="vista-bench-clients-") as folder:
+            part = run_perception_part(
+                Path(folder), out.parent / "run-pages", frames=frames, real_data=real_data
+            )
+        print_perception(part)
+        targets = {"paint_s": PAINT_TARGET_S, "draw_ms": DRAW_TARGET_MS}
+        document = write_document(out, bench="clients", targets=targets, perception=part)
+        print_verdict(perception_verdict(part), out)
+        return document
     rng = np.random.default_rng(11)
     with tempfile.TemporaryDirectory(prefix="vista-bench-clients-") as folder:
         work = Path(folder)
@@ -371,12 +399,15 @@ def run_clients_bench(*, out: Path, points: int, scene_defects: int, sync_defect
             scene["peer_trimesh"] = {
                 "seconds": round(peer_s, 3),
                 "bytes": (work / "peer.glb").stat().st_size,
-                "validator": _validate(work / "peer.glb"),
+                "validator": validate_gltf(work / "peer.glb"),
             }
             say(f"sync: {sync_defects} defects")
             sync = _sync_part(base, token, sync_inspection)
             say("dashboard in headless Chromium")
             paint = _paint_part(base, token, scene_seed.inspection_id, out.parent / "dashboard.png")
+        perception = run_perception_part(
+            work, out.parent / "run-pages", frames=frames, real_data=real_data
+        )
     verdict = {
         f"scene export < {TARGETS['scene_s']} s": scene["seconds"] < TARGETS["scene_s"],
         "validator: 0 errors": scene["validator"]["numErrors"] == 0,
@@ -391,9 +422,17 @@ def run_clients_bench(*, out: Path, points: int, scene_defects: int, sync_defect
         f"first meaningful paint < {TARGETS['paint_s']} s": paint["first_meaningful_paint_s"]
         < TARGETS["paint_s"],
     }
+    verdict |= perception_verdict(perception)
     _print(scene, sync, paint, points)
+    print_perception(perception)
     document = write_document(
-        out, bench="clients", targets=TARGETS, scene=scene, sync=sync, dashboard=paint
+        out,
+        bench="clients",
+        targets=TARGETS,
+        scene=scene,
+        sync=sync,
+        dashboard=paint,
+        perception=perception,
     )
     print_verdict(verdict, out)
     return document

@@ -33,8 +33,8 @@ def server_environment(
         VISTA_DATABASE_URL=url,
         VISTA_EMBEDDED_WORKERS="0",
         VISTA_API_WORKERS=str(api_workers),
-        **(extra or {}),
     )
+    env.update(extra or {})
     return env
 
 
@@ -84,8 +84,8 @@ class Server:
 def running_server(
     data_dir: Path, url: str, api_workers: int, extra_env: dict[str, str] | None = None
 ) -> Iterator[Server]:
-    """``vista serve`` in its own process (no embedded workers), stopped on the way out;
-    ``extra_env``: more VISTA_* settings."""
+    """``vista serve`` in its own process (no embedded workers unless ``extra_env`` sets
+    VISTA_EMBEDDED_WORKERS), stopped on the way out; ``extra_env``: more VISTA_* settings."""
     port = free_port()
     log_path = data_dir / "serve.log"
     command = [sys.executable, "-m", "supervisor.cli", "serve", "--port", str(port)]

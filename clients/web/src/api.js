@@ -54,7 +54,7 @@ export const api = {
   judgments: (defectId) => request("GET", `/defects/${defectId}/judgments`),
   feedback: (id) => request("GET", "/feedback", { params: { inspection: id } }),
   jobView: (jobId) => request("GET", `/jobs/${jobId}/view`),
-  jobScene: async (jobId) => (await request("GET", `/jobs/${jobId}/scene.glb`, { raw: true })).arrayBuffer(),
+  jobScene: async (jobId, points) => (await request("GET", `/jobs/${jobId}/scene.glb`, { raw: true, params: { points } })).arrayBuffer(),
   artifactContent: async (id, artifactId) => (await request("GET", `/inspections/${id}/artifacts/${artifactId}/content`, { raw: true })).blob(),
   // Save an artifact's file as the user's download (the token cannot ride on a plain link).
   download: async (id, artifact) => {

@@ -525,7 +525,7 @@ async function loadTimeline() {
 }
 
 // A job's own page (runpage.js): reached from its row in the Runs tab.
-async function showJobPage(inspectionId, jobId) {
+async function showJobPage(inspectionId, jobId, points) {
   resetInspection();
   state.inspection = null;
   show("job");
@@ -536,7 +536,7 @@ async function showJobPage(inspectionId, jobId) {
   const root = $("#job-page");
   root.replaceChildren(el("p", { class: "muted" }, "loading…"));
   try {
-    state.stopJob = await guarded(() => showJob(root, jobId, { onFinished: () => route() }));
+    state.stopJob = await guarded(() => showJob(root, jobId, { onFinished: () => route(), points }));
   } catch (error) {
     root.replaceChildren(el("p", { class: "error", role: "alert" }, `job ${jobId}: ${error.message}`));
   }
@@ -583,9 +583,9 @@ async function route() {
   $("#sign-out").hidden = false;
   if (state.stopJob) state.stopJob();
   state.stopJob = null;
-  const job = /^#\/inspections\/(\d+)\/jobs\/(\d+)$/.exec(location.hash);
+  const job = /^#\/inspections\/(\d+)\/jobs\/(\d+)(?:\?points=(\d+))?$/.exec(location.hash);
   const match = /^#\/inspections\/(\d+)(?:\/defects\/(\d+))?$/.exec(location.hash);
-  if (job) await showJobPage(Number(job[1]), Number(job[2]));
+  if (job) await showJobPage(Number(job[1]), Number(job[2]), job[3] ? Number(job[3]) : undefined);
   else if (match) await showInspection(Number(match[1]), match[2] ? Number(match[2]) : null);
   else {
     resetInspection();

@@ -84,6 +84,11 @@ export class JobPlayer {
       this.action.time = (this.frame + 0.5) * this.frameS; // a paused action holds this pose
       this.mixer.update(0);
     }
+    let shown = 0;
+    this.root?.traverse((node) => {
+      if (node.isPoints && node.scale.x > 0) shown += node.geometry.attributes.position.count;
+    });
+    this.canvas.dataset.points = String(shown);
     this.slider.value = String(this.frame);
     this.frameLabel.textContent = this.frames ? `frame ${this.frame + 1} / ${this.frames}` : "";
     this.dirty = true;
@@ -134,6 +139,7 @@ export class JobPlayer {
     const ms = performance.now() - begun;
     this.renderMs = this.renderMs === undefined ? ms : 0.8 * this.renderMs + 0.2 * ms;
     this.canvas.dataset.renderMs = this.renderMs.toFixed(2);
+    this.canvas.dataset.lastRenderMs = ms.toFixed(2);
     // the frames drawn in the last second: what a viewer gets while playing
     this.drawn.push(time);
     while (this.drawn.length && this.drawn[0] < time - 1000) this.drawn.shift();
@@ -141,6 +147,10 @@ export class JobPlayer {
       this.rate.textContent = `${this.drawn.length} frames/s shown, ${this.renderMs.toFixed(1)} ms to draw one`;
     }
     this.canvas.dataset.drawn = String(Number(this.canvas.dataset.drawn || 0) + 1);
+    if (this.onDrawn && this.root) {
+      this.onDrawn();
+      this.onDrawn = null;
+    }
   }
 
   dispose() {

@@ -192,7 +192,9 @@ function fileList(artifacts, inspectionId) {
 }
 
 // Draw job `jobId`'s page into `root`; returns a function that stops its live updates.
-export async function showJob(root, jobId, { onFinished } = {}) {
+// `points`: the scene's point budget (default: the server's). Marks `vista:job-panels` when
+// the results are drawn and `vista:job-scene` when the 3D scene is (the bench reads them).
+export async function showJob(root, jobId, { onFinished, points } = {}) {
   const stop = new AbortController();
   const urls = [];
   const view = await api.jobView(jobId);
@@ -217,10 +219,12 @@ export async function showJob(root, jobId, { onFinished } = {}) {
     view.scene ? el("section", { class: "card", id: "job-scene" }, el("h2", {}, "3D"), el("p", { class: "muted", id: "scene-note" }, "loading the scene…")) : null,
     el("div", { class: "panels", id: "panels" }, ...view.panels.map((p) => panelNode(p, job.inspection_id, urls))),
   ].filter((node) => node !== null));
+  performance.mark("vista:job-panels");
   let player = null;
   if (view.scene) {
     player = new JobPlayer(root.querySelector("#job-scene"));
-    api.jobScene(job.id).then((data) => player.load(data)).then((loaded) => {
+    api.jobScene(job.id, points).then((data) => player.load(data)).then((loaded) => {
+      player.onDrawn = () => performance.mark("vista:job-scene");
       root.querySelector("#scene-note").textContent = loaded.frames > 1
         ? `${loaded.frames} frames: play, step or scrub; drag to turn, scroll to zoom`
         : "drag to turn, scroll to zoom";

@@ -1,0 +1,62 @@
+"""The tracking service's sample run (``contract.samples``): a simulated LiDAR drive with
+labels, track 0 followed through it; and, when the real data holds a KITTI raw drive with
+per-frame labels (velodyne/, label_2/, calib.txt), a car followed through its real scans."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from contract.samples import SampleRun, SampleStep, Upload
+from services.lib import kitti
+from services.tracking.lidar_archive import write_lidar_archive
+from services.tracking.sequence import linked_object_labels, open_sequence, tracklets
+from services.tracking.simulate import simulate_sequence
+
+
+def sample_run(work: Path, frames: int, real_data: Path | None = None) -> SampleRun:
+    folder = work / "drive"
+    simulate_sequence(folder, frames=frames, cars=3, seed=3)
+    uploads = {
+        "drive": Upload(
+            write_lidar_archive(folder, work / "drive.tar.gz"), "lidar", "application/gzip"
+        )
+    }
+    steps = [SampleStep("track", "tracking.track", ("drive",), {"track_id": 0})]
+    about = f"a simulated LiDAR drive of {frames} frames (3 cars, labelled)"
+    real = _real_drive(real_data) if real_data is not None else None
+    if real is not None:
+        archive, track_id, scans = _packed(real, work / "real-drive")
+        uploads["real-drive"] = Upload(archive, "lidar", "application/gzip")
+        steps.append(
+            SampleStep("real-track", "tracking.track", ("real-drive",), {"track_id": track_id})
+        )
+        about += f"; {real.name}: {scans} real scans, the longest labelled car followed"
+    return SampleRun(uploads, tuple(steps), about)
+
+
+def _real_drive(data: Path) -> Path | None:
+    """The first KITTI raw drive with per-frame labels under ``data``."""
+    found = sorted(
+        p.parent
+        for p in data.glob("*/label_2")
+        if (p.parent / "velodyne").is_dir() and (p.parent / "calib.txt").is_file()
+    )
+    return found[0] if found else None
+
+
+def _packed(drive: Path, folder: Path) -> tuple[Path, int, int]:
+    """``drive`` as a `lidar` archive (its labels linked into tracks), the track id of its
+    longest labelled car and its scan count."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "velodyne").mkdir(exist_ok=True)
+    for scan in sorted((drive / "velodyne").glob("*.bin")):
+        (folder / "velodyne" / scan.name).write_bytes(scan.read_bytes())
+    (folder / "calib.txt").write_bytes((drive / "calib.txt").read_bytes())
+    labels = linked_object_labels(drive / "label_2")
+    (folder / "label_02.txt").write_text(kitti.format_labels(labels, tracking=True))
+    longest = max(tracklets(open_sequence(folder)), key=lambda t: len(t.frames))
+    return (
+        write_lidar_archive(folder, folder.with_suffix(".tar.gz")),
+        longest.track_id,
+        len(list((folder / "velodyne").glob("*.bin"))),
+    )
