@@ -13,7 +13,6 @@ import json
 import math
 import random
 import statistics
-import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -26,11 +25,11 @@ from contract.bench import print_verdict, say, write_document
 from supervisor.bench.browser import launch_chromium
 from supervisor.bench.seeding import defect_rows, seed_database
 from supervisor.bench.server import running_server
+from supervisor.bench.validator import validate_gltf
 from supervisor.db import Database
 from supervisor.models import Artifact, Change, Defect, Inspection
 from supervisor.storage import URI_SCHEME
 
-WEB = Path(__file__).resolve().parent.parent.parent / "clients" / "web"
 SIDEWALL_RADIUS_MM = 2000.0
 # The dashboard's performance marks (clients/web/src/main.js): the list, then the scene's
 # preview cloud (the first paint), then the full cloud.
@@ -141,20 +140,6 @@ def _seed(url: str, *, defects: int, cloud: Path, storage_root: Path) -> tuple:
     finally:
         db.dispose()
     return seeded
-
-
-def validate_gltf(path: Path) -> dict:
-    """The Khronos validator's counts for one glTF file."""
-    done = subprocess.run(
-        ["node", str(WEB / "tools" / "validate-gltf.mjs"), str(path)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    if done.returncode not in (0, 1):
-        raise RuntimeError(f"the glTF validator failed: {done.stderr}")
-    issues = json.loads(done.stdout)[0]["issues"]
-    return {k: issues[k] for k in ("numErrors", "numWarnings", "numInfos", "numHints")}
 
 
 def _trimesh_scene(cloud: Path, defects: list[dict], points: int, out: Path) -> float:

@@ -20,6 +20,7 @@ from contract.bench import say
 from supervisor.bench.browser import launch_chromium
 from supervisor.bench.seeding import seed_database
 from supervisor.bench.server import running_server
+from supervisor.bench.validator import validate_gltf
 from supervisor.engine.registry import declared_hooks
 
 JOB_TIMEOUT_S = 1800
@@ -28,7 +29,6 @@ FULL_POINTS = 20_000_000
 
 
 def run_perception_part(work: Path, shots: Path, *, frames: int, real_data: Path | None) -> dict:
-    from supervisor.bench.clients import validate_gltf
     from supervisor.migrate import upgrade
 
     data = work / "perception-data"
