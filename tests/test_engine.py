@@ -543,6 +543,9 @@ def test_odometry_train_then_run_with_the_model_and_without(embedded_engine_fact
     assert shown["frames"]["value"] == 19 and shown["drift"]["value"] is not None
     assert {a["name"] for a in view["outputs"]} >= {"trajectory.tum", "evaluation.json"}
     assert [a["id"] for a in view["inputs"]] == [frames]
+    messages = [line["message"] for line in view["log"]]  # its progress, oldest first
+    assert messages[0] == "unpacking seq.tar.gz" and messages[-1].startswith("18 pairs")
+    assert all(line["attempt"] == 1 for line in view["log"])
     trained = engine.http.get(f"/api/v1/jobs/{train['id']}/view").json()["panels"]
     assert trained[0]["title"] == "Training" and trained[0]["lines"][0]["x"] == [1.0]
     assert {"label": "architecture", "value": "oenet", "unit": "", "note": ""} in trained[1][

@@ -131,6 +131,7 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
         assert "drift" in figures and "pairs per second" in figures
         assert page.locator("#job-outputs .files li").count() == 4
         assert page.locator("#job-params").count() == 1  # method: vista
+        assert page.locator("#job-log li").count() >= 2  # unpacking … 18 pairs
         page.screenshot(path=str(tmp_path / "odometry.png"), full_page=True)
         # a path's axes are equal: a metre is as many pixels across as up
         across, up = map(

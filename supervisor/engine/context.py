@@ -24,11 +24,13 @@ from contract.context import InputArtifact, NewDefect
 from contract.errors import JobCancelled, JobLost
 from contract.tolerances import Tolerances
 from supervisor.engine.runtime import Runtime
-from supervisor.models import Job
+from supervisor.models import Job, JobLogLine
 from supervisor.models._types import utcnow
 from supervisor.storage import StoredFile
 
 PROGRESS_WRITE_INTERVAL_S = 0.25
+MAX_LOG_LINES = 1000
+"""Progress messages kept per attempt (the job's run page lists them)."""
 _SCRATCH_NAME = re.compile(r"job(\d+)-a(\d+)-")
 
 
@@ -112,6 +114,7 @@ class WorkerContext:
         self.staged: list[StagedArtifact] = []
         self.defects: list[NewDefect] = []
         self._last_write = 0.0
+        self._last_logged, self._logged = "", 0
         self._workdir: Path | None = None
 
     @property
@@ -149,6 +152,21 @@ class WorkerContext:
                 .where(Job.id == claim.id, Job.status == "running", Job.attempts == claim.attempt)
                 .values(**values)
             ).rowcount
+            if (
+                updated
+                and message
+                and message != self._last_logged
+                and self._logged < MAX_LOG_LINES
+            ):
+                session.add(
+                    JobLogLine(
+                        job_id=claim.id,
+                        attempt=claim.attempt,
+                        progress=fraction,
+                        message=message[:2000],
+                    )
+                )
+                self._last_logged, self._logged = message, self._logged + 1
             cancel = session.scalar(select(Job.cancel_requested).where(Job.id == claim.id))
         if not updated:
             self.stop.set(JobLost, "another worker took this job over")

@@ -6,8 +6,9 @@ files."""
 from __future__ import annotations
 
 from dataclasses import replace
+from datetime import datetime
 
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -16,8 +17,19 @@ from supervisor.artifacts.schemas import ArtifactOut
 from supervisor.engine.registry import get_kind
 from supervisor.jobs.schemas import JobOut
 from supervisor.jobs.service import get_job, job_out
-from supervisor.models import Artifact, Job
+from supervisor.models import Artifact, Job, JobLogLine
 from supervisor.storage import Storage
+
+LOG_LINES = 500
+
+
+class LogLine(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    attempt: int
+    at: datetime
+    progress: float
+    message: str
 
 
 class JobViewOut(BaseModel):
@@ -31,6 +43,8 @@ class JobViewOut(BaseModel):
     """Why no panels are shown, when that is not plain from the job's status."""
     scene: str | None = None
     """Its 3D scene's URL (glTF), when its kind has one and it succeeded."""
+    log: list[LogLine] = []
+    """Its progress messages, oldest first (its last ``LOG_LINES``, every attempt)."""
 
 
 def job_files(
@@ -73,12 +87,23 @@ def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
         outputs=[ArtifactOut.model_validate(a) for a in outputs],
         panels=panels,
         note=note,
+        log=_log(session, job.id),
         scene=(
             f"/api/v1/jobs/{job.id}/scene.glb"
             if kind is not None and kind.scene is not None and job.status == "succeeded"
             else None
         ),
     )
+
+
+def _log(session: Session, job_id: int) -> list[JobLogLine]:
+    newest = session.scalars(
+        select(JobLogLine)
+        .where(JobLogLine.job_id == job_id)
+        .order_by(JobLogLine.id.desc())
+        .limit(LOG_LINES)
+    ).all()
+    return newest[::-1]
 
 
 def _with_ids(panel, ids: dict[str, int]):  # noqa: ANN001, ANN202 - a contract.views panel

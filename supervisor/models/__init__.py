@@ -4,7 +4,7 @@ from supervisor.db import Base
 from supervisor.models.changes import AuditEvent, Change, IdempotencyRecord
 from supervisor.models.defects import Defect, Judgment, JudgmentRevision, SyncReceipt
 from supervisor.models.inspections import Artifact, Inspection
-from supervisor.models.jobs import Job, JobDependency, Run
+from supervisor.models.jobs import Job, JobDependency, JobLogLine, Run
 from supervisor.models.users import ApiToken, User
 
 # Ids are never reused: on SQLite a table without AUTOINCREMENT hands a deleted row's id
@@ -24,6 +24,7 @@ __all__ = [
     "Inspection",
     "Job",
     "JobDependency",
+    "JobLogLine",
     "Judgment",
     "JudgmentRevision",
     "Run",

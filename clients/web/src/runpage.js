@@ -203,12 +203,18 @@ export async function showJob(root, jobId, { onFinished, points } = {}) {
   const status = el("span", { class: `status-${job.status}`, id: "job-status" }, job.status);
   const message = el("p", { class: job.error ? "job-error" : "muted", id: "job-message" }, job.error || job.message || "");
   const params = Object.entries(job.params || {});
+  const logLine = (line) => el(
+    "li", {}, el("span", { class: "muted" }, `${new Date(line.at).toLocaleTimeString()} · ${Math.round(line.progress * 100)} %${line.attempt > 1 ? ` · attempt ${line.attempt}` : ""}  `), line.message,
+  );
+  const log = el("ol", { class: "log", id: "job-log" }, ...view.log.map(logLine));
+  let lastMessage = view.log.length ? view.log[view.log.length - 1].message : "";
   root.replaceChildren(...[
     el("div", { class: "run-page-head" },
       el("h1", {}, `${job.step} `, el("span", { class: "muted" }, `${job.kind} · job ${job.id} · run ${job.run_id}`)),
       el("a", { href: `#/inspections/${job.inspection_id}`, class: "back" }, "← the inspection")),
     el("section", { class: "card" }, el("h2", {}, "Progress"), el("div", { class: "job-progress" }, bar, status), message,
-      el("p", { class: "muted" }, job.finished_at ? `finished ${new Date(job.finished_at).toLocaleString()}` : job.started_at ? `started ${new Date(job.started_at).toLocaleString()}` : "waiting")),
+      el("p", { class: "muted" }, job.finished_at ? `finished ${new Date(job.finished_at).toLocaleString()}` : job.started_at ? `started ${new Date(job.started_at).toLocaleString()}` : "waiting"),
+      el("details", { open: "" }, el("summary", {}, "Log"), view.log.length ? log : el("p", { class: "muted", id: "job-log-empty" }, "no messages yet"), )),
     el("div", { class: "run-columns" },
       el("section", { class: "card" }, el("h2", {}, "Inputs"), fileList(view.inputs, job.inspection_id),
         el("h2", {}, "Parameters"), params.length
@@ -237,6 +243,11 @@ export async function showJob(root, jobId, { onFinished, points } = {}) {
         status.textContent = data.status;
         status.className = `status-${data.status}`;
         message.textContent = data.error || data.message || "";
+        if (data.message && data.message !== lastMessage) {
+          lastMessage = data.message;
+          root.querySelector("#job-log-empty")?.replaceWith(log);
+          log.append(logLine({ at: new Date().toISOString(), progress: data.progress, attempt: data.attempts, message: data.message }));
+        }
       } else if (event === "end" && onFinished) onFinished();
     }, stop.signal).catch(() => {});
   }
