@@ -66,8 +66,8 @@ class Plot:
 class Picture:
     label: str
     layers: list[str]
-    """Files (outputs, or inputs, by name) drawn in place of one another, a slider between
-    them: an image, its depth map, its error map."""
+    """Files (outputs by name, inputs by ``kind/name``) drawn in place of one another, a
+    slider between them: an image, its depth map, its error map."""
     layer_names: list[str]
     artifact_ids: list[int] = field(default_factory=list)
     """Filled by the supervisor: the stored artifact of each layer (0: not stored)."""
@@ -91,12 +91,13 @@ class JobFiles:
     outputs: dict[str, Path]
     """Output file name → its stored file (what the job wrote, as it named it)."""
     inputs: dict[str, Path] = field(default_factory=dict)
-    """The artifacts it was given, by name (a picture may show an input beside an output)."""
-    kinds: dict[str, str] = field(default_factory=dict)
-    """Every input's and output's artifact kind, by name."""
+    """The artifacts it was given, by ``kind/name`` (``image/000000.png``: an image and its
+    ground truth may share a name); a picture may show an input beside an output."""
 
-    def inputs_of_kind(self, kind: str) -> list[Path]:
-        return [path for name, path in self.inputs.items() if self.kinds.get(name) == kind]
+    def inputs_of_kind(self, kind: str) -> dict[str, Path]:
+        """The inputs of ``kind`` by name."""
+        prefix = f"{kind}/"
+        return {k.removeprefix(prefix): p for k, p in self.inputs.items() if k.startswith(prefix)}
 
     def json(self, name: str) -> dict | None:
         """The output ``name`` read as JSON; None when the job wrote none."""

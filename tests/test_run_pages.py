@@ -65,7 +65,8 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         steps.append({"name": "real-track", "kind": "tracking.track", "inputs": [real], "params": {"track_id": 3}})  # fmt: skip
     if KITTI_IMAGES.is_dir():
         images = [upload(KITTI_IMAGES / f"{n:06d}.png", "image", "image/png") for n in (0, 1)]
-        steps.append({"name": "depth", "kind": "depth.predict", "inputs": images})
+        truth = upload(KITTI_IMAGES.parent / "depth" / "000000.png", "depth", "image/png")
+        steps.append({"name": "depth", "kind": "depth.predict", "inputs": [*images, truth]})
     run = http.post(f"/api/v1/inspections/{inspection}/runs", json={"steps": steps}).json()
     jobs = {}
     for job in run["jobs"]:
@@ -199,11 +200,17 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
                 ),
                 what="the camera images and depth maps",
             )
-            assert page.locator(".picture img").count() == 4
+            assert page.locator(".picture img").count() == 5  # 000000 has its ground truth
             first = page.locator(".picture >> nth=0")
             first.locator("input[type=range]").fill("100")
             opacities = first.locator("img").evaluate_all("(i) => i.map(x => x.style.opacity)")
-            assert opacities == ["0", "1"]  # slid over to the depth map
+            assert opacities == ["0", "1", "0"]  # slid over to the depth map
+            first.locator("input[type=range]").fill("200")
+            assert "error against ground truth" in first.text_content()
+            figures = page.text_content(".panel-figures")
+            assert "AbsRel" in figures and "δ < 1.25" in figures and "images scored1" in figures
+            page.wait_for_selector("#scene-note:has-text('drag to turn')")  # the clouds in 3D
+            assert page.locator("#player-play").is_hidden()  # no frames to play
             page.screenshot(path=str(tmp_path / "depth.png"), full_page=True)
     assert errors == []
     _check_scenes(url, token, jobs, tmp_path)

@@ -16,7 +16,16 @@ from contract.context import (
     unpacked,
 )
 from contract.errors import JobInputError
-from services.depth.kinds import CLOUD, DEPTH_MAP, MODEL, PREDICT_REPORT, PREVIEW, TRAINING_REPORT
+from services.depth.kinds import (
+    CLOUD,
+    DEPTH_MAP,
+    ERROR_MAP,
+    MODEL,
+    PREDICT_REPORT,
+    PREVIEW,
+    TRAINING_REPORT,
+)
+from services.depth.metrics import METRICS
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 
 
@@ -120,6 +129,32 @@ def train_job(ctx: JobContext) -> dict:
     return {"architecture": architecture, **metrics}
 
 
+def _scored(ctx: JobContext, item, image: Path, truth: InputArtifact, stem: str) -> dict:  # noqa: ANN001
+    """One prediction against its ground truth: the seven metrics (median-scaled, Garg's
+    crop) and the error map kept as an output."""
+    import cv2
+
+    from services.depth.drive import read_image
+    from services.depth.metrics import evaluate_image
+    from services.depth.predict import error_preview
+    from services.lib.kitti import read_depth_png
+
+    gt_m = read_depth_png(truth.path)
+    pred_m = read_depth_png(item.depth_path)
+    try:
+        scored = evaluate_image(gt_m, pred_m, median_scaling=True)
+    except ValueError as exc:
+        return {"unmeasured": f"{truth.label}: {exc}"}
+    path = ctx.workdir / ERROR_MAP.file_name(stem)
+    cv2.imwrite(str(path), error_preview(gt_m, pred_m, scored.scale, read_image(image)))
+    ctx.add_artifact_file(path, kind=ERROR_MAP.kind, name=path.name, media_type="image/png")
+    return {
+        **{k: round(v, 4) for k, v in scored.errors.to_json().items()},
+        "pixels": scored.pixels,
+        "scale": round(scored.scale, 4),
+    }
+
+
 def predict_job(ctx: JobContext) -> dict:
     import numpy as np
 
@@ -132,6 +167,7 @@ def predict_job(ctx: JobContext) -> dict:
 
     given = inputs_of_kind(ctx, "model")
     images = inputs_of_kind(ctx, "image", "drive")
+    truths = {Path(a.name).stem: a for a in inputs_of_kind(ctx, "depth")}
     calibrations = inputs_of_kind(ctx, "calibration")
     calibration = calibrations[0] if calibrations else None
     try:
@@ -184,7 +220,7 @@ def predict_job(ctx: JobContext) -> dict:
                 clouds=ctx.params.clouds,
                 progress=lambda f, m, n=number: ctx.progress(0.05 + 0.9 * (n + f) / len(groups), m),
             )
-            for item in done:
+            for item, source in zip(done, paths, strict=True):
                 stem = (
                     f"{Path(artifact.name).name.split('.')[0]}-{item.name}"
                     if drive
@@ -211,17 +247,32 @@ def predict_job(ctx: JobContext) -> dict:
                         media_type=PLY_MEDIA_TYPE,
                         meta={"frame": "camera (x right, y down, z forward)"},
                     )
-                report["images"].append(
-                    {
-                        "name": stem,
-                        "seconds": round(item.seconds, 4),
-                        "median_depth_m": round(item.median_depth_m, 3),
-                        "width": item.width,
-                        "height": item.height,
-                    }
-                )
+                entry = {
+                    "name": stem,
+                    "seconds": round(item.seconds, 4),
+                    "median_depth_m": round(item.median_depth_m, 3),
+                    "width": item.width,
+                    "height": item.height,
+                }
+                if stem in truths:
+                    entry["evaluation"] = _scored(ctx, item, source, truths[stem], stem)
+                report["images"].append(entry)
     except ValueError as exc:
-        raise JobInputError(in_user_words(str(exc), ctx, [*given, *images, *calibrations])) from exc
+        raise JobInputError(
+            in_user_words(str(exc), ctx, [*given, *images, *calibrations, *truths.values()])
+        ) from exc
+    scored = [i["evaluation"] for i in report["images"] if "abs_rel" in i.get("evaluation", {})]
+    if truths:
+        report["evaluation"] = {
+            "images": len(scored),
+            "unmatched_ground_truth": sorted(set(truths) - {i["name"] for i in report["images"]}),
+            "median_scaling": True,
+            **(
+                {m: round(float(np.mean([e[m] for e in scored])), 4) for m in METRICS}
+                if scored
+                else {}
+            ),
+        }
     ctx.add_artifact_json(report, kind=PREDICT_REPORT.kind, name=PREDICT_REPORT.file_name())
     seconds = [i["seconds"] for i in report["images"]]
     ctx.progress(

@@ -67,6 +67,7 @@ DEPTH_MAP = Output("depth", "{stem}.depth.png", per_input=True)
 PREVIEW = Output("plot", "{stem}.color.png", per_input=True)
 CLOUD = Output("cloud", "{stem}.ply", per_input=True)
 PREDICT_REPORT = Output("report", "depth.json")
+ERROR_MAP = Output("plot", "{stem}.error.png", per_input=True)
 
 DEPTH_TRAIN = JobKind(
     name="depth.train",
@@ -103,7 +104,8 @@ DEPTH_PREDICT = JobKind(
         "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "
         "depth `model` (without one, the model vista ships): per image a KITTI depth PNG (uint16, metres × 256) at its own size, a "
         "colour preview and the camera-frame point cloud (PLY, mm; the images' `calibration` when given), and a report with each "
-        "image's time and median depth."
+        "image's time and median depth; with ground-truth `depth` maps named as the images, "
+        "each image's seven metrics (median-scaled, Garg crop) and an error map."
     ),
     inputs=(
         Inputs(
@@ -117,8 +119,15 @@ DEPTH_PREDICT = JobKind(
             "the `image`s' camera; none: KITTI's (a drive has its own)",
             min=0,
         ),
+        Inputs(
+            ("depth",),
+            "ground truth for the `image`s (KITTI depth PNGs named as the images): each "
+            "image scored by the seven metrics (median-scaled) and its error drawn",
+            min=0,
+            max=None,
+        ),
     ),
-    outputs=(DEPTH_MAP, PREVIEW, CLOUD, PREDICT_REPORT),
+    outputs=(DEPTH_MAP, PREVIEW, CLOUD, ERROR_MAP, PREDICT_REPORT),
 )
 
 KINDS = (DEPTH_TRAIN, DEPTH_PREDICT)

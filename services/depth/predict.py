@@ -82,6 +82,37 @@ def colour_preview(depth_m: np.ndarray) -> np.ndarray:
     return np.vstack((image, colour_bar(image.shape[1], top)))
 
 
+ERROR_FULL_SCALE = 0.5
+"""An error preview's red: a relative error of 50 % or more."""
+
+
+def error_preview(
+    gt_m: np.ndarray, pred_m: np.ndarray, scale: float, image_rgb: np.ndarray
+) -> np.ndarray:
+    """(H, W, 3) uint8 BGR: at each ground-truth pixel the relative error |gt − s·pred| / gt
+    of the prediction scaled by ``scale``, green (0) through yellow to red (≥ 50 %), each
+    measured pixel grown to 5 × 5 (LiDAR ground truth is sparse), over the camera image in
+    dim grey."""
+    import cv2
+
+    height, width = gt_m.shape
+    pred = cv2.resize(pred_m.astype(np.float32), (width, height), interpolation=cv2.INTER_LINEAR)
+    measured = gt_m > 0
+    relative = np.zeros(gt_m.shape, np.float32)
+    relative[measured] = np.abs(gt_m[measured] - scale * pred[measured]) / gt_m[measured]
+    level = np.clip(relative / ERROR_FULL_SCALE, 0, 1)
+    bgr = np.zeros((height, width, 3), np.uint8)
+    bgr[..., 1] = np.where(measured, 255 * np.clip(2 - 2 * level, 0, 1), 0)
+    bgr[..., 2] = np.where(measured, 255 * np.clip(2 * level, 0, 1), 0)
+    # each measured pixel's colour over its 5 × 5 neighbourhood (the nearest measured wins)
+    kernel = np.ones((5, 5), np.uint8)
+    grown = cv2.dilate(bgr, kernel)
+    covered = cv2.dilate(measured.astype(np.uint8), kernel).astype(bool)
+    grey = cv2.cvtColor(cv2.resize(image_rgb, (width, height)), cv2.COLOR_RGB2GRAY)
+    background = np.repeat((0.35 * grey)[..., None], 3, axis=2).astype(np.uint8)
+    return np.where(covered[..., None], grown, background)
+
+
 def colour_bar(width: int, top_inverse_m: float) -> np.ndarray:
     """(h, width, 3) uint8 BGR: the preview's colours from 0 to ``top_inverse_m`` (1/m)
     with ticks at round depths, labelled in metres."""

@@ -1,5 +1,6 @@
-"""What a depth prediction's page shows: per image, the camera image and its depth map (the
-colour preview with its scale in metres), a slider between them; the run's figures
+"""What a depth prediction's page shows: per image, the camera image, its depth map (the
+colour preview with its scale in metres) and its error against ground truth when given, a
+slider between them; the seven metrics; the run's figures
 (``contract.views``); and its 3D scene, each image's cloud (``contract.scene``)."""
 
 from __future__ import annotations
@@ -10,19 +11,33 @@ import numpy as np
 
 from contract.scene import JobScene, PointSet
 from contract.views import Figure, Figures, JobFiles, Picture, Pictures
-from services.depth.kinds import CLOUD, PREDICT_REPORT, PREVIEW
+from services.depth.kinds import CLOUD, ERROR_MAP, PREDICT_REPORT, PREVIEW
+
+SEVEN = (
+    ("abs_rel", "AbsRel", ""),
+    ("sq_rel", "SqRel", "m"),
+    ("rmse", "RMSE", "m"),
+    ("rmse_log", "RMSE log", ""),
+    ("delta1", "δ < 1.25", ""),
+    ("delta2", "δ < 1.25²", ""),
+    ("delta3", "δ < 1.25³", ""),
+)
+"""The depth literature's seven metrics as the page names them."""
 
 
 def predict_view(files: JobFiles) -> list:
     report = files.json(PREDICT_REPORT.file_name()) or {}
     images = report.get("images", [])
-    by_stem = {Path(name).stem: name for name in files.inputs}
+    by_stem = {Path(name).stem: f"image/{name}" for name in files.inputs_of_kind("image")}
     pictures = []
     for image in images:
         stem = image["name"]
         given = by_stem.get(stem)
         layers = ([given] if given else []) + [PREVIEW.file_name(stem)]
         names = (["camera image"] if given else []) + ["depth (m)"]
+        if ERROR_MAP.file_name(stem) in files.outputs:
+            layers.append(ERROR_MAP.file_name(stem))
+            names.append("error against ground truth (green 0 → red ≥ 50 %)")
         pictures.append(Picture(f"{stem} ({image['width']} × {image['height']})", layers, names))
     seconds = [i["seconds"] for i in images]
     figures = [
@@ -33,12 +48,28 @@ def predict_view(files: JobFiles) -> list:
             "time a frame", round(1000 * sum(seconds) / len(seconds), 1) if seconds else None, "ms"
         ),
         *(Figure(f"{i['name']}: median depth", i["median_depth_m"], "m") for i in images),
-        Figure(
-            "against ground truth",
-            None,
-            note="depth.predict has no ground-truth input: `vista depth eval` scores the maps",
-        ),
     ]
+    evaluation = report.get("evaluation")
+    if evaluation is None:
+        why = "no ground-truth `depth` maps were given (named as the images)"
+        figures.append(Figure("against ground truth", None, note=why))
+    else:
+        figures.append(
+            Figure("images scored", evaluation["images"], note="median-scaled, Garg crop")
+        )
+        figures += [
+            Figure(name, evaluation.get(key), unit, note="no image could be scored")
+            for key, name, unit in SEVEN
+        ]
+        figures += [
+            Figure(
+                f"{i['name']}: AbsRel",
+                i["evaluation"].get("abs_rel"),
+                note=i["evaluation"].get("unmeasured", ""),
+            )
+            for i in images
+            if "evaluation" in i
+        ]
     return [Pictures("Depth per image", pictures), Figures("Prediction", figures)]
 
 

@@ -97,7 +97,7 @@ def track_scene(files: JobFiles, max_points: int) -> JobScene:
     if document is None:
         raise ValueError("the run wrote no track.json")
     frames, boxes = lidar_boxes(document)
-    archives = files.inputs_of_kind("lidar")
+    archives = list(files.inputs_of_kind("lidar").values())
     if len(archives) != 1:
         raise ValueError("the run's LiDAR sequence is not among its inputs")
     per_frame = max(100, max_points // len(frames))

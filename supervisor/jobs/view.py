@@ -60,8 +60,7 @@ def job_files(
     files = JobFiles(
         job.result or {},
         {a.name: storage.path(a.storage_uri) for a in outputs},
-        {a.name: storage.path(a.storage_uri) for a in given},
-        {a.name: a.kind for a in [*given, *outputs]},
+        {f"{a.kind}/{a.name}": storage.path(a.storage_uri) for a in given},
     )
     return list(given), list(outputs), files
 
@@ -79,7 +78,7 @@ def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
             panels = view(files)
         except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
             note = f"the results could not be drawn ({type(exc).__name__}: {exc}); the files are listed"
-        ids = {a.name: a.id for a in given} | {a.name: a.id for a in outputs}
+        ids = {f"{a.kind}/{a.name}": a.id for a in given} | {a.name: a.id for a in outputs}
         panels = [_with_ids(p, ids) for p in panels]
     return JobViewOut(
         job=job_out(session, job),
@@ -107,8 +106,8 @@ def _log(session: Session, job_id: int) -> list[JobLogLine]:
 
 
 def _with_ids(panel, ids: dict[str, int]):  # noqa: ANN001, ANN202 - a contract.views panel
-    """Pictures name their layers by file (an output's, else an input's): the stored
-    artifact of each (0: none)."""
+    """Pictures name their layers by file (an output's name, an input's ``kind/name``): the
+    stored artifact of each (0: none)."""
     if not isinstance(panel, Pictures):
         return panel
     pictures = [

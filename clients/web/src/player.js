@@ -23,6 +23,7 @@ export class JobPlayer {
       el("button", { id: "player-next", title: "next frame", onclick: () => this.step(1) }, "frame ›"),
       this.slider, this.frameLabel, this.rate,
     );
+    this.controlsBar.hidden = true; // until a scene with frames is loaded
     host.append(el("div", { class: "player-box" }, this.canvas), this.controlsBar);
     this.renderer = new THREE.WebGLRenderer({ canvas: this.canvas, antialias: false });
     this.renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
