@@ -92,6 +92,9 @@ ERRORS: dict[str, dict[int, str]] = {
         422: "A step breaks a rule the schema cannot state: see the description.",
     },
     "POST /api/v1/jobs/{job_id}/cancel": {403: EDITORS, 409: "The job has finished already."},
+    "GET /api/v1/jobs/{job_id}/scene.glb": {
+        409: "The job has not succeeded (no scene yet), or its results could not be drawn."
+    },
     "POST /api/v1/jobs/{job_id}/retry": {
         403: EDITORS,
         409: "The job is neither failed nor cancelled.",

@@ -61,9 +61,7 @@ async def scene_glb(
     "/jobs/{job_id}/scene.glb",
     response_class=Response,
     responses={
-        200: {"content": {GLB_MEDIA_TYPE: {}}, "description": "The job's scene (binary glTF 2.0)."},
-        404: {"description": "No such job, or its kind has no 3D scene."},
-        409: {"description": "The job has not succeeded."},
+        200: {"content": {GLB_MEDIA_TYPE: {}}, "description": "The job's scene (binary glTF 2.0)."}
     },
 )
 async def job_scene_glb(

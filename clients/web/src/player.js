@@ -5,6 +5,7 @@ import * as THREE from "three";
 import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
 import { el } from "./dom.js";
+import { fitCanvas } from "./scene.js";
 
 const POINT_PX = 2;
 
@@ -118,12 +119,7 @@ export class JobPlayer {
   }
 
   resize() {
-    const { clientWidth: width, clientHeight: height } = this.canvas;
-    if (!width || !height) return;
-    this.renderer.setSize(width, height, false);
-    this.camera.aspect = width / height;
-    this.camera.updateProjectionMatrix();
-    this.dirty = true;
+    if (fitCanvas(this.renderer, this.camera, this.canvas)) this.dirty = true;
   }
 
   tick(time) {

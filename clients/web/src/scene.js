@@ -70,6 +70,16 @@ function panelLabel(id, centroidMm) {
   return label;
 }
 
+// The renderer and the camera fitted to the canvas's size on the page; false while it has none.
+export function fitCanvas(renderer, camera, canvas) {
+  const { clientWidth: width, clientHeight: height } = canvas;
+  if (!width || !height) return false;
+  renderer.setSize(width, height, false);
+  camera.aspect = width / height;
+  camera.updateProjectionMatrix();
+  return true;
+}
+
 export class SceneView {
   // `scaleBar`: an element whose width and text show a round length at the orbit centre.
   constructor(canvas, onPick, { scaleBar = null } = {}) {
@@ -105,12 +115,7 @@ export class SceneView {
   }
 
   resize() {
-    const { clientWidth: width, clientHeight: height } = this.canvas;
-    if (!width || !height) return;
-    this.renderer.setSize(width, height, false);
-    this.camera.aspect = width / height;
-    this.camera.updateProjectionMatrix();
-    this.invalidate();
+    if (fitCanvas(this.renderer, this.camera, this.canvas)) this.invalidate();
   }
 
   invalidate() {
