@@ -9,6 +9,7 @@ Units are in the labels: a panel carries numbers and says what they are.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -101,8 +102,6 @@ class JobFiles:
 
     def json(self, name: str) -> dict | None:
         """The output ``name`` read as JSON; None when the job wrote none."""
-        import json
-
         path = self.outputs.get(name)
         return None if path is None else json.loads(path.read_text())
 

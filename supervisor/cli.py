@@ -192,8 +192,7 @@ def bench_clients(
     dashboard's first meaningful paint in headless Chromium (a screenshot beside the JSON),
     against a real `vista serve` process; then every service's sample run on a `vista serve`
     with its engine: each job's glTF (seconds, MB, validator), each run page's first paint at
-    1440 px (screenshots in run-pages/ beside the JSON) and a drive's frame drawn with every
-    point."""
+    1440 px (screenshots in run-pages/ beside the JSON) and a drive played with every point."""
     from supervisor.bench.clients import run_clients_bench
 
     run_clients_bench(

@@ -327,8 +327,8 @@ def run_clients_bench(
     only_perception: bool = False,
 ) -> dict:
     from supervisor.bench.perception import (
-        DRAW_TARGET_MS,
         PAINT_TARGET_S,
+        PLAYED_TARGET,
         perception_verdict,
         print_perception,
         run_perception_part,
@@ -340,7 +340,7 @@ def run_clients_bench(
                 Path(folder), out.parent / "run-pages", frames=frames, real_data=real_data
             )
         print_perception(part)
-        targets = {"paint_s": PAINT_TARGET_S, "draw_ms": DRAW_TARGET_MS}
+        targets = {"paint_s": PAINT_TARGET_S, "frames_per_s_played": PLAYED_TARGET}
         document = write_document(out, bench="clients", targets=targets, perception=part)
         print_verdict(perception_verdict(part), out)
         return document

@@ -2,8 +2,9 @@
 ``SAMPLE_RUN``, ``contract.samples``) on a live ``vista serve`` with its embedded engine,
 then what a person waits for — each job's glTF scene (export seconds, MB, the Khronos
 validator's verdict), each run page's first paint in headless Chromium at 1440 px (the
-results drawn, the 3D scene drawn; screenshots kept beside the JSON) and, for a drive, the
-time the player takes to draw one frame with every point of its scans.
+results drawn, the 3D scene drawn; screenshots kept beside the JSON) and, for a drive with
+every point of its scans, the time to draw a frame and the frames shown in a second of
+playing it at its 10 Hz.
 """
 
 from __future__ import annotations
@@ -178,8 +179,8 @@ def _load(browser, base: str, token: str, inspection: int, row: dict) -> dict:  
 
 
 def _player(browser, base: str, token: str, inspection: int, row: dict) -> dict:  # noqa: ANN001
-    """The drive with every point: the time to draw one frame over ten frames spread
-    through it, and how many frames a second that allows."""
+    """The drive with every point: the time to submit and finish one frame's draw over ten
+    frames spread through it, and the frames shown in a second of playing it (10 Hz)."""
     page = _open(browser, base, token, inspection, row, points=FULL_POINTS)
     frames = int(page.get_attribute("#player-scrub", "max")) + 1
     times = []
@@ -187,20 +188,25 @@ def _player(browser, base: str, token: str, inspection: int, row: dict) -> dict:
         page.locator("#player-scrub").fill(str(k))
         page.wait_for_timeout(150)
         times.append(float(page.get_attribute("#job-scene canvas", "data-last-render-ms")))
-    points = page.evaluate("() => document.querySelector('#job-scene canvas').dataset.points")
+    points = page.get_attribute("#job-scene canvas", "data-points")
+    page.click("#player-play")
+    page.wait_for_timeout(PLAY_S * 1000)
+    shown = int(page.get_attribute("#job-scene canvas", "data-shown-per-s") or 0)
+    page.click("#player-play")
     page.context.close()
-    draw_ms = statistics.median(times)
     return {
         "frames": frames,
         "points_per_frame": int(points) if points else None,
-        "draw_ms": round(draw_ms, 2),
-        "frames_per_s_possible": round(1000 / draw_ms, 1) if draw_ms > 0 else None,
+        "draw_ms": round(statistics.median(times), 2),
+        "frames_per_s_played": shown,
     }
 
 
 PAINT_TARGET_S = 2.0
-DRAW_TARGET_MS = 100.0
-"""10 frames a second."""
+PLAYED_TARGET = 9
+"""Frames shown in a second of playing a 10 Hz drive (one may fall across the second's edge)."""
+PLAY_S = 4
+"""How long a drive plays before the frames of its last second are counted."""
 
 
 def perception_verdict(part: dict) -> dict:
@@ -214,8 +220,8 @@ def perception_verdict(part: dict) -> dict:
         f"every run page's results drawn < {PAINT_TARGET_S} s": all(
             r["page"]["panels_s"] < PAINT_TARGET_S for r in rows
         ),
-        f"a drive's frame with every point drawn < {DRAW_TARGET_MS:.0f} ms (10 fps)": bool(players)
-        and all(p["draw_ms"] < DRAW_TARGET_MS for p in players),
+        "a drive plays at 10 frames a second with every point": bool(players)
+        and all(p["frames_per_s_played"] >= PLAYED_TARGET for p in players),
     }
 
 
@@ -245,11 +251,12 @@ def print_perception(part: dict) -> None:
     players = [(r["step"], r["player"]) for r in part["jobs"] if "player" in r]
     if players:
         print(
-            "\n| drive in the player, every point | frames | points a frame | ms to draw one | frames/s possible |"
+            "\n| drive, every point | frames | points a frame | ms to submit and finish a "
+            "draw | frames drawn in a second of playing (a 10 Hz drive needs 10) |"
         )
         print("|---|---|---|---|---|")
         for step, p in players:
             print(
                 f"| {step} | {p['frames']} | {p['points_per_frame']} | {p['draw_ms']:.1f} | "
-                f"{p['frames_per_s_possible']} |"
+                f"{p['frames_per_s_played']} |"
             )

@@ -88,7 +88,10 @@ export class JobPlayer {
     }
     let shown = 0;
     this.root?.traverse((node) => {
-      if (node.isPoints && node.scale.x > 0) shown += node.geometry.attributes.position.count;
+      if (!node.isPoints) return;
+      // a scan out of its frame is scaled to nothing: leave it out of the draw altogether
+      node.visible = node.scale.x > 0;
+      if (node.visible) shown += node.geometry.attributes.position.count;
     });
     this.canvas.dataset.points = String(shown);
     this.slider.value = String(this.frame);
@@ -125,8 +128,8 @@ export class JobPlayer {
   tick(time) {
     if (this.playing) {
       if (this.started === null) this.started = { time, frame: this.frame };
-      const due = this.started.frame + Math.floor((time - this.started.time) / 1000 / this.frameS);
-      if (due !== this.frame) this.show(due % this.frames);
+      const due = (this.started.frame + Math.floor((time - this.started.time) / 1000 / this.frameS)) % this.frames;
+      if (due !== this.frame) this.show(due);
     }
     if (!this.dirty) return;
     this.dirty = false;
@@ -141,6 +144,8 @@ export class JobPlayer {
     this.drawn.push(time);
     while (this.drawn.length && this.drawn[0] < time - 1000) this.drawn.shift();
     if (this.playing) {
+      this.canvas.dataset.shownPerS = String(this.drawn.length);
+      this.canvas.dataset.shownPerS = String(this.drawn.length);
       this.rate.textContent = `${this.drawn.length} frames/s shown, ${this.renderMs.toFixed(1)} ms to draw one`;
     }
     this.canvas.dataset.drawn = String(Number(this.canvas.dataset.drawn || 0) + 1);
