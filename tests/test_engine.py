@@ -546,6 +546,11 @@ def test_odometry_train_then_run_with_the_model_and_without(embedded_engine_fact
     messages = [line["message"] for line in view["log"]]  # its progress, oldest first
     assert messages[0] == "unpacking seq.tar.gz" and messages[-1].startswith("18 pairs")
     assert all(line["attempt"] == 1 for line in view["log"])
+    train_page = engine.http.get(f"/api/v1/jobs/{train['id']}/view").json()
+    assert any(line["message"].startswith("exported oenet.onnx") for line in train_page["log"])
+    assert not any(
+        "/tmp" in line["message"] or "scratch" in line["message"] for line in train_page["log"]
+    )
     trained = engine.http.get(f"/api/v1/jobs/{train['id']}/view").json()["panels"]
     assert trained[0]["title"] == "Training" and trained[0]["lines"][0]["x"] == [1.0]
     assert {"label": "architecture", "value": "oenet", "unit": "", "note": ""} in trained[1][

@@ -176,7 +176,7 @@ def train_oenet(
     difference = export_onnx(
         result.model, inputs[:4], out, metadata, input_name="pair", output_name="motion"
     )
-    say(1.0, f"exported {out} (onnxruntime vs torch: {difference:.1e})")
+    say(1.0, f"exported {out.name} (onnxruntime vs torch: {difference:.1e})")
     return metadata
 
 

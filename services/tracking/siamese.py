@@ -289,7 +289,7 @@ def train_siamese(
         input_name="points",
         output_name="latent",
     )
-    say(1.0, f"wrote {out}")
+    say(1.0, f"wrote {out.name}")
     return metadata
 
 

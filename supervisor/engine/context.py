@@ -145,6 +145,8 @@ class WorkerContext:
         claim = self.claim
         with self._runtime.db.write() as session:
             values: dict[str, Any] = {"progress": fraction, "heartbeat_at": utcnow()}
+            if message and self._workdir is not None:  # the log shows no server path
+                message = message.replace(str(self._workdir), "the job's folder")
             if message:
                 values["message"] = message[:2000]
             updated = session.execute(
