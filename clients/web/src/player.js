@@ -133,20 +133,13 @@ export class JobPlayer {
     }
     if (!this.dirty) return;
     this.dirty = false;
-    const begun = performance.now();
     this.renderer.render(this.scene, this.camera);
-    this.renderer.getContext().finish(); // the draw's real cost, not just its submission
-    const ms = performance.now() - begun;
-    this.renderMs = this.renderMs === undefined ? ms : 0.8 * this.renderMs + 0.2 * ms;
-    this.canvas.dataset.renderMs = this.renderMs.toFixed(2);
-    this.canvas.dataset.lastRenderMs = ms.toFixed(2);
     // the frames drawn in the last second: what a viewer gets while playing
     this.drawn.push(time);
     while (this.drawn.length && this.drawn[0] < time - 1000) this.drawn.shift();
     if (this.playing) {
       this.canvas.dataset.shownPerS = String(this.drawn.length);
-      this.canvas.dataset.shownPerS = String(this.drawn.length);
-      this.rate.textContent = `${this.drawn.length} frames/s shown, ${this.renderMs.toFixed(1)} ms to draw one`;
+      this.rate.textContent = `${this.drawn.length} frames drawn in the last second`;
     }
     this.canvas.dataset.drawn = String(Number(this.canvas.dataset.drawn || 0) + 1);
     if (this.onDrawn && this.root) {
