@@ -263,6 +263,11 @@ def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
     if "depth" in documents:
         clouds = [n for n in documents["depth"]["nodes"] if n["name"].startswith("cloud-")]
         assert len(clouds) == 2
+    track_id = jobs["track"]["id"]
+    for points in (2000, 3000):
+        http.get(f"/api/v1/jobs/{track_id}/scene.glb", params={"points": points}).raise_for_status()
+    cached = [p for p in tmp_path.rglob(f"job-{track_id}-*.glb") if "exports" in p.parts]
+    assert len(cached) == 1  # the newest budget only: many budgets cannot fill the disk
     missing = http.get(f"/api/v1/jobs/{jobs['train']['id']}/scene.glb")
     assert missing.status_code == 404 and "no 3D scene" in missing.json()["detail"]
     http.close()

@@ -1,6 +1,7 @@
 """A job's results in 3D as binary glTF 2.0: what its kind's ``scene`` hook returns
 (``contract.scene.JobScene``), in metres with +Y up. Built once per job and point budget
-(a finished job's files do not change) and cached beside the inspection's scenes.
+(a finished job's files do not change) and cached beside the inspection's scenes — the
+newest budget only, so that asking for many budgets cannot fill the disk.
 
 Node layout (names are stable; clients find things by them)::
 
@@ -74,6 +75,9 @@ def job_scene_file(runtime: Runtime, job_id: int, max_points: int) -> Path:
     temp = path.with_suffix(f".{os.getpid()}.part")
     temp.write_bytes(data)
     os.replace(temp, path)
+    for other in folder.glob(f"job-{job_id}-*.glb"):  # one budget kept a job: no disk to fill
+        if other != path:
+            other.unlink(missing_ok=True)
     return path
 
 
