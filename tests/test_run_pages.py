@@ -59,10 +59,11 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         {"name": "track", "kind": "tracking.track", "inputs": [lidar], "params": {"track_id": 0}}
     )
     if REAL_LABELLED_DRIVE.is_dir():  # real KITTI scans, held out of the detector's training
-        real = upload(
-            _packed_real_drive(tmp_path / "kitti-0048.tar.gz"), "lidar", "application/gzip"
-        )
-        steps.append({"name": "real-track", "kind": "tracking.track", "inputs": [real], "params": {"track_id": 3}})  # fmt: skip
+        from services.tracking.sample import packed_real_drive
+
+        archive, longest, _ = packed_real_drive(REAL_LABELLED_DRIVE, tmp_path / "kitti-0048")
+        real = upload(archive, "lidar", "application/gzip")
+        steps.append({"name": "real-track", "kind": "tracking.track", "inputs": [real], "params": {"track_id": longest}})  # fmt: skip
     if KITTI_IMAGES.is_dir():
         images = [upload(KITTI_IMAGES / f"{n:06d}.png", "image", "image/png") for n in (0, 1)]
         truth = upload(KITTI_IMAGES.parent / "depth" / "000000.png", "depth", "image/png")
@@ -82,29 +83,6 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         assert jobs[job["step"]]["status"] == "succeeded", jobs[job["step"]]
     yield server.url, token, inspection, jobs
     http.close()
-
-
-def _packed_real_drive(out: Path) -> Path:
-    """KITTI raw drive 0048 (22 real scans, cars labelled every other frame) as a `lidar`
-    archive: its scans, calibration and labels linked into tracks (label_02.txt)."""
-    import io
-    import tarfile
-
-    from services.lib import kitti
-    from services.tracking.sequence import linked_object_labels
-
-    labels = kitti.format_labels(
-        linked_object_labels(REAL_LABELLED_DRIVE / "label_2"), tracking=True
-    )
-    with tarfile.open(out, "w:gz") as archive:
-        for scan in sorted((REAL_LABELLED_DRIVE / "velodyne").glob("*.bin")):
-            archive.add(scan, arcname=f"0048/velodyne/{scan.name}")
-        archive.add(REAL_LABELLED_DRIVE / "calib.txt", arcname="0048/calib.txt")
-        data = labels.encode()
-        member = tarfile.TarInfo("0048/label_02.txt")
-        member.size = len(data)
-        archive.addfile(member, io.BytesIO(data))
-    return out
 
 
 def _open(browser, url: str, token: str, inspection: int, job: dict, errors: list[str]):

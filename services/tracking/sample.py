@@ -25,7 +25,7 @@ def sample_run(work: Path, frames: int, real_data: Path | None = None) -> Sample
     about = f"a simulated LiDAR drive of {frames} frames (3 cars, labelled)"
     real = _real_drive(real_data) if real_data is not None else None
     if real is not None:
-        archive, track_id, scans = _packed(real, work / "real-drive")
+        archive, track_id, scans = packed_real_drive(real, work / "real-drive")
         uploads["real-drive"] = Upload(archive, "lidar", "application/gzip")
         steps.append(
             SampleStep("real-track", "tracking.track", ("real-drive",), {"track_id": track_id})
@@ -44,7 +44,7 @@ def _real_drive(data: Path) -> Path | None:
     return found[0] if found else None
 
 
-def _packed(drive: Path, folder: Path) -> tuple[Path, int, int]:
+def packed_real_drive(drive: Path, folder: Path) -> tuple[Path, int, int]:
     """``drive`` as a `lidar` archive (its labels linked into tracks), the track id of its
     longest labelled car and its scan count."""
     folder.mkdir(parents=True, exist_ok=True)
