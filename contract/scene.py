@@ -61,7 +61,8 @@ class PointSet:
 
 @dataclass(frozen=True)
 class MovingBox:
-    """A box that moves frame by frame (a tracked object): its pose at each key time."""
+    """A box that moves frame by frame (a tracked object): its pose at each key time; or,
+    with one key and ``shown_at_s``, a box of one frame (a detection)."""
 
     name: str
     size_mm: tuple[float, float, float]
@@ -74,6 +75,8 @@ class MovingBox:
     """(K,) its heading about +Z."""
     colour_rgba: tuple[float, float, float, float]
     extras: dict = field(default_factory=dict)
+    shown_at_s: float | None = None
+    """As ``PointSet.shown_at_s``: None, always shown; else only for that frame."""
 
 
 @dataclass(frozen=True)

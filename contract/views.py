@@ -46,6 +46,9 @@ class Line:
     circle of this radius, the position's uncertainty)."""
     style: Literal["line", "points"] = "line"
     """``points``: marks (flagged pairs, resets) rather than a curve."""
+    colour: str | None = None
+    """``#rrggbb`` when the colour means something (a verdict drawn so elsewhere too);
+    None: the client's next."""
 
 
 @dataclass(frozen=True)
@@ -148,6 +151,12 @@ def training_panels(report: dict | None) -> list[Figures | Plot | Pictures]:
         figures.append(Figure(key, value))
     panels.append(Figures("Model", [f for f in figures if f.value is not None]))
     return panels
+
+
+def result_view(files: JobFiles) -> list[Figures | Plot | Pictures]:
+    """The view of a kind that declares none: the figures of the result its handler returned."""
+    figures = [Figure(name, value) for name, value in _flat(files.result)]
+    return [Figures("Result", figures)] if figures else []
 
 
 def _flat(values: dict, prefix: str = "") -> list[tuple[str, float | int | str]]:

@@ -383,6 +383,13 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
     cloud = tmp_path / "stitched.ply"
     cloud.write_bytes(engine.http.get(f"{base}/{produced['cloud']['id']}/content").content)
     assert validate_ply(cloud).vertex_count == report["points"]
+    # its run page: a kind that declares no view shows its result's figures
+    page = engine.http.get(f"/api/v1/jobs/{stitch_job['id']}/view").json()
+    (result,) = page["panels"]
+    assert result["type"] == "figures" and result["title"] == "Result"
+    shown = {f["label"]: f["value"] for f in result["figures"]}
+    assert shown["overlap_mean_mm"] == stitch_job["result"]["overlap_mean_mm"]
+    assert "declares no view" in page["note"] and len(page["outputs"]) == 3
 
     # A stitch without a calibration is refused when the run is created, naming what is missing.
     lonely = engine.http.post(
@@ -787,6 +794,82 @@ def test_track_job_follows_a_car_and_refuses_missing_models(embedded_engine_fact
         )
         failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
         assert failed["status"] == "failed" and phrase in failed["error"].lower(), failed
+
+
+def test_detect_job_judges_each_box_and_draws_them_on_the_images(embedded_engine_factory, tmp_path):
+    """`tracking.detect` on a labelled simulated drive: every scan's boxes with their scores
+    and verdicts against the labels, the recall and precision, and a camera image named as
+    its scan drawn with its boxes; images not named as a scan, or of no scan in the
+    sequence, and a model for the geometric detector are refused, naming the file."""
+    import cv2
+
+    from tests.lidarfiles import pack_sequence, small_drive
+
+    drive = small_drive(tmp_path / "drive")
+    engine = embedded_engine_factory()
+    sequence = _upload(
+        engine, pack_sequence(drive, tmp_path / "drive.tar.gz"), "lidar", "application/gzip"
+    )
+    images = tmp_path / "images"
+    images.mkdir()
+    for name in ("000003.png", "camera.png", "000099.png"):
+        cv2.imwrite(str(images / name), np.full((375, 1242, 3), 90, np.uint8))
+    image = _upload(engine, images / "000003.png", "image", "image/png")
+    run = engine.run([{"name": "d", "kind": "tracking.detect", "inputs": [sequence, image]}])
+    job = engine.wait(run["jobs"][0]["id"], timeout=120)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["scans"] == 12 and job["result"]["detections"] > 0
+    base = f"/api/v1/inspections/{engine.inspection}/artifacts"
+    made = {
+        a["name"]: a["id"]
+        for a in engine.http.get(base, params={"limit": 200}).json()["items"]
+        if a["job_id"] == job["id"]
+    }
+    assert set(made) == {"detections.json", "000003.detections.png"}
+    document = engine.http.get(f"{base}/{made['detections.json']}/content").json()
+    scan = document["scans"][3]
+    assert scan["frame"] == 3 and scan["scored"]
+    assert len(scan["boxes"]) == len(scan["scores"]) == len(scan["true_positive"])
+    assert document["evaluation"]["scans"] == 12
+    # judged against each scan's own labels: the labelled cars within 40 m, frame by frame
+    from services.lib import kitti
+    from services.tracking.sequence import open_sequence
+
+    labelled = open_sequence(drive)
+    cars = labelled.labels.of_type("Car")
+    where = kitti.camera_to_lidar(cars.camera_box, labelled.calibration)
+    near = np.hypot(where[:, 0], where[:, 1]) <= 40
+    assert [s["cars_near"] for s in document["scans"]] == [
+        int((near & (cars.frame == frame)).sum()) for frame in range(12)
+    ]
+    assert job["result"]["recall_near"] >= 0.8  # the lead car and the cars near it, every scan
+    drawn = engine.http.get(f"{base}/{made['000003.detections.png']}/content").content
+    picture = cv2.imdecode(np.frombuffer(drawn, np.uint8), cv2.IMREAD_COLOR)
+    assert picture.shape == (375, 1242, 3) and (picture != 90).any()  # the boxes drawn on it
+    for name, phrase in (
+        ("camera.png", "is not named as a scan"),
+        ("000099.png", "the sequence has no scan 99"),
+    ):
+        other = _upload(engine, images / name, "image", "image/png")
+        refused = engine.run(
+            [{"name": "d", "kind": "tracking.detect", "inputs": [sequence, other]}]
+        )
+        failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
+        assert (
+            failed["status"] == "failed" and phrase in failed["error"] and name in failed["error"]
+        )
+    refused = engine.run(
+        [
+            {
+                "name": "d",
+                "kind": "tracking.detect",
+                "inputs": [sequence, _shipped_detector(engine)],
+                "params": {"detector": "geometric"},
+            }
+        ]
+    )
+    failed = engine.wait(refused["jobs"][0]["id"], timeout=60)
+    assert failed["status"] == "failed" and "leave it out" in failed["error"]
 
 
 def _shipped_detector(engine: Engine) -> int:

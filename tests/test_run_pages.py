@@ -2,8 +2,11 @@
 validator, on results made by the real jobs: an odometry run on a short simulated sequence
 (its path, 1σ band, truth and error against distance, figures), its OE-Net training (loss
 and validation per epoch), a track through a simulated LiDAR drive (confidence, the box's
-path; in 3D the scans and the box moving through them) and a depth prediction on two real
-KITTI frames (the camera image and its depth map, a slider between them; the clouds)."""
+path; in 3D the scans and the box moving through them) and through real KITTI scans, the
+cars detected in both (in 3D each scan with its boxes, judged against the labels) and in
+real scans with their camera images (the images with the 2D boxes), and a depth prediction
+on two real KITTI frames (the camera image and its depth map, a slider between them; the
+clouds)."""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ import pytest
 
 from supervisor.bench.browser import launch_chromium
 from tests.conftest import add_user, auth, make_settings, wait_for
-from tests.lidarfiles import REAL_LABELLED_DRIVE
+from tests.lidarfiles import REAL_DRIVE, REAL_LABELLED_DRIVE
 
 KITTI_IMAGES = (
     Path(__file__).resolve().parents[2] / "shared/data/kitti-object-testing-sample/image_2"
@@ -55,15 +58,23 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
     ]  # fmt: skip
     drive = pack_sequence(small_drive(tmp_path / "drive"), tmp_path / "drive.tar.gz")
     lidar = upload(drive, "lidar", "application/gzip")
-    steps.append(
-        {"name": "track", "kind": "tracking.track", "inputs": [lidar], "params": {"track_id": 0}}
-    )
+    steps += [
+        {"name": "track", "kind": "tracking.track", "inputs": [lidar], "params": {"track_id": 0}},
+        {"name": "detect", "kind": "tracking.detect", "inputs": [lidar]},
+    ]
     if REAL_LABELLED_DRIVE.is_dir():  # real KITTI scans, held out of the detector's training
         from services.tracking.sample import packed_real_drive
 
         archive, longest, _ = packed_real_drive(REAL_LABELLED_DRIVE, tmp_path / "kitti-0048")
         real = upload(archive, "lidar", "application/gzip")
         steps.append({"name": "real-track", "kind": "tracking.track", "inputs": [real], "params": {"track_id": longest}})  # fmt: skip
+    if REAL_DRIVE.is_dir():  # real scans with their camera images
+        from services.tracking.sample import packed_camera_drive
+
+        archive, pictures = packed_camera_drive(REAL_DRIVE, tmp_path / "kitti-0052", 2)
+        inputs = [upload(archive, "lidar", "application/gzip")]
+        inputs += [upload(picture, "image", "image/png") for picture in pictures]
+        steps.append({"name": "camera-detect", "kind": "tracking.detect", "inputs": inputs})
     if KITTI_IMAGES.is_dir():
         images = [upload(KITTI_IMAGES / f"{n:06d}.png", "image", "image/png") for n in (0, 1)]
         truth = upload(KITTI_IMAGES.parent / "depth" / "000000.png", "depth", "image/png")
@@ -178,17 +189,11 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
             assert int(page.get_attribute("#job-scene canvas", "data-points")) == held > 1000
             page.screenshot(path=str(tmp_path / "real-track.png"), full_page=True)
 
+        _check_detection_pages(browser, url, token, inspection, jobs, errors, tmp_path)
+
         if "depth" in jobs:
             page = _open(browser, url, token, inspection, jobs["depth"], errors)
-            page.wait_for_selector(".picture")
-            assert page.locator(".picture").count() == 2
-            wait_for(
-                lambda: page.evaluate(
-                    "[...document.querySelectorAll('.picture img')].every(i => i.complete && i.naturalWidth > 0)"
-                ),
-                what="the camera images and depth maps",
-            )
-            assert page.locator(".picture img").count() == 5  # 000000 has its ground truth
+            _wait_for_pictures(page, 2, 5, 0)  # 000000 has its ground truth: 5 layers
             first = page.locator(".picture >> nth=0")
             first.locator("input[type=range]").fill("100")
             opacities = first.locator("img").evaluate_all("(i) => i.map(x => x.style.opacity)")
@@ -205,13 +210,70 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
     _check_headset_reads_the_scenes(url, inspection, jobs, tmp_path)
 
 
+def _check_detection_pages(browser, url, token, inspection, jobs, errors, tmp_path) -> None:
+    """A detection run: cars and scores per scan, the recall and precision against the
+    labels; in 3D each scan with its boxes, as many as the scan had; with camera images,
+    each image with its 2D boxes."""
+    job = jobs["detect"]
+    document = _output_json(url, token, job["id"], "detections.json")
+    page = _open(browser, url, token, inspection, job, errors)
+    page.wait_for_selector(".panel-plot[data-title='Cars per scan']")
+    titles = page.locator(".panel").evaluate_all("(p) => p.map(x => x.dataset.title)")
+    assert titles == ["Cars per scan", "Scores", "Detection"]
+    counts = page.locator(".series[data-name='cars detected'] polyline").get_attribute("points")
+    assert len(counts.split()) == 12
+    assert "recall within 40 m" in page.text_content(".panel-figures")
+    page.wait_for_selector("#scene-note:has-text('12 frames')")
+    for frame in (0, 7):
+        page.locator("#player-scrub").fill(str(frame))
+        scan = document["scans"][frame]
+        assert int(page.get_attribute("#job-scene canvas", "data-boxes")) == len(
+            scan["boxes"]
+        ) + len(scan["missed"])
+    assert sum(len(s["boxes"]) for s in document["scans"]) > 0
+    page.screenshot(path=str(tmp_path / "detect.png"), full_page=True)
+    if "camera-detect" not in jobs:
+        return
+    page = _open(browser, url, token, inspection, jobs["camera-detect"], errors)
+    _wait_for_pictures(page, 2, 4, 1241)  # at KITTI's size
+    figures = page.text_content(".panel-figures")
+    assert "unmeasured (the sequence has no labels" in figures and "time a scan" in figures
+    page.wait_for_selector("#scene-note:has-text('2 frames')")
+    page.screenshot(path=str(tmp_path / "camera-detect.png"), full_page=True)
+
+
+def _wait_for_pictures(page, pictures: int, layers: int, wider_than: int) -> None:
+    """The page's pictures drawn: ``pictures`` of them, ``layers`` images in all, each
+    loaded and wider than ``wider_than`` pixels."""
+    page.wait_for_selector(".picture")
+    assert page.locator(".picture").count() == pictures
+    wait_for(
+        lambda: page.evaluate(
+            "[...document.querySelectorAll('.picture img')]"
+            f".every(i => i.complete && i.naturalWidth > {wider_than})"
+        ),
+        what="the pictures' images",
+    )
+    assert page.locator(".picture img").count() == layers
+
+
+def _output_json(url: str, token: str, job_id: int, name: str) -> dict:
+    view = httpx.get(f"{url}/api/v1/jobs/{job_id}/view", headers=auth(token), timeout=30).json()
+    (artifact,) = [a for a in view["outputs"] if a["name"] == name]
+    return httpx.get(
+        f"{url}/api/v1/inspections/{artifact['inspection_id']}/artifacts/{artifact['id']}/content",
+        headers=auth(token),
+        timeout=30,
+    ).json()
+
+
 def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
     """Each result's glTF passes the Khronos validator and holds what it shows."""
     from tests.test_scene_export import validate
 
     http = httpx.Client(base_url=url, headers=auth(token), timeout=60)
     documents = {}
-    for step in ("odometry", "track", "depth", "real-track"):
+    for step in ("odometry", "track", "depth", "real-track", "detect", "camera-detect"):
         if step not in jobs:
             continue
         response = http.get(f"/api/v1/jobs/{jobs[step]['id']}/scene.glb", params={"points": 50_000})
@@ -241,6 +303,14 @@ def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
     if "depth" in documents:
         clouds = [n for n in documents["depth"]["nodes"] if n["name"].startswith("cloud-")]
         assert len(clouds) == 2
+    detect = documents["detect"]
+    found = _output_json(url, token, jobs["detect"]["id"], "detections.json")["scans"]
+    boxes = [n for n in detect["nodes"] if n["name"].startswith("detection-")]
+    assert len(boxes) == sum(len(s["boxes"]) for s in found)
+    assert {n["extras"]["verdict"] for n in boxes} <= {"found", "false", "unjudged"}
+    assert all(0 <= n["extras"]["score"] <= 1 for n in boxes)
+    wire = {n["mesh"] for n in detect["nodes"] if n["name"].startswith(("detection-", "missed-"))}
+    assert len(wire) <= 4  # the boxes of one verdict share one mesh
     track_id = jobs["track"]["id"]
     for points in (2000, 3000):
         http.get(f"/api/v1/jobs/{track_id}/scene.glb", params={"points": points}).raise_for_status()

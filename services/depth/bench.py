@@ -34,10 +34,11 @@ from contract.bench import print_verdict, say, write_document
 from services.depth.camera import kitti_camera
 from services.depth.data import FrameSet, load_frames
 from services.depth.default_model import PACKAGED
-from services.depth.drive import read_drive, read_image
+from services.depth.drive import read_drive
 from services.depth.metrics import METRICS, evaluate_image, mean_errors
 from services.depth.models import DepthModel
 from services.depth.training import DepthTrainConfig
+from services.lib.images import read_image
 from services.lib.kitti import read_depth_png
 from services.lib.process import available_cores, prepare_process
 

@@ -273,10 +273,11 @@ def predict_command(
 
     from services.depth.data import image_files
     from services.depth.default_model import default_model
-    from services.depth.drive import read_calibration, read_calibration_file, read_image
+    from services.depth.drive import read_calibration, read_calibration_file
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
     from services.depth.quantize import quantize_int8
+    from services.lib.images import read_image
 
     folder = images_dir / "image_02" if (images_dir / "image_02").is_dir() else images_dir
     if not folder.is_dir():

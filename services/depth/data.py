@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from contract.vocabulary import Progress
-from services.depth.drive import IMAGE_SUFFIXES, read_drive, read_image
+from services.depth.drive import IMAGE_SUFFIXES, read_drive
+from services.lib.images import read_image
 from services.lib.kitti import read_depth_png
 
 

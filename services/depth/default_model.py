@@ -80,7 +80,7 @@ class HeldOut:
 def read_held_out(folder: Path) -> HeldOut:
     """KITTI object-benchmark frames: ``image_2/NAME.png``, ``depth/NAME.png`` (uint16 m ×
     256) and ``calib/NAME.txt`` (``P2``); ValueError naming what is missing."""
-    from services.depth.drive import read_image
+    from services.lib.images import read_image
     from services.lib.kitti import read_depth_png, read_key_values
 
     folder = Path(folder)

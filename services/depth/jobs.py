@@ -134,9 +134,9 @@ def _scored(ctx: JobContext, item, image: Path, truth: InputArtifact, stem: str)
     crop) and the error map kept as an output."""
     import cv2
 
-    from services.depth.drive import read_image
     from services.depth.metrics import evaluate_image
     from services.depth.predict import error_preview
+    from services.lib.images import read_image
     from services.lib.kitti import read_depth_png
 
     gt_m = read_depth_png(truth.path)
@@ -160,10 +160,11 @@ def predict_job(ctx: JobContext) -> dict:
 
     from services.depth.data import image_files
     from services.depth.default_model import default_model
-    from services.depth.drive import read_calibration, read_calibration_file, read_image
+    from services.depth.drive import read_calibration, read_calibration_file
     from services.depth.models import DepthModel
     from services.depth.predict import predict_folder, resize_for
     from services.depth.quantize import quantize_int8
+    from services.lib.images import read_image
 
     given = inputs_of_kind(ctx, "model")
     images = inputs_of_kind(ctx, "image", "drive")

@@ -19,8 +19,8 @@ import numpy as np
 
 from contract.vocabulary import Progress
 from services.depth.camera import PinholeCamera
-from services.depth.drive import read_image
 from services.depth.models import DepthModel
+from services.lib.images import read_image
 from services.lib.kitti import write_depth_png
 
 CLOUD_MAX_DEPTH_M = 80.0

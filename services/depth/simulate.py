@@ -16,9 +16,9 @@ import numpy as np
 
 from contract.vocabulary import Say
 from services.depth.camera import KITTI_HEIGHT_M, PinholeCamera, kitti_camera
-from services.depth.drive import write_image
 from services.depth.render import render
 from services.depth.scene import random_scene
+from services.lib.images import write_image
 from services.lib.kitti import write_depth_png, write_poses
 
 FPS = 10.0

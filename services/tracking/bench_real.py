@@ -24,7 +24,7 @@ from contract.bench import say
 from services.lib import kitti
 from services.tracking.datasets import LabelledScan, labelled_scans
 from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, fine_tuned
-from services.tracking.detection_eval import combine, tally_scan
+from services.tracking.detection_eval import combine, match_scan
 from services.tracking.pipeline import Detector
 from services.tracking.sequence import Sequence, Tracklet, open_sequence, tracklets
 
@@ -109,7 +109,7 @@ def detection_scores(detector: Detector, items: list[LabelledScan]) -> dict:
         started = time.perf_counter()
         found = detector.detect(points)
         seconds += time.perf_counter() - started
-        tallies.append(tally_scan(found, item.labels, item.calibration))
+        tallies.append(match_scan(found, item.labels, item.calibration).tally())
     document = combine(tallies, 40.0, getattr(detector, "threshold", float("nan"))).document()
     document["ms_per_scan"] = round(1000 * seconds / max(len(items), 1), 1)
     return document

@@ -1,18 +1,41 @@
 """Detections as KITTI's result files (``vista tracking detect``): one ``label_2`` file a scan,
-a line a car in the camera's view, scored against labels when they are given."""
+a line a car in the camera's view, scored against labels when they are given; and a whole
+sequence's detections as one document (the ``tracking.detect`` job's DETECTIONS.json), with
+the camera images' boxes drawn.
+
+DETECTIONS.json::
+
+    {"detector": "learned", "threshold": 0.5, "near_m": 40.0, "ms_per_scan": 21.7,
+     "scans": [{"frame": 4, "ms": 20.9,
+                "boxes": [[x, y, z, l, w, h, yaw], …], "scores": [0.93, …],
+                "in_view": [true, …], "image_boxes": [[left, top, right, bottom], …],
+                "scored": true, "true_positive": [true, …], "ignored": [false, …],
+                "cars_near": 3, "found_near": 2, "missed": [[x, y, z, l, w, h, yaw], …]}, …]}
+
+Boxes are the LiDAR frame's (centre, metres, radians); ``image_boxes`` are pixels of image
+2 (KITTI's 1242 × 375 unless the job was given the images); ``true_positive``, ``ignored``,
+``cars_near`` (the labelled cars within ``near_m``), ``found_near`` (those a detection
+matched) and ``missed`` (the others) only for scans with labels (``scored``).
+"""
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from services.lib import kitti
-from services.tracking.detection_eval import combine, in_view, tally_scan
+from services.tracking.detection_eval import combine, in_view, match_scan
 from services.tracking.detections import Detections
+from services.tracking.pipeline import Detector
 from services.tracking.run import make_detector
+from services.tracking.sequence import Sequence
 
 IMAGE_SIZE = (1242, 375)
+NEAR_M = 40.0
+"""Recall is judged over the labelled cars this near (bird's-eye distance)."""
 
 
 def result_labels(detections: Detections, calibration: kitti.Calibration) -> kitti.Labels:
@@ -94,9 +117,139 @@ def detect_files(
         out_path.write_text(kitti.format_labels(rows, tracking=False))
         written += len(rows)
         if label_path is not None:
-            tallies.append(tally_scan(found, kitti.read_object_labels(label_path), calibration))
+            tallies.append(
+                match_scan(found, kitti.read_object_labels(label_path), calibration).tally()
+            )
     summary = f"{written} cars in view written to {out}"
     if tallies:
         scores = combine(tallies, 40.0, the_detector.threshold)
         summary += f"; against the labels of {len(tallies)} scans: {scores.describe()}"
     return summary
+
+
+def detect_sequence(
+    sequence: Sequence,
+    detector: Detector,
+    *,
+    image_sizes: dict[int, tuple[int, int]] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict:
+    """Every scan's detections (see DETECTIONS.json in the module docstring), matched to
+    the labels on the frames the sequence labels; ``image_sizes`` the (width, height) of
+    the camera images given, by frame."""
+    image_sizes = image_sizes or {}
+    scored = labelled_frames(sequence)
+    scans, tallies = [], []
+    for done, frame in enumerate(sequence.frames):
+        points = sequence.points(frame)
+        started = time.perf_counter()
+        found = detector.detect(points)
+        seconds = time.perf_counter() - started
+        image, _ = kitti.image_boxes(
+            found.boxes, sequence.calibration, image_sizes.get(frame, IMAGE_SIZE)
+        )
+        scan = {
+            "frame": frame,
+            "ms": round(1000 * seconds, 2),
+            "boxes": np.round(found.boxes, 3).tolist(),
+            "scores": np.round(found.scores, 3).tolist(),
+            "in_view": (
+                in_view(found.boxes, sequence.calibration, IMAGE_SIZE).tolist()
+                if len(found)
+                else []
+            ),
+            "image_boxes": np.round(image, 1).tolist(),
+            "scored": frame in scored,
+        }
+        if frame in scored:
+            labels = sequence.labels.select(sequence.labels.frame == frame)
+            match = match_scan(found, labels, sequence.calibration, near_m=NEAR_M)
+            tallies.append(match.tally())
+            scan |= {
+                "true_positive": match.true_positive.tolist(),
+                "ignored": match.ignored.tolist(),
+                "cars_near": tallies[-1].cars_near,
+                "found_near": tallies[-1].found_near,
+                "missed": np.round(match.cars[match.near & ~match.found], 3).tolist(),
+            }
+        scans.append(scan)
+        if progress is not None:
+            progress(done + 1, len(sequence.frames))
+    times = [s["ms"] for s in scans]
+    document = {
+        "detector": detector.name,
+        "threshold": float(detector.threshold),
+        "near_m": NEAR_M,
+        "ms_per_scan": round(float(np.mean(times)), 2),
+        "scans": scans,
+    }
+    if tallies:
+        document["evaluation"] = combine(tallies, NEAR_M, detector.threshold).document()
+    return document
+
+
+def labelled_frames(sequence: Sequence) -> set[int]:
+    """The frames a sequence's labels cover: every ``label_step``-th one from its first
+    labelled frame to its last (a labelled frame with no object in it included)."""
+    if sequence.labels is None or not len(sequence.labels):
+        return set()
+    first, last = int(sequence.labels.frame.min()), int(sequence.labels.frame.max())
+    return set(range(first, last + 1, sequence.label_step)) & set(sequence.frames)
+
+
+BOX_COLOURS_RGB = {
+    "found": (40, 200, 70),
+    "false": (230, 40, 40),
+    "unjudged": (255, 200, 0),
+    "missed": (170, 170, 170),
+}
+"""A detection that matched a labelled car, one that did not, one not judged (no labels,
+a van, DontCare, out of view), and a labelled car no detection found."""
+
+
+def box_verdicts(scan: dict) -> list[str]:
+    """Each detection of a DETECTIONS.json scan as a ``BOX_COLOURS_RGB`` key."""
+    if not scan.get("scored"):
+        return ["unjudged"] * len(scan["scores"])
+    return [
+        "found" if hit else "unjudged" if (skip or not seen) else "false"
+        for hit, skip, seen in zip(
+            scan["true_positive"], scan["ignored"], scan["in_view"], strict=True
+        )
+    ]
+
+
+def draw_detections(
+    image_rgb: np.ndarray, scan: dict, calibration: kitti.Calibration
+) -> np.ndarray:
+    """The camera image with the scan's boxes in view drawn on it (coloured by verdict,
+    each with its score) and the labelled cars it missed in grey."""
+    import cv2
+
+    out = np.ascontiguousarray(image_rgb.copy())
+    height, width = out.shape[:2]
+    thickness = max(1, round(width / 600))
+    shown = []
+    missed = np.asarray(scan.get("missed", []), dtype=np.float64).reshape(-1, 7)
+    if len(missed):
+        ahead = in_view(missed, calibration, (width, height))
+        boxes, _ = kitti.image_boxes(missed[ahead], calibration, (width, height))
+        shown += [(box, "missed", BOX_COLOURS_RGB["missed"]) for box in boxes]
+    found = sorted(  # the best drawn last, its score on top
+        zip(scan["scores"], scan["image_boxes"], scan["in_view"], box_verdicts(scan), strict=True),
+        key=lambda row: row[0],
+    )
+    shown += [
+        (box, f"{score:.2f}", BOX_COLOURS_RGB[verdict])
+        for score, box, seen, verdict in found
+        if seen
+    ]
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thickness
+    for box, text, colour in shown:
+        left, top, right, bottom = (int(round(v)) for v in box)
+        cv2.rectangle(out, (left, top), (right, bottom), colour, thickness)
+        (width_px, height_px), _ = cv2.getTextSize(text, font, scale, 1)
+        base = max(top, height_px + 4)  # the label sits on the box's top edge, inside the image
+        cv2.rectangle(out, (left, base - height_px - 4), (left + width_px + 4, base), colour, -1)
+        cv2.putText(out, text, (left + 2, base - 3), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    return out

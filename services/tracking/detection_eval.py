@@ -98,15 +98,44 @@ def in_view(boxes: np.ndarray, calibration: kitti.Calibration, size: tuple[int, 
     )
 
 
-def tally_scan(
+@dataclass(frozen=True)
+class ScanMatch:
+    """One scan's detections against its labels, detection by detection."""
+
+    in_view: np.ndarray
+    """(D,) bool: the detection lies in the camera's view (where precision is judged)."""
+    true_positive: np.ndarray
+    """(D,) bool: it matches a labelled car."""
+    ignored: np.ndarray
+    """(D,) bool: it overlaps a van or truck, or a DontCare region: counted neither way."""
+    cars: np.ndarray
+    """(C, 7) the labelled cars' LiDAR boxes."""
+    found: np.ndarray
+    """(C,) bool: a detection matched the car."""
+    near: np.ndarray
+    """(C,) bool: the car is within ``near_m`` (where recall is judged)."""
+
+    def tally(self) -> ScanTally:
+        view, hit = self.in_view, self.true_positive
+        return ScanTally(
+            cars_near=int(self.near.sum()),
+            found_near=int((self.near & self.found).sum()),
+            detections_in_view=int(view.sum()),
+            true_positives=int((view & hit).sum()),
+            false_positives=int((view & ~hit & ~self.ignored).sum()),
+            ignored=int((view & self.ignored).sum()),
+        )
+
+
+def match_scan(
     detections: Detections,
     labels: kitti.Labels,
     calibration: kitti.Calibration,
     *,
     near_m: float = 40.0,
     image_size: tuple[int, int] = (1242, 375),
-) -> ScanTally:
-    """Count one scan's matches (``detections`` already thresholded)."""
+) -> ScanMatch:
+    """Match one scan's detections (already thresholded) to its labelled cars, by score."""
     cars = kitti.camera_to_lidar(labels.of_type("Car").camera_box, calibration)
     neighbours = kitti.camera_to_lidar(labels.of_type(*NEIGHBOURS).camera_box, calibration)
     dont_care = labels.of_type(kitti.DONT_CARE).bbox
@@ -135,14 +164,7 @@ def tally_scan(
         ignored |= inside.any(axis=1)
     ignored &= ~true_positive
     near = np.hypot(cars[:, 0], cars[:, 1]) <= near_m if len(cars) else np.zeros(0, bool)
-    return ScanTally(
-        cars_near=int(near.sum()),
-        found_near=int((near & matched).sum()),
-        detections_in_view=int(view.sum()),
-        true_positives=int((view & true_positive).sum()),
-        false_positives=int((view & ~true_positive & ~ignored).sum()),
-        ignored=int((view & ignored).sum()),
-    )
+    return ScanMatch(view, true_positive, ignored, cars.reshape(-1, 7), matched, near)
 
 
 def combine(tallies: list[ScanTally], near_m: float, score_threshold: float) -> DetectionScores:

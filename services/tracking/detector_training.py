@@ -455,7 +455,7 @@ def _validation_scores(network, items: list[LabelledScan], threshold: float) -> 
     import torch
 
     from services.tracking.detect_learned import decode
-    from services.tracking.detection_eval import combine, tally_scan
+    from services.tracking.detection_eval import combine, match_scan
 
     tallies = []
     window = Window.around(FULL_VIEW)
@@ -463,5 +463,6 @@ def _validation_scores(network, items: list[LabelledScan], threshold: float) -> 
         points = kitti.read_velodyne(item.path)
         with torch.no_grad():
             output = network(torch.from_numpy(encode(points, window)[None]))[0].numpy()
-        tallies.append(tally_scan(decode(output, window, threshold), item.labels, item.calibration))
+        found = decode(output, window, threshold)
+        tallies.append(match_scan(found, item.labels, item.calibration).tally())
     return combine(tallies, 40.0, threshold).document() if tallies else {}

@@ -1,6 +1,7 @@
 """Job handlers ``tracking.track`` (a LiDAR sequence and the target in; TRACK.json, its plot and, with
-labels, the evaluation out) and ``tracking.train`` (labelled sequences in; an ONNX model and its
-training history out)."""
+labels, the evaluation out), ``tracking.detect`` (a sequence, and camera images as known, in;
+DETECTIONS.json and the images with their boxes out) and ``tracking.train`` (labelled
+sequences in; an ONNX model and its training history out)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from contract.context import (
 )
 from contract.errors import JobInputError
 from services.tracking.kinds import (
+    DETECTIONS,
+    DETECTIONS_IMAGE,
     DETECTOR_EPOCHS,
     EVALUATION,
     FINE_TUNE_EPOCHS,
@@ -126,6 +129,94 @@ def track_job(ctx: JobContext) -> dict:
                 "precision": evaluation["ope"]["precision"],
             }
     ctx.progress(1.0, f"{len(frames)} frames, detector on {document['detector_runs']}")
+    return summary
+
+
+def _images_by_frame(images: list[InputArtifact], frames: list[int]) -> dict[int, InputArtifact]:
+    """The camera images by the frame their name gives (``0000000042.png``: frame 42)."""
+    by_frame: dict[int, InputArtifact] = {}
+    for image in images:
+        stem = Path(image.name).stem
+        if not stem.isdigit():
+            raise JobInputError(
+                f"{image.label} is not named as a scan: name each camera image as its scan "
+                "(0000000042.png for velodyne/0000000042.bin)"
+            )
+        frame = int(stem)
+        if frame not in frames:
+            raise JobInputError(f"{image.label}: the sequence has no scan {frame}")
+        if frame in by_frame:
+            raise JobInputError(
+                f"{image.label} and {by_frame[frame].label} are both of scan {frame}"
+            )
+        by_frame[frame] = image
+    return by_frame
+
+
+def detect_job(ctx: JobContext) -> dict:
+    from services.lib.images import read_image, write_image
+    from services.lib.kitti import KittiError
+    from services.tracking.detect import detect_sequence, draw_detections
+    from services.tracking.run import make_detector
+    from services.tracking.sequence import open_sequence
+
+    params = ctx.params
+    sequence_input = one_input(ctx, "lidar", "the LiDAR sequence")
+    models = inputs_of_kind(ctx, "model")
+    if models and params.detector != "learned":
+        raise JobInputError(
+            "a `model` input is the learned detector's: leave it out for the geometric one"
+        )
+    ctx.progress(0.01, f"unpacking {sequence_input.name}")
+    folder = _unpacked(sequence_input, ctx.workdir / "sequence")
+    given = [sequence_input, *models]
+    try:
+        sequence = open_sequence(folder)
+        images = _images_by_frame(inputs_of_kind(ctx, "image"), sequence.frames)
+        pictures = {}
+        for frame, image in images.items():
+            try:
+                pictures[frame] = read_image(image.path)
+            except ValueError as exc:
+                raise JobInputError(f"{image.label}: not a readable image") from exc
+        detector = make_detector(params.detector, models[0].path if models else None, ctx.threads)
+        if params.threshold is not None:
+            detector.threshold = params.threshold
+        document = detect_sequence(
+            sequence,
+            detector,
+            image_sizes={f: (p.shape[1], p.shape[0]) for f, p in pictures.items()},
+            progress=lambda done, total: ctx.progress(
+                0.05 + 0.8 * done / max(total, 1), f"scan {done}/{total}"
+            ),
+        )
+    except (ValueError, KittiError) as exc:
+        raise JobInputError(in_user_words(str(exc), ctx, given)) from exc
+    document = {
+        "sequence": sequence_input.label,
+        "model": models[0].label if models else None,
+    } | document
+    ctx.progress(0.88, "writing DETECTIONS.json and the images")
+    ctx.add_artifact_json(document, kind=DETECTIONS.kind, name=DETECTIONS.file_name())
+    scans = {scan["frame"]: scan for scan in document["scans"]}
+    for frame, picture in pictures.items():
+        name = DETECTIONS_IMAGE.file_name(Path(images[frame].name).stem)
+        drawn = ctx.workdir / name
+        write_image(drawn, draw_detections(picture, scans[frame], sequence.calibration))
+        ctx.add_artifact_file(drawn, kind=DETECTIONS_IMAGE.kind, name=name, media_type="image/png")
+    found = sum(len(scan["scores"]) for scan in document["scans"])
+    summary = {
+        "scans": len(scans),
+        "detections": found,
+        "ms_per_scan": document["ms_per_scan"],
+    }
+    evaluation = document.get("evaluation")
+    if evaluation is not None:
+        summary |= {
+            "recall_near": evaluation["recall_near"],
+            "precision_in_view": evaluation["precision_in_view"],
+        }
+    ctx.progress(1.0, f"{found} cars in {len(scans)} scans")
     return summary
 
 

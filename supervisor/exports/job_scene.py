@@ -9,7 +9,8 @@ Node layout (names are stable; clients find things by them)::
     ├── <group>/<line>        line groups (a trajectory: ``path``, with σ in extras)
     ├── <points>              POINTS with COLOR_0; a drive's scans ``scan-<frame>``, each
     │                         shown for its frame by a STEP animation of its scale
-    └── <box>                 a wire box, its pose animated one key a frame
+    └── <box>                 a wire box, its pose animated one key a frame (a box of one
+                              frame, a detection, shown for it as a scan is)
 """
 
 from __future__ import annotations
@@ -91,8 +92,22 @@ def job_scene_glb(scene: JobScene, about: dict) -> bytes:
     add_line_groups(scene.lines, meshes, materials, nodes, root.children)
     for points in scene.points:
         _add_points(points, scene.frame_s, meshes, nodes, root.children, channels)
+    wire_boxes: dict[tuple, int] = {}  # a box's colour → the wire box mesh boxes of it share
     for box in scene.boxes:
-        _add_box(box, meshes, materials, nodes, root.children, channels)
+        if box.colour_rgba not in wire_boxes:
+            name = f"wire-box-{len(wire_boxes)}"
+            materials.append(Material(name, box.colour_rgba))
+            # the unit wire box in glTF's axes (its height along +Y), sized by its nodes
+            meshes.append(
+                Mesh(
+                    name,
+                    base_to_gltf(WIRE_BOX * 1000.0),
+                    material=len(materials) - 1,
+                    lines="strip",
+                )
+            )
+            wire_boxes[box.colour_rgba] = len(meshes) - 1
+        _add_box(box, wire_boxes[box.colour_rgba], scene.frame_s, nodes, root.children, channels)
     extras = {
         "units": "metre",
         "up": "+Y",
@@ -127,33 +142,35 @@ def _add_points(
         rgb = np.asarray(points.colours_rgb, np.uint8)
         colours = np.column_stack([rgb, np.full(len(rgb), 255, np.uint8)])
     meshes.append(Mesh(points.name, base_to_gltf(points.points_mm), colors=colours))
-    shown = points.shown_at_s
-    scale = None if shown is None or shown <= 0 else [0.0, 0.0, 0.0]
+    scale = None if points.shown_at_s is None or points.shown_at_s <= 0 else [0.0, 0.0, 0.0]
     children.append(len(nodes))
     nodes.append(Node(points.name, mesh=len(meshes) - 1, scale=scale, extras=points.extras))
-    if shown is None:
+    _show_for_frame(len(nodes) - 1, np.ones(3), points.shown_at_s, frame_s, channels)
+
+
+def _show_for_frame(
+    node: int, scale: np.ndarray, shown_at_s: float | None, frame_s: float, channels: list[Channel]
+) -> None:
+    """A node of one frame (``shown_at_s``; None: of every frame) scaled to nothing out of it
+    by a STEP animation of its scale."""
+    if shown_at_s is None:
         return
-    on, off = np.ones(3), np.zeros(3)
-    if shown <= 0:
-        times, values = [0.0, frame_s], [on, off]
+    off = np.zeros(3)
+    if shown_at_s <= 0:
+        times, values = [0.0, frame_s], [scale, off]
     else:
-        times, values = [0.0, shown, shown + frame_s], [off, on, off]
-    channels.append(Channel(len(nodes) - 1, "scale", np.array(times), np.array(values), "STEP"))
+        times, values = [0.0, shown_at_s, shown_at_s + frame_s], [off, scale, off]
+    channels.append(Channel(node, "scale", np.array(times), np.array(values), "STEP"))
 
 
 def _add_box(
     box: MovingBox,
-    meshes: list[Mesh],
-    materials: list[Material],
+    mesh: int,
+    frame_s: float,
     nodes: list[Node],
     children: list[int],
     channels: list[Channel],
 ) -> None:
-    materials.append(Material(box.name, box.colour_rgba))
-    # the wire box in glTF's axes (its height along +Y), scaled by the node
-    meshes.append(
-        Mesh(box.name, base_to_gltf(WIRE_BOX * 1000.0), material=len(materials) - 1, lines="strip")
-    )
     poses = np.tile(np.eye(4), (len(box.times_s), 1, 1))
     c, s = np.cos(box.yaw_rad), np.sin(box.yaw_rad)
     poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = c, -s, s, c
@@ -165,19 +182,22 @@ def _add_box(
     quaternions[1:] *= flips[:, None]
     length, width, height = (v / 1000 for v in box.size_mm)
     translation, rotation = keyed[0]
+    size = [length, height, width]
+    hidden = box.shown_at_s is not None and box.shown_at_s > 0
     children.append(len(nodes))
     nodes.append(
         Node(
             box.name,
-            mesh=len(meshes) - 1,
+            mesh=mesh,
             translation=translation,
             rotation=rotation,
-            scale=[length, height, width],
+            scale=[0.0, 0.0, 0.0] if hidden else size,
             extras={"size_m": [length, width, height], **box.extras},
         )
     )
+    node = len(nodes) - 1
+    _show_for_frame(node, np.array(size), box.shown_at_s, frame_s, channels)
     if len(box.times_s) > 1:
-        node = len(nodes) - 1
         times = np.asarray(box.times_s, float)
         channels.append(Channel(node, "translation", times, np.array([k[0] for k in keyed])))
         channels.append(Channel(node, "rotation", times, quaternions))

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from contract.views import JobFiles, Panel, Pictures
+from contract.views import JobFiles, Panel, Pictures, result_view
 from supervisor.artifacts.schemas import ArtifactOut
 from supervisor.engine.registry import get_kind
 from supervisor.jobs.schemas import JobOut
@@ -72,8 +72,9 @@ def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
     kind = get_kind(job.kind)
     view = kind.load_view() if kind is not None else None
     if view is None:
-        note = "this kind of job declares no view of its results: its files are listed"
-    elif job.status == "succeeded":
+        view = result_view
+        note = "this kind of job declares no view of its results: its result's figures and its files are shown"
+    if job.status == "succeeded":
         try:
             panels = view(files)
         except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:

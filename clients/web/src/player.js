@@ -87,13 +87,17 @@ export class JobPlayer {
       this.mixer.update(0);
     }
     let shown = 0;
+    let boxes = 0;
     this.root?.traverse((node) => {
-      if (!node.isPoints) return;
-      // a scan out of its frame is scaled to nothing: leave it out of the draw altogether
+      if (!node.isPoints && !node.isLine) return;
+      // a scan or a box out of its frame is scaled to nothing: leave it out of the draw
       node.visible = node.scale.x > 0;
-      if (node.visible) shown += node.geometry.attributes.position.count;
+      if (!node.visible) return;
+      if (node.isPoints) shown += node.geometry.attributes.position.count;
+      else if (node.userData.size_m) boxes += 1;
     });
     this.canvas.dataset.points = String(shown);
+    this.canvas.dataset.boxes = String(boxes);
     this.slider.value = String(this.frame);
     this.frameLabel.textContent = this.frames ? `frame ${this.frame + 1} / ${this.frames}` : "";
     this.dirty = true;

@@ -110,7 +110,7 @@ function plotPanel(plot) {
   root.append(grid);
   const legend = el("ul", { class: "plot-legend" });
   plot.lines.forEach((line, k) => {
-    const colour = COLOURS[k % COLOURS.length];
+    const colour = line.colour || COLOURS[k % COLOURS.length];
     const g = svg("g", { class: "series", "data-name": line.name });
     if (line.band && plot.equal_axes) {
       // the position's 1σ: a circle at each pose, together a band around the path
