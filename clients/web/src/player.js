@@ -70,7 +70,9 @@ export class JobPlayer {
     const size = box.getSize(new THREE.Vector3()).length() || 1;
     const centre = box.getCenter(new THREE.Vector3());
     this.orbit.target.copy(centre);
-    this.camera.position.copy(centre).add(new THREE.Vector3(-size * 0.35, size * 0.45, size * 0.35));
+    // a still scene (a path, clouds) seen whole; a drive from nearer, where its boxes are
+    const distance = clip ? 0.67 * size : 0.6 * size / Math.sin((this.camera.fov * Math.PI) / 360);
+    this.camera.position.copy(centre).add(new THREE.Vector3(-0.35, 0.45, 0.35).normalize().multiplyScalar(distance));
     this.camera.near = size / 2000;
     this.camera.far = size * 20;
     this.camera.updateProjectionMatrix();
