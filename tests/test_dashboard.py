@@ -21,7 +21,7 @@ from tests.conftest import add_user, auth, make_settings
 def demo_server(start_server, tmp_path, sqlite_url):
     settings = make_settings(tmp_path, sqlite_url, embedded_workers=2, extra_job_kinds=[])
     demo = run_demo(settings, spacing_mm=0.2, seed=0, timeout_s=300, say=lambda line: None)
-    server = start_server(settings, run_engine=False)
+    server = start_server(settings)  # its engine measures what a test adds
     runtime = Runtime.create(settings)
     other = add_user(runtime, "olga", "inspector", "olga-pw")
     yield server, demo, other
@@ -176,6 +176,62 @@ def test_review_an_inspection_in_the_browser(demo_server):
         assert page.input_value("input[name=password]") == ""
         assert httpx.get(f"{server.url}/api/v1/me", headers=auth(token)).status_code == 401
         assert errors == [] and csp == []
+
+
+def test_each_measured_run_shows_its_own_scene_and_an_open_page_follows(demo_server, tmp_path):
+    """A colleague measures a flat plate while the demo's inspection is open: the page
+    draws the plate's scene by itself (its one panel, none of the assembly's rings) and
+    lists that run's findings; the run picker brings back the assembly's scene and list,
+    and selecting a finding of another run shows that run's scene."""
+    from services.lib.pointcloud.ply import write_ply
+    from tests.plyfiles import plane_grid
+
+    server, demo, other_token = demo_server
+    inspection = demo["inspection"]["id"]
+    demo_run = demo["defects"][0]["run_id"]
+    with launch_chromium() as browser:
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        errors: list[str] = []
+        page.on("pageerror", lambda error: errors.append(str(error)))
+        page.goto(server.url + "/")
+        page.fill("input[name=username]", DEMO_USER)
+        page.fill("input[name=password]", demo["password"])
+        page.click("#sign-in-form button")
+        page.click(f"#inspection-table tr[data-id='{inspection}']")
+        page.wait_for_selector("#scene-status:has-text('4 panels')", timeout=30_000)
+        assert page.locator("#scene-run option").count() == 2  # the newest, and its run
+        assert page.locator("#defect-list .row").count() == len(demo["defects"])
+
+        plate = tmp_path / "plate.ply"
+        write_ply(plate, plane_grid(400, 400, spacing_mm=0.5))
+        http = httpx.Client(base_url=server.url, headers=auth(other_token), timeout=30)
+        cloud = http.post(
+            f"/api/v1/inspections/{inspection}/artifacts",
+            params={"kind": "cloud", "name": "plate.ply"},
+            content=plate.read_bytes(),
+            headers={"content-type": "application/x-ply"},
+        ).json()["id"]
+        run = http.post(
+            f"/api/v1/inspections/{inspection}/runs",
+            json={"steps": [{"name": "measure", "kind": "defects.measure", "inputs": [cloud]}]},
+        ).json()
+        page.wait_for_selector("#scene-status:has-text('1 panel (P0)')", timeout=60_000)
+        assert page.locator("#scene-run option").count() == 3
+        assert "plate.ply" in page.text_content("#scene-run option >> nth=0")
+        assert page.locator("#defect-list .row").count() == 0  # the plate's: none
+        assert f"run {run['id']}'s" in page.text_content("#defect-count")
+
+        page.select_option("#scene-run", str(demo_run))
+        page.wait_for_selector("#scene-status:has-text('4 panels')", timeout=30_000)
+        assert page.locator("#defect-list .row").count() == len(demo["defects"])
+        page.select_option("#scene-run", "")  # back to the newest: the plate
+        page.wait_for_selector("#scene-status:has-text('1 panel (P0)')", timeout=30_000)
+        target = demo["defects"][0]["id"]  # a finding of the assembly's run, by its link
+        page.goto(f"{server.url}/#/inspections/{inspection}/defects/{target}")
+        page.wait_for_selector("#scene-status:has-text('4 panels')", timeout=30_000)
+        assert page.input_value("#scene-run") == str(demo_run)
+        http.close()
+    assert errors == []
 
 
 def test_api_docs_work_offline(start_server, tmp_path, sqlite_url):

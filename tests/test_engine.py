@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import redis
 
-from services.lib.pointcloud.ply import validate_ply
+from services.lib.pointcloud.ply import validate_ply, write_ply
 from supervisor.engine.runner import run_job, sentence
 from tests.conftest import (
     BROKER_URL,
@@ -477,7 +477,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     assert produced == {"defects.json", "seam-profiles.png"}
 
     # A cloud that holds no panel assembly fails the job with the reason, storing nothing.
-    from services.lib.pointcloud.ply import PointCloud, write_ply
+    from services.lib.pointcloud.ply import PointCloud
 
     spray = tmp_path / "spray.ply"
     points = np.random.default_rng(0).uniform(0, 50, (5000, 3)).astype(np.float32)
@@ -487,6 +487,48 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     failed = engine.wait(lonely["jobs"][0]["id"])
     assert failed["status"] == "failed" and "no panel top" in failed["error"]
     assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []
+    _check_each_run_shows_its_own_scene(engine, run, defects, tmp_path)
+
+
+def _check_each_run_shows_its_own_scene(engine: Engine, first: dict, defects: list, tmp_path):
+    """A second cloud, a flat plate, measured after the assembly: the inspection's scene is
+    the plate's run (its cloud, its one panel, none of the assembly's rings), the
+    assembly's run keeps its own scene, and deleting the plate's cloud brings the
+    assembly's back — not the spray whose measurement failed."""
+    from tests.test_run_pages import gltf_json
+
+    plate_path = tmp_path / "plate.ply"
+    write_ply(plate_path, plane_grid(400, 400, spacing_mm=0.5))
+    plate = _upload(engine, plate_path, "cloud", "application/x-ply")
+    second = engine.run([{"name": "measure", "kind": "defects.measure", "inputs": [plate]}])
+    assert engine.wait(second["jobs"][0]["id"])["status"] == "succeeded"
+    base = f"/api/v1/inspections/{engine.inspection}"
+    runs = engine.http.get(f"{base}/scene-runs").json()
+    assert [r["run_id"] for r in runs] == [second["id"], first["id"]]  # not the failed spray
+    assert runs[0]["cloud_artifact_id"] == plate
+
+    def scene(**params) -> dict:
+        response = engine.http.get(f"{base}/scene.glb", params={"points": 200_000, **params})
+        assert response.status_code == 200, response.text
+        return gltf_json(response.content)
+
+    def rings(document: dict) -> set[int]:
+        names = [n["name"] for n in document["nodes"]]
+        return {int(n.removeprefix("defect-")) for n in names if n.startswith("defect-")}
+
+    newest = scene()
+    assert newest["asset"]["extras"]["scene_run"]["run_id"] == second["id"]
+    assert newest["asset"]["extras"]["cloud"]["artifact_id"] == plate
+    assert rings(newest) == set()  # the plate is flat: no finding, and none of the assembly's
+    outlines = [n["name"] for n in newest["nodes"] if n["name"].startswith("panel-")]
+    assert len(outlines) == 1
+    assembly = scene(run=first["id"])
+    assert rings(assembly) == {d["id"] for d in defects}
+    assert len([n for n in assembly["nodes"] if n["name"].startswith("panel-")]) == 4
+    assert engine.http.delete(f"{base}/artifacts/{plate}").status_code == 204
+    assert scene()["asset"]["extras"]["scene_run"]["run_id"] == first["id"]
+    gone = engine.http.get(f"{base}/scene.glb", params={"run": second["id"]})
+    assert gone.status_code == 404 and "cloud it measured was deleted" in gone.json()["detail"]
 
 
 def test_odometry_train_then_run_with_the_model_and_without(embedded_engine_factory, tmp_path):

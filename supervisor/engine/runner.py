@@ -32,7 +32,8 @@ from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
 from supervisor.engine.transient import is_transient
 from supervisor.engine.transitions import end_attempt
-from supervisor.models import Artifact, Inspection, Job, JobDependency
+from supervisor.jobs.service import input_artifacts
+from supervisor.models import Inspection, Job
 from supervisor.models._types import utcnow
 
 log = logging.getLogger("vista.engine")
@@ -124,12 +125,6 @@ def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:
 
 
 def _inputs(rt: Runtime, session: Session, job: Job) -> tuple[InputArtifact, ...]:
-    upstream = select(JobDependency.depends_on_id).where(JobDependency.job_id == job.id)
-    rows = session.scalars(
-        select(Artifact)
-        .where(or_(Artifact.id.in_(job.input_artifact_ids or []), Artifact.job_id.in_(upstream)))
-        .order_by(Artifact.id)
-    ).all()
     return tuple(
         InputArtifact(
             id=a.id,
@@ -140,7 +135,7 @@ def _inputs(rt: Runtime, session: Session, job: Job) -> tuple[InputArtifact, ...
             meta=dict(a.meta or {}),
             job_id=a.job_id,
         )
-        for a in rows
+        for a in input_artifacts(session, job)
     )
 
 

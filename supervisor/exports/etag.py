@@ -7,7 +7,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.models import Change
 
-SCENE_FORMAT = 2
+SCENE_FORMAT = 3
 """Bumped whenever the export itself changes, so caches do not serve the old layout."""
 
 
@@ -23,6 +23,11 @@ def scene_version(session: Session, *, inspection_id: int) -> int:
     )
 
 
-def scene_etag(session: Session, *, inspection_id: int, max_points: int) -> str:
+def scene_etag(
+    session: Session, *, inspection_id: int, max_points: int, run_id: int | None = None
+) -> str:
+    """The version of the scene of run ``run_id`` (None: the inspection's, which shows its
+    newest measured run)."""
     version = scene_version(session, inspection_id=inspection_id)
-    return f'"scene-{SCENE_FORMAT}-{inspection_id}-{version}-{max_points}"'
+    shown = f"run{run_id}" if run_id is not None else "newest"
+    return f'"scene-{SCENE_FORMAT}-{inspection_id}-{shown}-{version}-{max_points}"'

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+from datetime import datetime
+
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
+from pydantic import BaseModel
 
 from supervisor.deps import READ_ROLES, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
 from supervisor.exports.job_scene import job_scene_file
 from supervisor.exports.service import scene_file
 from supervisor.ids import IdPath
+from supervisor.inspections.service import get as get_inspection
 
 
 class SceneFile(FileResponse):
@@ -18,6 +22,19 @@ class SceneFile(FileResponse):
     trip through a worker thread."""
 
     chunk_size = 1024 * 1024
+
+
+class SceneRunOut(BaseModel):
+    run_id: int
+    run_name: str
+    job_id: int
+    """The job whose measurement the scene shows."""
+    kind: str
+    step: str
+    finished_at: datetime | None
+    cloud_artifact_id: int
+    """The cloud it measured."""
+    cloud_name: str
 
 
 router = APIRouter(tags=["exports"])
@@ -39,22 +56,46 @@ async def scene_glb(
     points: int | None = Query(
         None, ge=1000, le=20_000_000, description="Point budget (default: the server's)."
     ),
+    run: int | None = Query(
+        None,
+        ge=1,
+        le=2**63 - 1,
+        description="The measured run to show (`GET …/scene-runs` lists them); default the newest.",
+    ),
     runtime: Runtime = Depends(get_runtime),
     _: CurrentUser = Depends(readers),
 ) -> Response:
-    """The inspection as glTF 2.0 in metres, +Y up (converted from the base frame, mm, +Z
-    up; `asset.extras.gltf_T_base` holds the conversion): the stitched cloud as points with
-    colours, panel meshes, a node `defect-<id>` per defect with its data in `extras`, and a
-    node `marker-<name>` per image marker. Send the ETag back in `If-None-Match` to get 304
+    """The scene of what is judged, as glTF 2.0 in metres, +Y up (converted from the base
+    frame, mm, +Z up; `asset.extras.gltf_T_base` holds the conversion): the cloud one run
+    measured as points with colours, what its measurement drew on it (panel outlines,
+    seams), panel meshes, a node `defect-<id>` per defect that run found (and per defect
+    added by hand) with its data in `extras`, and a node `marker-<name>` per image marker;
+    `asset.extras.scene_run` names the run. Without `run`, the newest measured run's (before
+    any measurement: the newest cloud). Send the ETag back in `If-None-Match` to get 304
     while nothing in the scene changed."""
     max_points = points or runtime.settings.scene_max_points
     etag, path = await run_in_threadpool(
-        scene_file, runtime, inspection_id, max_points, request.headers.get("if-none-match")
+        scene_file, runtime, inspection_id, max_points, request.headers.get("if-none-match"), run
     )
     headers = {"ETag": etag, "Cache-Control": "private, no-cache"}
     if path is None:
         return Response(status_code=304, headers=headers)
     return SceneFile(path, media_type=GLB_MEDIA_TYPE, headers=headers)
+
+
+@router.get("/inspections/{inspection_id}/scene-runs", response_model=list[SceneRunOut])
+def list_scene_runs(
+    inspection_id: IdPath,
+    runtime: Runtime = Depends(get_runtime),
+    _: CurrentUser = Depends(readers),
+) -> list[dict]:
+    """The inspection's measured runs, newest first — each a scene of its own (`scene.glb?run=`):
+    the run, its measuring job, the cloud it read."""
+    from supervisor.exports.scene import scene_run_doc, scene_runs
+
+    with runtime.db.read() as session:
+        get_inspection(session, inspection_id=inspection_id)
+        return [scene_run_doc(r) for r in scene_runs(session, inspection_id=inspection_id)]
 
 
 @router.get(

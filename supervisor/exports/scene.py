@@ -1,10 +1,14 @@
-"""An inspection's 3D scene as glTF: the stitched cloud decimated to a budget, panel meshes
-where a job made them, one marker node per defect and one anchor node per image marker.
+"""An inspection's 3D scene as glTF: the scene of what is judged — one run's measurement:
+the cloud its measuring job read, decimated to a budget, what that job presents on it
+(outlines, seams), the defects that run found (and those added by hand), panel meshes, and
+one anchor node per image marker. The inspection's scene is its newest measured run's; any
+other measured run's scene is asked for by its id (``scene_runs`` lists them). Before any
+measurement the scene is the newest uploaded cloud with the defects added by hand.
 
 Node layout (names are stable; clients find things by them)::
 
-    inspection-<id>
-    ├── cloud                 POINTS with COLOR_0 (the newest `cloud` artifact)
+    inspection-<id>           extras: the run shown (``scene_run``)
+    ├── cloud                 POINTS with COLOR_0 (the cloud the run measured)
     ├── panels-<artifact id>  triangles (each `mesh` artifact), if any
     ├── <group>               each job kind's presented results, drawn from the newest
     │   └── <line>            output it reads (``contract.scene``): the measurement's
@@ -19,17 +23,18 @@ Node layout (names are stable; clients find things by them)::
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
 
 from contract.kinds import Presenter
 from contract.scene import LineGroup
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 from supervisor.defects.service import reading
-from supervisor.engine.registry import all_kinds, load_kinds
+from supervisor.engine.registry import all_kinds, get_kind, load_kinds
 from supervisor.exports.gltf import (
     GLTF_R_BASE,
     GLTF_T_BASE,
@@ -42,8 +47,10 @@ from supervisor.exports.gltf import (
     rotation_from_y,
     write_glb,
 )
+from supervisor.jobs.service import input_artifacts
 from supervisor.judgments.consensus import consensus_docs
-from supervisor.models import Artifact, Defect, Inspection
+from supervisor.models import Artifact, Defect, Inspection, Job, Run
+from supervisor.problems import Problem
 from supervisor.storage import Storage
 
 MARKER_MM = (6.0, 40.0)
@@ -77,6 +84,83 @@ def rgba(hex_colour: str) -> tuple[float, float, float, float]:
 
 
 @dataclass(frozen=True)
+class SceneRun:
+    """A run whose measurement a scene can show: its newest succeeded job of a kind that
+    presents results, and the cloud that job read."""
+
+    run_id: int
+    run_name: str
+    job_id: int
+    kind: str
+    step: str
+    finished_at: datetime | None
+    cloud_artifact_id: int
+    cloud_name: str
+
+
+def scene_runs(session: Session, *, inspection_id: int) -> list[SceneRun]:
+    """The inspection's measured runs, newest first (a run whose cloud was deleted has no
+    scene left to show and is left out)."""
+    kinds = {presenter_kind.name for presenter_kind in all_presenting_kinds()}
+    jobs = session.scalars(
+        select(Job)
+        .where(Job.inspection_id == inspection_id, Job.kind.in_(kinds), Job.status == "succeeded")
+        .order_by(Job.finished_at.desc(), Job.id.desc())
+    ).all()
+    runs: dict[int, SceneRun] = {}
+    for job in jobs:
+        if job.run_id in runs:
+            continue
+        clouds = [a for a in input_artifacts(session, job) if a.kind == "cloud"]
+        if not clouds:
+            continue
+        run_name = session.scalar(select(Run.name).where(Run.id == job.run_id)) or ""
+        runs[job.run_id] = SceneRun(
+            job.run_id,
+            run_name,
+            job.id,
+            job.kind,
+            job.step,
+            job.finished_at,
+            clouds[0].id,
+            clouds[0].name,
+        )
+    return list(runs.values())
+
+
+def scene_run_doc(run: SceneRun | None) -> dict | None:
+    """The run a scene shows, JSON-able (None: no measurement yet)."""
+    if run is None:
+        return None
+    return {
+        "run_id": run.run_id,
+        "run_name": run.run_name,
+        "job_id": run.job_id,
+        "kind": run.kind,
+        "step": run.step,
+        "finished_at": run.finished_at.isoformat() if run.finished_at else None,
+        "cloud_artifact_id": run.cloud_artifact_id,
+        "cloud_name": run.cloud_name,
+    }
+
+
+def shown_run(session: Session, *, inspection_id: int, run_id: int | None) -> SceneRun | None:
+    """The run a scene shows: ``run_id``'s (a 404 naming why when it has none), else the
+    newest measured run's; None before any measurement."""
+    runs = scene_runs(session, inspection_id=inspection_id)
+    if run_id is None:
+        return runs[0] if runs else None
+    for run in runs:
+        if run.run_id == run_id:
+            return run
+    raise Problem(
+        404,
+        f"Run {run_id} of inspection {inspection_id} has no scene: it is not one of its runs, "
+        "its measurement has not succeeded, or the cloud it measured was deleted.",
+    )
+
+
+@dataclass(frozen=True)
 class SceneSource:
     """What one export reads: rows and files, gathered in one database session."""
 
@@ -88,10 +172,21 @@ class SceneSource:
     cloud_artifact_id: int | None
     meshes: list[tuple[int, Path]]
     presented: tuple[tuple[Presenter, Path], ...] = ()
-    """Each presenting job kind with the newest file it reads, if the inspection has one."""
+    """The measuring job's kind's presenter with the file it reads."""
+    run: SceneRun | None = None
 
 
-def gather(session: Session, storage: Storage, *, inspection: Inspection) -> SceneSource:
+def gather(
+    session: Session, storage: Storage, *, inspection: Inspection, run: SceneRun | None
+) -> SceneSource:
+    """The scene of ``run`` (``shown_run``): its cloud, its job's presented results, its
+    defects and those added by hand; without a run, the newest cloud, the results and the
+    defects added by hand."""
+    belongs = (
+        Defect.run_id.is_(None)
+        if run is None
+        else or_(Defect.run_id.is_(None), Defect.run_id == run.run_id)
+    )
     defects = [
         row._asdict()
         for row in session.execute(
@@ -108,26 +203,43 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
                 Defect.extent_mm,
                 Defect.confidence,
             )
-            .where(Defect.inspection_id == inspection.id)
+            .where(Defect.inspection_id == inspection.id, belongs)
             .order_by(Defect.id)
         )
     ]
     consensus = {c["defect_id"]: c for c in consensus_docs(session, [d["id"] for d in defects])}
-    artifacts = session.execute(
-        select(Artifact.id, Artifact.kind, Artifact.storage_uri)
+    run_jobs = select(Job.id).where(Job.run_id == (run.run_id if run else -1))
+    meshes = session.execute(
+        select(Artifact.id, Artifact.storage_uri)
         .where(
             Artifact.inspection_id == inspection.id,
-            Artifact.kind.in_(("cloud", "mesh")),
+            Artifact.kind == "mesh",
             Artifact.media_type == PLY_MEDIA_TYPE,
+            or_(Artifact.job_id.is_(None), Artifact.job_id.in_(run_jobs)),
         )
         .order_by(Artifact.id)
     ).all()
+    clouds = select(Artifact).where(
+        Artifact.inspection_id == inspection.id,
+        Artifact.kind == "cloud",
+        Artifact.media_type == PLY_MEDIA_TYPE,
+    )
+    if run is None:  # no measurement yet: the newest cloud, and results uploaded by hand
+        cloud = session.scalar(clouds.order_by(Artifact.id.desc()).limit(1))
+        presenters = [k.present for k in all_presenting_kinds()]
+        reads = Artifact.job_id.is_(None)
+    else:
+        cloud = session.scalar(clouds.where(Artifact.id == run.cloud_artifact_id))
+        kind = get_kind(run.kind)
+        presenters = [kind.present] if kind is not None and kind.present is not None else []
+        reads = Artifact.job_id == run.job_id
     presented = []
-    for presenter in presenters():
+    for presenter in dict.fromkeys(presenters):
         newest = session.scalar(
             select(Artifact.storage_uri)
             .where(
                 Artifact.inspection_id == inspection.id,
+                reads,
                 Artifact.kind == presenter.reads.kind,
                 Artifact.name == presenter.reads.file_name(),
             )
@@ -136,24 +248,24 @@ def gather(session: Session, storage: Storage, *, inspection: Inspection) -> Sce
         )
         if newest:
             presented.append((presenter, storage.path(newest)))
-    clouds = [a for a in artifacts if a.kind == "cloud"]
     return SceneSource(
         inspection_id=inspection.id,
         markers=list(inspection.markers or []),
         defects=defects,
         consensus=consensus,
-        cloud_path=storage.path(clouds[-1].storage_uri) if clouds else None,
-        cloud_artifact_id=clouds[-1].id if clouds else None,
-        meshes=[(a.id, storage.path(a.storage_uri)) for a in artifacts if a.kind == "mesh"],
+        cloud_path=storage.path(cloud.storage_uri) if cloud else None,
+        cloud_artifact_id=cloud.id if cloud else None,
+        meshes=[(a.id, storage.path(a.storage_uri)) for a in meshes],
         presented=tuple(presented),
+        run=run,
     )
 
 
-def presenters() -> list[Presenter]:
-    """The job kinds' presenters, once each (kinds of one service may share one)."""
+def all_presenting_kinds() -> list:
+    """The job kinds that present results in an inspection's scene."""
     if not all_kinds():
         load_kinds()
-    return list(dict.fromkeys(k.present for k in all_kinds() if k.present is not None))
+    return [k for k in all_kinds() if k.present is not None]
 
 
 def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray:
@@ -250,6 +362,7 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
         "gltf_T_base": GLTF_T_BASE.tolist(),
         "inspection_id": source.inspection_id,
         "scene_etag": etag,
+        "scene_run": scene_run_doc(source.run),
     }
     if source.cloud_path is not None:
         cloud = read_ply_sample(source.cloud_path, max_points)

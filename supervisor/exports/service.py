@@ -18,28 +18,37 @@ def _matches(if_none_match: str | None, etag: str) -> bool:
 
 
 def scene_file(
-    runtime: Runtime, inspection_id: int, max_points: int, if_none_match: str | None
+    runtime: Runtime,
+    inspection_id: int,
+    max_points: int,
+    if_none_match: str | None,
+    run_id: int | None = None,
 ) -> tuple[str, str | None]:
-    """(ETag, cached file) of the scene as it is now, built if not cached yet; no file
-    when the client has this version already."""
-    from supervisor.exports.scene import build_scene, gather
+    """(ETag, cached file) of the scene of run ``run_id`` (None: the inspection's newest
+    measured run's) as it is now, built if not cached yet; no file when the client has this
+    version already. One file is kept per run shown."""
+    from supervisor.exports.scene import build_scene, gather, shown_run
 
     with runtime.db.read() as session:
         inspection = get_inspection(session, inspection_id=inspection_id)
-        etag = scene_etag(session, inspection_id=inspection_id, max_points=max_points)
+        run = shown_run(session, inspection_id=inspection_id, run_id=run_id)
+        etag = scene_etag(
+            session, inspection_id=inspection_id, max_points=max_points, run_id=run_id
+        )
         if _matches(if_none_match, etag):
             return etag, None
         folder = runtime.storage.export_dir(inspection_id)
-        path = folder / f"scene-{hashlib.sha256(etag.encode()).hexdigest()[:24]}.glb"
+        shown = f"run{run_id}" if run_id is not None else "newest"
+        path = folder / f"scene-{shown}-{hashlib.sha256(etag.encode()).hexdigest()[:24]}.glb"
         if path.exists():
             return etag, str(path)
-        source = gather(session, runtime.storage, inspection=inspection)
+        source = gather(session, runtime.storage, inspection=inspection, run=run)
     data = build_scene(source, max_points=max_points, etag=etag)
     folder.mkdir(parents=True, exist_ok=True)
     temp = path.with_suffix(f".{os.getpid()}.part")
     temp.write_bytes(data)
     os.replace(temp, path)
-    for old in folder.glob("scene-*.glb"):
+    for old in folder.glob(f"scene-{shown}-*.glb"):
         if old != path:
             old.unlink(missing_ok=True)
     return etag, str(path)

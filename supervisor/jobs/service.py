@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pydantic import BaseModel, ValidationError
-from sqlalchemy import select, update
+from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
 from contract.kinds import JobKind
@@ -162,6 +162,20 @@ def get_run(session: Session, *, run_id: int) -> Run:
         raise not_found("run", run_id)
     ensure_live(session, run.inspection_id, "run", run_id)
     return run
+
+
+def input_artifacts(session: Session, job: Job) -> list[Artifact]:
+    """What a job reads: the artifacts its step named and its predecessors' outputs."""
+    upstream = select(JobDependency.depends_on_id).where(JobDependency.job_id == job.id)
+    return list(
+        session.scalars(
+            select(Artifact)
+            .where(
+                or_(Artifact.id.in_(job.input_artifact_ids or []), Artifact.job_id.in_(upstream))
+            )
+            .order_by(Artifact.id)
+        ).all()
+    )
 
 
 def get_job(session: Session, *, job_id: int) -> Job:

@@ -16,7 +16,7 @@ from contract.views import JobFiles, Panel, Pictures, result_view
 from supervisor.artifacts.schemas import ArtifactOut
 from supervisor.engine.registry import get_kind
 from supervisor.jobs.schemas import JobOut
-from supervisor.jobs.service import get_job, job_out
+from supervisor.jobs.service import get_job, input_artifacts, job_out
 from supervisor.models import Artifact, Job, JobLogLine
 from supervisor.storage import Storage
 
@@ -54,9 +54,7 @@ def job_files(
     outputs = session.scalars(
         select(Artifact).where(Artifact.job_id == job.id).order_by(Artifact.id)
     ).all()
-    given = session.scalars(
-        select(Artifact).where(Artifact.id.in_(job.input_artifact_ids or [])).order_by(Artifact.id)
-    ).all()
+    given = input_artifacts(session, job)
     files = JobFiles(
         job.result or {},
         {a.name: storage.path(a.storage_uri) for a in outputs},

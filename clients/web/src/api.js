@@ -66,7 +66,8 @@ export const api = {
     link.remove();
     setTimeout(() => URL.revokeObjectURL(url), 10_000);
   },
-  scene: (id, points) => request("GET", `/inspections/${id}/scene.glb`, { raw: true, params: { points } }),
+  scene: (id, points, run) => request("GET", `/inspections/${id}/scene.glb`, { raw: true, params: { points, run } }),
+  sceneRuns: (id) => request("GET", `/inspections/${id}/scene-runs`),
 };
 
 // Server-sent events of one job through fetch (EventSource cannot send the token).

@@ -35,6 +35,9 @@ const state = {
   jobStreams: new AbortController(),
   scene: null,
   sceneFacts: { markers: 0, panels: 0, seams: 0 }, // what the scene on show holds
+  sceneRuns: [], // the measured runs, newest first: each has a scene of its own
+  scenePick: null, // the run picked (null: the newest measured run)
+  sceneEtag: null, // the scene's version in the last sync page: a new one reloads it
   stopJob: null, // ends the live updates of the job page on show
 };
 
@@ -174,6 +177,9 @@ function resetInspection() {
   state.cursor = null;
   state.selected = null;
   state.sceneFacts = { markers: 0, panels: 0, seams: 0 };
+  state.sceneRuns = [];
+  state.scenePick = null;
+  state.sceneEtag = null;
   $("#detail").hidden = true;
 }
 
@@ -212,10 +218,12 @@ async function showInspection(id, defectId) {
     }
     const page = await syncing;
     if (!page) return;
+    state.sceneEtag = page.scene_etag;
     renderCrumbs();
     renderList();
     performance.mark("vista:list-drawn");
     loadScene(id, preview);
+    loadSceneRuns(id);
     loadTimeline();
     loadFeedback();
     state.poll = setInterval(live, LIVE_POLL_MS);
@@ -245,6 +253,16 @@ async function live() {
       renderList();
       if (state.selected) renderDetail();
       loadFeedback();
+    }
+    if (page.scene_etag !== state.sceneEtag) { // something the scene shows changed
+      state.sceneEtag = page.scene_etag;
+      const newest = state.sceneRuns[0]?.job_id;
+      await loadSceneRuns(state.inspection.id);
+      // a new measurement, or a first cloud, is drawn at once (a judgment is not redrawn)
+      const measured = state.sceneRuns[0]?.job_id !== newest;
+      if (state.scenePick === null && (measured || !state.sceneFacts.points)) {
+        loadScene(state.inspection.id, api.scene(state.inspection.id, PREVIEW_POINTS));
+      }
     }
   } catch { /* offline for a moment: the next poll catches up */ }
 }
@@ -277,8 +295,10 @@ function visibleDefects() {
   const status = $("#filter-status").value;
   const severity = $("#filter-severity").value;
   const wanted = $("#filter-consensus").value;
+  const run = shownRun();
   const rows = [...state.defects.values()].filter((d) => {
     const consensus = state.consensus.get(d.id);
+    if (!ofShownRun(d, run)) return false; // another run's scene
     if (type && d.type !== type) return false;
     if (status && d.status !== status) return false;
     if (severity === "out" && d.severity === "info") return false;
@@ -325,14 +345,18 @@ function rowFor(defect) {
 function renderList() {
   const rows = visibleDefects();
   $("#defect-list").replaceChildren(...rows.map(rowFor));
-  $("#defect-count").textContent = `${rows.length} of ${state.defects.size} defects`;
+  const run = shownRun();
+  const ofRun = run === null ? "" : ` · run ${run}'s and those added by hand`;
+  $("#defect-count").textContent = `${rows.length} of ${state.defects.size} defects${ofRun}`;
   $("#defects-empty").hidden = state.defects.size > 0;
   renderLegend();
 }
 
 // The scene's legend: the colour of every type on show, and of the lines.
 function renderLegend() {
-  const types = TYPES.filter((t) => [...state.defects.values()].some((d) => d.type === t));
+  const run = shownRun();
+  const shown = [...state.defects.values()].filter((d) => ofShownRun(d, run));
+  const types = TYPES.filter((t) => shown.some((d) => d.type === t));
   const entry = (colour, text, shape) => el("li", {}, el("span", { class: `swatch ${shape}`, style: `--swatch:${colour}` }), text);
   $("#legend").replaceChildren(
     ...types.map((t) => entry(TYPE_COLORS[t], t, "ring")),
@@ -344,6 +368,10 @@ function renderLegend() {
 
 function select(defectId, fly) {
   if (!state.defects.has(defectId)) return;
+  const run = state.defects.get(defectId).run_id;
+  if (run !== null && run !== shownRun() && state.sceneRuns.some((r) => r.run_id === run)) {
+    pickSceneRun(run); // a finding is shown on the cloud its run measured
+  }
   if (state.selected !== defectId) resetJudgeForm(defectId);
   state.selected = defectId;
   for (const row of document.querySelectorAll("#defect-list .row")) {
@@ -452,7 +480,8 @@ async function loadScene(id, preview) {
   $("#scene-empty").hidden = true;
   const hint = "drag to orbit, click a marker to select it";
   // The measured panels are outlined and labelled P0, P1, …: the ids findings refer to.
-  const shown = (scene) => `${scene.markers} markers · ${scene.panels ? `${scene.panels} panels (P0…)` : "no measured panels"}`;
+  const panels = (n) => (n === 1 ? "1 panel (P0)" : `${n} panels (P0…)`);
+  const shown = (scene) => `${scene.markers} markers · ${scene.panels ? panels(scene.panels) : "no measured panels"}`;
   try {
     const first = await showScene(id, preview, { frame: true, mark: "vista:scene-drawn" });
     if (!first) return;
@@ -469,12 +498,51 @@ async function loadScene(id, preview) {
       return;
     }
     status.textContent = `${shown(first)} · loading the full cloud… · ${hint}`;
-    const full = await showScene(id, api.scene(id), { frame: false, mark: "vista:scene-full-drawn" });
+    const full = await showScene(id, api.scene(id, undefined, state.scenePick ?? undefined), { frame: false, mark: "vista:scene-full-drawn" });
     if (full) status.textContent = `${shown(full)} · ${hint}`;
   } catch (error) {
     status.textContent = `the scene could not be shown: ${error.message}`;
   }
 }
+
+// The run whose scene is on show: the one picked, else the newest measured (null: none).
+function shownRun() {
+  return state.scenePick ?? state.sceneRuns[0]?.run_id ?? null;
+}
+
+// A finding is on that run's scene when the run found it, or a reviewer added it by hand.
+function ofShownRun(defect, run) {
+  return run === null || defect.run_id === null || defect.run_id === run;
+}
+
+async function loadSceneRuns(id) {
+  try {
+    const runs = await api.sceneRuns(id);
+    if (state.inspection?.id !== id) return;
+    state.sceneRuns = runs;
+    if (state.scenePick !== null && !runs.some((r) => r.run_id === state.scenePick)) state.scenePick = null;
+    const label = (r) => `run ${r.run_id}${r.run_name ? ` (${r.run_name})` : ""} · ${r.step} of ${r.cloud_name} · ${new Date(r.finished_at).toLocaleString()}`;
+    $("#scene-run").replaceChildren(
+      el("option", { value: "" }, runs.length ? `the newest: ${label(runs[0])}` : "no measured run"),
+      ...runs.map((r) => el("option", { value: String(r.run_id) }, label(r))),
+    );
+    $("#scene-run").value = state.scenePick === null ? "" : String(state.scenePick);
+    $("#scene-run-box").hidden = runs.length === 0;
+    renderList();
+  } catch { /* the picker stays as it was; the next change tries again */ }
+}
+
+function pickSceneRun(run) {
+  state.scenePick = run;
+  $("#scene-run").value = run === null ? "" : String(run);
+  renderList();
+  loadScene(state.inspection.id, api.scene(state.inspection.id, PREVIEW_POINTS, run ?? undefined));
+}
+
+$("#scene-run").addEventListener("change", () => {
+  const value = $("#scene-run").value;
+  pickSceneRun(value ? Number(value) : null);
+});
 
 // The scene's GLB drawn in place of the last one, unless the user has moved on meanwhile.
 async function showScene(id, pending, { frame, mark }) {
