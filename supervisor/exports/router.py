@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from datetime import datetime
-
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
-from pydantic import BaseModel
 
 from supervisor.deps import READ_ROLES, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
 from supervisor.exports.job_scene import job_scene_file
+from supervisor.exports.scene import SceneRun, scene_runs
 from supervisor.exports.service import scene_file
 from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
@@ -22,19 +20,6 @@ class SceneFile(FileResponse):
     trip through a worker thread."""
 
     chunk_size = 1024 * 1024
-
-
-class SceneRunOut(BaseModel):
-    run_id: int
-    run_name: str
-    job_id: int
-    """The job whose measurement the scene shows."""
-    kind: str
-    step: str
-    finished_at: datetime | None
-    cloud_artifact_id: int
-    """The cloud it measured."""
-    cloud_name: str
 
 
 router = APIRouter(tags=["exports"])
@@ -83,19 +68,17 @@ async def scene_glb(
     return SceneFile(path, media_type=GLB_MEDIA_TYPE, headers=headers)
 
 
-@router.get("/inspections/{inspection_id}/scene-runs", response_model=list[SceneRunOut])
+@router.get("/inspections/{inspection_id}/scene-runs", response_model=list[SceneRun])
 def list_scene_runs(
     inspection_id: IdPath,
     runtime: Runtime = Depends(get_runtime),
     _: CurrentUser = Depends(readers),
-) -> list[dict]:
+) -> list[SceneRun]:
     """The inspection's measured runs, newest first — each a scene of its own (`scene.glb?run=`):
     the run, its measuring job, the cloud it read."""
-    from supervisor.exports.scene import scene_run_doc, scene_runs
-
     with runtime.db.read() as session:
         get_inspection(session, inspection_id=inspection_id)
-        return [scene_run_doc(r) for r in scene_runs(session, inspection_id=inspection_id)]
+        return scene_runs(session, inspection_id=inspection_id)
 
 
 @router.get(

@@ -22,7 +22,7 @@ Node layout (names are stable; clients find things by them)::
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -91,10 +91,12 @@ class SceneRun:
     run_id: int
     run_name: str
     job_id: int
+    """The measuring job."""
     kind: str
     step: str
     finished_at: datetime | None
     cloud_artifact_id: int
+    """The cloud it read."""
     cloud_name: str
 
 
@@ -132,16 +134,7 @@ def scene_run_doc(run: SceneRun | None) -> dict | None:
     """The run a scene shows, JSON-able (None: no measurement yet)."""
     if run is None:
         return None
-    return {
-        "run_id": run.run_id,
-        "run_name": run.run_name,
-        "job_id": run.job_id,
-        "kind": run.kind,
-        "step": run.step,
-        "finished_at": run.finished_at.isoformat() if run.finished_at else None,
-        "cloud_artifact_id": run.cloud_artifact_id,
-        "cloud_name": run.cloud_name,
-    }
+    return asdict(run) | {"finished_at": run.finished_at.isoformat() if run.finished_at else None}
 
 
 def shown_run(session: Session, *, inspection_id: int, run_id: int | None) -> SceneRun | None:
