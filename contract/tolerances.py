@@ -111,3 +111,45 @@ def tolerances_of(limits: Limits) -> Tolerances:
     for section, key, field in FIELDS.values():
         document.setdefault(section, {})[key] = getattr(limits, field)
     return Tolerances.model_validate(document)
+
+
+def severity(value: float, limit: float, *, above: bool) -> str:
+    """info inside the limit; beyond it minor (< 25 % of the limit), major (< 100 %),
+    critical."""
+    excess = value - limit if above else limit - value
+    if excess <= 0:
+        return "info"
+    ratio = excess / max(limit, 0.1)
+    return "minor" if ratio < 0.25 else "major" if ratio < 1.0 else "critical"
+
+
+@dataclass(frozen=True)
+class Judged:
+    value: float
+    """The value judged (a gap: the widest or the narrowest of its seam)."""
+    limit: float
+    severity: str
+
+
+def judge(
+    finding_type: str, value: float, limits: Limits, gap_range_mm: list[float] | None = None
+) -> Judged | None:
+    """A stored finding judged against ``limits`` as ``measure`` judges it: a step by its
+    size either way, a gap by the range of its seam's gaps (``gap_range_mm``: the narrowest
+    and the widest) — the widest against the maximum unless only the narrowest is out —
+    anything else against its upper limit. None for a gap stored without its range: it
+    cannot be judged again without measuring."""
+    if finding_type == "gap":
+        if gap_range_mm is None:
+            return None
+        narrowest, widest = gap_range_mm
+        if widest > limits.gap_max_mm or narrowest >= limits.gap_min_mm:
+            return Judged(
+                widest, limits.gap_max_mm, severity(widest, limits.gap_max_mm, above=True)
+            )
+        return Judged(
+            narrowest, limits.gap_min_mm, severity(narrowest, limits.gap_min_mm, above=False)
+        )
+    limit = upper_limit(limits, finding_type)
+    size = abs(value) if finding_type == "step" else value
+    return Judged(value, limit, severity(size, limit, above=True))

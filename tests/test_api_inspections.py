@@ -113,3 +113,50 @@ def test_idempotency_key_replays_and_refuses_reuse(client, tokens):
     )
     assert theirs.status_code == 201 and theirs.json()["id"] != first.json()["id"]
     assert len(client.get("/api/v1/inspections", headers=headers).json()["items"]) == 2
+
+
+def test_a_change_of_tolerances_judges_the_measured_findings_again(client, tokens, runtime):
+    """A step of −0.8 mm over a 0.5 mm limit is `major`; a limit of 1 mm makes it a
+    measurement within tolerance, in the same request, its limit the new one and the change
+    in the log; a gap stored without its seam's range is marked stale instead; a finding
+    added by hand keeps its judgment."""
+    from supervisor.models import Defect
+
+    headers = auth(tokens["inspector"])
+    inspection = client.post("/api/v1/inspections", json=NEW, headers=headers).json()["id"]
+    measured = {"location_mm": [0.0, 0.0, 0.0], "normal": [0.0, 0.0, 1.0], "confidence": 0.9}
+    with runtime.db.write() as session:
+        rows = [
+            Defect(inspection_id=inspection, type="step", value_mm=-0.8, tolerance_mm=0.5,
+                   severity="major", source="job", measurements={"value": -0.8, "unit": "mm", "tolerance": 0.5}, **measured),
+            Defect(inspection_id=inspection, type="gap", value_mm=3.4, tolerance_mm=3.0,
+                   severity="minor", source="job", measurements={"value": 3.4, "unit": "mm", "tolerance": 3.0}, **measured),
+            Defect(inspection_id=inspection, type="step", value_mm=0.9, tolerance_mm=0.5,
+                   severity="major", source="manual", measurements={}, **measured),
+        ]  # fmt: skip
+        session.add_all(rows)
+        session.flush()
+        step, gap, manual = (r.id for r in rows)
+    cursor = client.get("/api/v1/sync", params={"inspection": inspection}, headers=headers)
+    tolerances = {"step_mm": {"max": 1.0}, "gap_mm": {"min": 0.5, "max": 6.0}}
+    patched = client.patch(
+        f"/api/v1/inspections/{inspection}", json={"tolerances": tolerances}, headers=headers
+    )
+    assert patched.status_code == 200, patched.text
+
+    def defect(ident: int) -> dict:
+        return client.get(f"/api/v1/defects/{ident}", headers=headers).json()
+
+    assert defect(step)["severity"] == "info" and defect(step)["tolerance_mm"] == 1.0
+    assert defect(step)["measurements"]["tolerance"] == 1.0
+    assert "re-run the measurement" in defect(gap)["measurements"]["stale"]
+    assert defect(gap)["severity"] == "minor"  # not judged by a guess
+    assert defect(manual)["severity"] == "major" and defect(manual)["tolerance_mm"] == 0.5
+    synced = client.get(
+        "/api/v1/sync",
+        params={"inspection": inspection, "since": cursor.json()["next_cursor"]},
+        headers=headers,
+    ).json()
+    assert {d["id"] for d in synced["defects"]} == {step, gap}
+    step_row = next(d for d in synced["defects"] if d["id"] == step)
+    assert step_row["tolerance"] == 1.0 and step_row["severity"] == "info"

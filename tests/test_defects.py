@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from contract.tolerances import Limits
+from contract.tolerances import Limits, severity
 from services.defects.config import ConfigError, MeasureConfig, parse_config
 from services.defects.evaluate import evaluate
 from services.defects.example import write_defects_example
-from services.defects.measure import MeasureError, measure, severity
+from services.defects.measure import MeasureError, measure
 from services.defects.report import result_document
 from services.defects.simulate import (
     AssemblySpec,

@@ -468,6 +468,7 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     assert all(d["type"] == "gap" and "gap_mm" in d["measurements"] for d in info)
     colour = next(d for d in found if d["type"] == "color")
     assert colour["value_mm"] is None and colour["measurements"]["unit"] == "delta_e"
+    _check_findings_follow_the_tolerances(engine, run, defects, tolerances)
     base = f"/api/v1/inspections/{engine.inspection}/artifacts"
     produced = {
         a["name"]
@@ -488,6 +489,58 @@ def test_calibrate_stitch_measure_fills_the_defect_list(engine_factory, tmp_path
     assert failed["status"] == "failed" and "no panel top" in failed["error"]
     assert engine.http.get("/api/v1/defects", params={"run": lonely["id"]}).json()["items"] == []
     _check_each_run_shows_its_own_scene(engine, run, defects, tmp_path)
+
+
+def _check_findings_follow_the_tolerances(engine: Engine, run: dict, defects: list, tolerances):
+    """The rule that judges a stored finding again is measure's own (each finding judged
+    again by it against the limits it was measured with is as measure stored it); widening
+    the gaps' range to 0.3–6 mm turns every gap within it into a measurement in the same
+    request, seen by the sync; the old range brings the old judgments back."""
+    from contract.tolerances import Tolerances, judge, limits_of
+
+    def judged_again(limits_doc: dict) -> list[tuple]:
+        limits = limits_of(Tolerances.model_validate(limits_doc))
+        out = []
+        for d in defects:
+            m = d["measurements"]
+            j = judge(d["type"], m["value"], limits, m.get("gap_range_mm"))
+            out.append((d["id"], j.severity, j.limit))
+        return out
+
+    assert judged_again(tolerances) == [
+        (d["id"], d["severity"], d["measurements"]["tolerance"]) for d in defects
+    ]
+    base = f"/api/v1/inspections/{engine.inspection}"
+    since = engine.http.get("/api/v1/sync", params={"inspection": engine.inspection}).json()
+    wider = {**tolerances, "gap_mm": {"min": 0.3, "max": 6.0}}
+    assert engine.http.patch(base, json={"tolerances": wider}).status_code == 200
+    now = engine.http.get(
+        "/api/v1/defects", params={"inspection": engine.inspection, "run": run["id"], "limit": 200}
+    ).json()["items"]
+    gaps = [d for d in now if d["type"] == "gap"]
+    inside = [
+        0.3 <= d["measurements"]["gap_range_mm"][0] <= d["measurements"]["gap_range_mm"][1] <= 6
+        for d in gaps
+    ]
+    assert any(inside) and [d["severity"] == "info" for d in gaps] == inside
+    assert all(d["measurements"]["tolerance"] == d["tolerance_mm"] for d in gaps)
+    assert all(d["tolerance_mm"] == 6.0 for d, within in zip(gaps, inside, strict=True) if within)
+    assert [(d["id"], d["severity"]) for d in now if d["type"] != "gap"] == [
+        (d["id"], d["severity"]) for d in defects if d["type"] != "gap"
+    ]
+    synced = engine.http.get(
+        "/api/v1/sync", params={"inspection": engine.inspection, "since": since["next_cursor"]}
+    ).json()
+    assert {d["id"] for d in synced["defects"]} >= {
+        d["id"] for d in defects if d["type"] == "gap" and d["severity"] != "info"
+    }
+    assert engine.http.patch(base, json={"tolerances": tolerances}).status_code == 200
+    again = engine.http.get(
+        "/api/v1/defects", params={"inspection": engine.inspection, "run": run["id"], "limit": 200}
+    ).json()["items"]
+    assert [(d["id"], d["severity"], d["tolerance_mm"], d["value_mm"]) for d in again] == [
+        (d["id"], d["severity"], d["tolerance_mm"], d["value_mm"]) for d in defects
+    ]
 
 
 def _check_each_run_shows_its_own_scene(engine: Engine, first: dict, defects: list, tmp_path):

@@ -19,7 +19,7 @@ from math import erf, sqrt
 import numpy as np
 from scipy import ndimage
 
-from contract.tolerances import upper_limit
+from contract.tolerances import severity, upper_limit
 from contract.vocabulary import Progress
 from services.defects import binning
 from services.defects.config import MeasureConfig
@@ -163,16 +163,6 @@ class MeasureResult:
     @property
     def panel_area_m2(self) -> float:
         return sum(p.area_mm2 for p in self.panels) / 1e6
-
-
-def severity(value: float, limit: float, *, above: bool) -> str:
-    """info inside the limit; beyond it minor (< 25 % of the limit), major (< 100 %),
-    critical."""
-    excess = value - limit if above else limit - value
-    if excess <= 0:
-        return "info"
-    ratio = excess / max(limit, 0.1)
-    return "minor" if ratio < 0.25 else "major" if ratio < 1.0 else "critical"
 
 
 def confidence(value: float, limit: float, sigma: float) -> float:
@@ -524,7 +514,8 @@ def _gap_findings(
         severity(value, limit, above=above),
         confidence(value, limit, sigma),
         source,
-        profile,
+        # what it was judged on: a change of tolerances judges it again (contract.tolerances.judge)
+        {**profile, "gap_range_mm": [round(float(gaps.min()), 4), round(float(gaps.max()), 4)]},
     )
     parallelism = Finding(
         "parallelism",

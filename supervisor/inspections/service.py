@@ -5,6 +5,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.audit.service import Actor, audit, changed_fields
 from supervisor.changes import add_created, record_change, record_update
+from supervisor.defects.rejudge import rejudge_findings
 from supervisor.inspections.schemas import InspectionCreate, InspectionUpdate
 from supervisor.models import Defect, Inspection, Job
 from supervisor.models._types import utcnow
@@ -103,6 +104,8 @@ def update(
     session.flush()
     if after:
         record_update(session, "inspection", inspection, user_id=actor.id)
+        if "tolerances" in after:  # the findings follow, in this transaction
+            after["rejudged_findings"] = rejudge_findings(session, inspection, user_id=actor.id)
         audit(
             session,
             actor,

@@ -422,6 +422,8 @@ function renderDetail() {
     ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
     ...placeOf(defect.measurements || {}),
     ["coordinates", `${defect.location_mm.map((c) => number(c, 1)).join(", ")} mm (base frame)`],
+    // a finding the tolerances' change could not judge again says so
+    ...(defect.measurements?.stale ? [["stale", defect.measurements.stale]] : []),
   ];
   $("#detail-facts").replaceChildren(...facts.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
   const consensus = state.consensus.get(defect.id);

@@ -1,0 +1,48 @@
+"""Findings follow their inspection's tolerances: when the tolerances change, each finding a
+measurement stored is judged again against the new limits, as the measurement judged it
+(``contract.tolerances.judge``), in the same transaction — its limit, severity and, for a
+gap, the side it is judged on; every change in the change log, so every client sees it. A
+finding that cannot be judged without measuring again (a gap stored before its seam's range
+was kept) is marked stale with the reason."""
+
+from __future__ import annotations
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from contract.tolerances import Tolerances, judge, limits_of
+from supervisor.changes import record_update
+from supervisor.models import Defect, Inspection
+
+STALE = "measured before vista kept what a gap is judged on: re-run the measurement to judge it against the new tolerances"
+
+
+def rejudge_findings(session: Session, inspection: Inspection, *, user_id: int | None) -> int:
+    """Judge the inspection's measured findings against its tolerances now; the number
+    whose judgment changed (or that turned stale)."""
+    limits = limits_of(Tolerances.model_validate(inspection.tolerances or {}))
+    changed = 0
+    for defect in session.scalars(
+        select(Defect).where(Defect.inspection_id == inspection.id, Defect.source == "job")
+    ):
+        measurements = dict(defect.measurements or {})
+        value = measurements.get("value", defect.value_mm)
+        if value is None:
+            continue
+        judged = judge(defect.type, value, limits, measurements.get("gap_range_mm"))
+        if judged is None:
+            if measurements.get("stale") == STALE:
+                continue
+            measurements["stale"] = STALE
+        else:
+            measurements.pop("stale", None)
+            measurements |= {"value": judged.value, "tolerance": judged.limit}
+            if measurements.get("unit", "mm") == "mm":
+                defect.value_mm, defect.tolerance_mm = judged.value, judged.limit
+            if judged.severity == defect.severity and measurements == defect.measurements:
+                continue
+            defect.severity = judged.severity
+        defect.measurements = measurements
+        record_update(session, "defect", defect, user_id=user_id)
+        changed += 1
+    return changed
