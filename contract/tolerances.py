@@ -153,3 +153,34 @@ def judge(
     limit = upper_limit(limits, finding_type)
     size = abs(value) if finding_type == "step" else value
     return Judged(value, limit, severity(size, limit, above=True))
+
+
+def limit_text(finding_type: str, limits: Limits) -> str:
+    """A finding type's acceptable values, read one way everywhere (CLI, demo, dashboard):
+    both ends of a gap's range, a step's size either way, the others' upper limit."""
+    if finding_type == "gap":
+        return f"{limits.gap_min_mm:.2f}–{limits.gap_max_mm:.2f} mm"
+    limit = upper_limit(limits, finding_type)
+    if finding_type == "color":
+        return f"≤ {limit:.1f} ΔE"
+    return f"|step| ≤ {limit:.2f} mm" if finding_type == "step" else f"≤ {limit:.2f} mm"
+
+
+def sign_text(finding_type: str, value: float, panels: list[int] | None) -> str:
+    """What a signed value means: a step of a seam between panels a and b is b's top over
+    a's ("P1 below P0" when negative); "" for the unsigned."""
+    if finding_type != "step" or not panels or value == 0:
+        return ""
+    a, b = panels
+    return f"P{b} {'above' if value > 0 else 'below'} P{a}"
+
+
+def finding_line(finding_type: str, value: float, panels: list[int] | None, limits: Limits) -> str:
+    """ "step       -0.768 mm (P1 below P0; limits |step| ≤ 0.50 mm)": a finding's value,
+    what its sign means and its limits, as the CLI and the demo print it."""
+    unit = "ΔE" if finding_type == "color" else "mm"
+    sign = sign_text(finding_type, value, panels)
+    return (
+        f"{finding_type:<11} {value:>8.3f} {unit} "
+        f"({sign + '; ' if sign else ''}limits {limit_text(finding_type, limits)})"
+    )

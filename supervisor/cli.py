@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 
 from contract.cli import fail
+from contract.tolerances import Tolerances, finding_line, limits_of
 from services.lib.wording import counted
 from supervisor.engine.registry import declared_hooks
 from supervisor.settings import get_settings, secure_data_dir
@@ -243,18 +244,13 @@ def demo(
         f"{counted(len(found), 'defect')} out of tolerance, "
         f"{counted(len(defects) - len(found), 'seam')} within it"
     )
-    gap_range = inspection["tolerances"].get("gap_mm", {})
+    limits = limits_of(Tolerances.model_validate(inspection["tolerances"]))
     for d in sorted(found, key=lambda d: (d["type"], d["id"])):
         m = d["measurements"]
-        unit = "ΔE" if m.get("unit") == "delta_e" else "mm"
-        limits = (
-            f"limits {gap_range['min']:g}–{gap_range['max']:g}"
-            if d["type"] == "gap" and {"min", "max"} <= set(gap_range)
-            else f"tolerance {m['tolerance']:g}"
-        )
         typer.echo(
-            f"  #{d['id']:<5} {d['type']:<11} {m['value']:>8.3f} {unit} "
-            f"({limits}) {d['severity']:<8} confidence {d['confidence']:.2f}"
+            f"  #{d['id']:<5} "
+            + finding_line(d["type"], m["value"], m.get("panels"), limits)
+            + f" {d['severity']:<8} confidence {d['confidence']:.2f}"
         )
     url = f"http://{settings.host}:{settings.port}"
     typer.echo(

@@ -74,6 +74,7 @@ def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
     last = shown.output.strip().splitlines()[-2:]
     assert "open the dashboard at http://" in last[0] and "/docs (works offline)" in last[1]
     assert "Warning" not in shown.output
+    assert "(tolerance " not in shown.output and " mm (limits ≤ 0.30 mm) " in shown.output
     # the findings are the inspection's: a reviewer signing in with the printed password
     # sees them; no published password works
     password = re.search(r"sign in as demo with the password (\S+) ", shown.output).group(1)

@@ -379,3 +379,20 @@ def test_which_edges_the_views_saw() -> None:
     assert scanner.edges_seen(straight, seam, along).all()
     seen = scanner.edges_seen(tilted, seam, along)
     assert seen[:, 0].all() and not seen[:, 1].any()
+
+
+def test_limits_and_signs_read_one_way():
+    """Both ends of a gap's range, a step's size either way with what its sign means, the
+    others' upper limit — as the CLI, the demo and the dashboard show them."""
+    from contract.tolerances import Limits, finding_line, limit_text, sign_text
+
+    limits = Limits()
+    assert limit_text("gap", limits) == "0.50–3.00 mm"
+    assert limit_text("step", limits) == "|step| ≤ 0.50 mm"
+    assert limit_text("dent", limits) == "≤ 0.20 mm" and limit_text("color", limits) == "≤ 3.0 ΔE"
+    assert sign_text("step", -0.768, [0, 1]) == "P1 below P0"
+    assert sign_text("step", 0.6, [2, 3]) == "P3 above P2" and sign_text("gap", 3.4, [0, 1]) == ""
+    assert finding_line("step", -0.768, [0, 1], limits) == (
+        "step          -0.768 mm (P1 below P0; limits |step| ≤ 0.50 mm)"
+    )
+    assert finding_line("color", 5.2, None, limits).endswith("ΔE (limits ≤ 3.0 ΔE)")

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from contract.cli import alias, fail
+from contract.tolerances import finding_line
 from services.lib.wording import counted
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands.
@@ -101,10 +102,10 @@ def measure(
     found = len(document["defects"])
     typer.echo(f"{counted(found, 'defect')} out of tolerance" + (":" if found else "."))
     for d in document["defects"]:
-        unit = "mm" if d["unit"] == "mm" else "ΔE"
         typer.echo(
-            f"  {d['type']:<11} {d['value']:>8.3f} {unit} (tolerance {d['tolerance']:g}) "
-            f"{d['severity']:<8} confidence {d['confidence']:.2f} at {[round(v, 1) for v in d['location']]}"
+            "  "
+            + finding_line(d["type"], d["value"], d.get("panels"), settings.tolerances)
+            + f" {d['severity']:<8} confidence {d['confidence']:.2f} at {[round(v, 1) for v in d['location']]}"
         )
     if plot is not None:
         profile_png(result, settings, plot)

@@ -91,7 +91,17 @@ function limitsOf(defect) {
   const unit = unitText(defect.unit);
   if (known(min) && known(max)) return `${number(min, digits)}–${number(max, digits)} ${unit}`;
   if (known(min)) return `≥ ${number(min, digits)} ${unit}`;
-  return known(max) ? `≤ ${number(max, digits)} ${unit}` : "–";
+  const size = defect.type === "step" ? "|step| " : ""; // a step is judged by its size either way
+  return known(max) ? `${size}≤ ${number(max, digits)} ${unit}` : "–";
+}
+
+// What a signed value means (contract/tolerances.py sign_text): a seam's step is its
+// second panel's top over its first's.
+function signOf(defect) {
+  const panels = defect.measurements?.panels;
+  const { value } = valueOf(defect);
+  if (defect.type !== "step" || !panels || !value) return "";
+  return ` (P${panels[1]} ${value > 0 ? "above" : "below"} P${panels[0]})`;
 }
 
 // Where the value stands against the limit it was judged by.
@@ -418,7 +428,7 @@ function renderDetail() {
   $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${defect.severity === "info" ? "within tolerance" : defect.severity}, ${defect.status}`;
   const relation = relationText(defect);
   const facts = [
-    ["value", `${number(value)} ${unit}${relation ? ` — ${relation}` : ""}`], ["limits", limitsOf(defect)],
+    ["value", `${number(value)} ${unit}${signOf(defect)}${relation ? ` — ${relation}` : ""}`], ["limits", limitsOf(defect)],
     ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
     ...placeOf(defect.measurements || {}),
     ["coordinates", `${defect.location_mm.map((c) => number(c, 1)).join(", ")} mm (base frame)`],
