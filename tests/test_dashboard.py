@@ -98,8 +98,10 @@ def test_review_an_inspection_in_the_browser(demo_server):
         background = np.array([15, 23, 34])
         drawn = np.abs(pixels[..., :3].astype(int) - background).sum(axis=-1) > 30
         assert drawn.mean() > 0.05, f"only {drawn.mean():.1%} of the canvas is drawn"
-        highlight = (pixels[..., 0] > 200) & (pixels[..., 1] > 180) & (pixels[..., 2] < 120)
-        assert highlight.sum() > 50, "the selected defect's yellow marker is not on screen"
+        # the selection's aquamarine (#1de9b6), no type's colour: the ring and the thick seam
+        red, green, blue = (pixels[..., c].astype(int) for c in range(3))
+        highlight = (red < 90) & (green > 200) & (blue > 150) & (blue < 225)
+        assert highlight.sum() > 50, "the selected defect's marker is not on screen"
 
         page.fill("#comment", "confirmed on site")
         page.click(".verdicts button[data-verdict=confirmed]")

@@ -15,7 +15,7 @@ const TYPE_COLORS = {
 const SCENE_LINES = [
   ["#59d9ff", "panel outline (P0, P1, …)", (facts) => facts.panels > 0],
   ["#ffffff", "seam", (facts) => facts.seams > 0],
-  ["#ffee00", "selected", (facts) => facts.markers > 0],
+  ["#1de9b6", "selected", (facts) => facts.markers > 0], // scene.js SELECTED: no type's colour
 ];
 const SEVERITY_RANK = { critical: 3, major: 2, minor: 1, info: 0 };
 const LIVE_POLL_MS = 3000;

@@ -3,11 +3,16 @@
 import * as THREE from "three";
 import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+import { Line2 } from "three/examples/jsm/lines/Line2.js";
+import { LineGeometry } from "three/examples/jsm/lines/LineGeometry.js";
+import { LineMaterial } from "three/examples/jsm/lines/LineMaterial.js";
 
 // Markers are rings drawn over everything (no depth test): they circle what they mark and a
-// panel never hides them.
-const HIGHLIGHT = new THREE.MeshBasicMaterial({ color: 0xffee00, side: THREE.DoubleSide, depthTest: false });
-const SEAM_HIGHLIGHT = new THREE.LineBasicMaterial({ color: 0xffee00, depthTest: false });
+// panel never hides them. The selection's colour is no type's nor line's (main.js's legend).
+export const SELECTED = 0x1de9b6;
+const HIGHLIGHT = new THREE.MeshBasicMaterial({ color: SELECTED, side: THREE.DoubleSide, depthTest: false });
+const SEAM_PX = 5; // the selected seam's width on screen (a plain WebGL line is one pixel)
+const SEAM_HIGHLIGHT = new LineMaterial({ color: SELECTED, linewidth: SEAM_PX, depthTest: false });
 const FLIGHT_MS = 600;
 const LABEL_M = 0.024; // a panel label's width in the scene, metres
 const PICK_SLACK_PX = 8; // a click this close to a ring picks it
@@ -19,6 +24,18 @@ const POINT_PX = [2, 14]; // a point's size on screen: ~1.5 × the cloud's spaci
 export function roundLength(mm) {
   const power = 10 ** Math.floor(Math.log10(mm));
   return [5, 2, 1].map((m) => m * power).find((length) => length <= mm) ?? power;
+}
+
+// A line drawn again over itself, SEAM_PX wide, in the selection's colour (a child of it:
+// it moves and goes with the line).
+function thickLine(line) {
+  const geometry = new LineGeometry();
+  geometry.setPositions(Array.from(line.geometry.attributes.position.array));
+  const thick = new Line2(geometry, SEAM_HIGHLIGHT);
+  thick.renderOrder = 6;
+  thick.name = "selected-seam";
+  line.add(thick);
+  return thick;
 }
 
 function textSprite(text, colour, widthM) {
@@ -116,6 +133,8 @@ export class SceneView {
 
   resize() {
     if (fitCanvas(this.renderer, this.camera, this.canvas)) this.invalidate();
+    const size = this.renderer.getDrawingBufferSize(new THREE.Vector2());
+    SEAM_HIGHLIGHT.resolution.copy(size); // its width is in pixels of the drawing buffer
   }
 
   invalidate() {
@@ -143,7 +162,7 @@ export class SceneView {
       if (node.userData?.seam !== undefined && node.isLine) {
         node.material.depthTest = false;
         node.renderOrder = 5;
-        this.seams.set(node.userData.seam, { node, material: node.material });
+        this.seams.set(node.userData.seam, { node });
       }
       const id = node.userData?.defect_id;
       if (id !== undefined && node.isMesh) {
@@ -195,13 +214,13 @@ export class SceneView {
       previous.node.material = previous.material;
       previous.node.scale.copy(previous.scale);
     }
-    const previousSeam = this.seams.get(this.selectedSeam);
-    if (previousSeam) previousSeam.node.material = previousSeam.material;
+    this.thickSeam?.removeFromParent();
+    this.thickSeam = null;
     this.selected = defectId;
     this.selectedSeam = seam;
     this.invalidate();
     const seamLine = this.seams.get(seam);
-    if (seamLine) seamLine.node.material = SEAM_HIGHLIGHT;
+    if (seamLine) this.thickSeam = thickLine(seamLine.node);
     const marker = this.markers.get(defectId);
     if (!marker) return;
     marker.node.material = HIGHLIGHT;
