@@ -87,6 +87,9 @@ def test_review_an_inspection_in_the_browser(demo_server):
         assert f"along the seam{measured['along_mm']:.1f} mm from its start" in facts
         # a legend of every type on show, one colour each, and a scale bar
         legend = page.locator("#legend li").all_text_contents()
+        page.click("#legend-box summary")  # the legend folds away, and opens again
+        assert page.locator("#legend").is_hidden()
+        page.click("#legend-box summary")
         types = {d["type"] for d in demo["defects"]}
         assert types <= set(legend) and "seam" in legend
         assert int(page.get_attribute("#scale-bar", "data-mm")) > 0
@@ -167,6 +170,10 @@ def test_review_an_inspection_in_the_browser(demo_server):
             }).length"""
         )
         assert cut == 0
+        # nothing runs off the page's right edge (a long run name once widened the scene)
+        assert page.evaluate("document.documentElement.scrollWidth <= window.innerWidth")
+        box = page.locator("#scene").bounding_box()
+        assert box["x"] + box["width"] <= 1024
 
         # Sign out revokes the token on the server, not only in this browser.
         token = page.evaluate("sessionStorage.getItem('vista.token')")

@@ -225,6 +225,8 @@ async function showInspection(id, defectId) {
     if (!state.scene) {
       const pick = (defectId) => { location.hash = `#/inspections/${state.inspection.id}/defects/${defectId}`; };
       state.scene = new SceneView($("#scene"), pick, { scaleBar: $("#scale-bar") });
+      // on a narrow scene the legend starts folded: it would cover the part
+      $("#legend-box").open = $("#scene").clientWidth >= 720;
     }
     const page = await syncing;
     if (!page) return;

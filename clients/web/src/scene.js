@@ -200,7 +200,12 @@ export class SceneView {
     const size = box.getSize(new THREE.Vector3()).length() || 1;
     const centre = box.getCenter(new THREE.Vector3());
     this.controls.target.copy(centre);
-    this.camera.position.copy(centre).add(new THREE.Vector3(0, size * 0.5, size * 0.9));
+    // the whole part in view across and up, whatever the canvas's shape (a narrow one at
+    // 1024 px cropped it): its bounding sphere fits the narrower of the two angles of view
+    const halfUp = THREE.MathUtils.degToRad(this.camera.fov / 2);
+    const halfAcross = Math.atan(Math.tan(halfUp) * this.camera.aspect);
+    const distance = (0.5 * size) / Math.sin(Math.min(halfUp, halfAcross));
+    this.camera.position.copy(centre).add(new THREE.Vector3(0, 0.5, 0.9).normalize().multiplyScalar(distance));
     this.camera.near = size / 1000;
     this.camera.far = size * 20;
     this.camera.updateProjectionMatrix();
