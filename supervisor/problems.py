@@ -107,16 +107,72 @@ def _location(loc: tuple | list) -> str:
     return text or "the request body"
 
 
+def _listed(values: object) -> str:
+    """ "'a', 'b' or 'c'" from pydantic's ``expected`` ("'a', 'b' or 'c'") or a list."""
+    if isinstance(values, list | tuple):
+        quoted = [repr(v) for v in values]
+        return ", ".join(quoted[:-1]) + f" or {quoted[-1]}" if len(quoted) > 1 else "".join(quoted)
+    return str(values)
+
+
+_PHRASES: dict[str, str] = {
+    "missing": "is required",
+    "extra_forbidden": "is not a known field",
+    "model_type": "must be an object of named fields ({{…}})",
+    "model_attributes_type": "must be an object of named fields ({{…}})",
+    "dict_type": "must be an object of named fields ({{…}})",
+    "list_type": "must be a list ([…])",
+    "tuple_type": "must be a list ([…])",
+    "string_type": "must be text",
+    "int_type": "must be a whole number",
+    "int_parsing": "must be a whole number",
+    "int_from_float": "must be a whole number",
+    "float_type": "must be a number",
+    "float_parsing": "must be a number",
+    "finite_number": "must be a finite number",
+    "bool_type": "must be true or false",
+    "bool_parsing": "must be true or false",
+    "greater_than": "must be greater than {gt}",
+    "greater_than_equal": "must be at least {ge}",
+    "less_than": "must be less than {lt}",
+    "less_than_equal": "must be at most {le}",
+    "string_too_short": "must have at least {min_length} character(s)",
+    "string_too_long": "must have at most {max_length} characters",
+    "too_short": "must have at least {min_length} item(s)",
+    "too_long": "must have at most {max_length} items",
+    "string_pattern_mismatch": "does not have the form allowed ({pattern})",
+    "literal_error": "must be one of {expected}",
+    "enum": "must be one of {expected}",
+    "datetime_type": "must be a date and time (ISO 8601, e.g. 2026-11-27T10:00:00Z)",
+    "datetime_parsing": "must be a date and time (ISO 8601, e.g. 2026-11-27T10:00:00Z)",
+    "datetime_from_date_parsing": "must be a date and time (ISO 8601, e.g. 2026-11-27T10:00:00Z)",
+}
+"""pydantic's error types in words: what is allowed (its context fills the braces)."""
+
+
+def issue_sentence(error: dict, prefix: tuple = ()) -> str:
+    """One refused part (a pydantic error, its ``loc`` under ``prefix``) as "where: what is
+    allowed"."""
+    error = {**error, "loc": (*prefix, *error.get("loc", ()))}
+    kind, context = error.get("type", ""), error.get("ctx") or {}
+    if kind == "json_invalid":
+        at = next((p for p in reversed(error.get("loc", ())) if isinstance(p, int)), None)
+        where = f" at character {at}" if at is not None else ""
+        return f"The request body is not valid JSON ({context.get('error', 'it does not parse')}{where})"
+    where = _location(error.get("loc", ()))
+    if kind in _PHRASES:
+        try:
+            return f"{where}: {_PHRASES[kind].format(**{k: _listed(v) if k == 'expected' else v for k, v in context.items()})}"
+        except (KeyError, IndexError):
+            pass
+    message = str(error.get("msg", "is not allowed"))
+    message = message.removeprefix("Value error, ").removeprefix("Assertion failed, ")
+    message = message.replace("Input should be", "must be")
+    return f"{where}: {message}"
+
+
 def _validation_sentence(errors: list[dict]) -> str:
-    sentences = []
-    for error in errors[:5]:
-        where = _location(error.get("loc", ()))
-        message = error.get("msg", "is invalid")
-        if error.get("type") == "extra_forbidden":
-            message = "is not a known field"
-        elif error.get("type") == "missing":
-            message = "is required"
-        sentences.append(f"{where}: {message}")
+    sentences = [issue_sentence(error) for error in errors[:5]]
     more = f" (and {len(errors) - 5} more)" if len(errors) > 5 else ""
     return "; ".join(sentences) + more + "."
 
@@ -130,12 +186,13 @@ def install_problem_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+        raw = exc.errors()
         errors = [
             {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
-            for e in exc.errors()
+            for e in raw
         ]
         return problem_response(
-            422, _validation_sentence(errors), instance=request.url.path, errors=errors
+            422, _validation_sentence(list(raw)), instance=request.url.path, errors=errors
         )
 
     @app.exception_handler(StarletteHTTPException)

@@ -42,6 +42,17 @@ def test_bad_input_is_a_sentence_and_stores_nothing(client, tokens):
         ({"title": "no area"}, "area: is required"),
         ({**NEW, "tolerances": {"gap_mm": {"min": -1}}}, "tolerances.gap_mm.min"),
         ({**NEW, "tolerances": {"flatness": 1}}, "tolerances.flatness: is not a known field"),
+        (
+            {**NEW, "tolerances": {"gap_mm": {"min": 3, "max": 0.5}}},
+            "tolerances.gap_mm: min (3) must be below max (0.5)",
+        ),
+        (
+            {**NEW, "tolerances": {"step_mm": {"max": 0}}},
+            "tolerances.step_mm.max: must be greater than 0.",
+        ),
+        ({**NEW, "tolerances": "tight"}, "tolerances: must be an object of named fields"),
+        ({**NEW, "area": "cockpit"}, "area: must be one of 'cargo', 'cabin' or 'component'"),
+        ([1, 2], "the request body: must be an object of named fields"),
     ]
     for body, expected in cases:
         response = client.post("/api/v1/inspections", json=body, headers=headers)
@@ -54,6 +65,8 @@ def test_bad_input_is_a_sentence_and_stores_nothing(client, tokens):
         headers={**headers, "content-type": "application/json"},
     )
     assert not_json.status_code == 422
+    assert not_json.json()["detail"].startswith("The request body is not valid JSON (")
+    assert "at character 1" in not_json.json()["detail"]
     assert client.get("/api/v1/inspections", headers=headers).json()["items"] == []
 
 

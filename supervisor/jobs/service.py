@@ -18,7 +18,7 @@ from supervisor.jobs.step_inputs import check_step_inputs
 from supervisor.models import Artifact, Job, JobDependency, Run
 from supervisor.models._types import utcnow
 from supervisor.models.jobs import FINISHED
-from supervisor.problems import Problem, not_found
+from supervisor.problems import Problem, issue_sentence, not_found
 
 RUN_STATUS_ORDER = ("failed", "running", "queued", "waiting", "cancelled", "succeeded")
 
@@ -47,9 +47,8 @@ def create_run(
         try:
             kinds[step.name] = (kind, kind.params.model_validate(step.params))
         except ValidationError as exc:
-            first = exc.errors()[0]
-            where = ".".join(str(p) for p in first["loc"])
-            raise Problem(422, f"steps[{index}].params.{where}: {first['msg']}.") from exc
+            where = ("steps", index, "params")
+            raise Problem(422, issue_sentence(exc.errors()[0], where) + ".") from exc
         missing = sorted(set(step.inputs) - set(artifact_kinds))
         if missing:
             raise Problem(
