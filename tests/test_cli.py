@@ -89,5 +89,7 @@ def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
         defects = client.get("/api/v1/defects", params={"inspection": 1, "limit": 200}).json()
     assert len([d for d in defects["items"] if d["severity"] != "info"]) >= 8
     # a second demo adds a second inspection, the demo user is reused
-    again = cli("demo", "--spacing-mm", "0.3", "--seed", "1", "--timeout", "300")
+    again = cli(
+        "demo", "--spacing-mm", "0.5", "--seed", "1", "--timeout", "300"
+    )  # a coarser scan: quicker
     assert again.exit_code == 0 and "inspection 2 " in again.output
