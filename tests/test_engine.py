@@ -524,6 +524,10 @@ def _check_findings_follow_the_tolerances(engine: Engine, run: dict, defects: li
     ]
     assert any(inside) and [d["severity"] == "info" for d in gaps] == inside
     assert all(d["measurements"]["tolerance"] == d["tolerance_mm"] for d in gaps)
+    for d in (d for d, within in zip(gaps, inside, strict=True) if within):
+        # judged by its widest gap now (its narrowest was out): the finding is where that is
+        ends, at = d["measurements"]["gap_range_mm"], d["measurements"]["gap_range_at_mm"]
+        assert d["value_mm"] == ends[1] and d["location_mm"] == at[1]
     assert all(d["tolerance_mm"] == 6.0 for d, within in zip(gaps, inside, strict=True) if within)
     assert [(d["id"], d["severity"]) for d in now if d["type"] != "gap"] == [
         (d["id"], d["severity"]) for d in defects if d["type"] != "gap"
@@ -538,8 +542,11 @@ def _check_findings_follow_the_tolerances(engine: Engine, run: dict, defects: li
     again = engine.http.get(
         "/api/v1/defects", params={"inspection": engine.inspection, "run": run["id"], "limit": 200}
     ).json()["items"]
-    assert [(d["id"], d["severity"], d["tolerance_mm"], d["value_mm"]) for d in again] == [
-        (d["id"], d["severity"], d["tolerance_mm"], d["value_mm"]) for d in defects
+    assert [
+        (d["id"], d["severity"], d["tolerance_mm"], d["value_mm"], d["location_mm"]) for d in again
+    ] == [
+        (d["id"], d["severity"], d["tolerance_mm"], d["value_mm"], d["location_mm"])
+        for d in defects
     ]
 
 

@@ -514,8 +514,16 @@ def _gap_findings(
         severity(value, limit, above=above),
         confidence(value, limit, sigma),
         source,
-        # what it was judged on: a change of tolerances judges it again (contract.tolerances.judge)
-        {**profile, "gap_range_mm": [round(float(gaps.min()), 4), round(float(gaps.max()), 4)]},
+        # what it was judged on, and where: a change of tolerances judges it again
+        # (contract.tolerances.judge) and moves it to the end of the range it is judged by
+        {
+            **profile,
+            "gap_range_mm": [round(float(gaps.min()), 4), round(float(gaps.max()), 4)],
+            "gap_range_at_mm": [
+                [round(float(v), 4) for v in places[int(np.argmin(gaps))]],
+                [round(float(v), 4) for v in places[int(np.argmax(gaps))]],
+            ],
+        },
     )
     parallelism = Finding(
         "parallelism",

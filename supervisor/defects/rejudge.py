@@ -1,7 +1,7 @@
 """Findings follow their inspection's tolerances: when the tolerances change, each finding a
 measurement stored is judged again against the new limits, as the measurement judged it
 (``contract.tolerances.judge``), in the same transaction — its limit, severity and, for a
-gap, the side it is judged on; every change in the change log, so every client sees it. A
+gap, the end of its range it is judged by (and where that end is); every change in the change log, so every client sees it. A
 finding that cannot be judged without measuring again (a gap stored before its seam's range
 was kept) is marked stale with the reason."""
 
@@ -36,6 +36,11 @@ def rejudge_findings(session: Session, inspection: Inspection, *, user_id: int |
             measurements["stale"] = STALE
         else:
             measurements.pop("stale", None)
+            if judged.value != measurements.get("value") and "gap_range_at_mm" in measurements:
+                # judged by the other end of its range now: the finding is where that end is
+                ends = measurements["gap_range_mm"]
+                defect.location_mm = measurements["gap_range_at_mm"][ends.index(judged.value)]
+                measurements.pop("along_mm", None)  # measured from the seam's start for the old end
             measurements |= {"value": judged.value, "tolerance": judged.limit}
             if measurements.get("unit", "mm") == "mm":
                 defect.value_mm, defect.tolerance_mm = judged.value, judged.limit

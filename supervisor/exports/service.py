@@ -31,7 +31,6 @@ def scene_file(
 
     with runtime.db.read() as session:
         inspection = get_inspection(session, inspection_id=inspection_id)
-        run = shown_run(session, inspection_id=inspection_id, run_id=run_id)
         etag = scene_etag(
             session, inspection_id=inspection_id, max_points=max_points, run_id=run_id
         )
@@ -42,6 +41,9 @@ def scene_file(
         path = folder / f"scene-{shown}-{hashlib.sha256(etag.encode()).hexdigest()[:24]}.glb"
         if path.exists():
             return etag, str(path)
+        # which run it shows (a 404 for a run with none) is asked only when it is built: the
+        # ETag and the cache answer every other request without it
+        run = shown_run(session, inspection_id=inspection_id, run_id=run_id)
         source = gather(session, runtime.storage, inspection=inspection, run=run)
     data = build_scene(source, max_points=max_points, etag=etag)
     folder.mkdir(parents=True, exist_ok=True)
