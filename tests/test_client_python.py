@@ -60,7 +60,7 @@ def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):
     now = datetime.now(UTC)
     headset = Headset(VistaClient(server.url, device_token, transport=transport), inspection)
     first = headset.sync()
-    assert (first.defects, first.judgments, first.scene_changed) == (30, 0, True)
+    assert (first.defects, first.judgments, first.scene) == (30, 0, "first")
     assert headset.load_scene()[:4] == b"glTF" and headset.load_scene() is None  # 304
     with pytest.raises(VistaError) as refused:
         headset.client.judge(ids[0], "confirmed")
@@ -121,17 +121,28 @@ def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):
     late = headset.push().results[0]
     assert late["status"] == "stale" and late["judgment"]["verdict"] == "uncertain"
     assert web.judgments(ids[3])["judgments"][0]["verdict"] == "uncertain"
-    etag = headset.scene_etag
-    headset.sync()
-    assert headset.scene_etag != etag  # the markers carry the consensus, which changed
+    assert headset.sync().scene == "changed"  # the markers carry the consensus, which changed
+    assert headset.sync().scene == "unchanged"
 
-    # A judgment the server refuses stops showing once it has answered.
+    # Reclassifying a defect as its own type is refused before it is queued.
+    with pytest.raises(ValueError, match="already is a gap"):
+        headset.judge(ids[4], "reclassified", new_type="gap")
+    assert headset.outbox == []
+
+    # A judgment the server refuses (the device's clock is hours ahead) stops showing once
+    # it has answered, and is kept in ``refused`` with the reason until cleared.
     shown = headset.judgment_of(ids[4], ines_id)
-    headset.judge(ids[4], "reclassified", new_type="gap")  # defect 4 already is a gap
+    headset.judge(ids[4], "reclassified", new_type="dent", at=now + timedelta(hours=2))
     assert headset.judgment_of(ids[4], ines_id)["verdict"] == "reclassified"
-    refused = headset.push().results[0]
-    assert refused["status"] == "rejected" and "already is a gap" in refused["detail"]
-    assert headset.judgment_of(ids[4], ines_id) == shown
+    pushed = headset.push()
+    assert (
+        pushed.results[0]["status"] == "rejected"
+        and "set the device's clock" in pushed.results[0]["detail"]
+    )
+    assert headset.judgment_of(ids[4], ines_id) == shown and headset.outbox == []
+    assert [(r["defect_id"], r["new_type"]) for r in headset.refused] == [(ids[4], "dent")]
+    assert "ahead of the server's clock" in headset.refused[0]["reason"]
+    assert len(headset.clear_refused()) == 1 and headset.refused == []
 
 
 def test_sdk_covers_inspections_defects_feedback_and_errors(live):
@@ -180,7 +191,8 @@ def test_headset_outbox_sets_bad_items_aside_and_errors_are_one_line(live, tmp_p
         ]
     )
     assert typo == 2
-    err = capsys.readouterr().err
+    out, err = capsys.readouterr()
+    assert f"queued: defect {ids[1]} confirmed" in out
     assert f"not queued: --judge {ids[0]}=maybe: defect {ids[0]}: verdict 'maybe'" in err
     saved = json.loads(state.read_text())
     assert [i["defect_id"] for i in saved["outbox"]] == [ids[1]]
@@ -193,12 +205,12 @@ def test_headset_outbox_sets_bad_items_aside_and_errors_are_one_line(live, tmp_p
     )  # no time zone: only the server knows
     saved["outbox"] += [stale, naive]
     state.write_text(json.dumps(saved))
-    assert main([*base, "--state", str(state), "--judge", f"{ids[0]}=rejected"]) == 0
+    assert main([*base, "--state", str(state), "--judge", f"{ids[0]}=rejected"]) == 2
     out, err = capsys.readouterr()
-    assert "pushed 2: {'applied': 2" in out
-    assert f"set aside (not sent again): defect {ids[2]} 'maybe'" in err
-    assert f"set aside (not sent again): defect {ids[3]} 'confirmed'" in err
-    assert "time zone" in err
+    assert "pushed 2: {'applied': 2" in out and "refused 2" in out
+    assert f"refused, kept in 'refused': defect {ids[2]} maybe: verdict 'maybe'" in err
+    assert f"refused, kept in 'refused': defect {ids[3]} confirmed:" in err
+    assert "time zone" in err and f"vista-headset refused --state {state}" in err
     saved = json.loads(state.read_text())
     assert saved["outbox"] == [] and len(saved["refused"]) == 2
     verdicts = {d: admin.judgments(d)["judgments"] for d in ids}
@@ -214,3 +226,81 @@ def test_headset_outbox_sets_bad_items_aside_and_errors_are_one_line(live, tmp_p
         assert main(args) == 1
         err = capsys.readouterr().err
         assert err.startswith(f"error: the server answered {status}: ") and err.count("\n") == 1
+
+
+def test_headset_cli_never_loses_a_verdict(live, tmp_path, capsys):
+    """Unreachable server: judgments queue in the state file and are sent later; without a
+    state file there is no copy to judge from, which is said (exit 2); a refused judgment
+    stays listed until cleared; a state file answers only for its inspection and server."""
+    from vista_client.headset import main
+
+    server, runtime, admin_token = live
+    admin = VistaClient(server.url, admin_token)
+    inspection = admin.create_inspection("A320 belly", "cargo")["id"]
+    other = admin.create_inspection("A320 nose", "cargo")["id"]
+    ids = seed_defects(runtime, inspection, 3)
+    state = tmp_path / "headset.json"
+    base = ["--token", admin_token, "--inspection", str(inspection), "--state", str(state)]
+    online, unreachable = ["--url", server.url, *base], ["--url", "http://127.0.0.1:9", *base]
+
+    assert main(online) == 0
+    assert "scene first seen" in capsys.readouterr().out
+    assert main(online) == 0
+    assert "scene unchanged" in capsys.readouterr().out
+
+    def copy_from(url: str) -> None:  # the state file as if synced from the server at url
+        state.write_text(json.dumps(dict(json.loads(state.read_text()), url=url)))
+
+    # No --offline, no server: the verdict and its comment wait in the state file.
+    copy_from("http://127.0.0.1:9")
+    assert main([*unreachable, "--judge", f"{ids[0]}=confirmed", "--comment", "burr"]) == 0
+    out, err = capsys.readouterr()
+    assert "server unreachable" in err
+    assert f"queued: defect {ids[0]} confirmed ('burr')" in out
+    assert f"1 judgment(s) wait in {state}" in out
+    assert [i["comment"] for i in json.loads(state.read_text())["outbox"]] == ["burr"]
+    # Without a state file there is no copy to judge from: said, and not a success.
+    lost = main(["--url", "http://127.0.0.1:9", *base[:4], "--judge", f"{ids[1]}=rejected"])
+    assert lost == 2
+    assert (
+        f"not queued: --judge {ids[1]}=rejected: defect {ids[1]} is not in"
+        in capsys.readouterr().err
+    )
+
+    # Back online: the waiting verdict goes. Reclassifying as the same type is refused
+    # locally; a judgment made on a clock far ahead, by the server.
+    copy_from(server.url)
+    gap = next(i for i in ids if admin.defect(i)["type"] == "gap")
+    assert main([*online, "--judge", f"{gap}=reclassified:gap"]) == 2
+    out, err = capsys.readouterr()
+    assert "already is a gap" in err and "pushed 1: {'applied': 1" in out  # the queued one
+    assert admin.judgments(ids[0])["judgments"][0]["comment"] == "burr"
+    saved = json.loads(state.read_text())
+    saved["outbox"] = [
+        {
+            "client_id": "ahead-1",
+            "defect_id": ids[2],
+            "inspection_id": inspection,
+            "verdict": "confirmed",
+            "comment": "",
+            "client_time": (datetime.now(UTC) + timedelta(hours=3)).isoformat(),
+        }
+    ]
+    state.write_text(json.dumps(saved))
+    assert main(online) == 2
+    assert "ahead of the server's clock" in capsys.readouterr().err
+    assert main(online) == 0  # kept, never sent again
+    assert "1 refused judgment(s) kept" in capsys.readouterr().err
+    assert main(["refused", "--state", str(state)]) == 0
+    assert f"defect {ids[2]} confirmed: client_time is" in capsys.readouterr().out
+    assert main(["refused", "--state", str(state), "--clear-refused"]) == 0
+    assert "cleared 1 refused judgment(s)" in capsys.readouterr().out
+    assert json.loads(state.read_text())["refused"] == []
+
+    # A state file answers only for its own inspection and server.
+    assert main(["--url", server.url, *base[:2], "--inspection", str(other), *base[4:]]) == 2
+    assert f"holds inspection {inspection}, not {other}" in capsys.readouterr().err
+    assert main(["--url", server.url + "/", *base]) == 0  # the same server, spelt with a slash
+    capsys.readouterr()
+    assert main(["--url", "http://localhost:1", *base]) == 2
+    assert "holds a copy from" in capsys.readouterr().err

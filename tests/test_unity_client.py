@@ -1,7 +1,8 @@
 """The Unity/HoloLens reference client (clients/unity): its protocol core compiles with Mono's
 C# compiler without warnings and, run against a live supervisor, signs in, syncs in pages,
 reads the scene, aligns on a marker and pushes offline judgments (applied, retried, stale,
-an answer lost and replayed after a restart from saved state, in batches, rejected)."""
+an answer lost and replayed after a restart from saved state, in batches, rejected and kept
+until cleared)."""
 
 from __future__ import annotations
 
@@ -108,7 +109,8 @@ def test_protocol_core_against_a_live_supervisor(smoke_exe, start_server, sqlite
     assert summary["stale_replaced"] is True
     assert summary["state_restored"] is True and summary["lost_answer_replayed"] is True
     assert summary["push_requests"] == 2  # 3 items in batches of 2
-    assert "already is a" in summary["rejected_detail"]
+    assert "ahead of the server's clock" in summary["rejected_detail"]
+    assert summary["refused_kept"] is True
     lines = summary["list_lines"]  # seeding.py: defect i is a gap/step/scratch/dent of 1 + i/100 mm
     assert lines[0] == "gap 1.00 mm = 1.00 mm · resolved · 1/1 confirmed"
     assert lines[1] == "step 1.01 mm > 1.00 mm · open · 1/1 rejected"

@@ -2,6 +2,6 @@
 offline copy of an inspection and its sync."""
 
 from vista_client.client import VistaClient, VistaError
-from vista_client.headset import Headset, HeadsetOffline
+from vista_client.headset import Headset, HeadsetOffline, StateMismatch
 
-__all__ = ["Headset", "HeadsetOffline", "VistaClient", "VistaError"]
+__all__ = ["Headset", "HeadsetOffline", "StateMismatch", "VistaClient", "VistaError"]

@@ -6,11 +6,14 @@ with or without a connection: it updates the copy at once and queues the judgmen
 client-made id and the headset's clock. ``push`` sends the outbox in batches; an item the
 server answered leaves the outbox, anything else (no network, a lost response) stays and
 is sent again with the same id, which the server answers as the first time. A judgment is
-checked before it is queued; an item the server refuses as malformed (an outbox written by
-an older client) is set aside in ``refused`` with the reason and never holds back the rest.
+checked before it is queued (a verdict, a new type that differs from the defect's); an item
+the server refuses (a defect deleted meanwhile, a device clock far ahead, an outbox written
+by an older client) is kept in ``refused`` with the reason until the user clears it, and
+never holds back the rest. A verdict is lost only when the user clears it.
 
     vista-headset --url http://127.0.0.1:8000 --token DEVICE_TOKEN --inspection 1 \\
-        --judge 12=confirmed --judge 14=rejected --state headset.json
+        --judge 12=confirmed --comment "burr on the edge" --judge 14=rejected --state headset.json
+    vista-headset refused --state headset.json [--clear-refused]
 """
 
 from __future__ import annotations
@@ -38,12 +41,21 @@ class HeadsetOffline(ConnectionError):
     """The headset has no connection (``go_offline``), or the network failed."""
 
 
+class StateMismatch(ValueError):
+    """A state file of another inspection or server."""
+
+
 @dataclass
 class SyncReport:
     pages: int = 0
     defects: int = 0
     judgments: int = 0
-    scene_changed: bool = False
+    scene: str = "unchanged"
+    """The scene since the sync before: ``first`` (no sync before), ``changed`` or ``unchanged``."""
+
+    @property
+    def scene_changed(self) -> bool:
+        return self.scene == "changed"
 
 
 @dataclass
@@ -51,7 +63,8 @@ class PushReport:
     sent: int = 0
     results: list[dict] = field(default_factory=list)
     refused: list[dict] = field(default_factory=list)
-    """Items the server refused as malformed: set aside (``Headset.refused``), not sent again."""
+    """Items refused (malformed, or answered ``rejected``): kept in ``Headset.refused`` with
+    the reason, not sent again."""
 
     def count(self, status: str) -> int:
         return sum(r["status"] == status for r in self.results)
@@ -104,6 +117,7 @@ class Headset:
         if self.user is None:
             self.user = self._call(self.client.me)
         report = SyncReport()
+        before = self.scene_etag
         while True:
             page = self._call(self.client.sync, self.inspection_id, self.cursor)
             report.pages += 1
@@ -121,7 +135,10 @@ class Headset:
             self.cursor = page["next_cursor"]
             if not page["more"]:
                 break
-        report.scene_changed = self.scene_etag != self.loaded_scene_etag
+        if before is None:
+            report.scene = "first"
+        elif self.scene_etag != before:
+            report.scene = "changed"
         return report
 
     def _keep_judgment(self, judgment: dict) -> None:
@@ -172,6 +189,10 @@ class Headset:
             raise ValueError(f"defect {defect_id}: {problem}")
         if defect_id not in self.defects:
             raise KeyError(f"defect {defect_id} is not in this headset's copy; sync first")
+        if verdict == "reclassified" and self.defects[defect_id]["type"] == new_type:
+            raise ValueError(
+                f"defect {defect_id} already is a {new_type}; reclassify it as another type"
+            )
         item = {
             "client_id": str(uuid.uuid4()),
             "defect_id": defect_id,
@@ -186,10 +207,10 @@ class Headset:
         return item
 
     def push(self) -> PushReport:
-        """Send the outbox; answered items leave it, items the server refuses as malformed
-        are set aside with the reason. Raises ``HeadsetOffline`` (the outbox kept whole)
-        when the connection fails, ``VistaError`` when the server refuses the headset
-        itself (401, 403)."""
+        """Send the outbox; answered items leave it, items the server refuses (malformed, or
+        answered ``rejected``) move to ``refused`` with the reason. Raises ``HeadsetOffline``
+        when the connection fails (every unanswered item stays queued), ``VistaError`` when
+        the server refuses the headset itself (401, 403)."""
         report = PushReport()
         self._set_aside(
             [
@@ -226,6 +247,12 @@ class Headset:
             self._fold_answer([item], answer, report)
 
     def _fold_answer(self, batch: list[dict], answer: dict, report: PushReport) -> None:
+        rejected = {
+            r["client_id"]: r["detail"] for r in answer["results"] if r["status"] == "rejected"
+        }
+        self._set_aside(
+            [(i, rejected[i["client_id"]]) for i in batch if i["client_id"] in rejected], report
+        )
         answered = {r["client_id"] for r in answer["results"]}
         self.outbox = [i for i in self.outbox if i["client_id"] not in answered]
         for result in answer["results"]:
@@ -245,11 +272,17 @@ class Headset:
             self.refused.append(refused)
             report.refused.append(refused)
 
+    def clear_refused(self) -> list[dict]:
+        """Forget the refused items (the user has read them); returns what was cleared."""
+        cleared, self.refused = self.refused, []
+        return cleared
+
     # -- persistence ---------------------------------------------------------------------
 
     def save(self, path: Path) -> None:
         """Everything the headset knows, so it survives a restart while offline."""
         state = {
+            "url": self.client.base_url,
             "inspection_id": self.inspection_id,
             "cursor": self.cursor,
             "inspection": self.inspection,
@@ -262,13 +295,23 @@ class Headset:
             "refused": self.refused,
             "user": self.user,
         }
-        temp = Path(path).with_suffix(".tmp")
-        temp.write_text(json.dumps(state))
-        temp.replace(path)
+        _write_state(Path(path), state)
 
     @classmethod
-    def load(cls, client: VistaClient, path: Path, **kwargs) -> Headset:
+    def load(
+        cls, client: VistaClient, path: Path, inspection_id: int | None = None, **kwargs
+    ) -> Headset:
+        """The headset saved in ``path``. Raises ``StateMismatch`` when the file holds another
+        inspection than ``inspection_id`` or another server than the client's."""
         state = json.loads(Path(path).read_text())
+        if inspection_id is not None and state["inspection_id"] != inspection_id:
+            raise StateMismatch(
+                f"{path} holds inspection {state['inspection_id']}, not {inspection_id}: "
+                "give each inspection its own --state file"
+            )
+        url = state.get("url")
+        if url is not None and url != client.base_url:
+            raise StateMismatch(f"{path} holds a copy from {url}, not from {client.base_url}")
         headset = cls(client, state["inspection_id"], **kwargs)
         headset.cursor = state["cursor"]
         headset.inspection = state["inspection"]
@@ -296,35 +339,75 @@ def judgment_problem(verdict: object, new_type: object, comment: object) -> str 
     return None
 
 
+class _Judge(argparse.Action):
+    """``--judge D=VERDICT``: one judgment, with the ``--comment`` that follows it."""
+
+    def __call__(self, parser, namespace, value, option_string=None) -> None:  # noqa: ANN001
+        namespace.judge.append({"spec": value, "comment": ""})
+
+
+class _Comment(argparse.Action):
+    def __call__(self, parser, namespace, value, option_string=None) -> None:  # noqa: ANN001
+        if not namespace.judge:
+            parser.error("--comment follows the --judge it belongs to")
+        namespace.judge[-1]["comment"] = value
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="vista-headset",
         description="Sync one inspection like a headset: pull changes, queue judgments, push "
-        "them. With --state the copy and the outbox persist between runs (offline work).",
+        "them. With --state the copy, the outbox and the refused judgments persist between "
+        "runs (offline work). 'refused' lists the judgments the server refused.",
+        epilog="Exit status: 0 everything queued or sent; 1 the server refused the headset, or "
+        "judgments could not be sent and are not kept (no --state); 2 a judgment was refused.",
     )
-    parser.add_argument("--url", required=True, help="the supervisor, e.g. http://host:8000")
-    parser.add_argument("--token", required=True, help="a device token (or any API token)")
-    parser.add_argument("--inspection", type=int, required=True)
+    parser.add_argument(
+        "command",
+        nargs="?",
+        choices=("sync", "refused"),
+        default="sync",
+        help="sync (the default): pull, queue, push; refused: list the refused judgments",
+    )
+    parser.add_argument("--url", help="the supervisor, e.g. http://host:8000 (sync)")
+    parser.add_argument("--token", help="a device token, or any API token (sync)")
+    parser.add_argument("--inspection", type=int, help="the inspection's id (sync)")
     parser.add_argument("--state", type=Path, help="JSON file with the headset's state")
     parser.add_argument(
         "--judge",
-        action="append",
+        action=_Judge,
         default=[],
         metavar="DEFECT=VERDICT",
         help="queue a judgment, e.g. 12=confirmed or 12=reclassified:dent (repeatable)",
     )
+    parser.add_argument(
+        "--comment", action=_Comment, metavar="TEXT", help="a comment on the --judge before it"
+    )
     parser.add_argument("--offline", action="store_true", help="queue only; send nothing")
+    parser.add_argument(
+        "--clear-refused",
+        action="store_true",
+        help="forget the refused judgments after listing them (they are never sent)",
+    )
     args = parser.parse_args(argv)
+    if args.command == "refused":
+        if args.state is None or not args.state.exists():
+            parser.error("refused reads a headset's --state file")
+        return _refused(args.state, clear=args.clear_refused)
+    missing = [f"--{n}" for n in ("url", "token", "inspection") if getattr(args, n) is None]
+    if missing:
+        parser.error(f"sync needs {', '.join(missing)}")
     with VistaClient(args.url, args.token) as client:
-        if args.state and args.state.exists():
-            headset = Headset.load(client, args.state)
-        else:
-            headset = Headset(client, args.inspection)
+        try:
+            if args.state and args.state.exists():
+                headset = Headset.load(client, args.state, args.inspection)
+            else:
+                headset = Headset(client, args.inspection)
+        except StateMismatch as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
         try:
             return _run(headset, args)
-        except HeadsetOffline as exc:
-            print(f"offline ({exc}); {len(headset.outbox)} judgment(s) wait", file=sys.stderr)
-            return 0
         except VistaError as exc:
             print(f"error: the server answered {exc.status}: {exc.detail}", file=sys.stderr)
             return 1
@@ -334,37 +417,95 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(headset: Headset, args: argparse.Namespace) -> int:
-    if not args.offline:
-        pulled = headset.sync()
-        print(
-            f"synced {pulled.defects} defects, {pulled.judgments} judgments "
-            f"in {pulled.pages} page(s); scene changed: {pulled.scene_changed}"
-        )
+    online = not args.offline
+    if online:
+        try:
+            pulled = headset.sync()
+            scene = {"first": "first seen", "changed": "changed", "unchanged": "unchanged"}
+            print(
+                f"synced {pulled.defects} defects, {pulled.judgments} judgments "
+                f"in {pulled.pages} page(s); scene {scene[pulled.scene]}"
+            )
+        except HeadsetOffline as exc:
+            online = False
+            print(f"server unreachable ({exc}): working from the local copy", file=sys.stderr)
     refused = 0
-    for spec in args.judge:
+    for judge in args.judge:
+        spec = judge["spec"]
         defect, _, verdict = spec.partition("=")
         verdict, _, new_type = verdict.partition(":")
         try:
             if not defect.strip().isdigit():
                 raise ValueError(f"{defect!r} is not a defect id")
-            headset.judge(int(defect), verdict, new_type=new_type or None)
+            item = headset.judge(
+                int(defect), verdict, new_type=new_type or None, comment=judge["comment"]
+            )
         except (ValueError, KeyError) as exc:
             print(f"not queued: --judge {spec}: {exc.args[0]}", file=sys.stderr)
             refused += 1
-    if not args.offline and headset.outbox:
-        pushed = headset.push()
-        summary = {s: pushed.count(s) for s in ("applied", "unchanged", "stale")}
-        print(f"pushed {pushed.sent}: {summary}, rejected {pushed.count('rejected')}")
-        for result in pushed.results:
-            if result["status"] == "rejected":
-                print(f"  defect {result['defect_id']}: {result['detail']}")
-        for item in pushed.refused:
+            continue
+        print(f"queued: {_item_text(item)}")
+    lost = False
+    if online and headset.outbox:
+        try:
+            pushed = headset.push()
+        except HeadsetOffline as exc:
+            print(f"server unreachable ({exc})", file=sys.stderr)
+        else:
+            summary = {s: pushed.count(s) for s in ("applied", "unchanged", "stale")}
+            print(f"pushed {pushed.sent}: {summary}, refused {len(pushed.refused)}")
+            for item in pushed.refused:
+                print(
+                    f"  refused, kept in 'refused': {_item_text(item)}: {item['reason']}",
+                    file=sys.stderr,
+                )
+            refused += len(pushed.refused)
+    if headset.outbox:
+        if args.state:
+            print(f"{len(headset.outbox)} judgment(s) wait in {args.state} for the server")
+        else:
+            lost = True
             print(
-                f"  set aside (not sent again): defect {item.get('defect_id')} "
-                f"{item.get('verdict')!r}: {item['reason']}",
+                f"error: {len(headset.outbox)} judgment(s) not sent and not kept: "
+                "give --state FILE so they wait for the server",
                 file=sys.stderr,
             )
-    return 2 if refused else 0
+    if headset.refused and args.state:
+        print(
+            f"{len(headset.refused)} refused judgment(s) kept: vista-headset refused "
+            f"--state {args.state}",
+            file=sys.stderr,
+        )
+    return 1 if lost else 2 if refused else 0
+
+
+def _refused(path: Path, *, clear: bool) -> int:
+    state = json.loads(path.read_text())
+    items = state.get("refused", [])
+    for item in items:
+        print(f"{_item_text(item)}: {item['reason']}")
+    if not items:
+        print("no refused judgments")
+    if clear and items:
+        state["refused"] = []
+        _write_state(path, state)
+        print(f"cleared {len(items)} refused judgment(s)")
+    return 0
+
+
+def _write_state(path: Path, state: dict) -> None:
+    """Written aside, then moved over the old file: a crash leaves the old state whole."""
+    temp = path.with_suffix(".tmp")
+    temp.write_text(json.dumps(state))
+    temp.replace(path)
+
+
+def _item_text(item: dict) -> str:
+    verdict = item.get("verdict")
+    if item.get("new_type"):
+        verdict = f"{verdict} as {item['new_type']}"
+    comment = f" ({item['comment']!r})" if item.get("comment") else ""
+    return f"defect {item.get('defect_id')} {verdict}{comment}"
 
 
 if __name__ == "__main__":

@@ -82,7 +82,7 @@ namespace Vista.Client.Smoke
                 await JudgeAndPush(api, device, ids[0], me, summary);
                 await PushStale(api, device, ids[1], me, summary);
                 SyncClient restarted = await LoseAnswerAndRestart(api, device, network, ids[2], me, summary);
-                await PushInBatches(restarted, network, ids[3], ids[4], ids[5], me, summary);
+                await PushInBatches(api, restarted, network, ids[3], ids[4], ids[5], me, summary);
                 await restarted.SyncAsync();
                 CheckList(restarted, summary);
             }
@@ -304,26 +304,56 @@ namespace Vista.Client.Smoke
             }
         }
 
-        /// <summary>Three judgments pushed two per request: reclassifying a defect as its own
-        /// type is rejected and its optimistic local judgment goes away; the others apply.</summary>
-        static async Task PushInBatches(SyncClient device, LossyHandler network, long refusedId, long uncertainId, long confirmedId, UserInfo me, Dictionary<string, object> summary)
+        /// <summary>Reclassifying a defect as its own type is refused before it is queued. Three
+        /// judgments pushed two per request: the one made on a clock hours ahead is rejected,
+        /// its optimistic local judgment goes away and it is kept in Refused with the server's
+        /// reason (across a restart) until cleared; the others apply.</summary>
+        static async Task PushInBatches(VistaApi api, SyncClient device, LossyHandler network, long refusedId, long uncertainId, long confirmedId, UserInfo me, Dictionary<string, object> summary)
         {
-            device.Judge(refusedId, Verdicts.Reclassified, device.Defects[refusedId].Type, "");
+            try
+            {
+                device.Judge(refusedId, Verdicts.Reclassified, device.Defects[refusedId].Type, "");
+                throw new CheckFailed("reclassifying a defect as its own type was queued");
+            }
+            catch (ArgumentException local)
+            {
+                Check(local.Message.Contains("already is a " + device.Defects[refusedId].Type) && device.Outbox.Count == 0,
+                    "the same-type reclassification was refused as '" + local.Message + "'");
+            }
             device.Judge(uncertainId, Verdicts.Uncertain, null, "cannot see it from here");
             device.Judge(confirmedId, Verdicts.Confirmed, null, "");
-            Check(device.JudgmentOf(refusedId, me.Id) != null, "the reclassification does not show at once");
+            device.Clock = () => DateTime.UtcNow.AddHours(2);
+            device.Judge(refusedId, Verdicts.Confirmed, null, "clock ahead");
+            Check(device.JudgmentOf(refusedId, me.Id) != null, "the judgment does not show at once");
             device.BatchSize = 2;
             int requestsBefore = network.Requests;
             List<ItemResult> results = await device.PushAsync();
             Check(network.Requests - requestsBefore == 2, "3 items in batches of 2 took " + (network.Requests - requestsBefore) + " requests");
-            Check(results.Select(r => r.Status).SequenceEqual(new[] { ItemResult.Rejected, ItemResult.Applied, ItemResult.Applied }),
+            Check(results.Select(r => r.Status).SequenceEqual(new[] { ItemResult.Applied, ItemResult.Applied, ItemResult.Rejected }),
                 "the batches answered " + string.Join(", ", results.Select(r => r.Status)));
-            Check(!string.IsNullOrEmpty(results[0].Detail), "the rejection has no detail");
+            Check(!string.IsNullOrEmpty(results[2].Detail), "the rejection has no detail");
             Check(device.JudgmentOf(refusedId, me.Id) == null && device.ConsensusOf(refusedId) == null && device.Outbox.Count == 0,
                 "a rejected judgment stayed in the local copy");
+            Check(device.Refused.Count == 1 && device.Refused[0].Item.DefectId == refusedId && device.Refused[0].Reason == results[2].Detail,
+                "the rejected judgment is not kept in Refused with the server's reason");
             Check(device.ConsensusOf(uncertainId).NeedsReview, "a defect judged uncertain does not need review");
+            string path = Path.Combine(Path.GetTempPath(), "vista-smoke-" + Guid.NewGuid().ToString("N") + ".json");
+            try
+            {
+                device.SaveState(path);
+                var restarted = new SyncClient(api, device.InspectionId);
+                restarted.LoadState(path);
+                Check(restarted.Refused.Count == 1 && restarted.Refused[0].Item.Comment == "clock ahead" && restarted.Refused[0].Reason == results[2].Detail,
+                    "the refused judgment did not survive a restart");
+            }
+            finally
+            {
+                File.Delete(path);
+            }
+            Check(device.ClearRefused() == 1 && device.Refused.Count == 0, "ClearRefused did not clear");
             summary["push_requests"] = network.Requests - requestsBefore;
-            summary["rejected_detail"] = results[0].Detail;
+            summary["rejected_detail"] = results[2].Detail;
+            summary["refused_kept"] = true;
         }
 
         /// <summary>The defect window's model: filters, sort orders, stepping through the

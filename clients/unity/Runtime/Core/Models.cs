@@ -526,6 +526,30 @@ namespace Vista.Client
         }
     }
 
+    /// <summary>A judgment the server refused: kept, with the server's reason, until the
+    /// user has read it and clears it (<see cref="SyncClient.ClearRefused"/>); never sent again.</summary>
+    public sealed class RefusedJudgment
+    {
+        /// <summary>The judgment as it was queued.</summary>
+        public OfflineJudgment Item;
+        /// <summary>Why the server refused it, in its words.</summary>
+        public string Reason;
+
+        /// <summary>Reads a refused item (the outbox item's shape with a <c>reason</c>).</summary>
+        public static RefusedJudgment FromJson(IDictionary<string, object> json)
+        {
+            return new RefusedJudgment { Item = OfflineJudgment.FromJson(json), Reason = json.GetRequiredString("reason") };
+        }
+
+        /// <summary>The outbox item's shape with a <c>reason</c>.</summary>
+        public Dictionary<string, object> ToJson()
+        {
+            Dictionary<string, object> json = Item.ToJson();
+            json["reason"] = Reason;
+            return json;
+        }
+    }
+
     /// <summary>The server's answer to one pushed item.</summary>
     public sealed class ItemResult
     {

@@ -15,7 +15,9 @@ namespace Vista.Client
     /// Judgments are optimistic: <see cref="Judge"/> queues an item and the copy shows it at
     /// once; <see cref="PushAsync"/> sends the outbox when online. An item leaves the outbox
     /// only once the server has answered it, so a push cut off by the network is simply sent
-    /// again (the server answers a retried <c>client_id</c> as the first time). Keep one
+    /// again (the server answers a retried <c>client_id</c> as the first time); an item the
+    /// server refuses moves to <see cref="Refused"/> with the reason and stays there until the
+    /// user clears it, so no verdict is lost without the user having seen why. Keep one
     /// instance per inspection and call it from one thread (Unity's main thread): the awaits
     /// here resume on the caller's context.
     /// </para>
@@ -25,13 +27,14 @@ namespace Vista.Client
         /// <summary>Most items the server takes in one push.</summary>
         public const int MaxBatch = 1000;
 
-        const int StateVersion = 1;
+        const int StateVersion = 2;
 
         readonly VistaApi api;
         readonly Dictionary<long, Defect> defects = new Dictionary<long, Defect>();
         readonly Dictionary<long, Dictionary<long, Judgment>> judgments = new Dictionary<long, Dictionary<long, Judgment>>();
         readonly Dictionary<long, Consensus> consensus = new Dictionary<long, Consensus>();
         readonly List<OfflineJudgment> outbox = new List<OfflineJudgment>();
+        readonly List<RefusedJudgment> refused = new List<RefusedJudgment>();
         DateTime lastClientTime = DateTime.MinValue;
         int batchSize = MaxBatch;
         Task<int> syncing;
@@ -48,6 +51,9 @@ namespace Vista.Client
             this.api = api;
             InspectionId = inspectionId;
         }
+
+        /// <summary>The device's clock, UTC (a judgment's <c>client_time</c>).</summary>
+        public Func<DateTime> Clock { get; set; } = () => DateTime.UtcNow;
 
         /// <summary>The inspection this is a copy of.</summary>
         public long InspectionId { get; private set; }
@@ -102,6 +108,21 @@ namespace Vista.Client
         public IReadOnlyList<OfflineJudgment> Outbox
         {
             get { return outbox; }
+        }
+
+        /// <summary>Judgments the server refused, oldest first, each with its reason; kept
+        /// (and saved with the state) until <see cref="ClearRefused"/>.</summary>
+        public IReadOnlyList<RefusedJudgment> Refused
+        {
+            get { return refused; }
+        }
+
+        /// <summary>Forgets the refused judgments once the user has read them; returns how many.</summary>
+        public int ClearRefused()
+        {
+            int count = refused.Count;
+            refused.Clear();
+            return count;
         }
 
         /// <summary>A user's judgment of a defect as shown here: the user's newest judgment
@@ -223,6 +244,10 @@ namespace Vista.Client
                 throw new ArgumentException("newType: one of " + string.Join(", ", DefectTypes.All)
                     + ", given exactly when the verdict is reclassified.");
             }
+            if (reclassified && defects[defectId].Type == newType)
+            {
+                throw new ArgumentException("Defect " + defectId + " already is a " + newType + "; reclassify it as another type.");
+            }
             var item = new OfflineJudgment
             {
                 ClientId = Guid.NewGuid().ToString(),
@@ -241,7 +266,7 @@ namespace Vista.Client
         /// the judgment before: two quick judgments of one defect must not tie.</summary>
         string NextClientTime()
         {
-            DateTime now = DateTime.UtcNow;
+            DateTime now = Clock().ToUniversalTime();
             now = new DateTime(now.Ticks - now.Ticks % 10, DateTimeKind.Utc);
             if (now <= lastClientTime)
             {
@@ -254,7 +279,8 @@ namespace Vista.Client
         /// <summary>Sends the outbox in batches of <see cref="BatchSize"/> and returns
         /// the server's results. Every answered item leaves the outbox (applied, unchanged,
         /// stale or rejected) and the server's judgment in the answer replaces the local one;
-        /// a rejected item without one falls back to the server's copy. When the network fails
+        /// a rejected item moves to <see cref="Refused"/> with the server's reason and the
+        /// copy falls back to the server's judgment. When the network fails
         /// the exception propagates and the unanswered items stay for the next push. A push
         /// already running is joined.</summary>
         public Task<List<ItemResult>> PushAsync()
@@ -284,6 +310,11 @@ namespace Vista.Client
         {
             foreach (ItemResult result in answer.Results)
             {
+                if (result.Status == ItemResult.Rejected)
+                {
+                    refused.AddRange(outbox.Where(item => item.ClientId == result.ClientId)
+                        .Select(item => new RefusedJudgment { Item = item, Reason = result.Detail ?? "refused by the server" }));
+                }
                 outbox.RemoveAll(item => item.ClientId == result.ClientId);
                 if (result.Judgment != null)
                 {
@@ -309,7 +340,7 @@ namespace Vista.Client
             return download;
         }
 
-        /// <summary>Writes the cursor, the outbox, the user and the copy to a JSON file
+        /// <summary>Writes the cursor, the outbox, the refused items, the user and the copy to a JSON file
         /// (written aside, then moved over the old one).</summary>
         public void SaveState(string path)
         {
@@ -326,6 +357,7 @@ namespace Vista.Client
                 { "judgments", judgments.Values.SelectMany(byUser => byUser.Values).Select(j => j.ToJson()).ToList() },
                 { "consensus", consensus.Values.Select(c => c.ToJson()).ToList() },
                 { "outbox", outbox.Select(item => item.ToJson()).ToList() },
+                { "refused", refused.Select(item => item.ToJson()).ToList() },
             };
             string temporary = path + ".part";
             File.WriteAllText(temporary, Json.Serialize(state), new UTF8Encoding(false));
@@ -339,9 +371,10 @@ namespace Vista.Client
             }
         }
 
-        /// <summary>Replaces the copy and the outbox with those saved in a file; false (and
-        /// nothing changed) when the file does not exist. A file of another inspection or an
-        /// unknown version throws <see cref="FormatException"/>.</summary>
+        /// <summary>Replaces the copy, the outbox and the refused items with those saved in a
+        /// file; false (and nothing changed) when the file does not exist. A file of another
+        /// inspection or an unknown version throws <see cref="FormatException"/>; a version 1
+        /// file (before refused items were kept) loads with none.</summary>
         public bool LoadState(string path)
         {
             if (!File.Exists(path))
@@ -349,7 +382,8 @@ namespace Vista.Client
                 return false;
             }
             Dictionary<string, object> state = Json.ParseObject(File.ReadAllText(path, Encoding.UTF8));
-            if (state.GetInt64("version") != StateVersion)
+            long version = state.GetInt64("version");
+            if (version != StateVersion && version != 1)
             {
                 throw new FormatException(path + ": state version " + state.GetInt64("version") + " is not " + StateVersion + ".");
             }
@@ -363,6 +397,7 @@ namespace Vista.Client
             judgments.Clear();
             consensus.Clear();
             outbox.Clear();
+            refused.Clear();
             Cursor = state.GetString("cursor");
             SceneEtag = state.GetString("scene_etag");
             DownloadedSceneEtag = state.GetString("downloaded_scene_etag");
@@ -383,6 +418,7 @@ namespace Vista.Client
                 consensus[tally.DefectId] = tally;
             }
             outbox.AddRange(state.GetObjects("outbox").Select(OfflineJudgment.FromJson));
+            refused.AddRange(state.GetObjects("refused").Select(RefusedJudgment.FromJson));
             return true;
         }
 
