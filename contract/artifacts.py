@@ -23,6 +23,10 @@ class Inspected:
 
     media_type: str
     meta: dict = field(default_factory=dict)
+    replacement: Path | None = None
+    """A file the hook wrote in place of the upload (a scanner's format converted to
+    vista's), in the upload's folder: kept instead of it, named with ``media_type``'s
+    extension."""
 
 
 class ArtifactRefused(ValueError):
@@ -35,8 +39,9 @@ class ArtifactRefused(ValueError):
         self.too_large = too_large
 
 
-Inspect = Callable[[Path, str], Inspected]
-"""A kind's check: the uploaded file and the media type its sender declared."""
+Inspect = Callable[..., Inspected]
+"""A kind's check: ``inspect(path, media_type)`` — the uploaded file and the media type its
+sender declared; a hook of point clouds also takes ``units=`` (the unit the sender named)."""
 
 
 @dataclass(frozen=True)

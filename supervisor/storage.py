@@ -144,6 +144,22 @@ class Storage:
             uri=f"{URI_SCHEME}tmp/{temp.name}", size_bytes=size, sha256=digest.hexdigest()
         )
 
+    def adopt(self, path: Path) -> StoredFile:
+        """A file written into the temporary area by other code (an upload converted to
+        vista's format): synced, hashed, and named by its temp uri."""
+        if path.parent != self.root / "tmp":
+            raise ValueError(f"{path} is not in the storage's temporary area")
+        digest = hashlib.sha256()
+        with open(path, "rb") as handle:
+            while chunk := handle.read(CHUNK_BYTES):
+                digest.update(chunk)
+            os.fsync(handle.fileno())
+        return StoredFile(
+            uri=f"{URI_SCHEME}tmp/{path.name}",
+            size_bytes=path.stat().st_size,
+            sha256=digest.hexdigest(),
+        )
+
     def commit(self, temp_uri: str, *, inspection_id: int, name: str) -> str:
         """Move a temporary file (synced by its writer) to its final place and sync the
         folder that now lists it; returns the final uri."""

@@ -26,7 +26,7 @@ from tests.sequences import archive_bytes, sequence_members, small_sequence
 from tests.test_upload_limits import onnx_model_bytes
 
 VALIDATOR_CASES = 100
-"""Damaged files per format checked by ``validate_upload`` (12 formats)."""
+"""Damaged files per format checked by ``validate_upload`` (17 formats)."""
 API_CASES = 15
 """Damaged files per format POSTed to the live server."""
 HEADER_BYTES = 4096
@@ -75,6 +75,26 @@ def _lidar_members() -> dict[str, bytes]:
     return scans | {name: text.encode() for name, text in texts.items()}
 
 
+def _scanner_seeds(tmp: Path) -> dict[str, Seed]:
+    """Clouds in scanners' formats, written by their own libraries (converted at upload)."""
+    from tests import scannerfiles as sf
+
+    truth = sf.truth()
+    writers = {
+        "ply-ascii": sf.write_ply_ascii_open3d,
+        "pcd": sf.write_pcd,
+        "laz": lambda path, t: sf.write_las(path, t, compressed=True),
+        "e57": sf.write_e57,
+        "pts": sf.write_pts,
+    }
+    found = {}
+    for form, write in writers.items():
+        path = tmp / f"scanner.{form.split('-')[0]}"
+        write(path, truth)
+        found[form] = Seed("cloud", path.read_bytes())
+    return found
+
+
 @pytest.fixture(scope="module")
 def seeds(tmp_path_factory) -> dict[str, Seed]:
     """One valid file per format, each kept by ``validate_upload`` as it is."""
@@ -93,6 +113,7 @@ def seeds(tmp_path_factory) -> dict[str, Seed]:
         "lidar": Seed("lidar", archive_bytes(lidar, "zip"), lidar, "zip"),
         "onnx": Seed("model", onnx_model_bytes()),
         "png": Seed("image", _png((12, 16, 3))),
+        **_scanner_seeds(tmp),
         "depth": Seed("depth", _png((12, 16), "uint16")),
         "tum": Seed("trajectory", b"0 0 0 0 0 0 0 1\n0.1 0.002 0 0 0 0 0.01 0.99995\n"),
     }
@@ -273,7 +294,7 @@ def damaged(seed: Seed, rng: random.Random) -> tuple[bytes, str]:
 @pytest.mark.parametrize(
     "form",
     ["ply", "ply-mesh", "json", "zip", "tar", "tar.gz", "drive", "lidar", "onnx", "png"]
-    + ["depth", "tum"],
+    + ["depth", "tum", "ply-ascii", "pcd", "laz", "e57", "pts"],
 )
 def test_damaged_files_are_kept_or_refused_with_a_4xx_sentence(seeds, tmp_path, form):
     seed = seeds[form]

@@ -43,7 +43,7 @@ def refusal(tmp_path: Path, data: bytes, *, kind: str, name: str = "probe.bin") 
 def kept(tmp_path: Path, data: bytes, *, kind: str, name: str = "good.bin") -> dict:
     path = tmp_path / "upload"
     path.write_bytes(data)
-    return validate_upload(path, media_type="application/octet-stream", name=name, kind=kind)[1]
+    return validate_upload(path, media_type="application/octet-stream", name=name, kind=kind).meta
 
 
 # --- 1, 2: every PLY header shape and list count is a sentence -------------------------------

@@ -17,7 +17,9 @@ from services.lib.wording import counted
 
 def measure(
     cloud: Path = typer.Argument(
-        ..., help="Stitched cloud (binary PLY, mm), e.g. from `vista stitching stitch`."
+        ...,
+        help="Stitched cloud, e.g. from `vista stitching stitch`: PLY (mm), or PCD, LAS/LAZ, "
+        "E57, XYZ/ASC, PTS in their formats' units.",
     ),
     config: Path = typer.Option(
         None,
@@ -41,7 +43,7 @@ def measure(
     from services.defects.report import profile_png, result_document
     from services.defects.truth import Truth
     from services.lib.archive import read_json
-    from services.lib.pointcloud.ply import read_ply
+    from services.lib.pointcloud.scanner import load_cloud
     from services.lib.process import available_cores, prepare_process
 
     prepare_process()
@@ -51,8 +53,8 @@ def measure(
             MeasureConfig() if config is None else parse_config(read_json(config), str(config))
         )
         truth_json = None if truth is None else read_json(truth)
-        points = read_ply(cloud)
-    except (ValueError, OSError) as exc:  # ConfigError, PlyError, a file's JSON
+        points = load_cloud(cloud)
+    except (ValueError, OSError) as exc:  # ConfigError, PlyError, a cloud's format, a JSON
         fail(str(exc))
     try:
         true = None if truth_json is None else Truth.from_document(truth_json)

@@ -63,8 +63,9 @@ def _ply(path: Path, *, mesh: bool) -> Inspected:
 
     what = "triangle mesh" if mesh else "point cloud"
     if not is_ply(_head(path)):
+        others = "" if mesh else ", nor is it a PCD, LAS/LAZ, E57, XYZ/ASC or PTS cloud"
         raise ArtifactRefused(
-            f"must be a PLY {what}, but it does not start with the PLY magic line 'ply'"
+            f"must be a PLY {what}, but it does not start with the PLY magic line 'ply'{others}"
         )
     try:
         info = validate_ply(path)
@@ -78,9 +79,22 @@ def _ply(path: Path, *, mesh: bool) -> Inspected:
     return Inspected(PLY_MEDIA_TYPE, {"ply": meta})
 
 
-def inspect_cloud(path: Path, media_type: str) -> Inspected:
-    """A PLY point cloud: header, element sizes and finite coordinates."""
-    return _ply(path, mesh=False)
+def inspect_cloud(path: Path, media_type: str, units: str | None = None) -> Inspected:
+    """A point cloud: vista's PLY checked for header, element sizes and finite
+    coordinates; any other cloud format a scanner writes (``scanner.sniff``) converted to
+    it, in millimetres, the source's format and unit in the metadata."""
+    from services.lib.pointcloud.scanner import ScannerFormatError, convert_isolated, sniff
+
+    if sniff(path) in (None, "ply") and units in (None, "mm"):
+        return _ply(path, mesh=False)
+    out = path.with_suffix(".converted.part")
+    try:
+        source = convert_isolated(path, out, units=units)
+        found = _ply(out, mesh=False)
+    except (ScannerFormatError, ArtifactRefused) as exc:
+        out.unlink(missing_ok=True)
+        raise ArtifactRefused(str(exc)) from exc
+    return Inspected(found.media_type, {**found.meta, "source": source}, out)
 
 
 def inspect_mesh(path: Path, media_type: str) -> Inspected:

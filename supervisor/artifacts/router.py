@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import PurePath
 from typing import Literal
 
 from fastapi import APIRouter, Depends, Query, Request, Response
@@ -9,6 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 
+from services.lib.pointcloud.scanner import UNITS_MM
 from supervisor.artifacts import service
 from supervisor.artifacts.schemas import ARTIFACT_KIND_PATTERN, MEDIA_TYPES, ArtifactOut
 from supervisor.artifacts.validation import validate_upload
@@ -65,6 +67,11 @@ async def upload_artifact(
         + "; ".join(f"`{k.name}`: {k.description}" for k in ARTIFACT_KINDS.values())
     ),
     name: str = Query(min_length=1, max_length=255, description="File name, e.g. scan_000.ply"),
+    units: Literal[tuple(UNITS_MM)] | None = Query(
+        None,
+        description="A point cloud's unit, when its format's convention does not hold: PLY "
+        "and XYZ/ASC text are read as mm, PCD, LAS/LAZ and PTS as m, E57 is m by its standard.",
+    ),
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),
 ) -> Response:
@@ -72,9 +79,12 @@ async def upload_artifact(
     body's media types (415 otherwise), not empty and within the server's upload limit
     (413). Its content is checked against what its `kind` needs before it is kept,
     whatever Content-Type was declared (422 otherwise): a PLY — recognised by its magic
-    line — for header, element sizes and finite coordinates; JSON parsed; PNG, JPEG and
-    GLB by signature; archives, models and trajectories read as their kind says. The
-    media type kept is the content's. Anything refused leaves nothing behind."""
+    line — for header, element sizes and finite coordinates; a point cloud a scanner or
+    CloudCompare wrote (ASCII or big-endian PLY, PCD, LAS/LAZ, E57, XYZ/ASC, PTS —
+    recognised by its content) converted to vista's PLY in mm, kept as `NAME.ply` with
+    its source's format and unit in `meta.source`; JSON parsed; PNG, JPEG and GLB by
+    signature; archives, models and trajectories read as their kind says. The media type
+    kept is the content's. Anything refused leaves nothing behind."""
     media_type = _media_type(request)
     limit = runtime.settings.max_upload_bytes
     declared_length = request.headers.get("content-length")
@@ -92,16 +102,22 @@ async def upload_artifact(
             413, f"The upload is larger than the limit of {exc.limit_bytes // 2**20} MiB."
         ) from exc
     temp_path = runtime.storage.path(received.uri)
+    found = None
     try:
         if received.size_bytes == 0:
             raise Problem(422, "The upload is empty.")
-        media_type, meta = await run_in_threadpool(
-            validate_upload, temp_path, media_type=media_type, name=name, kind=kind
+        found = await run_in_threadpool(
+            validate_upload, temp_path, media_type=media_type, name=name, kind=kind, units=units
         )
-        upload = service.Upload(inspection_id, kind, name, media_type, received, meta)
+        if found.replacement is not None:
+            received = await run_in_threadpool(runtime.storage.adopt, found.replacement)
+            name = f"{PurePath(name).stem}{MEDIA_TYPES[found.media_type]}"
+        upload = service.Upload(inspection_id, kind, name, found.media_type, received, found.meta)
         return await run_in_threadpool(service.store, request, runtime, user.id, upload)
     finally:
         temp_path.unlink(missing_ok=True)
+        if found is not None and found.replacement is not None:
+            found.replacement.unlink(missing_ok=True)
 
 
 @router.get("/inspections/{inspection_id}/artifacts", response_model=Page[ArtifactOut])

@@ -4,23 +4,29 @@ the service that knows the kind (``contract.artifacts``)."""
 
 from __future__ import annotations
 
+import inspect as introspect
 from pathlib import Path
 
-from contract.artifacts import ArtifactRefused
+from contract.artifacts import ArtifactRefused, Inspected
 from supervisor.engine.registry import artifact_kinds
 from supervisor.problems import Problem
 
 
-def validate_upload(path: Path, *, media_type: str, name: str, kind: str) -> tuple[str, dict]:
-    """The media type to keep and the metadata learned from the file; raises a 422 Problem
-    (413 for its size alone) naming what is wrong if the content is not what ``kind``
-    needs."""
+def validate_upload(
+    path: Path, *, media_type: str, name: str, kind: str, units: str | None = None
+) -> Inspected:
+    """The media type to keep, the metadata learned from the file and the file written in
+    its place, if any; raises a 422 Problem (413 for its size alone) naming what is wrong
+    if the content is not what ``kind`` needs, or ``units`` are given for a kind of file
+    that has none."""
     inspect = artifact_kinds()[kind].load_inspect()
+    takes_units = inspect is not None and "units" in introspect.signature(inspect).parameters
+    if units is not None and not takes_units:
+        raise Problem(422, f"units apply to point clouds, not to a file of kind {kind}.")
     if inspect is None:
-        return media_type, {}
+        return Inspected(media_type)
     try:
-        found = inspect(path, media_type)
+        return inspect(path, media_type, units=units) if takes_units else inspect(path, media_type)
     except ArtifactRefused as exc:
         status = 413 if exc.too_large else 422
         raise Problem(status, f"{name} (kind={kind}) {exc.reason}.") from exc
-    return found.media_type, found.meta

@@ -151,7 +151,7 @@ def _parse_header(handle: BinaryIO) -> PlyHeader:
         elements=parsed,
         comments=tuple(comments),
         header_bytes=header_bytes,
-        grid_shape=_grid_shape(comments),
+        grid_shape=grid_shape_of(comments),
     )
 
 
@@ -201,7 +201,8 @@ def _add_property(number: int, line: str, words: list[str], element: dict) -> No
         raise PlyError(f"header line {number}: cannot read property line {line[:80]!r}")
 
 
-def _grid_shape(comments: list[str]) -> tuple[int, int] | None:
+def grid_shape_of(comments: list[str]) -> tuple[int, int] | None:
+    """(height, width) from a header's ``comment width W`` and ``comment height H``."""
     values = {}
     for comment in comments:
         words = comment.split()
