@@ -12,7 +12,12 @@ from sqlalchemy.orm import Session
 
 from services.lib.pointcloud.scanner import UNITS_MM
 from supervisor.artifacts import service
-from supervisor.artifacts.schemas import ARTIFACT_KIND_PATTERN, MEDIA_TYPES, ArtifactOut
+from supervisor.artifacts.schemas import (
+    ARTIFACT_KIND_PATTERN,
+    MEDIA_TYPES,
+    ArtifactKindOut,
+    ArtifactOut,
+)
 from supervisor.artifacts.validation import validate_upload
 from supervisor.db import after_commit
 from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, get_runtime, require
@@ -118,6 +123,14 @@ async def upload_artifact(
         temp_path.unlink(missing_ok=True)
         if found is not None and found.replacement is not None:
             found.replacement.unlink(missing_ok=True)
+
+
+@router.get("/artifact-kinds", response_model=list[ArtifactKindOut])
+def list_artifact_kinds(_: CurrentUser = Depends(readers)) -> list[ArtifactKindOut]:
+    """The kinds of file an upload may be (the services' declared list), with what each is."""
+    return [
+        ArtifactKindOut(name=k.name, description=k.description) for k in ARTIFACT_KINDS.values()
+    ]
 
 
 @router.get("/inspections/{inspection_id}/artifacts", response_model=Page[ArtifactOut])

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 ARTIFACT_KIND_PATTERN = r"^[a-z][a-z0-9_.-]{0,31}$"
 MEDIA_TYPES = {
@@ -20,6 +20,11 @@ MEDIA_TYPES = {
     "application/x-xz": ".tar.xz",
     "application/x-tar": ".tar",
 }
+
+
+class ArtifactKindOut(BaseModel):
+    name: str
+    description: str = Field(description="What a file of this kind is: units and frames.")
 
 
 class ArtifactOut(BaseModel):

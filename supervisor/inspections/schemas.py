@@ -1,11 +1,12 @@
 from __future__ import annotations
 
+from dataclasses import asdict
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, computed_field, field_validator
 
-from contract.tolerances import Tolerances
+from contract.tolerances import Tolerances, limits_of
 from supervisor.models.inspections import Area, InspectionStatus
 from supervisor.requests import Millimetres, RequestModel, omittable
 
@@ -101,6 +102,14 @@ class InspectionOut(BaseModel):
     created_by: int | None
     created_at: datetime
     updated_at: datetime
+
+    @computed_field(
+        description="Every limit the findings are judged by: the tolerances' own and the "
+        "defaults where they are silent (mm; colour in ΔE)."
+    )
+    @property
+    def limits(self) -> dict[str, float]:
+        return asdict(limits_of(self.tolerances))
 
 
 class TrashedInspectionOut(InspectionOut):

@@ -66,6 +66,13 @@ export const api = {
     link.remove();
     setTimeout(() => URL.revokeObjectURL(url), 10_000);
   },
+  createInspection: (body) => request("POST", "/inspections", { body }),
+  artifactKinds: () => request("GET", "/artifact-kinds"),
+  artifacts: (id) => request("GET", `/inspections/${id}/artifacts`, { params: { limit: 500 } }),
+  jobKinds: () => request("GET", "/job-kinds"),
+  createRun: (id, body) => request("POST", `/inspections/${id}/runs`, { body }),
+  cancelJob: (jobId) => request("POST", `/jobs/${jobId}/cancel`),
+  retryJob: (jobId) => request("POST", `/jobs/${jobId}/retry`),
   scene: (id, points, run) => request("GET", `/inspections/${id}/scene.glb`, { raw: true, params: { points, run } }),
   sceneRuns: (id) => request("GET", `/inspections/${id}/scene-runs`),
 };
@@ -92,4 +99,29 @@ export async function followJob(jobId, onEvent, signal) {
       if (event && data) onEvent(event, JSON.parse(data));
     }
   }
+}
+
+// An upload as the raw body, through XMLHttpRequest: fetch cannot report the bytes sent.
+// onProgress(fraction) while it goes; resolves to the artifact kept, rejects with the
+// server's sentence.
+export function uploadArtifact(inspectionId, file, { kind, units }, onProgress) {
+  const url = new URL(`${API}/inspections/${inspectionId}/artifacts`, location.origin);
+  url.searchParams.set("kind", kind);
+  url.searchParams.set("name", file.name);
+  if (units) url.searchParams.set("units", units);
+  return new Promise((resolve, reject) => {
+    const xhr = new XMLHttpRequest();
+    xhr.open("POST", url);
+    xhr.setRequestHeader("Authorization", `Bearer ${session.token}`);
+    xhr.setRequestHeader("Content-Type", file.type === "application/x-ply" ? file.type : "application/octet-stream");
+    xhr.upload.onprogress = (event) => { if (event.lengthComputable) onProgress(event.loaded / event.total); };
+    xhr.onload = () => {
+      let body = null;
+      try { body = JSON.parse(xhr.responseText); } catch { /* not JSON */ }
+      if (xhr.status >= 200 && xhr.status < 300) resolve(body);
+      else reject(new ApiError(xhr.status, body?.detail || body?.title || xhr.statusText));
+    };
+    xhr.onerror = () => reject(new ApiError(0, "the upload was cut off: the server could not be reached"));
+    xhr.send(file);
+  });
 }

@@ -2,6 +2,7 @@
 // with filters and sort, the 3D scene, judgments and consensus, and the feedback loop.
 import { api, ApiError, followJob, session } from "./api.js";
 import { el } from "./dom.js";
+import { canEdit, Files, FINISHED, jobButtons, RunForm, setUpNewInspection } from "./manage.js";
 import { showJob } from "./runpage.js";
 import { SceneView } from "./scene.js";
 
@@ -17,7 +18,6 @@ const SCENE_LINES = [
   ["#ffffff", "seam", (facts) => facts.seams > 0],
   ["#1de9b6", "selected", (facts) => facts.markers > 0], // scene.js SELECTED: no type's colour
 ];
-const SEVERITY_RANK = { critical: 3, major: 2, minor: 1, info: 0 };
 const LIVE_POLL_MS = 3000;
 const PREVIEW_POINTS = 100_000; // the scene's first cloud: every marker, fewer points
 const $ = (selector) => document.querySelector(selector);
@@ -75,14 +75,15 @@ function exceedance(defect) {
   return belowMinimum(defect) ? tolerance / Math.max(size, 1e-6) : size / tolerance;
 }
 
-// The inspection's acceptance limits for this defect's type: both ends of a gap's range.
+// The inspection's acceptance limits for this defect's type (its `limits`: the tolerances'
+// own and the defaults where they are silent): both ends of a gap's range.
 function limitsOf(defect) {
-  const t = state.inspection?.tolerances || {};
-  const surface = t.surface || {};
+  const limits = state.inspection?.limits || {};
   const range = {
-    gap: t.gap_mm, step: t.step_mm, parallelism: t.parallelism_mm, mismatch: t.mismatch_mm,
-    dent: { max: surface.dent_depth_mm }, bump: { max: surface.dent_depth_mm },
-    scratch: { max: surface.scratch_depth_mm }, color: { max: surface.color_delta_e },
+    gap: { min: limits.gap_min_mm, max: limits.gap_max_mm }, step: { max: limits.step_max_mm },
+    parallelism: { max: limits.parallelism_max_mm }, mismatch: { max: limits.mismatch_max_mm },
+    dent: { max: limits.dent_depth_mm }, bump: { max: limits.dent_depth_mm },
+    scratch: { max: limits.scratch_depth_mm }, color: { max: limits.color_delta_e },
   }[defect.type] || {};
   let { min = null, max = null } = range;
   if (belowMinimum(defect)) min = defect.tolerance; // what it was judged by
@@ -133,6 +134,14 @@ async function guarded(action) {
 }
 
 // ---- sign-in and inspections ----------------------------------------------------------
+
+setUpNewInspection();
+const files = new Files(() => runForm.drawKind());
+const runForm = new RunForm(files, () => {
+  for (const tab of document.querySelectorAll("[role=tab]")) if (tab.dataset.tab === "timeline") tab.click();
+  $("#run-box").open = false;
+  loadTimeline();
+});
 
 $("#sign-in-form").addEventListener("submit", async (event) => {
   event.preventDefault();
@@ -238,6 +247,8 @@ async function showInspection(id, defectId) {
     loadSceneRuns(id);
     loadTimeline();
     loadFeedback();
+    if (canEdit(state.me)) runForm.open(id).catch((error) => { $("#run-error").textContent = error.message; });
+    else files.open(id).catch(() => {});
     state.poll = setInterval(live, LIVE_POLL_MS);
   }
   show("inspection");
@@ -442,17 +453,28 @@ function renderDetail() {
   $("#consensus").textContent = `Consensus: ${consensusText(consensus)}`;
   $("#consensus").dataset.total = String(consensus?.total || 0);
   const others = [...(state.judgments.get(defect.id)?.values() || [])];
+  const verdictText = (j) => `${j.verdict}${j.new_type ? ` → ${j.new_type}` : ""}`;
+  // earlier revisions of a judgment, newest first, under it (GET /defects/{id}/judgments)
+  const history = (j) => (j.history?.length > 1 ? el(
+    "details", { class: "history" }, el("summary", {}, `${j.history.length} revisions`),
+    el("ol", { reversed: "" }, ...j.history.slice().reverse().map((r) => el(
+      "li", { dataset: { revision: r.revision } },
+      `${verdictText(r)}${r.comment ? ` — ${r.comment}` : ""} `,
+      el("span", { class: "muted" }, new Date(r.created_at).toLocaleString()),
+    ))),
+  ) : null);
   $("#judgments").replaceChildren(...others.map((j) => el(
     "li", { dataset: { user: j.username } },
-    el("b", {}, j.username), ` ${j.verdict}${j.new_type ? ` → ${j.new_type}` : ""}`,
+    el("b", {}, j.username), ` ${verdictText(j)}`,
     j.comment ? el("span", { class: "muted" }, ` — ${j.comment}`) : null,
     el("span", { class: "muted" }, ` (rev ${j.revision}, ${new Date(j.updated_at).toLocaleString()})`),
+    history(j),
   )));
   const mine = state.judgments.get(defect.id)?.get(state.me?.id);
   for (const button of document.querySelectorAll(".verdicts button")) {
     button.classList.toggle("active", mine?.verdict === button.dataset.verdict);
   }
-  const canJudge = ["admin", "inspector"].includes(state.me?.role);
+  const canJudge = canEdit(state.me);
   for (const button of document.querySelectorAll(".verdicts button")) button.disabled = !canJudge;
 }
 
@@ -478,6 +500,7 @@ for (const button of document.querySelectorAll(".verdicts button")) {
       state.judgments.get(id).set(answer.judgment.user_id, answer.judgment);
       state.consensus.set(id, { defect_id: id, ...answer.consensus });
       if (id === state.selected) renderDetail();
+      refreshJudgments(id); // with the revisions before this one
       const cell = document.querySelector(`#defect-list .row[data-id="${id}"] .verdict`);
       if (cell) cell.textContent = consensusText(answer.consensus); // unless filtered out
     } catch (error) {
@@ -576,16 +599,21 @@ function jobRow(job) {
   const status = el("span", { class: `status-${job.status}` }, job.status);
   const message = el("div", { class: job.error ? "job-error" : "job-message muted" }, job.error || job.message || "");
   const name = el("a", { class: "job-step", title: `job ${job.id}: its page`, href: `#/inspections/${job.inspection_id}/jobs/${job.id}` }, `${job.step} `, el("span", { class: "muted" }, job.kind));
-  return { node: el("div", { class: "job", dataset: { job: job.id } }, name, bar, status, message), bar, status, message };
+  const refused = (error) => { $("#runs-error").textContent = `job ${job.id}: ${error.message}`; };
+  const actions = el("span", { class: "job-actions" }, ...jobButtons(job, state.me, loadTimeline, refused));
+  return { node: el("div", { class: "job", dataset: { job: job.id } }, name, bar, el("span", {}, status, actions), message), bar, status, message };
 }
 
 async function loadTimeline() {
   const page = await guarded(() => api.runs(state.inspection.id));
   if (!page) return;
+  $("#runs-error").textContent = "";
+  state.jobStreams.abort(); // the rows drawn before stop following their jobs
+  state.jobStreams = new AbortController();
   $("#timeline").replaceChildren(...page.items.map((run) => {
     const rows = run.jobs.map((job) => {
       const row = jobRow(job);
-      if (!["succeeded", "failed", "cancelled"].includes(job.status)) {
+      if (!FINISHED.includes(job.status)) {
         followJob(job.id, (event, data) => {
           if (event !== "progress") return;
           row.bar.value = data.progress;
@@ -593,6 +621,8 @@ async function loadTimeline() {
           row.status.className = `status-${data.status}`;
           row.message.textContent = data.error || data.message || "";
           row.message.className = data.error ? "job-error" : "job-message muted";
+          if (FINISHED.includes(data.status)) loadTimeline(); // its buttons change: retry
+
         }, state.jobStreams.signal).catch(() => {});
       }
       return row.node;
@@ -662,6 +692,7 @@ async function route() {
     if (!state.me) return;
   }
   $("#who").textContent = `${state.me.username} (${state.me.role})`;
+  document.body.classList.toggle("read-only", !canEdit(state.me)); // hides .editor-only
   $("#sign-out").hidden = false;
   if (state.stopJob) state.stopJob();
   state.stopJob = null;

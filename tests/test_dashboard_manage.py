@@ -1,0 +1,182 @@
+"""The dashboard does the job end to end, in Debian's Chromium at 1024 px: an inspector
+creates an inspection, uploads a scanner's E57 (progress, conversion named) and a file that
+is no cloud (refused beside its name), starts a measure run from the job kind's own form,
+watches it finish and judges a finding twice (the history shows both); a queued job is
+cancelled and retried from its row."""
+
+from __future__ import annotations
+
+import httpx
+import pytest
+
+from supervisor.bench.browser import launch_chromium
+from supervisor.engine.runtime import Runtime
+from tests.conftest import add_user, auth, make_settings
+from tests.edgeclouds import seam_cloud
+
+
+def _sign_in(page, url: str) -> None:
+    page.goto(url + "/")
+    page.fill("input[name=username]", "ines")
+    page.fill("input[name=password]", "ines-pw")
+    page.click("#sign-in-form button")
+    page.wait_for_selector("#view-inspections:not([hidden])")
+
+
+def _seam_e57(path) -> None:
+    """A 4 mm gap between two panels (the default limit is 3 mm), as an E57 in metres."""
+    import pye57
+
+    points = seam_cloud(4.0, 0.0, ("square", 0.0), ("square", 0.0), spacing_mm=0.25).points
+    e57 = pye57.E57(str(path), mode="w")
+    e57.write_scan_raw({f"cartesian{a}": points[:, i] / 1000.0 for i, a in enumerate("XYZ")})
+    e57.close()
+
+
+@pytest.fixture
+def browser():
+    with launch_chromium() as chromium:
+        yield chromium
+
+
+def test_create_upload_measure_and_judge_from_the_browser(
+    start_server, tmp_path, sqlite_url, browser
+):
+    settings = make_settings(tmp_path, sqlite_url, embedded_workers=1, extra_job_kinds=[])
+    server = start_server(settings)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    scan = tmp_path / "wing-seam.e57"
+    _seam_e57(scan)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("gap looks wide near the hinge\n")
+
+    page = browser.new_page(viewport={"width": 1024, "height": 768})
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    _sign_in(page, server.url)
+    page.click("#new-inspection summary")
+    page.fill("#new-inspection-form input[name=title]", "wing seam")
+    page.fill("#new-inspection-form input[name=aircraft]", "A320 MSN 1234")
+    page.select_option("#new-inspection-area", "component")
+    page.click("#new-inspection-form button")
+    page.wait_for_selector("#view-inspection:not([hidden])")
+    inspection = int(page.evaluate("location.hash").split("/")[2])
+
+    page.click("[role=tab][data-tab=files]")
+    page.set_input_files("#upload-file", [str(scan), str(notes)])
+    page.click("#upload-form button")
+    page.wait_for_selector("#uploads li[data-name='wing-seam.e57'].done", timeout=60_000)
+    page.wait_for_selector("#uploads li[data-name='notes.txt'].refused")
+    kept = page.text_content("#uploads li[data-name='wing-seam.e57']")
+    assert "kept as wing-seam.ply (cloud, from E57 in m (its convention))" in kept, kept
+    refused = page.text_content("#uploads li[data-name='notes.txt']")
+    assert "notes.txt (kind=cloud)" in refused and "nor is it a PCD" in refused, refused
+    bar = "#uploads li[data-name='wing-seam.e57'] progress"
+    assert page.eval_on_selector(bar, "bar => bar.value") == 1
+    page.wait_for_selector("#artifact-table tbody tr")
+    assert page.locator("#artifact-table tbody tr").count() == 1  # nothing kept of the refusal
+
+    page.click("[role=tab][data-tab=timeline]")
+    page.click("#run-box summary")
+    assert page.input_value("#run-kind") == "defects.measure"
+    assert "wing-seam.ply" in page.text_content("#run-inputs select")
+    page.click("#run-form details.params summary")  # the parameters fold out
+    pitch = "#run-params [data-param=pitch_mm]"
+    page.fill(pitch, "500")  # over the schema's maximum: the form itself refuses
+    assert page.eval_on_selector(pitch, "field => field.validity.rangeOverflow")
+    page.fill(pitch, "4")
+    page.fill("#run-params [data-param=max_gap_mm]", "0")  # must be over 0: the server says so
+    page.click("#run-form button[type=submit]")
+    page.wait_for_selector("#run-error:has-text('max_gap_mm')")
+    assert "greater than 0" in page.text_content("#run-error"), page.text_content("#run-error")
+    page.fill("#run-params [data-param=max_gap_mm]", "")
+    page.fill("#run-name", "first look")
+    page.click("#run-form button[type=submit]")
+    page.wait_for_selector("#timeline .run-head:has-text('first look')")
+    page.wait_for_selector("#timeline .job .status-succeeded", timeout=120_000)
+    run = httpx.get(
+        f"{server.url}/api/v1/inspections/{inspection}/runs",
+        headers=auth(_token(server.url)),
+        timeout=10,
+    ).json()["items"][0]
+    assert run["jobs"][0]["params"]["pitch_mm"] == 4  # only what was changed was sent
+
+    page.click("[role=tab][data-tab=defects]")
+    page.wait_for_selector("#defect-list .row", timeout=30_000)
+    page.wait_for_selector("#scene-status:has-text('2 panels')", timeout=30_000)
+    page.click("#defect-list .row >> nth=0")
+    page.wait_for_selector("#detail:not([hidden])")
+    assert "limits0.50–3.00 mm" in page.text_content("#detail-facts")  # the defaults' range
+    page.click(".verdicts button[data-verdict=uncertain]")
+    page.wait_for_selector("#judgments li[data-user=ines]:has-text('uncertain')")
+    page.fill("#comment", "measured again with a gauge: 4.1 mm")
+    page.click(".verdicts button[data-verdict=confirmed]")
+    page.wait_for_selector("#judgments li[data-user=ines] .history summary:has-text('2 revisions')")
+    page.click("#judgments li[data-user=ines] .history summary")
+    revisions = page.locator("#judgments li[data-user=ines] .history li").all_text_contents()
+    assert revisions[0].startswith("confirmed — measured again with a gauge")
+    assert revisions[1].startswith("uncertain")
+    assert errors == []
+    runtime.db.dispose()
+
+
+def _token(url: str) -> str:
+    answer = httpx.post(
+        f"{url}/api/v1/auth/token", json={"username": "ines", "password": "ines-pw"}, timeout=10
+    )
+    return answer.json()["access_token"]
+
+
+def test_cancel_and_retry_a_job_from_its_row(start_server, tmp_path, sqlite_url, browser):
+    """No engine runs here, so the job waits in the queue until the buttons move it."""
+    from services.lib.pointcloud.ply import write_ply
+
+    settings = make_settings(tmp_path, sqlite_url)
+    server = start_server(settings, run_engine=False)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    add_user(runtime, "vic", "viewer", "vic-pw")
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
+    inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
+    cloud = tmp_path / "c.ply"
+    write_ply(cloud, seam_cloud(4.0, 0.0, ("square", 0.0), ("square", 0.0), spacing_mm=1.0))
+    artifact = http.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "cloud", "name": "c.ply"},
+        content=cloud.read_bytes(),
+        headers={"content-type": "application/x-ply"},
+    ).json()["id"]
+    job = http.post(
+        f"/api/v1/inspections/{inspection}/runs",
+        json={"steps": [{"name": "measure", "kind": "defects.measure", "inputs": [artifact]}]},
+    ).json()["jobs"][0]["id"]
+
+    page = browser.new_page(viewport={"width": 1440, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    _sign_in(page, server.url)
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.click("[role=tab][data-tab=timeline]")
+    row = f"#timeline .job[data-job='{job}']"
+    page.click(f"{row} button[data-action=cancel]")
+    page.wait_for_selector(f"{row} .status-cancelled")
+    page.click(f"{row} button[data-action=retry]")
+    page.wait_for_selector(f"{row} .status-queued")
+    assert page.locator(f"{row} button[data-action=cancel]").count() == 1
+    assert http.get(f"/api/v1/jobs/{job}").json()["status"] == "queued"
+
+    # A viewer sees the runs but no buttons and no forms.
+    page.click("#sign-out")
+    page.fill("input[name=username]", "vic")
+    page.fill("input[name=password]", "vic-pw")
+    page.click("#sign-in-form button")
+    page.wait_for_selector("#view-inspections:not([hidden])")
+    assert page.locator("#new-inspection").is_hidden()
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.click("[role=tab][data-tab=timeline]")
+    page.wait_for_selector(f"{row} .status-queued")
+    assert page.locator(f"{row} button").count() == 0 and page.locator("#run-box").is_hidden()
+    http.close()
+    assert errors == [], errors
+    runtime.db.dispose()
