@@ -117,6 +117,30 @@ def test_create_upload_measure_and_judge_from_the_browser(
     revisions = page.locator("#judgments li[data-user=ines] .history li").all_text_contents()
     assert revisions[0].startswith("confirmed — measured again with a gauge")
     assert revisions[1].startswith("uncertain")
+
+    # A finding measured before vista kept a gap's range turns stale when the tolerances
+    # change: one click measures its cloud again, as its run did.
+    from supervisor.models import Defect
+
+    finding = int(page.get_attribute("#defect-list .row >> nth=0", "data-id"))
+    with runtime.db.session(write=True) as session:
+        defect = session.get(Defect, finding)
+        defect.measurements = {
+            k: v for k, v in defect.measurements.items() if not k.startswith("gap_range")
+        }
+        session.commit()
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
+    changed = http.patch(
+        f"/api/v1/inspections/{inspection}", json={"tolerances": {"gap_mm": {"max": 6.0}}}
+    )
+    assert changed.status_code == 200, changed.text
+    page.wait_for_selector("#detail-facts #remeasure", timeout=15_000)
+    assert "re-run the measurement" in page.text_content("#detail-facts")
+    page.click("#remeasure")
+    page.wait_for_selector("#timeline .run-head:has-text('measure again (run 1)')")
+    again = http.get(f"/api/v1/inspections/{inspection}/runs").json()["items"][0]["jobs"][0]
+    assert again["params"]["pitch_mm"] == 4 and again["kind"] == "defects.measure"
+    http.close()
     assert errors == []
     runtime.db.dispose()
 

@@ -71,6 +71,7 @@ export const api = {
   artifacts: (id) => request("GET", `/inspections/${id}/artifacts`, { params: { limit: 500 } }),
   jobKinds: () => request("GET", "/job-kinds"),
   createRun: (id, body) => request("POST", `/inspections/${id}/runs`, { body }),
+  job: (jobId) => request("GET", `/jobs/${jobId}`),
   cancelJob: (jobId) => request("POST", `/jobs/${jobId}/cancel`),
   retryJob: (jobId) => request("POST", `/jobs/${jobId}/retry`),
   scene: (id, points, run) => request("GET", `/inspections/${id}/scene.glb`, { raw: true, params: { points, run } }),

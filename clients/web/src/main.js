@@ -445,8 +445,8 @@ function renderDetail() {
     ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
     ...placeOf(defect.measurements || {}),
     ["coordinates", `${defect.location_mm.map((c) => number(c, 1)).join(", ")} mm (base frame)`],
-    // a finding the tolerances' change could not judge again says so
-    ...(defect.measurements?.stale ? [["stale", defect.measurements.stale]] : []),
+    // a finding the tolerances' change could not judge again says so, and offers the run
+    ...(defect.measurements?.stale ? [["stale", el("span", {}, defect.measurements.stale, " ", remeasureButton(defect))]] : []),
   ];
   $("#detail-facts").replaceChildren(...facts.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, v)]));
   const consensus = state.consensus.get(defect.id);
@@ -476,6 +476,28 @@ function renderDetail() {
   }
   const canJudge = canEdit(state.me);
   for (const button of document.querySelectorAll(".verdicts button")) button.disabled = !canJudge;
+}
+
+// One click measures the finding's cloud again, as its run did, by today's tolerances.
+function remeasureButton(defect) {
+  const measured = state.sceneRuns.find((r) => r.run_id === defect.run_id);
+  if (!measured || !canEdit(state.me)) return null;
+  return el("button", {
+    id: "remeasure",
+    onclick: async (event) => {
+      event.currentTarget.disabled = true;
+      try {
+        const job = await api.job(measured.job_id);
+        const step = { name: job.step, kind: job.kind, inputs: [measured.cloud_artifact_id], params: job.params };
+        await api.createRun(state.inspection.id, { name: `measure again (run ${defect.run_id})`, steps: [step] });
+        $("#judge-error").textContent = "";
+        for (const tab of document.querySelectorAll("[role=tab]")) if (tab.dataset.tab === "timeline") tab.click();
+        loadTimeline();
+      } catch (error) {
+        $("#judge-error").textContent = error.message;
+      }
+    },
+  }, "Measure again");
 }
 
 async function refreshJudgments(defectId) {
