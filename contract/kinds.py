@@ -32,6 +32,14 @@ class Inputs:
     min: int = 1
     max: int | None = 1
     """``None``: no upper limit."""
+    needed_when: tuple[str, tuple[str, ...]] | None = None
+    """(parameter, values): with the parameter at one of the values at least one is needed
+    (an OE-Net model for ``method: oenet``), whatever ``min`` says."""
+    only_when: tuple[str, tuple[str, ...]] | None = None
+    """(parameter, values): with the parameter at any other value none may be given."""
+    made_by: tuple[str, ...] | None = None
+    """The job kinds whose output this is, when not every kind writing files of these kinds
+    makes one (a depth map's camera-frame cloud is no stitched panel cloud); None: all."""
 
     def accepts(self, kind: str) -> bool:
         return ANY_KIND in self.kinds or kind in self.kinds

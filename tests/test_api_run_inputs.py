@@ -11,6 +11,7 @@ from supervisor.engine.registry import artifact_kinds, load_kinds
 from supervisor.models import Artifact, Job, Run
 from tests.conftest import auth
 from tests.plyfiles import ply_bytes
+from tests.test_upload_limits import onnx_model_bytes
 
 JSON = {"content-type": "application/json"}
 PLY = {"content-type": "application/x-ply"}
@@ -45,6 +46,12 @@ def upload(client, tokens):
     return send
 
 
+def _frames_zip(tmp_path) -> bytes:
+    from tests.sequences import archive_bytes, sequence_members, small_sequence
+
+    return archive_bytes(sequence_members(small_sequence(tmp_path / "seq", seconds=0.05)), "zip")
+
+
 def _counts(runtime) -> tuple[int, int]:
     with runtime.db.read() as session:
         return tuple(session.scalar(select(func.count()).select_from(t)) for t in (Run, Job))
@@ -57,32 +64,38 @@ def test_steps_fed_the_wrong_inputs_are_refused_naming_the_step(upload, runtime,
     other_cloud = upload.ids(ply_bytes(tmp_path), "cloud", "d.ply", PLY)
     pairs = upload.ids(b'{"pairs": []}', "pairs", "pairs.json", JSON)
     manifest = upload.ids(b'{"scans": []}', "scans", "scans.json", JSON)
+    frames = upload.ids(
+        _frames_zip(tmp_path), "frames", "seq.zip", {"content-type": "application/zip"}
+    )
+    model = upload.ids(
+        onnx_model_bytes(), "model", "m.onnx", {"content-type": "application/octet-stream"}
+    )
     cases = [
         (
             [{"name": "look", "kind": "scan.inspect", "inputs": [report]}],
-            f"steps[0] (look).inputs: artifact {report} is a `report`, which scan.inspect",
+            f"steps[0] (look).inputs: artifact {report} is a 'report', which scan.inspect",
         ),
         (
             [{"name": "m", "kind": "defects.measure", "inputs": [scan]}],
-            f"artifact {scan} is a `scan`, which defects.measure does not read; it reads exactly 1 `cloud`",
+            f"artifact {scan} is a 'scan', which defects.measure does not read; it reads exactly 1 'cloud'",
         ),
         (
             [{"name": "cal", "kind": "stitching.calibrate", "inputs": [scan]}],
-            f"artifact {scan} is a `scan`, which stitching.calibrate does not read",
+            f"artifact {scan} is a 'scan', which stitching.calibrate does not read",
         ),
         (
             [{"name": "s", "kind": "stitching.stitch"}],
-            "steps[0] (s): stitching.stitch needs exactly 1 `scans` artifact",
+            "steps[0] (s): stitching.stitch needs exactly 1 'scans' artifact",
         ),
         (
             [{"name": "s", "kind": "stitching.stitch", "inputs": [manifest, scan]}],
-            "stitching.stitch needs exactly 1 `handeye` artifact (the hand-eye calibration (uploaded or "
-            "from `stitching.calibrate`)) and gets none: upload it as kind `handeye` and list its id in "
-            "inputs or list a `stitching.calibrate` step in after.",
+            "stitching.stitch needs exactly 1 'handeye' artifact (the hand-eye calibration (uploaded or "
+            "from stitching.calibrate)) and gets none: upload it as kind 'handeye' and list its id in "
+            "inputs or list a step of kind 'stitching.calibrate' in after.",
         ),
         (
             [{"name": "m", "kind": "defects.measure", "inputs": [cloud, other_cloud]}],
-            f"defects.measure reads exactly 1 `cloud` (the stitched point cloud); it would get 2: "
+            f"defects.measure reads exactly 1 'cloud' (the stitched point cloud); it would get 2: "
             f"artifact {cloud}, artifact {other_cloud}",
         ),
         (
@@ -96,8 +109,32 @@ def test_steps_fed_the_wrong_inputs_are_refused_naming_the_step(upload, runtime,
                 },
                 {"name": "m", "kind": "defects.measure", "inputs": [cloud], "after": ["s"]},
             ],
-            "steps[2] (m): defects.measure reads exactly 1 `cloud` (the stitched point cloud); it "
+            "steps[2] (m): defects.measure reads exactly 1 'cloud' (the stitched point cloud); it "
             f"would get 2: artifact {cloud}, stitched.ply of step 's'.",
+        ),
+        (
+            [{"name": "m", "kind": "defects.measure"}],
+            "defects.measure needs exactly 1 'cloud' artifact (the stitched point cloud) and gets "
+            "none: upload it as kind 'cloud' and list its id in inputs or list a step of kind "
+            "'stitching.stitch' in after.",  # not depth.predict: its cloud is no panel's
+        ),
+        (
+            [
+                {
+                    "name": "o",
+                    "kind": "odometry.run",
+                    "inputs": [frames],
+                    "params": {"method": "oenet"},
+                }
+            ],
+            "steps[0] (o): with method oenet, odometry.run needs one 'model' artifact (an "
+            "OE-Net model (method oenet only)) and gets none: upload it as kind 'model' and list "
+            "its id in inputs or list a step of kind 'odometry.train' in after.",
+        ),
+        (
+            [{"name": "o", "kind": "odometry.run", "inputs": [frames, model]}],
+            "steps[0] (o): with method vista, odometry.run reads no 'model' (an OE-Net model "
+            "(method oenet only)): leave it out, or set method to oenet.",
         ),
     ]
     for steps, phrase in cases:

@@ -672,20 +672,23 @@ def test_odometry_train_then_run_with_the_model_and_without(embedded_engine_fact
     bare = _upload(
         engine, pack(folder, tmp_path / "bare.zip", truth=False), "frames", "application/zip"
     )
-    refused = engine.run(
-        [
-            {"name": "train", "kind": "odometry.train", "inputs": [bare]},
-            {
-                "name": "oenet",
-                "kind": "odometry.run",
-                "inputs": [bare],
-                "params": {"method": "oenet"},
-            },
-        ]
-    )
-    train, oenet = [engine.wait(j["id"], timeout=60) for j in refused["jobs"]]
+    refused = engine.run([{"name": "train", "kind": "odometry.train", "inputs": [bare]}])
+    train = engine.wait(refused["jobs"][0]["id"], timeout=60)
     assert train["status"] == "failed" and "has no truth.tum" in train["error"]
-    assert oenet["status"] == "failed" and "needs a `model` input" in oenet["error"]
+    oenet = engine.http.post(  # OE-Net without its model: refused when the run is made
+        f"/api/v1/inspections/{engine.inspection}/runs",
+        json={
+            "steps": [
+                {
+                    "name": "o",
+                    "kind": "odometry.run",
+                    "inputs": [bare],
+                    "params": {"method": "oenet"},
+                }
+            ]
+        },
+    )
+    assert oenet.status_code == 422 and "with method oenet" in oenet.json()["detail"]
     (folder / "frames" / "000002.png").write_bytes(b"\x89PNG\r\n\x1a\n but no image")
     broken = engine.http.post(  # refused at the door, naming the frame: no job fails later
         f"/api/v1/inspections/{engine.inspection}/artifacts",
@@ -797,20 +800,20 @@ def test_depth_teacher_then_student_then_predict(embedded_engine_factory, tmp_pa
     depth = read_depth_png(saved)
     assert depth.shape == (64, 128) and (depth > 0).all()
 
-    alone = engine.run(
-        [
-            {
-                "name": "student",
-                "kind": "depth.train",
-                "inputs": [drive],
-                "params": {**small, "network": "student"},
-            }
-        ]
+    alone = engine.http.post(  # a student without its teacher: refused when the run is made
+        f"/api/v1/inspections/{engine.inspection}/runs",
+        json={
+            "steps": [
+                {
+                    "name": "student",
+                    "kind": "depth.train",
+                    "inputs": [drive],
+                    "params": {**small, "network": "student"},
+                }
+            ]
+        },
     )
-    refused = engine.wait(alone["jobs"][0]["id"], timeout=60)
-    assert (
-        refused["status"] == "failed" and "needs the teacher as a `model` input" in refused["error"]
-    )
+    assert alone.status_code == 422 and "with network student" in alone.json()["detail"]
     (folder / "calib.json").unlink()
     response = engine.http.post(
         base,

@@ -77,7 +77,7 @@ MEASURE = JobKind(
         "result (as `vista defects measure`'s RESULT.json), the seam profiles and one defect per "
         "finding out of tolerance (severity `info` for seams within it)."
     ),
-    inputs=(Inputs(("cloud",), "the stitched point cloud"),),
+    inputs=(Inputs(("cloud",), "the stitched point cloud", made_by=("stitching.stitch",)),),
     outputs=(RESULT, PROFILES),
     present=Presenter(RESULT, "services.defects.present:scene_lines"),
 )

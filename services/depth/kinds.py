@@ -88,6 +88,8 @@ DEPTH_TRAIN = JobKind(
             ("model",),
             "the teacher (a student's to learn from; a teacher's to adapt, optional)",
             min=0,
+            needed_when=("network", ("student",)),
+            made_by=("depth.train",),
         ),
     ),
     outputs=(MODEL, TRAINING_REPORT),
@@ -116,12 +118,12 @@ DEPTH_PREDICT = JobKind(
         Inputs(("image", "drive"), "the images", max=None),
         Inputs(
             ("calibration",),
-            "the `image`s' camera; none: KITTI's (a drive has its own)",
+            "the images' camera; none: KITTI's (a drive has its own)",
             min=0,
         ),
         Inputs(
             ("depth",),
-            "ground truth for the `image`s (KITTI depth PNGs named as the images): each "
+            "ground truth for the images (KITTI depth PNGs named as the images): each "
             "image scored by the seven metrics (median-scaled) and its error drawn",
             min=0,
             max=None,

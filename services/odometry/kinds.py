@@ -66,7 +66,14 @@ ODOMETRY = JobKind(
     ),
     inputs=(
         SEQUENCE,
-        Inputs(("model",), "an OE-Net model (method oenet only)", min=0),
+        Inputs(
+            ("model",),
+            "an OE-Net model (method oenet only)",
+            min=0,
+            needed_when=("method", ("oenet",)),
+            only_when=("method", ("oenet",)),
+            made_by=("odometry.train",),
+        ),
     ),
     outputs=(TRAJECTORY, RUN_REPORT, TRAJECTORY_PLOT, EVALUATION),
 )

@@ -85,7 +85,7 @@ STITCH = JobKind(
     inputs=(
         Inputs(("scans",), "the scan list with each scan's robot pose (JSON)"),
         Inputs(("scan",), "the PLY scans it names", max=None),
-        Inputs(("handeye",), "the hand-eye calibration (uploaded or from `stitching.calibrate`)"),
+        Inputs(("handeye",), "the hand-eye calibration (uploaded or from stitching.calibrate)"),
     ),
     outputs=(STITCHED_CLOUD, STITCH_REPORT, OVERLAP_PLOT),
 )

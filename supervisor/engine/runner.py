@@ -291,8 +291,9 @@ def user_error(exc: Exception, claim: JobClaim) -> str:
 
 
 def sentence(text: str, *, max_chars: int = 500) -> str:
-    """``text`` on one line, without directories of server paths, capitalised and ended."""
-    line = " ".join(_DIRECTORIES.sub("", text).split())
+    """``text`` on one line, without directories of server paths nor Markdown's code marks
+    (`model` reads 'model'), capitalised and ended."""
+    line = " ".join(_CODE.sub(r"'\1'", _DIRECTORIES.sub("", text)).split())
     if len(line) > max_chars:
         line = line[: max_chars - 1].rstrip() + "…"
     line = line[:1].upper() + line[1:]
@@ -300,6 +301,7 @@ def sentence(text: str, *, max_chars: int = 500) -> str:
 
 
 _DIRECTORIES = re.compile(r"(?<![\w.:/])(?:/[\w.-]+)+/")
+_CODE = re.compile(r"`([^`]+)`")
 
 
 def _requeue(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:

@@ -74,6 +74,12 @@ class InputsOut(BaseModel):
     what: str
     min: int
     max: int | None = Field(description="None: no upper limit.")
+    needed_when: tuple[str, list[str]] | None = Field(
+        None, description="(parameter, values): with the parameter at one of them, at least one."
+    )
+    only_when: tuple[str, list[str]] | None = Field(
+        None, description="(parameter, values): with the parameter at any other value, none."
+    )
 
 
 class OutputOut(BaseModel):

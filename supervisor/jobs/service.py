@@ -66,6 +66,7 @@ def create_run(
             given={i: artifact_kinds[i] for i in sorted(set(step.inputs))},
             upstream={name: kinds[name][0] for name in dict.fromkeys(step.after)},
             producers=all_kinds(),
+            params=kinds[step.name][1].model_dump(mode="json"),
         )
 
     run = Run(inspection_id=inspection_id, name=data.name, created_by=user_id)
