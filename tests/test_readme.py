@@ -51,3 +51,15 @@ def test_first_steps_work_as_pasted(start_server, tmp_path, sqlite_url):
     assert len(defects["items"]) == 5 and all(
         d["job_id"] == defects["items"][0]["job_id"] for d in defects["items"]
     )
+
+
+def test_the_tolerance_document_shown_is_the_defaults():
+    """The README's tolerance document, its comments dropped, is a valid document giving
+    every default limit."""
+    from contract.tolerances import Limits, Tolerances, limits_of
+
+    text = README.read_text(encoding="utf-8")
+    block = text.split("The tolerance document", 1)[1].split("```", 2)[1]
+    document = json.loads(re.sub(r"#[^\n]*", "", block))
+    assert limits_of(Tolerances.model_validate(document)) == Limits()
+    assert Tolerances.model_validate(document).model_dump(exclude_none=True) == document

@@ -210,7 +210,8 @@ def reactivate(name: str = typer.Argument(..., help="Username.")) -> None:
     typer.echo(f"{name} is active again")
 
 
-@app.command("password")
+@app.command("set-password")
+@app.command("password", hidden=True)  # its earlier name
 def password(name: str = typer.Argument(..., help="Username.")) -> None:
     """Set a user's password (asked twice), e.g. for an admin made without one."""
     from supervisor.users.service import by_name
