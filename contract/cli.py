@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import functools
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any, NoReturn
 
 import typer
@@ -18,6 +19,50 @@ from pydantic import BaseModel, ValidationError
 def fail(message: str) -> NoReturn:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
+
+
+def unwrap_help(app: typer.Typer) -> None:
+    """Every command's help as paragraphs of joined lines: a docstring's line breaks are the
+    source's, and Typer's rich help keeps them, which breaks sentences in the middle of a
+    terminal line."""
+    for command in app.registered_commands:
+        text = command.help or inspect.getdoc(command.callback) or ""
+        paragraphs = text.split("\n\n")
+        command.help = "\n\n".join(
+            " ".join(line.strip() for line in p.splitlines()) for p in paragraphs
+        )
+    for group in app.registered_groups:
+        unwrap_help(group.typer_instance)
+
+
+PROGRESS_STEPS = 1000
+
+
+@contextmanager
+def progress_bar(label: str) -> Iterator[Callable[..., None]]:
+    """A bar drawn from its first step on, so an error found before the work starts is the
+    only line printed. Each call gives the fraction done and, optionally, what is being
+    done (the bar's label)."""
+    bar = None
+    shown = 0
+
+    def step(fraction: float, message: str | None = None) -> None:
+        nonlocal bar, shown
+        if bar is None:
+            bar = typer.progressbar(length=PROGRESS_STEPS, label=label)
+            bar.__enter__()
+        if message:
+            bar.label = message[:60]
+        reached = int(min(max(fraction, 0.0), 1.0) * PROGRESS_STEPS)
+        if reached > shown:
+            bar.update(reached - shown)
+            shown = reached
+
+    try:
+        yield step
+    finally:
+        if bar is not None:
+            bar.__exit__(None, None, None)
 
 
 def echo_progress(fraction: float, message: str) -> None:

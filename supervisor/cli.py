@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail
+from contract.cli import fail, unwrap_help
 from contract.tolerances import Tolerances, finding_line, limits_of
 from services.lib.wording import counted
 from supervisor.engine.registry import declared_hooks
@@ -261,3 +261,6 @@ def demo(
         f"scene, the defects and the runs.\n"
         f"the API: {url}/docs (works offline); GET /api/v1/defects?inspection={inspection['id']}"
     )
+
+
+unwrap_help(app)  # last: every command is registered by now

@@ -245,7 +245,10 @@ def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
     assert "4 seams, 1 junction;" in done.output and "against the truth" in done.output
     truth_part = done.output[done.output.index("against the truth") :]
     assert not re.search(r"\d\.\d{5,}", truth_part), "numbers rounded for reading"
-    assert json.loads(out.read_text())["seams"] and (tmp_path / "p.png").stat().st_size > 10_000
+    assert len(truth_part.splitlines()) <= 7, truth_part  # a summary; the rest in the file
+    written = json.loads(out.read_text())
+    assert written["seams"] and written["truth_evaluation"]["seams"].startswith("4/4")
+    assert (tmp_path / "p.png").stat().st_size > 10_000
     bad = tmp_path / "bad.json"
     bad.write_text('{"step_mm": {"max": "big"}}')
     failed = runner.invoke(

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import alias, fail
+from contract.cli import alias, fail, progress_bar
 from contract.tolerances import finding_line
 from services.lib.wording import counted
 
@@ -60,18 +60,10 @@ def measure(
         true = None if truth_json is None else Truth.from_document(truth_json)
     except ValueError as exc:
         fail(f"{truth}: {exc}")
-    with typer.progressbar(length=100, label="measuring") as bar:
-        done = 0
-
-        def progress(fraction: float, message: str) -> None:
-            nonlocal done
-            bar.label = message[:60]
-            bar.update(int(fraction * 100) - done)
-            done = int(fraction * 100)
-
+    with progress_bar("measuring") as step:
         try:
             result = run_measure(
-                points, settings, threads=threads or available_cores(), progress=progress
+                points, settings, threads=threads or available_cores(), progress=step
             )
         except MeasureError as exc:
             fail(f"{cloud}: {exc}")
@@ -117,19 +109,40 @@ def measure(
         from services.defects.evaluate import evaluate
 
         summary = evaluate(result, true, settings.tolerances).summary()
-        typer.echo("against the truth (mm):")
-        typer.echo(json.dumps(_rounded(summary), indent=1))
+        document["truth_evaluation"] = summary
+        out.write_text(json.dumps(document, indent=1) + "\n")
+        for line in _truth_lines(summary):
+            typer.echo(line)
+        typer.echo(f"the whole evaluation: {out} (truth_evaluation)")
 
 
-def _rounded(value: object, digits: int = 4) -> object:
-    """Floats in a JSON-able document rounded for reading (a 16-digit float says no more)."""
-    if isinstance(value, float):
-        return round(value, digits)
-    if isinstance(value, dict):
-        return {k: _rounded(v, digits) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_rounded(v, digits) for v in value]
-    return value
+def _truth_lines(summary: dict) -> list[str]:
+    """The evaluation against the truth in a few lines (errors in mm)."""
+
+    def mm(value: float | None) -> str:
+        return "–" if value is None else f"{value:.3f}"
+
+    def share(value: float | None) -> str:
+        return "–" if value is None else f"{value:.0%}"
+
+    def hits(counts: dict) -> str:
+        return ", ".join(
+            f"{kind} {c['tp']}/{c['tp'] + c['fn']} found, {c['fp']} false"
+            for kind, c in counts.items()
+        )
+
+    return [
+        f"against the truth: seams {summary['seams']}, junctions {summary['junctions']}; "
+        f"{summary['sections']} of {summary['sections_total']} sections measured "
+        f"({share(summary['unmeasured_share'])} unmeasured)",
+        f"  gap error mean {mm(summary['gap_error_mean_mm'])}, p95 {mm(summary['gap_error_p95_mm'])}, "
+        f"max {mm(summary['gap_error_max_mm'])} mm; step mean {mm(summary['step_error_mean_mm'])}, "
+        f"p95 {mm(summary['step_error_p95_mm'])} mm",
+        f"  parallelism p95 {mm(summary['parallelism_error_p95_mm'])} mm, mismatch p95 "
+        f"{mm(summary['mismatch_error_p95_mm'])} mm",
+        f"  out of tolerance: {hits(summary['geometric']) or 'none'}",
+        f"  surface: {hits(summary['surface']) or 'none'}",
+    ]
 
 
 def _seconds_since_start() -> float | None:

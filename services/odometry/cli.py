@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail, params_options
+from contract.cli import fail, params_options, progress_bar
 from services.odometry.kinds import OdometryParams, TrainParams
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
@@ -65,12 +65,7 @@ def simulate(
         height_swing_mm=height_swing_mm,
     )
     try:
-        with typer.progressbar(length=1, label="rendering frames") as bar:
-
-            def rendered(done: int, total: int) -> None:
-                bar.length = total
-                bar.update(1)
-
+        with progress_bar("rendering frames") as step:
             done = simulate_sequence(
                 out_dir,
                 floor=floor,
@@ -79,7 +74,7 @@ def simulate(
                 fps=fps,
                 seed=seed,
                 effects=effects,
-                frame_progress=rendered,
+                frame_progress=lambda done, total: step(done / total),
             )
     except ValueError as exc:
         fail(str(exc))
@@ -135,15 +130,7 @@ def run(
             true = read_tum(truth)
         except (OSError, ValueError) as exc:
             fail(str(exc))
-    with typer.progressbar(length=100, label=f"odometry ({method})") as bar:
-        done = [0]
-
-        def progress(fraction: float, message: str) -> None:
-            step = int(fraction * 100) - done[0]
-            if step > 0:
-                bar.update(step)
-                done[0] += step
-
+    with progress_bar(f"odometry ({method})") as step:
         try:
             result = run_odometry(
                 frames_dir,
@@ -151,7 +138,7 @@ def run(
                 method,
                 model=model,
                 threads=threads or available_cores(),
-                progress=progress,
+                progress=lambda fraction, message: step(fraction),
             )
         except ValueError as exc:
             fail(str(exc))

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import echo_progress, fail, params_options
+from contract.cli import echo_progress, fail, params_options, progress_bar
 from contract.training import TrainSettings, config_from
 from services.tracking.kinds import (
     DETECTOR_EPOCHS,
@@ -123,17 +123,12 @@ def run(
 
     try:
         box = None if params.init_box is None else np.array(params.init_box)
-        with typer.progressbar(length=1, label="tracking") as bar:
-
-            def advance(done: int, total: int) -> None:
-                bar.length = max(total, 1)
-                bar.update(1)
-
+        with progress_bar("tracking") as step:
             document = run_tracking(
                 sequence, track_id=params.track_id, init_box=box, start_frame=params.start_frame,
                 end_frame=params.end_frame, tracker=params.tracker, detector=params.detector,
                 reset=params.reset, siamese_model=siamese_model, detector_model=detector_model,
-                threads=threads, progress=advance,
+                threads=threads, progress=lambda done, total: step(done / max(total, 1)),
             )  # fmt: skip
     except (ValueError, KittiError) as exc:
         fail(str(exc))

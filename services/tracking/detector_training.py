@@ -424,7 +424,7 @@ def train_detector(
     export_onnx(
         network, example, out, metadata, input_name="bev", output_name="heads", free_axes=(0, 2, 3)
     )
-    say(1.0, f"wrote {out.name}")
+    say(1.0, "exported to ONNX with its validation in the metadata")
     return metadata
 
 
