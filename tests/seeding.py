@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from sqlalchemy import insert, select
 
 from supervisor.models import Change, Defect
@@ -41,3 +43,18 @@ def seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> lis
             ],
         )
         return ids
+
+
+def measure_uploaded(http, inspection: int, cloud: Path) -> dict:
+    """``cloud`` (a PLY) uploaded to the inspection and a defects.measure run started on it,
+    through the API with ``http`` (an httpx client with a token); the run as created."""
+    artifact = http.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "cloud", "name": cloud.name},
+        content=cloud.read_bytes(),
+        headers={"content-type": "application/x-ply"},
+    ).json()["id"]
+    return http.post(
+        f"/api/v1/inspections/{inspection}/runs",
+        json={"steps": [{"name": "measure", "kind": "defects.measure", "inputs": [artifact]}]},
+    ).json()

@@ -202,6 +202,17 @@ def _refuses_every_bad_number(client, runtime, request: tuple, body: dict, paths
     return tried
 
 
+def _needed(spec: dict, params: dict, schema: dict) -> bool:
+    """Whether a step with these params must be given an input of this spec (its minimum,
+    or a parameter's value that needs one, the default when not given)."""
+    if spec["min"]:
+        return True
+    if not spec["needed_when"]:
+        return False
+    name, values = spec["needed_when"]
+    return params.get(name, schema["properties"][name].get("default")) in values
+
+
 def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens, runtime, seeded):
     spec = client.get("/api/v1/openapi.json").json()
     bodies = _bodies(seeded)
@@ -224,10 +235,14 @@ def test_every_number_field_refuses_non_finite_and_extreme_values(client, tokens
     checked = 0
     for kind in kinds:
         paths = _number_paths(kind["params_schema"], kind["params_schema"])
-        inputs = [seeded["artifacts"][spec["kinds"][0]] for spec in kind["inputs"] if spec["min"]]
         variants = REQUIRED_PARAMS.get(kind["name"], ({},))
         exclusive = set().union(*variants)
         for params in variants:
+            inputs = [
+                seeded["artifacts"][spec["kinds"][0]]
+                for spec in kind["inputs"]
+                if _needed(spec, params, kind["params_schema"])
+            ]
             step = {"name": "s", "kind": kind["name"], "inputs": inputs, "params": params}
             steps = [
                 ("steps", 0, "params", *path)

@@ -15,6 +15,7 @@ from supervisor.bench.browser import launch_chromium
 from supervisor.demo import DEMO_USER, run_demo
 from supervisor.engine.runtime import Runtime
 from tests.conftest import add_user, auth, make_settings
+from tests.seeding import measure_uploaded
 
 
 @pytest.fixture
@@ -214,16 +215,7 @@ def test_each_measured_run_shows_its_own_scene_and_an_open_page_follows(demo_ser
         plate = tmp_path / "plate.ply"
         write_ply(plate, plane_grid(400, 400, spacing_mm=0.5))
         http = httpx.Client(base_url=server.url, headers=auth(other_token), timeout=30)
-        cloud = http.post(
-            f"/api/v1/inspections/{inspection}/artifacts",
-            params={"kind": "cloud", "name": "plate.ply"},
-            content=plate.read_bytes(),
-            headers={"content-type": "application/x-ply"},
-        ).json()["id"]
-        run = http.post(
-            f"/api/v1/inspections/{inspection}/runs",
-            json={"steps": [{"name": "measure", "kind": "defects.measure", "inputs": [cloud]}]},
-        ).json()
+        run = measure_uploaded(http, inspection, plate)
         page.wait_for_selector("#scene-status:has-text('1 panel (P0)')", timeout=60_000)
         assert page.locator("#scene-run option").count() == 3
         assert "plate.ply" in page.text_content("#scene-run option >> nth=0")

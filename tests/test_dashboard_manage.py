@@ -13,6 +13,7 @@ from supervisor.bench.browser import launch_chromium
 from supervisor.engine.runtime import Runtime
 from tests.conftest import add_user, auth, make_settings
 from tests.edgeclouds import seam_cloud
+from tests.seeding import measure_uploaded
 
 
 def _sign_in(page, url: str) -> None:
@@ -165,16 +166,7 @@ def test_cancel_and_retry_a_job_from_its_row(start_server, tmp_path, sqlite_url,
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
     cloud = tmp_path / "c.ply"
     write_ply(cloud, seam_cloud(4.0, 0.0, ("square", 0.0), ("square", 0.0), spacing_mm=1.0))
-    artifact = http.post(
-        f"/api/v1/inspections/{inspection}/artifacts",
-        params={"kind": "cloud", "name": "c.ply"},
-        content=cloud.read_bytes(),
-        headers={"content-type": "application/x-ply"},
-    ).json()["id"]
-    job = http.post(
-        f"/api/v1/inspections/{inspection}/runs",
-        json={"steps": [{"name": "measure", "kind": "defects.measure", "inputs": [artifact]}]},
-    ).json()["jobs"][0]["id"]
+    job = measure_uploaded(http, inspection, cloud)["jobs"][0]["id"]
 
     page = browser.new_page(viewport={"width": 1440, "height": 900})
     errors: list[str] = []

@@ -398,7 +398,7 @@ def test_calibrate_then_stitch_in_one_run(engine_factory, tmp_path):
             "steps": [{"name": "stitch", "kind": "stitching.stitch", "inputs": [manifest, *scans]}]
         },
     )
-    assert lonely.status_code == 422 and "exactly 1 `handeye`" in lonely.json()["detail"]
+    assert lonely.status_code == 422 and "exactly 1 'handeye'" in lonely.json()["detail"]
 
 
 def _seen_depth_mm(scratch: dict, *, spacing_mm: float) -> float:

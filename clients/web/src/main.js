@@ -166,6 +166,8 @@ $("#sign-out").addEventListener("click", async () => {
   }
   session.token = null;
   state.me = null;
+  resetInspection(); // the next person sees nothing of this one's page, nor its buttons
+  state.inspection = null;
   $("#sign-in-form").reset(); // the password must not wait in the form for the next person
   location.hash = "#/sign-in";
 });
