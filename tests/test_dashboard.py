@@ -211,12 +211,16 @@ def test_each_measured_run_shows_its_own_scene_and_an_open_page_follows(demo_ser
         page.wait_for_selector("#scene-status:has-text('4 panels')", timeout=30_000)
         assert page.locator("#scene-run option").count() == 2  # the newest, and its run
         assert page.locator("#defect-list .row").count() == len(demo["defects"])
+        page.click("#defect-list .row >> nth=0")  # selected when another run's scene arrives
+        page.wait_for_selector("#detail:not([hidden])")
 
         plate = tmp_path / "plate.ply"
         write_ply(plate, plane_grid(400, 400, spacing_mm=0.5))
         http = httpx.Client(base_url=server.url, headers=auth(other_token), timeout=30)
         run = measure_uploaded(http, inspection, plate)
         page.wait_for_selector("#scene-status:has-text('1 panel (P0)')", timeout=60_000)
+        assert page.locator("#detail").is_hidden()  # the finding is not on the plate's scene
+        assert "/defects/" not in page.evaluate("location.hash")
         assert page.locator("#scene-run option").count() == 3
         assert "plate.ply" in page.text_content("#scene-run option >> nth=0")
         assert page.locator("#defect-list .row").count() == 0  # the plate's: none

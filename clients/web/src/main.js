@@ -136,7 +136,10 @@ async function guarded(action) {
 // ---- sign-in and inspections ----------------------------------------------------------
 
 setUpNewInspection();
-const files = new Files(() => runForm.drawKind());
+const files = new Files(() => {
+  runForm.drawKind();
+  live(); // a first cloud is drawn now, not at the next poll
+});
 const runForm = new RunForm(files, () => {
   for (const tab of document.querySelectorAll("[role=tab]")) if (tab.dataset.tab === "timeline") tab.click();
   $("#run-box").open = false;
@@ -408,6 +411,14 @@ function select(defectId, fly) {
   refreshJudgments(defectId);
 }
 
+function deselect() {
+  state.selected = null;
+  $("#detail").hidden = true;
+  state.scene?.select(null, false, null);
+  for (const row of document.querySelectorAll("#defect-list .row")) row.setAttribute("aria-selected", "false");
+  if (/\/defects\/\d+$/.test(location.hash)) history.replaceState(null, "", `#/inspections/${state.inspection.id}`);
+}
+
 function seamOf(defectId) {
   const seam = state.defects.get(defectId)?.measurements?.seam;
   return known(seam) ? seam : null;
@@ -548,6 +559,8 @@ async function loadScene(id, preview) {
     if (!first) return;
     state.sceneFacts = first;
     renderLegend();
+    const chosen = state.defects.get(state.selected);
+    if (chosen && !ofShownRun(chosen, shownRun())) deselect(); // another run's finding
     if (!first.points) {
       $("#scene-empty").textContent = "No point cloud in this inspection yet. Upload one as an artifact of kind \"cloud\", or run calibrate → stitch → measure on the scans (see the Runs tab); the measured panels, seams and defects are drawn on it.";
       $("#scene-empty").hidden = false;

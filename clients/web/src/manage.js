@@ -150,7 +150,7 @@ export class RunForm {
     const kind = this.kind;
     if (!kind) return;
     $("#run-error").textContent = "";
-    $("#run-description").textContent = kind.description;
+    $("#run-description").replaceChildren(...withCode(kind.description));
     $("#run-inputs").replaceChildren(...kind.inputs.map((spec, index) => inputPicker(spec, index, this.files.items)));
     const schema = kind.params_schema;
     $("#run-params").replaceChildren(...Object.entries(schema.properties || {}).map(([name, property]) => paramField(name, property, schema)));
@@ -179,6 +179,11 @@ export class RunForm {
       $("#run-error").textContent = error.message;
     }
   }
+}
+
+// A kind's description as written for the API's documentation: `code` drawn as code.
+function withCode(text) {
+  return text.split("`").map((part, i) => (i % 2 ? el("code", {}, part) : part));
 }
 
 function inputPicker(spec, index, artifacts) {

@@ -224,10 +224,10 @@ export class SceneView {
     this.selected = defectId;
     this.selectedSeam = seam;
     this.invalidate();
+    const marker = this.markers.get(defectId);
+    if (!marker) return; // not on this scene: nor is its seam (another run's seam 0 is another seam)
     const seamLine = this.seams.get(seam);
     if (seamLine) this.thickSeam = thickLine(seamLine.node);
-    const marker = this.markers.get(defectId);
-    if (!marker) return;
     marker.node.material = HIGHLIGHT;
     marker.node.scale.copy(marker.scale).multiplyScalar(1.25);
     if (fly) this.flyTo(marker.node);
