@@ -118,6 +118,7 @@ def test_create_upload_measure_and_judge_from_the_browser(
     revisions = page.locator("#judgments li[data-user=ines] .history li").all_text_contents()
     assert revisions[0].startswith("confirmed — measured again with a gauge")
     assert revisions[1].startswith("uncertain")
+    history = "#judgments li[data-user=ines] .history[open]"
 
     # A finding measured before vista kept a gap's range turns stale when the tolerances
     # change: one click measures its cloud again, as its run did.
@@ -136,6 +137,7 @@ def test_create_upload_measure_and_judge_from_the_browser(
     )
     assert changed.status_code == 200, changed.text
     page.wait_for_selector("#detail-facts #remeasure", timeout=15_000)
+    assert page.locator(history).count() == 1  # the pane drawn again: the history kept, open
     assert "re-run the measurement" in page.text_content("#detail-facts")
     page.click("#remeasure")
     page.wait_for_selector("#timeline .run-head:has-text('measure again (run 1)')")

@@ -212,7 +212,10 @@ function fold(page) {
   for (const defect of page.defects) state.defects.set(defect.id, defect);
   for (const judgment of page.judgments) {
     if (!state.judgments.has(judgment.defect_id)) state.judgments.set(judgment.defect_id, new Map());
-    state.judgments.get(judgment.defect_id).set(judgment.user_id, judgment);
+    const byUser = state.judgments.get(judgment.defect_id);
+    const held = byUser.get(judgment.user_id); // the sync carries no history: keep the one read
+    const history = held?.revision === judgment.revision ? held.history : undefined;
+    byUser.set(judgment.user_id, history ? { ...judgment, history } : judgment);
   }
   for (const consensus of page.consensus) state.consensus.set(consensus.defect_id, consensus);
   state.cursor = page.next_cursor;
@@ -280,6 +283,7 @@ async function live() {
     if (state.cursor !== before && (page.defects.length || page.judgments.length)) {
       renderList();
       if (state.selected) renderDetail();
+      if (page.judgments.some((j) => j.defect_id === state.selected)) refreshJudgments(state.selected);
       loadFeedback();
     }
     if (page.scene_etag !== state.sceneEtag) { // something the scene shows changed
@@ -467,9 +471,11 @@ function renderDetail() {
   $("#consensus").dataset.total = String(consensus?.total || 0);
   const others = [...(state.judgments.get(defect.id)?.values() || [])];
   const verdictText = (j) => `${j.verdict}${j.new_type ? ` → ${j.new_type}` : ""}`;
-  // earlier revisions of a judgment, newest first, under it (GET /defects/{id}/judgments)
+  // earlier revisions of a judgment, newest first, under it (GET /defects/{id}/judgments);
+  // one left open stays open when the pane is drawn again
+  const opened = new Set([...document.querySelectorAll("#judgments details.history[open]")].map((d) => d.closest("li").dataset.user));
   const history = (j) => (j.history?.length > 1 ? el(
-    "details", { class: "history" }, el("summary", {}, `${j.history.length} revisions`),
+    "details", { class: "history", ...(opened.has(j.username) ? { open: "" } : {}) }, el("summary", {}, `${j.history.length} revisions`),
     el("ol", { reversed: "" }, ...j.history.slice().reverse().map((r) => el(
       "li", { dataset: { revision: r.revision } },
       `${verdictText(r)}${r.comment ? ` — ${r.comment}` : ""} `,
