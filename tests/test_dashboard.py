@@ -5,6 +5,7 @@ judge it and watch the consensus change — also when another user judges meanwh
 from __future__ import annotations
 
 import io
+import shutil
 
 import httpx
 import numpy as np
@@ -14,18 +15,25 @@ from PIL import Image
 from supervisor.bench.browser import launch_chromium
 from supervisor.demo import DEMO_USER, run_demo
 from supervisor.engine.runtime import Runtime
-from tests.conftest import add_user, auth, make_settings
+from tests.conftest import LiveServer, add_user, auth, make_settings
 from tests.seeding import measure_uploaded
 
 
-@pytest.fixture
-def demo_server(start_server, tmp_path, sqlite_url):
-    settings = make_settings(tmp_path, sqlite_url, embedded_workers=2, extra_job_kinds=[])
+@pytest.fixture(scope="module")
+def demo_server(tmp_path_factory, sqlite_template):
+    """One demo for the module's tests (it takes half a minute): the first reviews it, the
+    second adds a measurement; neither depends on what the other did."""
+    tmp_path = tmp_path_factory.mktemp("demo")
+    shutil.copy(sqlite_template, tmp_path / "vista.db")
+    settings = make_settings(
+        tmp_path, f"sqlite:///{tmp_path / 'vista.db'}", embedded_workers=2, extra_job_kinds=[]
+    )
     demo = run_demo(settings, spacing_mm=0.2, seed=0, timeout_s=300, say=lambda line: None)
-    server = start_server(settings)  # its engine measures what a test adds
     runtime = Runtime.create(settings)
+    server = LiveServer(settings, runtime, run_engine=True).start()  # it measures what a test adds
     other = add_user(runtime, "olga", "inspector", "olga-pw")
     yield server, demo, other
+    server.stop()
     runtime.db.dispose()
 
 
