@@ -4,6 +4,7 @@ at the upload into vista's PLY (its source's format and unit named)."""
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +136,9 @@ def test_upload_converts_a_scanners_file_and_names_its_source(
         "units_assumed": False,
         "origin_shift_mm": [0.0, 0.0, 0.0],
         "dropped_points": 0,
+        "name": "wing-m.xyz",  # the file sent, as sent
+        "size_bytes": xyz.stat().st_size,
+        "sha256": hashlib.sha256(xyz.read_bytes()).hexdigest(),
     }
     assert in_m.json()["meta"]["ply"]["bounds_max_mm"][2] == pytest.approx(665_000.0, rel=1e-6)
 

@@ -114,10 +114,13 @@ async def upload_artifact(
         found = await run_in_threadpool(
             validate_upload, temp_path, media_type=media_type, name=name, kind=kind, units=units
         )
-        if found.replacement is not None:
+        meta = found.meta
+        if found.replacement is not None:  # the file sent, named in what is kept of it
+            sent = {"name": name, "size_bytes": received.size_bytes, "sha256": received.sha256}
+            meta = {**meta, "source": {**meta.get("source", {}), **sent}}
             received = await run_in_threadpool(runtime.storage.adopt, found.replacement)
             name = f"{PurePath(name).stem}{MEDIA_TYPES[found.media_type]}"
-        upload = service.Upload(inspection_id, kind, name, found.media_type, received, found.meta)
+        upload = service.Upload(inspection_id, kind, name, found.media_type, received, meta)
         return await run_in_threadpool(service.store, request, runtime, user.id, upload)
     finally:
         temp_path.unlink(missing_ok=True)
