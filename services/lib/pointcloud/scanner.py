@@ -253,6 +253,9 @@ def _from_columns(columns: dict[str, np.ndarray], *, grid_shape=None) -> _Raw:  
 def _read_ply(path: Path) -> _Raw:
     from plyfile import PlyData, PlyParseError
 
+    fast = _read_ascii_vertices(path)
+    if fast is not None:
+        return fast
     try:
         ply = PlyData.read(str(path))
     except PlyParseError as exc:
@@ -265,6 +268,48 @@ def _read_ply(path: Path) -> _Raw:
     if grid is not None and grid[0] * grid[1] != len(vertices):
         grid = None
     return _from_columns(columns, grid_shape=grid)
+
+
+def _read_ascii_vertices(path: Path) -> _Raw | None:
+    """An ASCII PLY whose first element is its vertices, of numbers only, parsed in one
+    pass by NumPy (plyfile reads ASCII a value at a time: 13 s for a million points);
+    None for any other PLY, which plyfile reads."""
+    with open(path, "rb") as handle:
+        header = handle.read(64 * 1024)
+        end = header.find(b"end_header\n")
+        if end < 0:
+            return None
+        lines = header[:end].decode("ascii", "replace").splitlines()
+        words = [line.split() for line in lines]
+        elements = [w for w in words if w and w[0] == "element"]
+        if ["format", "ascii", "1.0"] not in words or not elements or elements[0][1] != "vertex":
+            return None
+        first = words.index(elements[0])
+        properties = []
+        for w in words[first + 1 :]:
+            if not w or w[0] != "property":
+                break
+            if len(w) != 3:  # a list property: plyfile's
+                return None
+            properties.append(w[2])
+        count = int(elements[0][2]) if elements[0][2].isdigit() else -1
+        if count <= 0 or not properties:
+            return None
+        handle.seek(end + len(b"end_header\n"))
+        body = handle.read().split(b"\n", count)
+    if len(body) < count:
+        raise ScannerFormatError(f"the PLY file holds {len(body)} of its {count} vertices")
+    values = np.fromstring(b"\n".join(body[:count]), dtype=np.float64, sep=" ")
+    if values.size != count * len(properties):
+        raise ScannerFormatError(
+            f"the PLY file's {count} vertices do not each hold its {len(properties)} numbers"
+        )
+    columns = dict(zip(properties, values.reshape(count, -1).T, strict=True))
+    for channel in ("red", "green", "blue"):
+        if channel in columns:
+            columns[channel] = np.clip(columns[channel], 0, 255).astype(np.uint8)
+    grid = grid_shape_of([" ".join(w[1:]) for w in words if w and w[0] == "comment"])
+    return _from_columns(columns, grid_shape=grid if grid and grid[0] * grid[1] == count else None)
 
 
 def _read_pcd(path: Path) -> _Raw:
