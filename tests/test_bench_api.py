@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
 import random
 from pathlib import Path
 
 import pytest
 from sqlalchemy import insert
 
-from supervisor.bench.api import format_table, run_api_bench
+from supervisor.bench.api import cpu_plan, format_table, run_api_bench
 from supervisor.bench.load import PAGE_REQUESTS, WriterLog, verify_judgments
 from supervisor.bench.seeding import seed_database
 from supervisor.bench.stats import percentile
@@ -110,4 +111,25 @@ def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: 
         assert storm["idle"]["p99_ms"] is not None and storm["storm"]["p99_ms"] is not None
         assert sum(storm["sign_in_statuses"].values()) > 0
         assert set(storm["sign_in_statuses"]) <= {"401", "429"}
-    assert "writes/s" in format_table(report)
+        assert 0 < writes["loadgen_machine_percent"] <= 100  # the generator's share, stated
+        assert result["cpus"] == cpu_plan(os.sched_getaffinity(0))
+    assert "writes/s" in format_table(report) and "gen CPU %" in format_table(report)
+
+
+def test_the_generator_gets_a_cpu_of_its_own_only_on_a_machine_that_can_spare_one() -> None:
+    assert cpu_plan({0, 1})["pinned"] is False and "2 CPUs" in cpu_plan({0, 1})["why"]
+    assert cpu_plan({0, 1, 2, 3}) == {
+        "pinned": True,
+        "generator_cpus": [3],
+        "server_cpus": [0, 1, 2],
+    }
+
+
+def test_a_pinned_server_and_its_api_processes_run_on_their_cpus(tmp_path: Path) -> None:
+    from supervisor.bench.server import running_server
+    from supervisor.migrate import upgrade
+
+    url = f"sqlite:///{tmp_path / 'vista.db'}"
+    upgrade(url)
+    with running_server(tmp_path, url, 1, cores={0}) as server:
+        assert os.sched_getaffinity(server.pid) == {0}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import random
 import time
 from collections import Counter, defaultdict
@@ -147,6 +148,9 @@ def summarize_writes(
             round(1000 * server_cpu / ok, 3) if server_cpu is not None and ok else None
         ),
         "loadgen_cpu_s": round(cpu_after[0] - cpu_before[0], 3),
+        "loadgen_machine_percent": round(
+            100 * (cpu_after[0] - cpu_before[0]) / (wall_s * (os.cpu_count() or 1)), 1
+        ),
         "machine_busy_percent": busy_percent(cpu_before[2], cpu_after[2]),
         "measured_wall_s": round(wall_s, 3),
     }

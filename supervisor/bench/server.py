@@ -82,10 +82,15 @@ class Server:
 
 @contextmanager
 def running_server(
-    data_dir: Path, url: str, api_workers: int, extra_env: dict[str, str] | None = None
+    data_dir: Path,
+    url: str,
+    api_workers: int,
+    extra_env: dict[str, str] | None = None,
+    cores: set[int] | None = None,
 ) -> Iterator[Server]:
     """``vista serve`` in its own process (no embedded workers unless ``extra_env`` sets
-    VISTA_EMBEDDED_WORKERS), stopped on the way out; ``extra_env``: more VISTA_* settings."""
+    VISTA_EMBEDDED_WORKERS), stopped on the way out; ``extra_env``: more VISTA_* settings;
+    ``cores``: the CPUs it and its API processes run on (all when None)."""
     port = free_port()
     log_path = data_dir / "serve.log"
     command = [sys.executable, "-m", "supervisor.cli", "serve", "--port", str(port)]
@@ -95,6 +100,7 @@ def running_server(
             env=server_environment(data_dir, url, api_workers, extra_env),
             stdout=log,
             stderr=subprocess.STDOUT,
+            preexec_fn=None if cores is None else lambda: os.sched_setaffinity(0, cores),
         )
     try:
         wait_until_ready(process, f"http://127.0.0.1:{port}", log_path)
