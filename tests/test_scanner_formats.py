@@ -152,3 +152,38 @@ def test_upload_converts_a_scanners_file_and_names_its_source(
     listed = client.get(url, headers=auth(token)).json()["items"]
     assert sorted(a["name"] for a in listed) == ["wing-m.ply", "wing.ply"]
     assert list((runtime.storage.root / "tmp").iterdir()) == []  # no upload nor conversion left
+
+
+REAL_SCAN = (
+    Path(__file__).resolve().parents[2] / "shared/data/kitti-raw-2011_09_26/velodyne/0000000000.bin"
+)
+
+
+@pytest.mark.skipif(not REAL_SCAN.exists(), reason="../shared/data's KITTI raw drive is not here")
+@pytest.mark.parametrize("fmt", ["laz", "pcd"])
+def test_a_real_velodyne_scan_through_a_survey_format(tmp_path: Path, fmt: str):
+    """A real sensor's scan (KITTI's Velodyne HDL-64E: sparse rings, 120 m across, not our
+    simulator's dense grid) written by laspy or pypcd4 reads back in mm to the writer's
+    resolution, its reflectance kept as intensity."""
+    import laspy
+    from pypcd4 import PointCloud as Pcd
+
+    scan = np.fromfile(REAL_SCAN, dtype="<f4").reshape(-1, 4)
+    path = tmp_path / f"velodyne.{fmt}"
+    if fmt == "laz":
+        header = laspy.LasHeader(point_format=1, version="1.4")
+        header.offsets, header.scales = np.floor(scan[:, :3].min(axis=0)), [0.001] * 3
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = scan[:, :3].T.astype(np.float64)
+        las.intensity = np.round(scan[:, 3] * 1000).astype(np.uint16)
+        las.write(str(path), laz_backend=laspy.LazBackend.Lazrs)
+    else:
+        Pcd.from_xyzi_points(scan).save(path)
+    converted = read_cloud(path)
+    assert converted.format == fmt and converted.units == "m" and converted.dropped_points == 0
+    cloud = converted.cloud
+    assert cloud.grid_shape is None and len(cloud.points) == len(scan)
+    resolution_mm = 0.5 if fmt == "laz" else 0.01  # LAS's 1 mm steps; float32 metres
+    assert np.abs(cloud.points - scan[:, :3] * 1000.0).max() <= resolution_mm
+    expected = np.round(scan[:, 3] * 1000) if fmt == "laz" else scan[:, 3]
+    assert np.allclose(cloud.intensity, expected, atol=1e-6)

@@ -3,7 +3,7 @@
 // their parameters, GET /job-kinds), and cancel or retry a job. Nothing here names a
 // service: a new job kind's form draws the same way.
 import { api, uploadArtifact } from "./api.js";
-import { el } from "./dom.js";
+import { el, sizeText } from "./dom.js";
 
 const $ = (selector) => document.querySelector(selector);
 const AREAS = ["cabin", "cargo", "component"];
@@ -11,12 +11,6 @@ const UNITS = [["", "the format's own"], ["mm", "mm"], ["cm", "cm"], ["m", "m"],
 export const FINISHED = ["succeeded", "failed", "cancelled"];
 
 export const canEdit = (me) => ["admin", "inspector"].includes(me?.role);
-
-function sizeText(bytes) {
-  if (bytes < 1024) return `${bytes} B`;
-  if (bytes < 1024 ** 2) return `${(bytes / 1024).toFixed(1)} kB`;
-  return `${(bytes / 1024 ** 2).toFixed(1)} MB`;
-}
 
 // ---- a new inspection ---------------------------------------------------------------------
 

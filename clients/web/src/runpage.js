@@ -2,7 +2,7 @@
 // results as its kind declares them (GET /jobs/{id}/view: figures, plots, pictures —
 // contract/views.py). Nothing here knows a service: a new kind's panels draw the same way.
 import { api, followJob } from "./api.js";
-import { el } from "./dom.js";
+import { el, sizeText } from "./dom.js";
 import { JobPlayer } from "./player.js";
 
 const SVG = "http://www.w3.org/2000/svg";
@@ -14,12 +14,6 @@ function svg(tag, attributes = {}, ...children) {
   for (const [key, value] of Object.entries(attributes)) node.setAttribute(key, String(value));
   node.append(...children);
   return node;
-}
-
-function sizeText(bytes) {
-  if (bytes < 1024) return `${bytes} B`;
-  if (bytes < 1024 ** 2) return `${(bytes / 1024).toFixed(1)} kB`;
-  return `${(bytes / 1024 ** 2).toFixed(1)} MB`;
 }
 
 function valueText(figure) {

@@ -305,9 +305,7 @@ def _read_ascii_vertices(path: Path) -> _Raw | None:
             f"the PLY file's {count} vertices do not each hold its {len(properties)} numbers"
         )
     columns = dict(zip(properties, values.reshape(count, -1).T, strict=True))
-    for channel in ("red", "green", "blue"):
-        if channel in columns:
-            columns[channel] = np.clip(columns[channel], 0, 255).astype(np.uint8)
+    _bytes_of_text_colours(columns)
     grid = grid_shape_of([" ".join(w[1:]) for w in words if w and w[0] == "comment"])
     return _from_columns(columns, grid_shape=grid if grid and grid[0] * grid[1] == count else None)
 
@@ -389,6 +387,14 @@ def _e57_grid(scan: dict) -> _Raw:
     return _from_columns(columns, grid_shape=shape)
 
 
+def _bytes_of_text_colours(columns: dict[str, np.ndarray]) -> None:
+    """Colour channels written as numbers 0–255 in text, as bytes (in place): read as
+    floats, they would pass for 0–1 colours when every channel is 0 or 1."""
+    for channel in ("red", "green", "blue"):
+        if channel in columns:
+            columns[channel] = np.clip(columns[channel], 0, 255).astype(np.uint8)
+
+
 def _read_text(path: Path, *, pts: bool) -> _Raw:
     """Rows of numbers: x y z, then intensity (4 or 7 columns, PTS's order x y z i r g b),
     colour (6) or colour and normals (9, CloudCompare's order)."""
@@ -409,9 +415,7 @@ def _read_text(path: Path, *, pts: bool) -> _Raw:
             "intensity and colour (7, as PTS) or colour and normals (9)"
         )
     columns = dict(zip(layouts[width], values.T, strict=True))
-    for channel in ("red", "green", "blue"):
-        if channel in columns:
-            columns[channel] = np.clip(columns[channel], 0, 255).astype(np.uint8)
+    _bytes_of_text_colours(columns)
     return _from_columns(columns)
 
 
