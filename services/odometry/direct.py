@@ -2,8 +2,9 @@
 
 The motion of frame j against frame i is the rigid planar warp that makes frame j,
 sampled at the warped positions of frame i's textured pixels, look like frame i —
-inverse-compositional Gauss–Newton on a three-level pyramid (the template's gradients and
-Hessian are computed once per frame), with the brightness's gain and offset refitted at
+inverse-compositional Gauss–Newton on a three-level pyramid (each frame's pyramid and its
+template's gradients are computed once, for both pairs it belongs to; a level's iterations
+are one compiled call, ``kernels``), with the brightness's gain and offset refitted at
 each step (lights change, shadows move) and a Huber weight (what one frame shows and the
 other does not). It starts from the previous pair's motion (a robot's speed changes little
 in 1/60 s) and, when that does not converge, from phase correlation on a quarter-size
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from services.odometry import kernels
 from services.odometry.phase import pair_motion
 
 LEVELS = 3
@@ -32,7 +34,6 @@ POINTS_PER_LEVEL = (6_000, 4_000, 3_000)
 ITERATIONS = (6, 8, 10)
 CONVERGED_PX = (0.005, 0.02, 0.05)
 """A level is done when a step moves its points less than this (level pixels)."""
-HUBER = 1.345
 MIN_SHARPNESS = 0.1
 """Below this the frames match barely worse one pixel off the found motion (noise matches
 noise anywhere: a plain floor has little to align on) — the warning ``LOW_TEXTURE``."""
@@ -88,7 +89,10 @@ def flat_field(frames: list[np.ndarray]) -> np.ndarray:
     frame. Radial only: a freer surface took up the scene itself when the floor had moved
     little or was a picture of strong contrast (a street photo's bright sky and dark road),
     and dividing it out printed that scene on every frame."""
-    mean = np.mean([f.astype(np.float32) for f in frames], axis=0)
+    total = np.zeros(frames[0].shape, np.float64)
+    for frame in frames:  # summed in place: 200 frames as float copies took 250 MB
+        total += frame
+    mean = total / len(frames)
     rows, cols = mean.shape
 
     def terms(y: np.ndarray, x: np.ndarray) -> list[np.ndarray]:
@@ -116,9 +120,8 @@ def _strongest(values: np.ndarray, count: int) -> np.ndarray:
 def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
     """A frame's pyramid (divided by the light's ``flat`` field, if given), its most
     textured pixels per level and their Jacobians."""
-    level = image.astype(np.float32)
-    if flat is not None:
-        level = level / flat
+    # cv2.divide: one pass, the same values as image.astype(np.float32) / flat
+    level = image.astype(np.float32) if flat is None else cv2.divide(image, flat, dtype=cv2.CV_32F)
     images, points, values, jacobians = [], [], [], []
     for k in range(LEVELS):
         if k:
@@ -141,65 +144,21 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
     return Template(images, points, values, jacobians)
 
 
-def _sample(image: np.ndarray, xy: np.ndarray, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``image`` at R(θ)·xy + t (about its centre), bilinear in floating point, and which
-    samples fell inside. OpenCV's remap rounds positions to 1/32 pixel: on a real
-    photograph that rounding alone doubled the heading's frame-to-frame noise and left a
-    bias of 0.0003° a frame (measured on a KITTI frame with texels finer than the pixels)."""
-    from scipy.ndimage import map_coordinates
-
-    c, s = np.cos(motion[2]), np.sin(motion[2])
-    centre = _centre(image.shape)
-    x = c * xy[:, 0] - s * xy[:, 1] + (motion[0] + centre[0])
-    y = s * xy[:, 0] + c * xy[:, 1] + (motion[1] + centre[1])
-    inside = (x >= 0) & (x <= image.shape[1] - 1) & (y >= 0) & (y <= image.shape[0] - 1)
-    values = map_coordinates(image, (y, x), order=1, mode="nearest", prefilter=False)
-    return values.astype(np.float32, copy=False), inside
-
-
-def _compose_inverse(motion: np.ndarray, delta: np.ndarray) -> np.ndarray:
-    """motion ∘ delta⁻¹ for warps p ↦ R p + t (the inverse-compositional update)."""
-    c, s = np.cos(delta[2]), np.sin(delta[2])
-    inv_t = -np.array([c * delta[0] + s * delta[1], -s * delta[0] + c * delta[1]])
-    cm, sm = np.cos(motion[2]), np.sin(motion[2])
-    t = motion[:2] + np.array([cm * inv_t[0] - sm * inv_t[1], sm * inv_t[0] + cm * inv_t[1]])
-    return np.array([t[0], t[1], motion[2] - delta[2]])
-
-
 def _align_level(
     template: Template, level: int, image: np.ndarray, start: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Gauss–Newton at one level from ``start`` (level pixels): the warp from template to
-    ``image`` coordinates, J^T W J, the robust residual RMS and the overlap."""
-    xy, value, jac = template.points[level], template.values[level], template.jacobians[level]
-    motion = start.copy()
-    hessian = np.eye(3)
-    residual, overlap = np.inf, 0.0
-    for _ in range(ITERATIONS[level]):
-        sampled, inside = _sample(image, xy, motion)
-        overlap = float(inside.mean())
-        if overlap < 0.2:
-            break
-        # brightness: fit value ≈ gain · sampled + offset over the overlap
-        # (sums of products, not np.dot: OpenBLAS's 1-D dot took 1–2 ms on 12 000 values here)
-        seen, wanted = sampled[inside], value[inside]
-        seen_mean, wanted_mean = seen.mean(), wanted.mean()
-        spread = ((seen - seen_mean) ** 2).sum()
-        gain = ((seen - seen_mean) * (wanted - wanted_mean)).sum() / spread if spread > 0 else 1.0
-        offset = wanted_mean - gain * seen_mean
-        error = np.where(inside, gain * sampled + offset - value, 0.0).astype(np.float32)
-        scale = 1.2533 * np.abs(error[inside]).mean() + 1e-6  # σ of Gaussian errors
-        weight = np.where(inside, np.minimum(1.0, HUBER * scale / (np.abs(error) + 1e-12)), 0.0)
-        weighted = jac * weight.astype(np.float32)[:, None]
-        hessian = (jac.T @ weighted).astype(np.float64)
-        gradient = (weighted.T @ error).astype(np.float64)
-        delta = np.linalg.solve(hessian + 1e-9 * np.eye(3), gradient)
-        motion = _compose_inverse(motion, delta)
-        residual = float(np.sqrt(np.sum(weight * error**2) / max(np.sum(weight), 1.0)))
-        extent = np.abs(xy).max()
-        if np.hypot(delta[0], delta[1]) + abs(delta[2]) * extent < CONVERGED_PX[level]:
-            break
-    return motion, hessian, residual, overlap
+    ``image`` coordinates, J^T W J, the robust residual RMS and the overlap (one compiled
+    call: ``kernels.align_level``)."""
+    return kernels.align_level(
+        image,
+        template.points[level],
+        template.values[level],
+        template.jacobians[level],
+        start.astype(np.float64),
+        ITERATIONS[level],
+        CONVERGED_PX[level],
+    )
 
 
 def sharpness(template: Template, image: Template, warp: np.ndarray) -> float:
@@ -209,11 +168,7 @@ def sharpness(template: Template, image: Template, warp: np.ndarray) -> float:
     xy, value = template.points[0][::SHARPNESS_STRIDE], template.values[0][::SHARPNESS_STRIDE]
 
     def cost(motion: np.ndarray) -> float:
-        sampled, inside = _sample(image.images[0], xy, motion)
-        seen, wanted = sampled[inside], value[inside]
-        gain = np.std(wanted) / (np.std(seen) + 1e-9)
-        error = gain * (seen - seen.mean()) - (wanted - wanted.mean())
-        return float(np.mean(error**2))
+        return kernels.match_cost(image.images[0], xy, value, motion.astype(np.float64))
 
     base = cost(warp)
     worse = [cost(warp + shift) for shift in ([1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0])]
@@ -260,6 +215,15 @@ def align(
         reason = "the frames do not match after alignment (a changed floor)"
     warning = LOW_TEXTURE if sharp < MIN_SHARPNESS else None
     return Alignment(result, covariance, residual, overlap, sharp, reason, warning)
+
+
+def warm_up() -> None:
+    """Compile the alignment's kernels, or load them from numba's cache (once per
+    installation, then a fraction of a second per process), so a timing leaves it out:
+    one small pair aligned."""
+    floor = cv2.GaussianBlur(np.random.default_rng(0).uniform(0, 255, (64, 64)), (0, 0), 1.5)
+    frame = floor.astype(np.uint8)
+    align(prepare(frame), prepare(np.roll(frame, 1, axis=1)), np.zeros(3))
 
 
 def seed_px(template: Template, image: Template) -> np.ndarray:

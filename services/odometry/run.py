@@ -23,8 +23,8 @@ import numpy as np
 from contract.vocabulary import Progress
 from services.odometry import se2
 from services.odometry.camera import FloorCamera
-from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px
-from services.odometry.frames import frame_files, read_frames
+from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px, warm_up
+from services.odometry.frames import frame_files, read_frames, read_frames_at_once
 from services.odometry.oenet import oenet_motions, oenet_sigma
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
@@ -205,7 +205,7 @@ def direct_steps(files: list[Path], camera: FloorCamera, threads: int, progress:
     """vista's method on ``threads`` threads, all with the light's fixed pattern taken out
     (``flat_field`` of frames spread over the run)."""
     sample = files[:: max(1, len(files) // FLAT_FIELD_FRAMES)][:FLAT_FIELD_FRAMES]
-    flat = flat_field(list(read_frames(sample, camera)))
+    flat = flat_field(read_frames_at_once(sample, camera, threads))
     return in_parts(
         files, threads, lambda run, tick: _direct_run(run, camera, flat, tick), progress
     )
@@ -260,6 +260,8 @@ def run_odometry(
         )
     report = progress or (lambda fraction, message: None)
     files = frame_files(folder)
+    if method == "vista":
+        warm_up()
     started = time.perf_counter()
     if method == "phase":
         steps = in_parts(files, threads, lambda run, tick: _phase_run(run, camera, tick), report)
