@@ -148,8 +148,11 @@ def bench_api(
     postgres_url: str = typer.Option(
         None, help="PostgreSQL URL for the second run; default VISTA_TEST_DATABASE_URL."
     ),
-    api_workers: int = typer.Option(
-        2, min=1, help="API processes serving PostgreSQL (SQLite is served by one)."
+    api_workers: list[int] = typer.Option(
+        [1, 2],
+        min=1,
+        help="API processes serving PostgreSQL, repeatable: a run for each count "
+        "(SQLite is served by one).",
     ),
     sqlite_normal: bool = typer.Option(
         True, help="Also run SQLite with synchronous=NORMAL (the cost of durability)."
@@ -165,7 +168,7 @@ def bench_api(
         seconds=seconds,
         defects=defects,
         postgres_url=postgres_url or os.environ.get("VISTA_TEST_DATABASE_URL"),
-        api_workers=api_workers,
+        api_workers=tuple(api_workers),
         sqlite_normal=sqlite_normal,
     )
 

@@ -72,7 +72,9 @@ class TokenCache:
         self._entries[digest] = (user, time.monotonic() + lifetime, stamp)
 
 
-def get_runtime(request: Request) -> Runtime:
+async def get_runtime(request: Request) -> Runtime:
+    """The app's runtime. Async, as every dependency that does not block: FastAPI runs a
+    plain ``def`` dependency on its thread pool, a hand-off each way per request."""
     return request.app.state.runtime
 
 

@@ -92,12 +92,13 @@ def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: 
         seconds=1,
         defects=300,
         postgres_url=PG_URL if with_postgres else None,
+        api_workers=(2,),
         sqlite_normal=False,
         storm_s=0.5,
     )
 
     assert json.loads(out.read_text()) == json.loads(json.dumps(report))
-    assert set(report["backends"]) == ({"sqlite", "postgresql"} if with_postgres else {"sqlite"})
+    assert set(report["backends"]) == ({"sqlite", "postgresql-2"} if with_postgres else {"sqlite"})
     for result in report["backends"].values():
         writes, integrity, page = result["writes"], result["integrity"], result["page"]
         assert writes["writes"] > 0 and writes["errors"] == 0

@@ -261,7 +261,8 @@ def format_table(report: dict[str, Any]) -> str:
     lines.append(
         f"{p['clients']} clients for {p['seconds']:g} s after {WARMUP_S:g} s warm-up; pages of "
         f"{PAGE_SIZE} out of {p['defects']} defects, {PAGE_REQUESTS} requests; "
-        f"{report['machine']['cpus']} CPUs. Targets are for PostgreSQL. sqlite-normal: "
+        f"{report['machine']['cpus']} CPUs. Targets are for PostgreSQL (postgresql-N: served by N "
+        "API processes). sqlite-normal: "
         "synchronous=NORMAL (may lose the last commits on power loss; the default is FULL). "
         "gen CPU %: the load generator's share of the machine while writing — on its own CPU "
         "when the machine has 4 or more, else taken from the server's."
@@ -276,12 +277,13 @@ def run_api_bench(
     seconds: float,
     defects: int,
     postgres_url: str | None,
-    api_workers: int = 2,
+    api_workers: tuple[int, ...] = (1, 2),
     sqlite_normal: bool = True,
     storm_s: float = 8.0,
 ) -> dict:
-    """Run the bench on SQLite and, when ``postgres_url`` is given, PostgreSQL; print a table,
-    write JSON to ``out`` and return the same dict."""
+    """Run the bench on SQLite and, when ``postgres_url`` is given, PostgreSQL served by each
+    of ``api_workers`` API process counts (a fresh database each); print a table, write
+    JSON to ``out`` and return the same dict."""
     if defects < PAGE_SIZE:
         raise ValueError(f"defects must be at least {PAGE_SIZE} to page through them")
     started = time.perf_counter()
@@ -290,7 +292,7 @@ def run_api_bench(
         "seconds": seconds,
         "warmup_s": WARMUP_S,
         "defects": defects,
-        "postgres_api_workers": api_workers,
+        "postgres_api_workers": list(api_workers),
         "hot_defects": min(HOT_DEFECTS, defects),
         "page_size": PAGE_SIZE,
         "page_requests": PAGE_REQUESTS,
@@ -324,22 +326,23 @@ def run_api_bench(
                 storm_s=storm_s,
                 extra_env={"VISTA_SQLITE_SYNCHRONOUS": "NORMAL"},
             )
-    if postgres_url:
+    for processes in api_workers if postgres_url else ():
+        name = f"postgresql-{processes}"
         with (
             fresh_postgres_database(postgres_url) as url,
             tempfile.TemporaryDirectory(prefix="vista-bench-pg-") as tmp,
         ):
-            backends["postgresql"] = bench_backend(
-                "postgresql",
+            backends[name] = bench_backend(
+                name,
                 url,
                 Path(tmp),
                 clients=clients,
                 seconds=seconds,
                 defects=defects,
-                api_workers=api_workers,
+                api_workers=processes,
                 storm_s=storm_s,
             )
-    else:
+    if not postgres_url:
         _say("PostgreSQL skipped: pass --postgres-url or set VISTA_TEST_DATABASE_URL")
     report = write_document(
         out,
