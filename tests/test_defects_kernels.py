@@ -1,6 +1,7 @@
 """The fast building blocks of `vista defects measure` against plain NumPy/SciPy references: the
 compiled passes over the points (binning, seam slabs, the frame's sample), square
-morphology, labelling, block sums, block interpolation, Gaussian smoothing, the robust
+morphology, labelling (4- and 8-connected, with boxes), what the border reaches, block
+sums, block interpolation, Gaussian smoothing, a section's widest gap, the robust
 reference fit and region shapes."""
 
 from __future__ import annotations
@@ -10,8 +11,9 @@ import pytest
 from scipy import ndimage
 
 from services.defects import binning
-from services.defects.morphology import dilate, erode, label4
+from services.defects.morphology import border_reach, dilate, erode, label4, label8
 from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, rasterize
+from services.defects.sections import _widest_gap
 from services.defects.smoothing import gaussian_pair
 from services.defects.surface import _shape, _tukey_fit, _upsample
 
@@ -130,6 +132,33 @@ def test_seam_slabs_equal_numpy_with_and_without_skipping_runs(order) -> None:
         assert np.allclose(found, expected, atol=1e-9)
 
 
+def _widest_gap_reference(xs: np.ndarray) -> tuple[float, float, float]:
+    """The first widest stretch between consecutive sorted values, by sorting."""
+    ordered = np.sort(xs)
+    if len(ordered) < 2:
+        return 0.0, 0.0, -1.0
+    j = int(np.argmax(np.diff(ordered)))  # the first of equals
+    return ordered[j], ordered[j + 1], ordered[j + 1] - ordered[j]
+
+
+def test_widest_gap_without_sorting_equals_sorting() -> None:
+    rng = np.random.default_rng(7)
+    samples = [np.array([]), np.array([1.0]), np.array([2.0, 2.0]), np.arange(10.0)]
+    for n in rng.integers(2, 80, 2000):
+        kind = rng.integers(0, 4)
+        if kind == 0:  # a section's points: two tops and a gap between them
+            xs = np.concatenate([rng.uniform(-4, -0.4, n), rng.uniform(0.6, 4, n)])
+        elif kind == 1:  # repeated values
+            xs = np.round(rng.normal(0, 2, n), 1)
+        elif kind == 2:  # evenly spaced to the last bit: every stretch as wide
+            xs = rng.permutation(np.arange(n) * 0.25)
+        else:
+            xs = rng.normal(0, 1, n)
+        samples.append(xs)
+    for xs in samples:
+        assert _widest_gap(xs) == _widest_gap_reference(xs)
+
+
 @pytest.mark.parametrize("shape", [(1, 9), (9, 1), (60, 45), (0, 4)])
 def test_labelling_equals_scipy(shape) -> None:
     rng = np.random.default_rng(4)
@@ -139,6 +168,26 @@ def test_labelling_equals_scipy(shape) -> None:
         expected, count = ndimage.label(mask)
         assert np.array_equal(labels, expected)
         assert np.array_equal(sizes, np.bincount(expected.ravel(), minlength=count + 1)[1:])
+        labels, boxes = label8(mask)
+        expected, count = ndimage.label(mask, np.ones((3, 3), bool))
+        assert np.array_equal(labels, expected)
+        found = ndimage.find_objects(expected) if count else []
+        assert [tuple(box) for box in boxes] == [
+            (rows.start, cols.start, rows.stop - 1, cols.stop - 1) for rows, cols in found
+        ]
+
+
+@pytest.mark.parametrize("shape", [(1, 9), (9, 1), (60, 45), (0, 4)])
+def test_border_reach_equals_the_parts_labelling_finds_on_the_border(shape) -> None:
+    rng = np.random.default_rng(6)
+    for share in (0.3, 0.55, 0.8):
+        mask = rng.random(shape) < share
+        parts, _ = ndimage.label(mask)
+        on_border = np.unique(
+            np.concatenate([parts[0], parts[-1], parts[:, 0], parts[:, -1]]) if parts.size else []
+        )
+        expected = np.isin(parts, on_border[on_border > 0])
+        assert np.array_equal(border_reach(mask), expected)
 
 
 @pytest.mark.parametrize("sigma", [1.0, 2.2, 4.0])

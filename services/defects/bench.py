@@ -15,8 +15,10 @@ profile gauge does: one scan line per section (a slab of twice the point spacing
 of 1 mm) and the gap between the last measured points of each panel (no model of the
 rounded edge). It is modelled on profile-based gap/flush tools, not any vendor's firmware.
 
-Time per m² is that of vista's whole measurement (frame to findings; the cloud in memory),
-the median of ``TIMED_RUNS`` runs on each assembly, over the cases' panel area.
+Time per m² is that of a whole measurement (frame to findings; the cloud in memory), the
+median of ``TIMED_RUNS`` runs on each assembly, over the cases' panel area — vista's and the
+gauge's, their runs alternated so that other work on the machine weighs on both alike —
+against ``SECONDS_PER_M2`` (issue 35) in every case of both sweeps.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from contract.bench import print_verdict, say, write_document
 from services.defects.config import MeasureConfig
 from services.defects.evaluate import Evaluation, evaluate
 from services.defects.example import BASE_T_PART, merged_cloud
-from services.defects.measure import measure, warm_up
+from services.defects.measure import MeasureResult, measure, warm_up
 from services.defects.simulate import (
     AssemblyScanner,
     AssemblySpec,
@@ -38,10 +40,14 @@ from services.defects.simulate import (
     scan_assembly,
 )
 from services.defects.truth import truth_of
+from services.lib.pointcloud.ply import PointCloud
 from services.lib.pointcloud.scan_sim import SensorModel
 from services.lib.pointcloud.transforms import from_rotvec
 from services.lib.process import available_cores, prepare_process
 
+SECONDS_PER_M2 = 2.5
+"""Issue 35's target: no case of either sweep slower than this per m² of panel at 0.1 mm
+spacing."""
 TARGETS = {
     "gap and step error p95 (mm)": 0.05,
     "edge sweep: gap and step error p95 (mm)": 0.05,
@@ -52,14 +58,15 @@ TARGETS = {
     "geometric precision and recall": 0.98,
     "surface recall": 0.95,
     "surface false positives per m²": 1.0,
-    "seconds per m²": 5.0,
+    "seconds per m²": SECONDS_PER_M2,
+    "edge sweep: seconds per m²": SECONDS_PER_M2,
 }
 
 
 TIMED_RUNS = 7
-"""Each assembly is measured this many times and the median time kept (a measuring worker
-in its steady state): single timings of the ~0.3 s measurement on a shared 2-core machine
-spread by up to +70 %."""
+"""Each assembly is measured this many times, by vista and by the gauge, and the median time
+kept (a measuring worker in its steady state): single timings of the ~0.3 s measurement on a
+shared 2-core machine spread by up to +70 %."""
 
 
 @dataclass(frozen=True)
@@ -181,19 +188,31 @@ def _run(case: SweepCase, seed: int, threads: int) -> tuple[Evaluation, Evaluati
         return scanner.edges_seen(scans.base_T_sensor, seams[seam_id], fraction)
 
     config = MeasureConfig()
-    result = measure(cloud, config, threads=threads)
-    timings = [
-        sum(measure(cloud, config, threads=threads).seconds.values()) for _ in range(TIMED_RUNS - 1)
-    ]
-    seconds = float(np.median([sum(result.seconds.values()), *timings]))
-    vista = replace(evaluate(result, truth, config.tolerances, seen=seen), seconds=seconds)
     # One scan line: the slab just wide enough to hold a continuous profile of the cloud.
     gauge_sections = replace(config.sections, slab_mm=2 * case.spacing_mm, edge_model="void")
     gauge_config = replace(config, sections=gauge_sections, surface=None)
-    gauge = evaluate(
-        measure(cloud, gauge_config, threads=threads), truth, config.tolerances, seen=seen
+    (result, seconds), (gauge_result, gauge_seconds) = _timed(
+        cloud, (config, gauge_config), threads
+    )
+    vista = replace(evaluate(result, truth, config.tolerances, seen=seen), seconds=seconds)
+    gauge = replace(
+        evaluate(gauge_result, truth, config.tolerances, seen=seen), seconds=gauge_seconds
     )
     return vista, gauge
+
+
+def _timed(
+    cloud: PointCloud, configs: tuple[MeasureConfig, ...], threads: int
+) -> list[tuple[MeasureResult, float]]:
+    """Each config's measurement of ``cloud`` and the median of its ``TIMED_RUNS`` times,
+    the configs' runs taken in turn."""
+    results: list[MeasureResult | None] = [None] * len(configs)
+    timings: list[list[float]] = [[] for _ in configs]
+    for _ in range(TIMED_RUNS):
+        for i, config in enumerate(configs):
+            results[i] = measure(cloud, config, threads=threads)
+            timings[i].append(sum(results[i].seconds.values()))
+    return [(r, float(np.median(t))) for r, t in zip(results, timings, strict=True)]
 
 
 def _row(case: SweepCase, vista: Evaluation, gauge: Evaluation, runs: int) -> dict:
@@ -215,6 +234,7 @@ def _row(case: SweepCase, vista: Evaluation, gauge: Evaluation, runs: int) -> di
                 "parallelism_error_max_mm",
                 "mismatch_error_max_mm",
                 "geometric",
+                "seconds_per_m2",
             )
         },
     }
@@ -227,7 +247,7 @@ def _fmt(value: float | None, digits: int = 3) -> str:
 def _accuracy_table(rows: list[dict]) -> str:
     lines = [
         "| case | sections | gap err p95 mm (gauge) | gap bias mm (gauge) | step err p95 mm (gauge) "
-        "| parallelism err max mm | mismatch err max mm | s/m² |",
+        f"| parallelism err max mm | mismatch err max mm | s/m² ≤ {SECONDS_PER_M2:g} (gauge) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -237,7 +257,7 @@ def _accuracy_table(rows: list[dict]) -> str:
             f"({_fmt(g['gap_error_p95_mm'])}) | {_fmt(v['gap_error_mean_mm'])} "
             f"({_fmt(g['gap_error_mean_mm'])}) | {_fmt(v['step_error_p95_mm'])} "
             f"({_fmt(g['step_error_p95_mm'])}) | {_fmt(v['parallelism_error_max_mm'])} "
-            f"| {_fmt(v['mismatch_error_max_mm'])} | {_fmt(v['seconds_per_m2'], 1)} |"
+            f"| {_fmt(v['mismatch_error_max_mm'])} | {_speed(v, g)} |"
         )
     return "\n".join(lines)
 
@@ -264,7 +284,6 @@ def _verdict(total: dict, rows: list[dict]) -> dict[str, bool]:
 
     geometric = total["geometric"].values()
     surface = total["surface"].values()
-    dense = [r["vista"]["seconds_per_m2"] for r in rows if r["spacing_mm"] == 0.1]
     return {
         "gap and step error p95 ≤ 0.05 mm in every case": all_below("gap_error_p95_mm", 0.05)
         and all_below("step_error_p95_mm", 0.05),
@@ -281,8 +300,36 @@ def _verdict(total: dict, rows: list[dict]) -> dict[str, bool]:
         ),
         "surface recall ≥ 0.95": all(c["recall"] >= 0.95 for c in surface),
         "≤ 1 surface false positive per m²": total["surface_false_positives_per_m2"] <= 1.0,
-        "≤ 5 s per m² at 0.1 mm spacing": bool(dense) and max(dense) <= 5.0,
+        f"≤ {SECONDS_PER_M2:g} s per m² at 0.1 mm spacing in every case": _fast_enough(rows),
     }
+
+
+def _dense(rows: list[dict]) -> list[dict]:
+    """The rows timed at 0.1 mm spacing, the density the speed target is stated for."""
+    return [r for r in rows if r["spacing_mm"] == 0.1]
+
+
+def _fast_enough(rows: list[dict]) -> bool:
+    dense = _dense(rows)
+    return bool(dense) and all(r["vista"]["seconds_per_m2"] <= SECONDS_PER_M2 for r in dense)
+
+
+def _speed(v: dict, g: dict) -> str:
+    """A row's s/m², the gauge's in brackets."""
+    return f"{_fmt(v['seconds_per_m2'], 1)} ({_fmt(g['seconds_per_m2'], 1)})"
+
+
+def _speed_line(name: str, rows: list[dict]) -> str:
+    """The slowest case at 0.1 mm spacing against the target, and the gauge's slowest."""
+    dense = _dense(rows)
+    if not dense:
+        return f"{name}: no case at 0.1 mm spacing"
+    slowest = max(dense, key=lambda r: r["vista"]["seconds_per_m2"])
+    gauge = max(r["gauge"]["seconds_per_m2"] for r in dense)
+    return (
+        f"{name}: slowest case {slowest['vista']['seconds_per_m2']:.1f} s/m² "
+        f"({slowest['case']}), target ≤ {SECONDS_PER_M2:g}; the gauge's slowest {gauge:.1f} s/m²"
+    )
 
 
 def _sweep(
@@ -300,10 +347,11 @@ def _sweep(
         all_vista.add(vista)
         all_gauge.add(gauge)
         rows.append(_row(case, vista, gauge, seeds))
-        v = rows[-1]["vista"]
+        v, g = rows[-1]["vista"], rows[-1]["gauge"]
         say(
             f"  gap p95 {_fmt(v['gap_error_p95_mm'])} mm (max {_fmt(v['gap_error_max_mm'])}), "
-            f"unmeasured {_fmt(v['unmeasured_share'], 3)}, {_fmt(v['seconds_per_m2'], 1)} s/m²"
+            f"unmeasured {_fmt(v['unmeasured_share'], 3)}, {_speed(v, g)} s/m² "
+            f"(target ≤ {SECONDS_PER_M2:g}; gauge in brackets)"
         )
     return rows, all_vista, all_gauge
 
@@ -350,6 +398,10 @@ def run_defects_bench(
     if "edges" in sweeps:
         print(f"\n## Edge sweep ({seeds} assemblies per case; peer in brackets)\n")
         print(_edge_table(parts["edge_cases"]))
+    print(f"\n## Speed ({threads} threads; median of {TIMED_RUNS} runs per assembly)\n")
+    for name, key in (("assemblies", "cases"), ("edge sweep", "edge_cases")):
+        if key in parts:
+            print(f"- {_speed_line(name, parts[key])}")
     print_verdict(verdict, out)
     return document
 
@@ -358,7 +410,7 @@ def _edge_table(rows: list[dict]) -> str:
     lines = [
         "| case | sections | unmeasured | gap err p95 mm (gauge) | gap err max mm (gauge) "
         "| step err p95 mm (gauge) | negative gaps (gauge) | unmeasurable left unmeasured "
-        "| edge models | s/m² |",
+        f"| edge models | s/m² ≤ {SECONDS_PER_M2:g} (gauge) |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -372,7 +424,7 @@ def _edge_table(rows: list[dict]) -> str:
             f"| {_fmt(v['gap_error_max_mm'])} ({_fmt(g['gap_error_max_mm'])}) "
             f"| {_fmt(v['step_error_p95_mm'])} ({_fmt(g['step_error_p95_mm'])}) "
             f"| {v['negative_gaps']} ({g['negative_gaps']}) | {flagged} | {models} "
-            f"| {_fmt(v['seconds_per_m2'], 1)} |"
+            f"| {_speed(v, g)} |"
         )
     return "\n".join(lines)
 
@@ -391,7 +443,6 @@ def _edge_verdict(rows: list[dict]) -> dict[str, bool]:
         for r in rows
         if r["vista"]["unmeasurable_sections"]
     )
-    dense = [r["vista"]["seconds_per_m2"] for r in rows if r["spacing_mm"] == 0.1]
     return {
         "edge sweep: gap and step error p95 ≤ 0.05 mm in every case": within(
             "gap_error_p95_mm", 0.05
@@ -401,5 +452,7 @@ def _edge_verdict(rows: list[dict]) -> dict[str, bool]:
         "edge sweep: no negative gap": all(r["vista"]["negative_gaps"] == 0 for r in rows),
         "edge sweep: ≥ 99 % of unmeasurable sections left unmeasured": hidden == 0
         or flagged >= 0.99 * hidden,
-        "edge sweep: ≤ 5 s per m² at 0.1 mm spacing": bool(dense) and max(dense) <= 5.0,
+        f"edge sweep: ≤ {SECONDS_PER_M2:g} s per m² at 0.1 mm spacing in every case": (
+            _fast_enough(rows)
+        ),
     }

@@ -41,13 +41,21 @@ def _in_shares(task: Callable[[slice], tuple], n: int, workers: int) -> list[tup
 
 
 def uv_bounds(
-    points: np.ndarray, origin: np.ndarray, axes: np.ndarray, stride: int = 8
+    points: np.ndarray, origin: np.ndarray, axes: np.ndarray, stride: int = 8, workers: int = 1
 ) -> np.ndarray:
     """(u_min, u_max, v_min, v_max) of every ``stride``-th finite point of (N, 3) points
     in the frame (origin, axes rows u, v): neighbouring points follow each other in a
     scanned or voxel-merged cloud, so the sample misses the extent by about ``stride``
-    point spacings at most."""
-    return _uv_bounds(points[::stride], origin, axes)
+    point spacings at most. ``workers`` threads share the sample (it is read from all of
+    the points' memory: a pass the size of the binning's)."""
+    sample = points[::stride]
+    parts = _in_shares(
+        lambda share: (_uv_bounds(sample[share], origin, axes),), len(sample), workers
+    )
+    bounds = np.array([part[0] for part in parts])
+    return np.array(
+        [bounds[:, 0].min(), bounds[:, 1].max(), bounds[:, 2].min(), bounds[:, 3].max()]
+    )
 
 
 def sample_moments(
@@ -132,11 +140,12 @@ def bin_points(
         len(points),
         workers,
     )
-    count, height, block_count, color, _ = parts[0]
+    count, height, color, _ = parts[0]
     for part in parts[1:]:  # in place: no fresh (page-faulting) arrays of the grid's size
-        for total, share in zip((count, height, block_count, color), part[:4], strict=True):
+        for total, share in zip((count, height, color), part[:3], strict=True):
             total += share
-    chunk_uv = np.concatenate([part[4] for part in parts])
+    chunk_uv = np.concatenate([part[3] for part in parts])
+    block_count = _block_counts(count, shape, block)
     return count, height, block_count, None if colors is None else color, chunk_uv
 
 
@@ -160,13 +169,20 @@ def _uvw(points: np.ndarray, i: int, t: tuple) -> tuple[float, float, float]:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _cell_of(u: float, v: float, t: tuple, rows: int, cols: int) -> int:
-    """Flat index of the cell holding (u, v), −1 outside the grid (or not finite);
+def _row_col(u: float, v: float, t: tuple, rows: int, cols: int) -> tuple[int, int]:
+    """(row, col) of the cell holding (u, v), (−1, 0) outside the grid (or not finite);
     ``t[12:15]`` = (u0, v0, 1 / cell)."""
     row, col = (u - t[12]) * t[14], (v - t[13]) * t[14]
     if not (0.0 <= row < rows and 0.0 <= col < cols):
-        return -1
-    return np.int64(row) * cols + np.int64(col)
+        return -1, 0
+    return np.int64(row), np.int64(col)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cell_of(u: float, v: float, t: tuple, rows: int, cols: int) -> int:
+    """Flat index of the cell holding (u, v), −1 outside the grid (or not finite)."""
+    row, col = _row_col(u, v, t, rows, cols)
+    return row * cols + col if row >= 0 else -1
 
 
 @njit(cache=True, nogil=True)
@@ -225,44 +241,71 @@ def _bin_points(
     grid: np.ndarray,
     shape: tuple[int, int],
     block: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per cell of a ``shape`` grid: point count and sum of heights w (axes row 2); per
-    block of ``block`` × ``block`` cells: point count and, if ``colors`` has a row per
-    point, the sum of the colour channels (else a (0, 3) array); points outside the grid
-    are left out; and the (u, v) box of each ``CHUNK`` points in the grid."""
+    block of ``block`` × ``block`` cells, if ``colors`` has a row per point, the sum of the
+    colour channels (else a (0, 3) array); points outside the grid are left out; and the
+    (u, v) box of each ``CHUNK`` points in the grid.
+
+    Each run of points is done in two loops: the first only computes where its points
+    fall, the second only adds them up. The grid's additions then no longer hold back the
+    arithmetic of the points after them (a fifth less time than one loop doing both)."""
     rows, cols = shape
     count = np.zeros(rows * cols, np.int32)
     height = np.zeros(rows * cols, np.float32)  # a few heights of ±tens of mm: ample
     block_cols = -(-cols // block)
-    block_count = np.zeros(-(-rows // block) * block_cols, np.int32)
     with_color = colors.shape[0] == points.shape[0]
-    color = np.zeros((block_count.shape[0] if with_color else 0, 3), np.float64)
+    color = np.zeros((-(-rows // block) * block_cols if with_color else 0, 3), np.float64)
+    # A cell's block from two lookups: no integer division per point.
+    block_of_row = (np.arange(rows) // block) * block_cols
+    block_of_col = np.arange(cols) // block
     n = points.shape[0]
     chunk_uv = np.empty((-(-n // CHUNK), 4), np.float32)
     t = _transform(origin, axes, grid)
-    block_scale = t[14] / block
+    cells = np.empty(CHUNK, np.int64)  # −1: outside the grid
+    blocks = np.empty(CHUNK, np.int64)
+    heights = np.empty(CHUNK)
     for chunk in range(chunk_uv.shape[0]):
+        start = chunk * CHUNK
+        run = min(n, start + CHUNK) - start
         u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
-        for i in range(chunk * CHUNK, min(n, (chunk + 1) * CHUNK)):
-            u, v, w = _uvw(points, i, t)
-            cell = _cell_of(u, v, t, rows, cols)
-            if cell < 0:
-                continue
-            u_min, u_max = min(u_min, u), max(u_max, u)
-            v_min, v_max = min(v_min, v), max(v_max, v)
-            count[cell] += 1
-            height[cell] += w
-            # As the cell, scaled: no integer division in the loop.
-            row, col = (u - t[12]) * block_scale, (v - t[13]) * block_scale
-            b = np.int64(row) * block_cols + np.int64(col)
-            block_count[b] += 1
-            if with_color:
-                color[b, 0] += colors[i, 0]
-                color[b, 1] += colors[i, 1]
-                color[b, 2] += colors[i, 2]
+        for j in range(run):
+            u, v, w = _uvw(points, start + j, t)
+            row, col = _row_col(u, v, t, rows, cols)
+            cells[j], heights[j] = row * cols + col if row >= 0 else -1, w
+            if row >= 0:
+                blocks[j] = block_of_row[row] + block_of_col[col]
+                u_min, u_max = min(u_min, u), max(u_max, u)
+                v_min, v_max = min(v_min, v), max(v_max, v)
+        for j in range(run):
+            if cells[j] >= 0:
+                count[cells[j]] += 1
+                height[cells[j]] += heights[j]
+        if with_color:
+            for j in range(run):
+                if cells[j] >= 0:
+                    b, i = blocks[j], start + j
+                    color[b, 0] += colors[i, 0]
+                    color[b, 1] += colors[i, 1]
+                    color[b, 2] += colors[i, 2]
         chunk_uv[chunk, 0], chunk_uv[chunk, 1] = u_min, u_max
         chunk_uv[chunk, 2], chunk_uv[chunk, 3] = v_min, v_max
-    return count, height, block_count, color, chunk_uv
+    return count, height, color, chunk_uv
+
+
+@njit(cache=True, nogil=True)
+def _block_counts(count: np.ndarray, shape: tuple[int, int], block: int) -> np.ndarray:
+    """Points per block of ``block`` × ``block`` cells, from the (rows · cols) cell counts:
+    one pass over the grid instead of a count per point."""
+    rows, cols = shape
+    block_cols = -(-cols // block)
+    out = np.zeros(-(-rows // block) * block_cols, np.int32)
+    for i in range(rows):
+        row = count[i * cols : (i + 1) * cols]
+        first = (i // block) * block_cols
+        for b in range(block_cols):
+            out[first + b] += row[b * block : (b + 1) * block].sum()
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -271,7 +314,9 @@ def _seam_bands(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rows, cols) int32: the seam whose band holds each cell, −1 none, −2 several; the
     ``TILE``-cell tiles holding band cells; and each seam's points in its band (an upper
-    bound of those in its slabs)."""
+    bound of those in its slabs). Only the cells that reach into one of the seam's slabs
+    count (at the usual pitch and slab width, half of the band or less): the slab pass
+    spends the least on a point whose cell is in no band."""
     rows, cols = count.shape
     seam_of_cell = np.full((rows, cols), -1, np.int32)
     band_tiles = np.zeros((-(-rows // TILE), -(-cols // TILE)), np.bool_)
@@ -280,7 +325,13 @@ def _seam_bands(
     for s in range(lines.shape[0]):
         cu, cv, du, dv = lines[s, 0], lines[s, 1], lines[s, 2], lines[s, 3]
         start, end = lines[s, 4], lines[s, 5]
+        first, pitch = sections[s, 0], sections[s, 1]
+        sections_count, half_slab = sections[s, 2], sections[s, 3]
+        if sections_count < 1:
+            continue
         wide = sections[s, 4] + cell  # the reach, and a cell
+        # How far along the seam a cell's points lie from its centre, and a rounding's margin.
+        cell_along = 0.5 * cell * (abs(du) + abs(dv)) + 1e-6
         # The band's bounding box: its four corners' cells.
         row0, row1, col0, col1 = rows, -1, cols, -1
         for along, across in (
@@ -301,6 +352,9 @@ def _seam_bands(
                 du_c, dv_c = grid[0] + (i + 0.5) * cell - cu, grid[1] + (j + 0.5) * cell - cv
                 along = du_c * du + dv_c * dv
                 if abs(dv_c * du - du_c * dv) <= wide and start - 1 <= along <= end + 1:
+                    k = min(max(np.rint((along - first) / pitch), 0.0), sections_count - 1)
+                    if abs(along - (first + k * pitch)) > half_slab + cell_along:
+                        continue  # between two slabs
                     seam_of_cell[i, j] = s if seam_of_cell[i, j] == -1 else -2
                     band_tiles[i // TILE, j // TILE] = True
                     capacity[s] += count[i, j]

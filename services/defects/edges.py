@@ -439,33 +439,32 @@ def fit_sides(
     max_depth: float,
     models: np.ndarray,
     fixed_shape: np.ndarray,
-    active: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fit the ``models`` (bool per model) to every ``active`` side g (points
-    starts[g]:starts[g+1]), with noise ``sigma[g]``; ``fixed_shape[g]`` fixes ρ or α where
-    finite. Returns
-    ((sides, 4, FIELDS) fits, NaN where not fitted; (sides, 4) burr height, unexplained
-    width of the free model, 1 where the square model, and where the chamfer model, placed
-    X on a side face it saw)."""
+    """Fit to every side g (points starts[g]:starts[g+1]) the models ``models[g]`` asks
+    for ((sides, 4) bool: a side's own model only, once it is chosen; none: the side is
+    skipped), with noise ``sigma[g]``; ``fixed_shape[g]`` fixes ρ or α where finite.
+    Returns ((sides, 4, FIELDS) fits, NaN where not fitted; (sides, 4) burr height,
+    unexplained width of the free model, 1 where the square model, and where the chamfer
+    model, placed X on a side face it saw)."""
     sides = starts.shape[0] - 1
     out = np.full((sides, 4, FIELDS), np.nan)
     extra = np.zeros((sides, 4))
     for g in range(sides):
         lo, hi = starts[g], starts[g + 1]
-        if hi - lo < 10 or not active[g]:
+        if hi - lo < 10 or not models[g].any():
             continue
         ug, dg, s = u[lo:hi], d[lo:hi], sigma[g]
-        if models[SQUARE]:
+        if models[g, SQUARE]:
             x, sx, cost, q, seen = _square(ug, dg, s, spacing, max_depth)
             out[g, SQUARE, 2:] = x, sx, cost, q
             extra[g, 2] = seen
-        if models[CHAMFER]:
+        if models[g, CHAMFER]:
             c, a, x, sx, cost, q, seen = _chamfer(ug, dg, s, spacing, fixed_shape[g], max_depth)
             out[g, CHAMFER] = c, a, x, sx, cost, q
             extra[g, 3] = seen
-        if models[ROUND]:
+        if models[g, ROUND]:
             out[g, ROUND] = _round(ug, dg, s, fixed_shape[g])
-        if models[FREE]:
+        if models[g, FREE]:
             x, sx, width = _free(ug, dg, s, spacing, max_depth)
             out[g, FREE, 2], out[g, FREE, 3] = x, sx
             extra[g, 1] = width

@@ -197,7 +197,7 @@ def measure(
     frame = fit_frame(points, normals)
     if len(points) < 1000:
         raise MeasureError(f"the cloud has {len(points)} points; at least 1000 needed")
-    bounds = binning.uv_bounds(points, frame.origin, frame.axes)
+    bounds = binning.uv_bounds(points, frame.origin, frame.axes, workers=threads)
     if not np.isfinite(bounds).all():
         raise MeasureError("the cloud has no finite points")
     span_u, span_v = bounds[1] - bounds[0], bounds[3] - bounds[2]

@@ -1,8 +1,9 @@
 """Masks of the height map: square (chessboard) erosion and dilation as runs of
 whole-array boolean operations on shifted views — separable, ⌈log₂ width⌉ operations per
 axis (SciPy's binary morphology and min/max filters on masks cost ~8× more on the height
-maps) — and 4-connected labelling, compiled (1.4× SciPy's on a height map, and with each
-part's size)."""
+maps) — 4- and 8-connected labelling, compiled (1.4× SciPy's on a height map, and with
+each part's size or box), and what of a mask the border reaches (a flood fill: holes
+without a labelling)."""
 
 from __future__ import annotations
 
@@ -83,9 +84,93 @@ def label4(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return labels, sizes
 
 
+@njit(cache=True, nogil=True)
+def label8(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(labels, boxes): 8-connected parts of a 2-D ``mask`` numbered as ``label4``'s (and
+    ``scipy.ndimage.label``'s with a 3 × 3 structure); and the (n, 4) (row0, col0, row1,
+    col1) inclusive box of each, what ``scipy.ndimage.find_objects`` finds (4× faster
+    than the two of them on a sparse mask). As ``label4``, with the two corners above."""
+    rows, cols = mask.shape
+    labels = np.zeros((rows, cols), np.int32)
+    parent = np.empty(rows * cols // 2 + 2, np.int32)
+    n = 0
+    for i in range(rows):
+        for j in range(cols):
+            if not mask[i, j]:
+                continue
+            own = 0
+            for di, dj in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):  # the neighbours seen
+                if i + di < 0 or not 0 <= j + dj < cols:
+                    continue
+                seen = labels[i + di, j + dj]
+                if seen == 0 or seen == own:
+                    continue
+                if own == 0:
+                    own = seen
+                    continue
+                a, b = _root(parent, own), _root(parent, seen)  # parts meet: keep the older
+                parent[max(a, b)] = min(a, b)
+                own = min(a, b)
+            if own == 0:
+                n += 1
+                parent[n] = n
+                own = n
+            labels[i, j] = own
+    final = np.zeros(n + 1, np.int32)
+    count = 0
+    for k in range(1, n + 1):
+        root = _root(parent, k)
+        if root == k:
+            count += 1
+            final[k] = count
+        else:
+            final[k] = final[root]
+    boxes = np.empty((count, 4), np.int64)
+    boxes[:, :2] = max(rows, cols)
+    boxes[:, 2:] = -1
+    for i in range(rows):
+        for j in range(cols):
+            if labels[i, j]:
+                part = final[labels[i, j]]
+                labels[i, j] = part
+                box = boxes[part - 1]
+                box[0], box[1] = min(box[0], i), min(box[1], j)
+                box[2], box[3] = max(box[2], i), max(box[3], j)
+    return labels, boxes
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _root(parent: np.ndarray, k: int) -> int:
     while parent[k] != k:
         parent[k] = parent[parent[k]]  # path halving
         k = parent[k]
     return k
+
+
+@njit(cache=True, nogil=True)
+def border_reach(mask: np.ndarray) -> np.ndarray:
+    """Cells of a 2-D ``mask`` joined to the array's border by a 4-connected path of mask
+    cells: a flood fill from the border's mask cells, which visits only what it reaches
+    (labelling the mask's parts and keeping those on the border takes a pass over all of
+    them, and more)."""
+    rows, cols = mask.shape
+    reached = np.zeros((rows, cols), np.bool_)
+    stack = np.empty(rows * cols, np.int64)
+    top = 0
+    for i in range(rows):
+        for j in range(cols):
+            on_border = i == 0 or j == 0 or i == rows - 1 or j == cols - 1
+            if on_border and mask[i, j]:
+                reached[i, j] = True
+                stack[top] = i * cols + j
+                top += 1
+    while top > 0:
+        top -= 1
+        i, j = divmod(stack[top], cols)
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            a, b = i + di, j + dj
+            if 0 <= a < rows and 0 <= b < cols and mask[a, b] and not reached[a, b]:
+                reached[a, b] = True
+                stack[top] = a * cols + b
+                top += 1
+    return reached

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from services.defects.morphology import label4
+from services.defects.morphology import border_reach, label4
 from services.defects.raster import Raster
 
 
@@ -48,13 +48,11 @@ def segment_panels(
     labels, corners, cells = _relabel_grow(labels, relabel, flat, len(keep))
     boxes = [(slice(r0, r1 + 1), slice(c0, c1 + 1)) for r0, c0, r1, c1 in corners]
     for label, found in enumerate(boxes, start=1):
-        # Holes: parts of the rest of the panel's box that do not reach the box's border.
-        rest, _ = label4(labels[found] != label)
-        border = np.unique(np.concatenate([rest[0], rest[-1], rest[:, 0], rest[:, -1]]))
-        reaches = np.zeros(rest.max() + 1, bool)
-        reaches[border] = True
-        hole = ~reaches[rest] & (labels[found] == 0)
-        labels[found][hole] = label
+        # Holes: cells of no panel that the rest of the panel's box does not join to the
+        # box's border.
+        box = labels[found]
+        hole = ~border_reach(box != label) & (box == 0)
+        box[hole] = label
         cells[label - 1] += np.count_nonzero(hole)
     return Panels(labels, len(keep), cells * cell_area, boxes)
 

@@ -47,6 +47,10 @@ MEDIAN_STRIDE = 8
 """…taken over every 8th point."""
 SELECTION_SECTIONS = 12
 """Sections per seam (evenly spread) on which each side's edge model is chosen."""
+NO_GAP, SIDE, CROSSING, NARROW, SHADOW = range(1, 6)
+"""Why a section is unmeasured (``_unmeasured``), in the order they are checked…"""
+SIDE_NO_TOP, SIDE_NO_EDGE, SIDE_PAST_HOLE, SIDE_NO_MODEL = range(1, 5)
+"""…and, for SIDE, what is wrong with the side."""
 
 
 @dataclass(frozen=True)
@@ -283,23 +287,26 @@ def _edges(
     )
     sigma = np.full(groups, max(noise, 0.005) if np.isfinite(noise) else 0.02)
 
-    def fit(models: list[int], shape: np.ndarray, active: np.ndarray) -> tuple:
-        wanted = np.zeros(4, bool)
-        wanted[models] = True
+    def fit(models: np.ndarray, shape: np.ndarray) -> tuple:
+        """``edges.fit_sides`` of the (groups, 4) ``models`` wanted on each side."""
         return edges.fit_sides(
-            starts, zu, zd, sigma, spacing_mm, config.max_edge_depth_mm, wanted, shape, active
+            starts, zu, zd, sigma, spacing_mm, config.max_edge_depth_mm, models, shape
         )
 
     chosen, shape, shape_sigma = _choose_models(fit, np.diff(starts), config, groups)
-    fits, extra = fit(list(chosen), shape, np.ones(groups, bool))
     side_model = np.tile(chosen, sections)
     index = np.arange(groups)
+    own = np.zeros((groups, 4), bool)
+    own[index, side_model] = True  # each side its own model only…
+    # …and the square corner's everywhere if a side has it: ``face_seen`` reads its flag
+    # on every side that is not chamfered (a cheap fit, unlike a free arc).
+    own[:, edges.SQUARE] |= edges.SQUARE in chosen
+    fits, extra = fit(own, shape)
     best = fits[index, side_model]
     poor = ~np.isfinite(best[:, 2]) | ~(best[:, 5] <= config.fit_gate**2)
     if poor.any():  # the fallback, where the side's model does not explain the edge
-        fallback, spare = fit([edges.FREE], shape, poor)
+        fallback, _ = fit(_wanted(poor, [edges.FREE]), shape)
         fits[poor, edges.FREE] = fallback[poor, edges.FREE]
-        extra[poor, 1] = spare[poor, 1]
     models = np.where(poor, edges.FREE, side_model)
     final = fits[index, models]
     x = final[:, 2]
@@ -349,7 +356,7 @@ def _choose_models(
         candidates = [edges.MODELS.index(config.edge_model)]
     stride = max(1, (groups // 2) // SELECTION_SECTIONS)
     trial_sections = (np.arange(groups) // 2) % stride == 0
-    free, _ = fit(candidates, np.full(groups, np.nan), trial_sections)
+    free, _ = fit(_wanted(trial_sections, candidates), np.full(groups, np.nan))
     shapes = np.full((4, groups), np.nan)
     for model in (edges.CHAMFER, edges.ROUND):
         for s in (0, 1):
@@ -360,7 +367,7 @@ def _choose_models(
     trial = free.copy()
     for model in (edges.CHAMFER, edges.ROUND):
         if model in candidates:
-            trial[:, model] = fit([model], shapes[model], trial_sections)[0][:, model]
+            trial[:, model] = fit(_wanted(trial_sections, [model]), shapes[model])[0][:, model]
     wanted = np.zeros(4, bool)
     wanted[candidates] = True
     chosen = _choose(trial[trial_sections], np.maximum(points, 1)[trial_sections], wanted)
@@ -371,6 +378,14 @@ def _choose_models(
             radius_sigma[s] = _median_sigma(radii[np.isfinite(radii)])
     shape = np.where(np.arange(groups) % 2 == 0, shapes[chosen[0]], shapes[chosen[1]])
     return (chosen[0], chosen[1]), shape, radius_sigma
+
+
+def _wanted(sides: np.ndarray, models: list[int]) -> np.ndarray:
+    """(groups, 4) bool for ``edges.fit_sides``: ``models`` on the ``sides`` (bool per
+    group), nothing elsewhere."""
+    wanted = np.zeros((len(sides), 4), bool)
+    wanted[np.ix_(sides, models)] = True
+    return wanted
 
 
 def _median_sigma(values: np.ndarray) -> float:
@@ -512,57 +527,83 @@ def _unmeasured(
     spacing_mm: float,
     config: SectionConfig,
 ) -> list[str | None]:
-    """Why each section's gap cannot be trusted (None: it can)."""
-    reasons: list[str | None] = []
+    """Why each section's gap cannot be trusted (None: it can). The first that holds, in
+    this order: no gap seen; a side (a before b) without a top fit, without an edge, with
+    its top going on past a hole, or whose edge no model explains; the edges crossing; a
+    gap under two point spacings at a corner placed by the points' extent; the lower
+    panel's corner possibly in the higher one's shadow. Decided for all sections at once;
+    the words are written for the sections left unmeasured only."""
+    count = len(gap)
     models = fitted.models
+    side_reason = np.select(
+        [
+            ~np.isfinite(tops.plane[:, 0]),
+            ~np.isfinite(fitted.x),
+            fitted.past_hole,
+            (models == edges.FREE) & ~(fitted.sigma <= config.max_edge_sigma_mm),
+        ],
+        [SIDE_NO_TOP, SIDE_NO_EDGE, SIDE_PAST_HOLE, SIDE_NO_MODEL],
+        0,
+    ).reshape(count, 2)
+    side_b = side_reason[:, 0] == 0  # side a's reason, if it has one, comes first
+    side = np.where(side_b, side_reason[:, 1], side_reason[:, 0])
     # Edges placed where their points stop (not pinned by an arc's shape or a side face).
-    extent_based = np.isin(models, (edges.SQUARE, edges.CHAMFER, edges.FREE)) & ~fitted.face_seen
+    extent_based = (
+        np.isin(models, (edges.SQUARE, edges.CHAMFER, edges.FREE)) & ~fitted.face_seen
+    ).reshape(count, 2)
     shadow_mm = np.abs(step) * np.tan(np.radians(config.max_view_deg))
-    for i in range(len(gap)):
-        reason = None
-        for s, name in ((0, "a"), (1, "b")):
-            g = 2 * i + s
-            if reason is not None:
-                break
-            if not np.isfinite(tops.plane[g, 0]):
-                reason = (
-                    f"too few points on panel {name}'s top {config.edge_band_mm:g}–"
-                    f"{config.edge_band_mm + config.top_band_mm:g} mm from its edge"
-                )
-            elif not np.isfinite(fitted.x[g]):
-                reason = f"too few points at panel {name}'s edge to place it"
-            elif fitted.past_hole[g]:
-                reason = (
-                    f"panel {name}'s top continues past a hole at its edge (dark or shiny surface?)"
-                )
-            elif models[g] == edges.FREE and not fitted.sigma[g] <= config.max_edge_sigma_mm:
-                reason = (
-                    f"panel {name}'s edge fits no model: residual {fitted.residual[g]:.3f} mm > "
-                    f"{config.fit_gate:g}σ ({config.fit_gate * noise:.3f} mm)"
-                )
-        if not found[i]:
-            reason = "no gap seen between the panels"
-        elif reason is None and gap[i] < 0:
-            reason = f"the edges cross (gap {gap[i]:.3f} mm) and no overlap of the panels is seen"
-        elif reason is None and gap[i] < 2 * spacing_mm and extent_based[2 * i : 2 * i + 2].any():
-            reason = (
+    lower = np.where(step > 0, 0, 1)  # the side of the lower panel
+    with np.errstate(invalid="ignore"):
+        crossing = gap < 0
+        narrow = (gap < 2 * spacing_mm) & extent_based.any(axis=1)
+        shadowed = (
+            (np.abs(step) > 3 * noise)
+            & ~fitted.face_seen.reshape(count, 2).any(axis=1)
+            & extent_based[np.arange(count), lower]
+            & (gap < shadow_mm + spacing_mm)
+        )
+    reason = np.select(
+        [~found, side > 0, crossing, narrow, shadowed],
+        [NO_GAP, SIDE, CROSSING, NARROW, SHADOW],
+        0,
+    )
+    names = ("a", "b")
+
+    def words(i: int) -> str:
+        if reason[i] == NO_GAP:
+            return "no gap seen between the panels"
+        if reason[i] == CROSSING:
+            return f"the edges cross (gap {gap[i]:.3f} mm) and no overlap of the panels is seen"
+        if reason[i] == NARROW:
+            return (
                 f"gap {gap[i]:.3f} mm is under two point spacings ({2 * spacing_mm:.2f} mm) "
                 "at a corner: not resolved"
             )
-        elif (
-            reason is None
-            and abs(step[i]) > 3 * noise
-            and not fitted.face_seen[2 * i : 2 * i + 2].any()
-        ):
-            lower = 0 if step[i] > 0 else 1
-            if extent_based[2 * i + lower] and gap[i] < shadow_mm[i] + spacing_mm:
-                names = ("a", "b")
-                reason = (
-                    f"panel {names[lower]}'s edge may lie in panel {names[1 - lower]}'s shadow "
-                    f"(step {abs(step[i]):.2f} mm: a view {config.max_view_deg:g}° off the "
-                    f"normal hides {shadow_mm[i]:.2f} mm beyond its edge)"
-                )
-        reasons.append(reason)
+        if reason[i] == SHADOW:
+            low = lower[i]
+            return (
+                f"panel {names[low]}'s edge may lie in panel {names[1 - low]}'s shadow "
+                f"(step {abs(step[i]):.2f} mm: a view {config.max_view_deg:g}° off the "
+                f"normal hides {shadow_mm[i]:.2f} mm beyond its edge)"
+            )
+        name, g = names[int(side_b[i])], 2 * i + int(side_b[i])
+        if side[i] == SIDE_NO_TOP:
+            return (
+                f"too few points on panel {name}'s top {config.edge_band_mm:g}–"
+                f"{config.edge_band_mm + config.top_band_mm:g} mm from its edge"
+            )
+        if side[i] == SIDE_NO_EDGE:
+            return f"too few points at panel {name}'s edge to place it"
+        if side[i] == SIDE_PAST_HOLE:
+            return f"panel {name}'s top continues past a hole at its edge (dark or shiny surface?)"
+        return (
+            f"panel {name}'s edge fits no model: residual {fitted.residual[g]:.3f} mm > "
+            f"{config.fit_gate:g}σ ({config.fit_gate * noise:.3f} mm)"
+        )
+
+    reasons: list[str | None] = [None] * count
+    for i in np.flatnonzero(reason):
+        reasons[i] = words(int(i))
     return reasons
 
 
@@ -668,11 +709,47 @@ def _widest_gaps(
     end_a, end_b = np.zeros(count), np.zeros(count)
     width = np.full(count, -1.0)
     for s in range(count):
-        section = np.sort(xs[starts[s] : starts[s + 1]])
-        for j in range(section.shape[0] - 1):
-            if section[j + 1] - section[j] > width[s]:
-                width[s] = section[j + 1] - section[j]
-                end_a[s], end_b[s] = section[j], section[j + 1]
+        end_a[s], end_b[s], width[s] = _widest_gap(xs[starts[s] : starts[s + 1]])
+    return end_a, end_b, width
+
+
+@njit(cache=True, nogil=True)
+def _widest_gap(xs: np.ndarray) -> tuple[float, float, float]:
+    """(left end, right end, width) of the widest stretch between consecutive values of
+    ``xs`` in sorted order, the first (leftmost) of equals; (0, 0, −1) with fewer than two.
+
+    Without sorting (the classic maximum-gap bucketing): n values over [lo, hi] fall into
+    n − 1 buckets of (hi − lo) / (n − 1), which no widest stretch is shorter than, so it
+    runs from one bucket's largest value to the next filled bucket's smallest. Should a
+    bucket span as much (values spaced evenly to the last bit), the values are sorted
+    instead: the same answer either way."""
+    n = xs.shape[0]
+    if n < 2:
+        return 0.0, 0.0, -1.0
+    lo, hi = xs.min(), xs.max()
+    if hi == lo:
+        return lo, lo, 0.0
+    size = (hi - lo) / (n - 1)
+    smallest, largest = np.full(n - 1, np.inf), np.full(n - 1, -np.inf)
+    for x in xs:
+        b = min(int((x - lo) / size), n - 2)
+        smallest[b], largest[b] = min(smallest[b], x), max(largest[b], x)
+    end_a = end_b = 0.0
+    width, previous, span = -1.0, largest[0], largest[0] - smallest[0]
+    for b in range(1, n - 1):
+        if smallest[b] > largest[b]:
+            continue  # empty
+        if smallest[b] - previous > width:
+            width, end_a, end_b = smallest[b] - previous, previous, smallest[b]
+        previous, span = largest[b], max(span, largest[b] - smallest[b])
+    if span < width:
+        return end_a, end_b, width
+    ordered = np.sort(xs)
+    width = -1.0
+    for j in range(n - 1):
+        if ordered[j + 1] - ordered[j] > width:
+            width = ordered[j + 1] - ordered[j]
+            end_a, end_b = ordered[j], ordered[j + 1]
     return end_a, end_b, width
 
 

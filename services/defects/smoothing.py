@@ -55,9 +55,13 @@ def _gaussian_pair(
     sum_a = np.empty(cols)
     sum_b = np.empty(cols)
     for i in range(rows):
-        for j in range(cols + 2 * radius):
-            k = _reflect(j - radius, cols)
-            line_a[j], line_b[j] = a[i, k], b[i, k]
+        # The row with its mirrored ends: only the ends need the mirror's index arithmetic.
+        line_a[radius : radius + cols] = a[i]
+        line_b[radius : radius + cols] = b[i]
+        for j in range(radius):
+            left, right = _reflect(j - radius, cols), _reflect(cols + j, cols)
+            line_a[j], line_b[j] = a[i, left], b[i, left]
+            line_a[radius + cols + j], line_b[radius + cols + j] = a[i, right], b[i, right]
         sum_a[:] = 0.0
         sum_b[:] = 0.0
         for t in range(taps):

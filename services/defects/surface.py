@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from services.defects.morphology import dilate, erode
+from services.defects.morphology import dilate, erode, label8
 from services.defects.panels import Panels
 from services.defects.raster import Raster, block_cells, block_sums
 from services.defects.smoothing import gaussian_pair
@@ -97,18 +97,41 @@ def _normalised_smooth(values: np.ndarray, weights: np.ndarray, sigma: float) ->
 
 
 def _upsample(blocks: np.ndarray, block: int, shape: tuple[int, int]) -> np.ndarray:
-    """Bilinear interpolation of block values at the centres of the ``shape`` cells they
-    cover (edge blocks held constant beyond their centres)."""
+    """Bilinear interpolation of (rows, cols) block values at the centres of the ``shape``
+    cells they cover (edge blocks held constant beyond their centres), in the blocks'
+    dtype: along the rows, then along the columns."""
+    steps = []
     for axis in (0, 1):
         n = blocks.shape[axis]
         at = np.clip((np.arange(shape[axis]) + 0.5) / block - 0.5, 0, n - 1)
         low = np.minimum(at.astype(np.int64), max(n - 2, 0))
-        high = np.minimum(low + 1, n - 1)
-        t = (at - low).astype(blocks.dtype)
-        a, b = np.take(blocks, low, axis), np.take(blocks, high, axis)
-        t = t[:, None] if axis == 0 else t[None, :]
-        blocks = a + (b - a) * t
-    return blocks
+        steps += [low, np.minimum(low + 1, n - 1), (at - low).astype(blocks.dtype)]
+    return _interpolate(blocks, *steps)
+
+
+@njit(cache=True, nogil=True)
+def _interpolate(
+    blocks: np.ndarray,
+    low_row: np.ndarray,
+    high_row: np.ndarray,
+    t_row: np.ndarray,
+    low_col: np.ndarray,
+    high_col: np.ndarray,
+    t_col: np.ndarray,
+) -> np.ndarray:
+    """a + (b − a)·t between the blocks ``low`` and ``high`` of each output row, then of
+    each output column: the two NumPy passes of ``_upsample`` in one, each output row
+    written once (the same operations, in the blocks' dtype, so the same values)."""
+    out = np.empty((low_row.shape[0], low_col.shape[0]), blocks.dtype)
+    across = np.empty(blocks.shape[1], blocks.dtype)
+    for i in range(low_row.shape[0]):
+        a, b, t = blocks[low_row[i]], blocks[high_row[i]], t_row[i]
+        for j in range(blocks.shape[1]):
+            across[j] = a[j] + (b[j] - a[j]) * t
+        for j in range(low_col.shape[0]):
+            left, right = across[low_col[j]], across[high_col[j]]
+            out[i, j] = left + (right - left) * t_col[j]
+    return out
 
 
 def _reference(
@@ -403,7 +426,11 @@ def _scratches(
     its smooth ``background``."""
     cell = raster.cell_mm
     height = np.where(inside, deviation, 0.0)
-    band = _normalised_smooth(height, inside.astype(np.float32), 1.0) - background
+    # The normalised smoothing over one cell (``_normalised_smooth``'s, less its general
+    # steps: with weights of 0 or 1 the weighted heights are the heights).
+    numerator, denominator = gaussian_pair(height, inside.astype(np.float32), 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        band = numerator / denominator - background
     clear = inside & ~relief
     depth = np.where(clear, -band, 0.0)
     # The noise level from every 4th cell: as good an estimate at a quarter of the work.
@@ -412,11 +439,11 @@ def _scratches(
     noise = max(noise, 1e-5)
     score = depth / noise
     seeds = score > config.scratch_sigma + 2
-    grown, _ = ndimage.label(score > config.scratch_sigma, EIGHT_CONNECTED)
-    boxes = ndimage.find_objects(grown)
+    grown, boxes = label8(score > config.scratch_sigma)
     findings = []
     for index in np.unique(grown[seeds]).tolist():  # the parts holding a seed
-        found = boxes[index - 1]
+        row0, col0, row1, col1 = boxes[index - 1]
+        found = (slice(row0, row1 + 1), slice(col0, col1 + 1))
         own = grown[found] == index
         rows, cols = np.nonzero(own)
         length, width, direction = _shape(rows, cols, cell)
