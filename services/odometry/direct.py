@@ -108,15 +108,6 @@ def flat_field(frames: list[np.ndarray]) -> np.ndarray:
     return np.clip(surface, *FLAT_RANGE).astype(np.float32)
 
 
-def _strongest(values: np.ndarray, count: int) -> np.ndarray:
-    """Flat indices of about the ``count`` largest ``values``: those at or above the
-    threshold that every 8th value puts there (a fifth of ``argpartition``'s time)."""
-    values = values.ravel()
-    sample = values[::8]
-    rank = sample.size - max(1, count // 8)
-    return np.flatnonzero(values >= np.partition(sample, rank)[rank])
-
-
 def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
     """A frame's pyramid (divided by the light's ``flat`` field, if given), its most
     textured pixels per level and their Jacobians."""
@@ -129,17 +120,15 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
         gx = cv2.Sobel(level, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
         gy = cv2.Sobel(level, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
         border, stride = 4, 2 if k == 0 else 1  # at full size every other pixel competes
-        inner = (slice(border, -border, stride), slice(border, -border, stride))
-        magnitude = np.square(gx[inner]) + np.square(gy[inner])
-        chosen = _strongest(magnitude, min(POINTS_PER_LEVEL[k], magnitude.size // 4))
-        rows, cols = np.unravel_index(chosen, magnitude.shape)
-        rows, cols = rows * stride + border, cols * stride + border
-        centre = _centre(level.shape)
-        xy = np.column_stack([cols - centre[0], rows - centre[1]]).astype(np.float32)
-        gxs, gys = gx[rows, cols], gy[rows, cols]
-        jacobians.append(np.column_stack([gxs, gys, -xy[:, 1] * gxs + xy[:, 0] * gys]))
+        candidates = len(range(border, level.shape[0] - border, stride)) * len(
+            range(border, level.shape[1] - border, stride)
+        )
+        xy, value, jacobian = kernels.textured_points(
+            level, gx, gy, border, stride, min(POINTS_PER_LEVEL[k], candidates // 4)
+        )
         points.append(xy)
-        values.append(level[rows, cols])
+        values.append(value)
+        jacobians.append(jacobian)
         images.append(level)
     return Template(images, points, values, jacobians)
 

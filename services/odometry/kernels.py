@@ -157,3 +157,41 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
         if inside[k]:
             total += (gain * (sampled[k] - seen_mean) - (value[k] - wanted_mean)) ** 2
     return total / seen
+
+
+@njit(cache=True, nogil=True)
+def textured_points(
+    level: np.ndarray, gx: np.ndarray, gy: np.ndarray, border: int, stride: int, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """About the ``count`` most textured pixels of ``level`` among every ``stride``-th one
+    ``border`` pixels in from its edges: (N, 2) x, y about the level's centre, their grey
+    levels and (N, 3) Jacobians d(value)/d(tx, ty, θ) at the identity, in row-major order.
+
+    The most textured are those whose gradient energy gx² + gy² reaches the value every 8th
+    candidate puts at the ``count``-th place (a fifth of a full partition's time); one pass
+    instead of the dozen array operations (each a pass and a copy) it was in NumPy."""
+    rows, cols = level.shape
+    grid_rows = (rows - 2 * border + stride - 1) // stride
+    grid_cols = (cols - 2 * border + stride - 1) // stride
+    energy = np.empty(grid_rows * grid_cols, np.float32)
+    for i in range(grid_rows):
+        for j in range(grid_cols):
+            r, c = border + i * stride, border + j * stride
+            energy[i * grid_cols + j] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
+    sample = energy[::8].copy()
+    rank = sample.size - max(1, count // 8)
+    threshold = np.partition(sample, rank)[rank]
+    chosen = np.flatnonzero(energy >= threshold)
+    xy = np.empty((chosen.size, 2), np.float32)
+    values = np.empty(chosen.size, np.float32)
+    jacobians = np.empty((chosen.size, 3), np.float32)
+    cx, cy = np.float32((cols - 1) / 2), np.float32((rows - 1) / 2)
+    for k in range(chosen.size):
+        r = border + (chosen[k] // grid_cols) * stride
+        c = border + (chosen[k] % grid_cols) * stride
+        x, y = np.float32(c) - cx, np.float32(r) - cy
+        xy[k, 0], xy[k, 1] = x, y
+        values[k] = level[r, c]
+        jacobians[k, 0], jacobians[k, 1] = gx[r, c], gy[r, c]
+        jacobians[k, 2] = -y * gx[r, c] + x * gy[r, c]
+    return xy, values, jacobians
