@@ -66,15 +66,7 @@ def label4(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             a, b = _root(parent, left), _root(parent, up)  # two parts meet: keep the older
             parent[max(a, b)] = min(a, b)
             labels[i, j] = min(a, b)
-    final = np.zeros(n + 1, np.int32)
-    count = 0
-    for k in range(1, n + 1):  # a root is its part's first label: number them in order
-        root = _root(parent, k)
-        if root == k:
-            count += 1
-            final[k] = count
-        else:
-            final[k] = final[root]
+    final, count = _numbered(parent, n)
     sizes = np.zeros(count, np.int64)
     for i in range(rows):
         for j in range(cols):
@@ -116,15 +108,7 @@ def label8(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 parent[n] = n
                 own = n
             labels[i, j] = own
-    final = np.zeros(n + 1, np.int32)
-    count = 0
-    for k in range(1, n + 1):
-        root = _root(parent, k)
-        if root == k:
-            count += 1
-            final[k] = count
-        else:
-            final[k] = final[root]
+    final, count = _numbered(parent, n)
     boxes = np.empty((count, 4), np.int64)
     boxes[:, :2] = max(rows, cols)
     boxes[:, 2:] = -1
@@ -145,6 +129,22 @@ def _root(parent: np.ndarray, k: int) -> int:
         parent[k] = parent[parent[k]]  # path halving
         k = parent[k]
     return k
+
+
+@njit(cache=True, nogil=True)
+def _numbered(parent: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+    """Labels 1..n (union–find ``parent``) renumbered by part, 1..count: a root is its
+    part's first label, so the parts are numbered in order of their first label."""
+    final = np.zeros(n + 1, np.int32)
+    count = 0
+    for k in range(1, n + 1):
+        root = _root(parent, k)
+        if root == k:
+            count += 1
+            final[k] = count
+        else:
+            final[k] = final[root]
+    return final, count
 
 
 @njit(cache=True, nogil=True)

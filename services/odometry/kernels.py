@@ -44,6 +44,19 @@ def _sample(
 
 
 @njit(cache=True, nogil=True)
+def _means(
+    sampled: np.ndarray, value: np.ndarray, inside: np.ndarray, seen: int
+) -> tuple[float, float]:
+    """The means of the ``seen`` sampled and template values inside the image."""
+    seen_mean, wanted_mean = 0.0, 0.0
+    for k in range(sampled.shape[0]):
+        if inside[k]:
+            seen_mean += sampled[k]
+            wanted_mean += value[k]
+    return seen_mean / seen, wanted_mean / seen
+
+
+@njit(cache=True, nogil=True)
 def _compose_inverse(motion: np.ndarray, delta: np.ndarray) -> np.ndarray:
     """motion ∘ delta⁻¹ for warps p ↦ R p + t (the inverse-compositional update)."""
     c, s = np.cos(delta[2]), np.sin(delta[2])
@@ -87,13 +100,7 @@ def align_level(
         overlap = seen / n
         if overlap < MIN_OVERLAP_TO_STEP:
             break
-        seen_mean, wanted_mean = 0.0, 0.0
-        for k in range(n):
-            if inside[k]:
-                seen_mean += sampled[k]
-                wanted_mean += value[k]
-        seen_mean /= seen
-        wanted_mean /= seen
+        seen_mean, wanted_mean = _means(sampled, value, inside, seen)
         spread, covariance = 0.0, 0.0
         for k in range(n):
             if inside[k]:
@@ -139,13 +146,7 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
     inside = np.empty(n, np.bool_)
     _sample(image, xy, motion, sampled, inside)
     seen = max(inside.sum(), 1)
-    seen_mean, wanted_mean = 0.0, 0.0
-    for k in range(n):
-        if inside[k]:
-            seen_mean += sampled[k]
-            wanted_mean += value[k]
-    seen_mean /= seen
-    wanted_mean /= seen
+    seen_mean, wanted_mean = _means(sampled, value, inside, seen)
     seen_var, wanted_var = 0.0, 0.0
     for k in range(n):
         if inside[k]:
