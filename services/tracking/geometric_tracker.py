@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.lib.boxes import YAW, H, L, W, Z, from_box_frame, inside, wrap
+from services.lib.boxes import YAW, H, L, Z, from_box_frame, inside, wrap
 from services.tracking.correlation import best_shift
-from services.tracking.tracker import MotionModel, PointModel, TrackStep, crop, in_box
+from services.tracking.tracker import MotionModel, PointModel, TrackStep, crop, in_box, nearby
 
 
 @dataclass(frozen=True)
@@ -50,15 +50,6 @@ class GeometricConfig:
     """At most this many of the scan's points (a random, fixed choice) are registered and
     scored: a car a few metres away returns 20 000, and a few hundred place it as well
     (the simulated bench's Success was the same with 1 500 and with all of them)."""
-
-
-def nearby(points: np.ndarray, box: np.ndarray, reach_m: float) -> np.ndarray:
-    """The points (N, ≥3) within ``reach_m`` + the box's half diagonal of its centre along x
-    and y: what every later step of a frame looks at, cut from the scan once."""
-    reach = reach_m + np.hypot(box[L], box[W]) / 2
-    return points[
-        (np.abs(points[:, 0] - box[0]) <= reach) & (np.abs(points[:, 1] - box[1]) <= reach)
-    ]
 
 
 def thinned(points: np.ndarray, most: int) -> np.ndarray:

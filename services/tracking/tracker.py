@@ -20,7 +20,7 @@ from typing import Protocol
 
 import numpy as np
 
-from services.lib.boxes import YAW, H, to_box_frame, transform_boxes, wrap
+from services.lib.boxes import YAW, H, L, W, to_box_frame, transform_boxes, wrap
 
 VOXEL_M = 0.1
 MODEL_POINTS = 4000
@@ -215,7 +215,22 @@ class _Voxels:
         return self.sums / np.maximum(self.counts, 1)[:, None]
 
 
+IN_BOX_MARGIN_M = 0.05
+"""``in_box`` takes the returns this close outside a box as its own (its surface's noise)."""
+
+
 def in_box(points: np.ndarray, box: np.ndarray) -> np.ndarray:
     """(M, 3) the points inside ``box`` (above the road under it), in the box's frame."""
-    local = crop(points, box, 0.05, floor_m=0.2)
-    return local[local[:, 2] <= box[H] / 2 + 0.05]
+    local = crop(points, box, IN_BOX_MARGIN_M, floor_m=0.2)
+    return local[local[:, 2] <= box[H] / 2 + IN_BOX_MARGIN_M]
+
+
+def nearby(points: np.ndarray, box: np.ndarray, reach_m: float) -> np.ndarray:
+    """The points (N, ≥3) within ``reach_m`` + the box's half diagonal of its centre along x
+    and y: what every later step of a frame looks at, cut from the scan once (``crop`` and
+    ``in_box`` of a box within ``reach_m`` − their margin of it answer the same on them as
+    on the whole scan)."""
+    reach = reach_m + np.hypot(box[L], box[W]) / 2
+    return points[
+        (np.abs(points[:, 0] - box[0]) <= reach) & (np.abs(points[:, 1] - box[1]) <= reach)
+    ]
