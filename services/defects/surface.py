@@ -139,7 +139,7 @@ def _reference(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Robust reference surface on the blocks of one panel and its inlier mask."""
     points = uv[inside]
-    scale = np.maximum(np.ptp(points, axis=0), 1.0) / 2
+    scale = np.maximum(np.array([np.ptp(points[:, 0]), np.ptp(points[:, 1])]), 1.0) / 2
     centre = points.mean(0)
     a, b = ((uv - centre) / scale).transpose(2, 0, 1)
     powers_a, powers_b = [np.ones_like(a)], [np.ones_like(b)]
@@ -163,21 +163,14 @@ def _tukey_fit(
     Tukey's biweight (c = 4.685 robust σ of the residual): (coef, final weights).
     Compiled: these passes over a panel's blocks otherwise hold the GIL, and the panels
     are fitted on several threads."""
-    n, m = design.shape
-    weight = np.ones(n)
+    m = design.shape[1]
+    weight = np.ones(design.shape[0])
     coef = np.zeros(m)
     for _ in range(iterations):
-        normal = 1e-9 * np.eye(m)
-        right = np.zeros(m)
-        for i in range(n):
-            if weight[i] == 0.0:
-                continue
-            for p in range(m):
-                row = weight[i] * design[i, p]
-                right[p] += row * target[i]
-                for q in range(m):
-                    normal[p, q] += row * design[i, q]
-        coef = np.linalg.solve(normal, right)
+        # The normal equations as two matrix products (BLAS: several times the loops' speed).
+        weighted = design * weight.reshape(-1, 1)
+        normal = weighted.T @ design + 1e-9 * np.eye(m)
+        coef = np.linalg.solve(normal, weighted.T @ target)
         residual = target - design @ coef
         sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
         weight = np.maximum(1 - (residual / (4.685 * sigma)) ** 2, 0.0) ** 2
