@@ -282,12 +282,25 @@ def _bin_points(
                 count[cells[j]] += 1
                 height[cells[j]] += heights[j]
         if with_color:
+            # Consecutive points mostly share a block: sum a run of them in registers and
+            # add it to the block once (sums of whole numbers: exact in any order).
+            current, red, green, blue = -1, 0.0, 0.0, 0.0
             for j in range(run):
                 if cells[j] >= 0:
-                    b, i = blocks[j], start + j
-                    color[b, 0] += colors[i, 0]
-                    color[b, 1] += colors[i, 1]
-                    color[b, 2] += colors[i, 2]
+                    if blocks[j] != current:
+                        if current >= 0:
+                            color[current, 0] += red
+                            color[current, 1] += green
+                            color[current, 2] += blue
+                        current, red, green, blue = blocks[j], 0.0, 0.0, 0.0
+                    i = start + j
+                    red += colors[i, 0]
+                    green += colors[i, 1]
+                    blue += colors[i, 2]
+            if current >= 0:
+                color[current, 0] += red
+                color[current, 1] += green
+                color[current, 2] += blue
         chunk_uv[chunk, 0], chunk_uv[chunk, 1] = u_min, u_max
         chunk_uv[chunk, 2], chunk_uv[chunk, 3] = v_min, v_max
     return count, height, color, chunk_uv
