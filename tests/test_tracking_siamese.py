@@ -166,3 +166,34 @@ def test_one_cut_from_the_scan_holds_the_search_and_every_candidates_box() -> No
             box[:3] = from_box_frame(np.array([[dx, dy, 0.0]]), predicted)[0]
             box[YAW] = wrap(heading + turn)
             np.testing.assert_array_equal(in_box(around, box), in_box(scan, box))
+
+
+def test_the_bench_compares_the_searches_over_seeds_by_their_means(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The bench's local-against-full comparison on a small drive: each search re-run with
+    each seed on the reference resets, then per reset each search's mean, lowest and
+    highest score and the local mean less the full one."""
+    from services.tracking import bench
+    from services.tracking.detect_geometric import GeometricDetector
+    from tests.lidarfiles import small_drive
+
+    monkeypatch.setattr(bench, "SEARCH_SEEDS", 2)
+    model = _shape_encoder(tmp_path / "shape.onnx")
+    work = bench.simulated_workload([small_drive(tmp_path / "drive")], min_frames=10)
+    runs = bench._search_runs(work, model, GeometricDetector())
+    assert {search: len(seeds) for search, seeds in runs.items()} == {"local": 2, "full": 2}
+    for seeds in runs.values():
+        for rows in seeds:
+            assert [r["reset"] for r in rows] == list(bench.FULL_SEARCH_POLICIES)
+    comparison = bench._search_comparison(runs)
+    assert [r["reset"] for r in comparison] == list(bench.FULL_SEARCH_POLICIES)
+    for k, row in enumerate(comparison):
+        for search, seeds in runs.items():
+            values = [rows[k]["success"] for rows in seeds]
+            stats = row[f"{search}_success"]
+            assert stats["min"] == min(values) and stats["max"] == max(values)
+            assert stats["mean"] == pytest.approx(np.mean(values), abs=0.01)
+        assert row["success_difference"] == pytest.approx(
+            row["local_success"]["mean"] - row["full_success"]["mean"], abs=0.01
+        )
