@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from sqlalchemy import insert
 
-from supervisor.bench.api import cpu_plan, format_table, run_api_bench
+from supervisor.bench.api import cpu_plan, format_table, meets_targets, run_api_bench
 from supervisor.bench.load import PAGE_REQUESTS, WriterLog, verify_judgments
 from supervisor.bench.seeding import seed_database
 from supervisor.bench.stats import percentile
@@ -115,6 +115,28 @@ def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: 
         assert 0 < writes["loadgen_machine_percent"] <= 100  # the generator's share, stated
         assert result["cpus"] == cpu_plan(os.sched_getaffinity(0))
     assert "writes/s" in format_table(report) and "gen CPU %" in format_table(report)
+
+
+def test_sqlite_is_held_to_its_own_targets_and_postgresql_to_the_stricter_ones() -> None:
+    """Issue 35: SQLite (one process, one file) p99 < 150 ms at ≥ 200 writes/s; PostgreSQL
+    p99 < 100 ms at ≥ 300 writes/s."""
+
+    def run(database: str, writes_per_s: float, p99_ms: float) -> dict:
+        return {
+            "database": database,
+            "writes": {"writes_per_s": writes_per_s, "p99_ms": p99_ms, "errors": 0},
+            "page": {"p50_ms": 10.0, "errors": 0, "wrong_pages": 0},
+            "integrity": {"lost": 0, "duplicated": 0},
+            "sign_in_storm": {"meets_target": True},
+        }
+
+    for database in ("sqlite", "sqlite-normal"):
+        assert all(meets_targets(run(database, 250.0, 120.0)).values())
+        met = meets_targets(run(database, 190.0, 150.0))
+        assert not met["writes_per_s"] and not met["write_p99"]
+    met = meets_targets(run("postgresql-2", 250.0, 120.0))
+    assert not met["writes_per_s"] and not met["write_p99"]
+    assert all(meets_targets(run("postgresql-1", 300.0, 99.0)).values())
 
 
 def test_the_generator_gets_a_cpu_of_its_own_only_on_a_machine_that_can_spare_one() -> None:

@@ -57,6 +57,14 @@ TARGETS = {
     "lost": 0,
     "duplicated": 0,
 }
+"""PostgreSQL's, whatever the number of API processes."""
+SQLITE_TARGETS = {**TARGETS, "writes_per_s_min": 200.0, "write_p99_ms_max": 150.0}
+"""SQLite's (one process writing one file, issue 35): p99 < 150 ms at ≥ 200 writes/s."""
+
+
+def targets_for(database: str) -> dict[str, float]:
+    """The targets of a run named ``database`` (``sqlite…`` or ``postgresql-N``)."""
+    return SQLITE_TARGETS if database.startswith("sqlite") else TARGETS
 
 
 def _say(message: str) -> None:
@@ -169,11 +177,12 @@ def bench_backend(
 
 def meets_targets(result: dict[str, Any]) -> dict[str, bool]:
     writes, page, integrity = result["writes"], result["page"], result["integrity"]
+    targets = targets_for(result["database"])
     return {
-        "writes_per_s": writes["writes_per_s"] >= TARGETS["writes_per_s_min"],
+        "writes_per_s": writes["writes_per_s"] >= targets["writes_per_s_min"],
         "write_p99": writes["p99_ms"] is not None
-        and writes["p99_ms"] < TARGETS["write_p99_ms_max"],
-        "page_p50": page["p50_ms"] is not None and page["p50_ms"] < TARGETS["page_p50_ms_max"],
+        and writes["p99_ms"] < targets["write_p99_ms_max"],
+        "page_p50": page["p50_ms"] is not None and page["p50_ms"] < targets["page_p50_ms_max"],
         "no_errors": writes["errors"] == 0 and page["errors"] == 0 and page["wrong_pages"] == 0,
         "no_lost": integrity["lost"] == 0,
         "no_duplicated": integrity["duplicated"] == 0,
@@ -229,24 +238,25 @@ def format_table(report: dict[str, Any]) -> str:
                 else "missed: " + ",".join(k for k, v in met.items() if not v),
             )
         )
-    rows.append(
-        (
-            "target",
-            "",
-            f">= {TARGETS['writes_per_s_min']:.0f}",
-            "",
-            f"< {TARGETS['write_p99_ms_max']:.0f}",
-            "0",
-            "0",
-            "0",
-            f"< {TARGETS['page_p50_ms_max']:.0f}",
-            "",
-            "",
-            "<= 2x idle",
-            "",
-            "",
+    for name, targets in (("target", TARGETS), ("target sqlite", SQLITE_TARGETS)):
+        rows.append(
+            (
+                name,
+                "",
+                f">= {targets['writes_per_s_min']:.0f}",
+                "",
+                f"< {targets['write_p99_ms_max']:.0f}",
+                "0",
+                "0",
+                "0",
+                f"< {targets['page_p50_ms_max']:.0f}",
+                "",
+                "",
+                "<= 2x idle",
+                "",
+                "",
+            )
         )
-    )
     widths = [max(len(row[c]) for row in rows) for c in range(len(header))]
     lines = []
     for n, row in enumerate(rows):
@@ -261,8 +271,8 @@ def format_table(report: dict[str, Any]) -> str:
     lines.append(
         f"{p['clients']} clients for {p['seconds']:g} s after {WARMUP_S:g} s warm-up; pages of "
         f"{PAGE_SIZE} out of {p['defects']} defects, {PAGE_REQUESTS} requests; "
-        f"{report['machine']['cpus']} CPUs. Targets are for PostgreSQL (postgresql-N: served by N "
-        "API processes). sqlite-normal: "
+        f"{report['machine']['cpus']} CPUs. `target` is PostgreSQL's (postgresql-N: served by N "
+        "API processes), `target sqlite` SQLite's (one process, one file). sqlite-normal: "
         "synchronous=NORMAL (may lose the last commits on power loss; the default is FULL). "
         "gen CPU %: the load generator's share of the machine while writing — on its own CPU "
         "when the machine has 4 or more, else taken from the server's."
@@ -347,7 +357,7 @@ def run_api_bench(
     report = write_document(
         out,
         bench="api",
-        targets=TARGETS,
+        targets={"postgresql": TARGETS, "sqlite": SQLITE_TARGETS},
         parameters=parameters,
         backends=backends,
         duration_s=round(time.perf_counter() - started, 3),
