@@ -181,7 +181,7 @@ def test_the_bench_compares_the_searches_over_seeds_by_their_means(
     monkeypatch.setattr(bench, "SEARCH_SEEDS", 2)
     model = _shape_encoder(tmp_path / "shape.onnx")
     work = bench.simulated_workload([small_drive(tmp_path / "drive")], min_frames=10)
-    runs = bench._search_runs(work, model, GeometricDetector())
+    runs = bench._search_runs(work, model, GeometricDetector(), bench.FULL_SEARCH_POLICIES)
     assert {search: len(seeds) for search, seeds in runs.items()} == {"local": 2, "full": 2}
     for seeds in runs.values():
         for rows in seeds:

@@ -17,7 +17,8 @@ simulated scans.
    full search re-runs a few of the resets beside it as the reference its Success and
    Precision are held to, both searches over ``SEARCH_SEEDS`` draws of the candidates'
    points. Then both trackers on the real drive's cars, with the shipped and the geometric
-   detector.
+   detector, and the two searches compared there as on the simulated drives (the encoder
+   never saw a real scan).
 4. Speed, 2 cores: each tracker alone (the Siamese with its local and its full search) on
    the simulated drives and on real scans, all from the same run and beside their target;
    on real scans the whole pipeline (scans read from disk, adaptive detections) and each
@@ -220,9 +221,11 @@ def sweep(
 SCORES = ("success", "precision")
 
 
-def _search_runs(workload: Workload, model: Path, detector: Detector) -> dict[str, list]:
-    """The local and the full search's sweep rows over ``FULL_SEARCH_POLICIES``, one list
-    per seed of ``SEARCH_SEEDS``."""
+def _search_runs(
+    workload: Workload, model: Path, detector: Detector, policies: tuple[str, ...]
+) -> dict[str, list]:
+    """The local and the full search's sweep rows over ``policies``, one list per seed of
+    ``SEARCH_SEEDS``."""
     from services.tracking.siamese import SiameseTracker
 
     runs: dict[str, list] = {"local": [], "full": []}
@@ -232,7 +235,7 @@ def _search_runs(workload: Workload, model: Path, detector: Detector) -> dict[st
                 f"the Siamese tracker's {search} search, the candidates' points drawn with seed {seed}"
             )
             tracker = partial(SiameseTracker, model, threads=2, seed=seed, search=search)
-            rows.append(sweep(workload, tracker, detector, FULL_SEARCH_POLICIES))
+            rows.append(sweep(workload, tracker, detector, policies))
     return runs
 
 
@@ -240,8 +243,8 @@ def _search_comparison(runs: dict[str, list]) -> list[dict]:
     """Per reset: each search's Success and Precision over the seeds (mean, lowest,
     highest) and the local search's mean less the full search's."""
     comparison = []
-    for k, reset in enumerate(FULL_SEARCH_POLICIES):
-        row: dict = {"reset": reset}
+    for k, first in enumerate(runs["local"][0]):
+        row: dict = {"reset": first["reset"]}
         for search, seeds in runs.items():
             for score in SCORES:
                 values = [rows[k][score] for rows in seeds]
@@ -258,9 +261,9 @@ def _search_comparison(runs: dict[str, list]) -> list[dict]:
     return comparison
 
 
-def _comparison_table(comparison: list[dict]) -> None:
+def _comparison_table(comparison: list[dict], data: str) -> None:
     print(
-        f"\n### The local search against the full search: means of {SEARCH_SEEDS} draws of the candidates' points (lowest–highest)\n"
+        f"\n### The local search against the full search, {data}: means of {SEARCH_SEEDS} draws of the candidates' points (lowest–highest)\n"
     )
     print(
         "| reset | Success local | Success full | difference | Precision local | Precision full | difference |"
@@ -406,7 +409,7 @@ def run_tracking_bench(
     full_search = partial(SiameseTracker, siamese_path, threads=2, search="full")
     say("the thesis's system: the Siamese tracker with the shipped detector")
     siamese_rows = sweep(workload, siamese, shipped, FIXED + ADAPTIVE)
-    searches = _search_runs(workload, siamese_path, shipped)
+    searches = _search_runs(workload, siamese_path, shipped, FULL_SEARCH_POLICIES)
     full_search_rows = searches["full"][0]
     comparison = _search_comparison(searches)
     say("vista's geometric tracker with the shipped detector")
@@ -415,7 +418,7 @@ def run_tracking_bench(
     geometric_only = sweep(
         workload, GeometricTracker, geometric, ("every:1", "every:10", "adaptive:10", "never")
     )
-    real_drive, speed, detection = {}, {}, {}
+    real_drive, real_comparison, speed, detection = {}, [], {}, {}
     if real:
         drive = _workload([real.drive], [(0, t) for t in bench_real.drive_tracklets(real.drive)])
         for tracker_name, factory in (("geometric", GeometricTracker), ("siamese", siamese)):
@@ -424,6 +427,9 @@ def run_tracking_bench(
                 real_drive[f"{tracker_name}+{detector_name}"] = sweep(
                     drive, factory, detector, REAL_POLICIES
                 )
+        # Held out from the encoder's training (simulated drives only): the searches compared.
+        real_searches = _search_runs(drive, siamese_path, shipped, REAL_POLICIES)
+        real_comparison = _search_comparison(real_searches)
         speed = _real_speed(real, drive, shipped, geometric, siamese, full_search)
         detection = _real_detection(real, folds, shipped, sim_only, geometric, test)
     plot_ope(
@@ -451,7 +457,7 @@ def run_tracking_bench(
     )
     _print(
         siamese_rows, full_search_rows, comparison, geometric_rows, geometric_only,
-        simulated_speed, real_drive, speed, detection, workload,
+        simulated_speed, real_drive, real_comparison, speed, detection, workload,
     )  # fmt: skip
     document = write_document(
         out,
@@ -477,6 +483,7 @@ def run_tracking_bench(
             "geometric_geometric": _plain(geometric_only),
         },
         real_drive={name: _plain(rows) for name, rows in real_drive.items()},
+        real_drive_local_against_full_search=real_comparison,
         thesis=THESIS,
         simulated_speed=simulated_speed,
         speed=speed,
@@ -699,6 +706,7 @@ def _print(
     geometric_only: list[dict],
     simulated_speed: dict[str, float],
     real_drive: dict,
+    real_comparison: list[dict],
     speed: dict,
     detection: dict,
     workload: Workload,
@@ -712,7 +720,7 @@ def _print(
         full_search_rows,
         thesis=False,
     )
-    _comparison_table(comparison)
+    _comparison_table(comparison, "simulated drives, shipped detector")
     _table("Geometric tracker + shipped detector", geometric_rows, thesis=False)
     _table("Geometric tracker + geometric detector", geometric_only, thesis=False)
     _speed_table(simulated_speed, speed.get("tracker_fps"))
@@ -726,6 +734,7 @@ def _print(
             rows,
             thesis=False,
         )
+    _comparison_table(real_comparison, "the real drive, shipped detector")
     print(
         f"\n### Speed on real scans (2 cores; {speed['frames']} frames of the real drive, {speed['points_per_scan']:,.0f} points a scan)\n"
     )
