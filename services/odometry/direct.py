@@ -117,14 +117,12 @@ def prepare(image: np.ndarray, flat: np.ndarray | None = None) -> Template:
     for k in range(LEVELS):
         if k:
             level = cv2.pyrDown(level)
-        gx = cv2.Sobel(level, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
-        gy = cv2.Sobel(level, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
         border, stride = 4, 2 if k == 0 else 1  # at full size every other pixel competes
         candidates = len(range(border, level.shape[0] - border, stride)) * len(
             range(border, level.shape[1] - border, stride)
         )
         xy, value, jacobian = kernels.textured_points(
-            level, gx, gy, border, stride, min(POINTS_PER_LEVEL[k], candidates // 4)
+            level, border, stride, min(POINTS_PER_LEVEL[k], candidates // 4)
         )
         points.append(xy)
         values.append(value)

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from services.lib.png import decode_grey8
 from services.odometry.camera import FloorCamera
 
 READ_AHEAD = 8
@@ -29,9 +30,12 @@ def frame_files(folder: Path) -> list[Path]:
 
 
 def read_frame(path: Path, camera: FloorCamera) -> np.ndarray:
-    """One frame, grey; ValueError when OpenCV cannot read it or its size is not the
-    camera's."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    """One frame, grey (an 8-bit grey PNG on the fast path, any other through OpenCV);
+    ValueError when neither can read it or its size is not the camera's."""
+    data = path.read_bytes()
+    image = decode_grey8(data)
+    if image is None:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise ValueError(f"{path}: not an image OpenCV can read")
     if image.shape != (camera.height, camera.width):
@@ -44,8 +48,8 @@ def read_frame(path: Path, camera: FloorCamera) -> np.ndarray:
 
 def read_frames(files: list[Path], camera: FloorCamera) -> Iterator[np.ndarray]:
     """The frames in order, each decoded while the ones before it are worked on: PNG
-    decoding (a third of vista's alignment time per pair) runs on a reader thread, which
-    OpenCV lets go of the interpreter for. An unreadable frame raises where it is reached;
+    decoding runs on a reader thread (libdeflate, the compiled filter pass and OpenCV let
+    go of the interpreter). An unreadable frame raises where it is reached;
     a reader left early (the consumer failed or stopped) ends with the generator."""
     ready: queue.Queue = queue.Queue(READ_AHEAD)
     stop = threading.Event()

@@ -160,25 +160,42 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
     return total / seen
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _gradient(level: np.ndarray, r: int, c: int) -> tuple[np.float32, np.float32]:
+    """(d/dx, d/dy) of ``level`` at pixel (r, c): the 3 × 3 Sobel kernels over 8 (OpenCV's
+    ``Sobel(ksize=3, scale=1 / 8)`` but for the order of the float additions)."""
+    above, here, below = level[r - 1], level[r], level[r + 1]
+    gx = (
+        (above[c + 1] - above[c - 1])
+        + 2 * (here[c + 1] - here[c - 1])
+        + (below[c + 1] - below[c - 1])
+    )
+    gy = (below[c - 1] - above[c - 1]) + 2 * (below[c] - above[c]) + (below[c + 1] - above[c + 1])
+    return np.float32(gx * 0.125), np.float32(gy * 0.125)
+
+
 @njit(cache=True, nogil=True)
 def textured_points(
-    level: np.ndarray, gx: np.ndarray, gy: np.ndarray, border: int, stride: int, count: int
+    level: np.ndarray, border: int, stride: int, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """About the ``count`` most textured pixels of ``level`` among every ``stride``-th one
-    ``border`` pixels in from its edges: (N, 2) x, y about the level's centre, their grey
-    levels and (N, 3) Jacobians d(value)/d(tx, ty, θ) at the identity, in row-major order.
+    """About the ``count`` most textured pixels of float32 ``level`` among every
+    ``stride``-th one ``border`` (≥ 1) pixels in from its edges: (N, 2) x, y about the
+    level's centre, their grey levels and (N, 3) Jacobians d(value)/d(tx, ty, θ) at the
+    identity, in row-major order.
 
     The most textured are those whose gradient energy gx² + gy² reaches the value every 8th
-    candidate puts at the ``count``-th place (a fifth of a full partition's time); one pass
-    instead of the dozen array operations (each a pass and a copy) it was in NumPy."""
+    candidate puts at the ``count``-th place (a fifth of a full partition's time). The
+    gradients are taken only at the candidates (a quarter of the pixels at full size), in
+    the same pass: one pass instead of two whole-image Sobel filters and the dozen array
+    operations (each a pass and a copy) it was in NumPy."""
     rows, cols = level.shape
     grid_rows = (rows - 2 * border + stride - 1) // stride
     grid_cols = (cols - 2 * border + stride - 1) // stride
     energy = np.empty(grid_rows * grid_cols, np.float32)
     for i in range(grid_rows):
         for j in range(grid_cols):
-            r, c = border + i * stride, border + j * stride
-            energy[i * grid_cols + j] = gx[r, c] * gx[r, c] + gy[r, c] * gy[r, c]
+            gx, gy = _gradient(level, border + i * stride, border + j * stride)
+            energy[i * grid_cols + j] = gx * gx + gy * gy
     sample = energy[::8].copy()
     rank = sample.size - max(1, count // 8)
     threshold = np.partition(sample, rank)[rank]
@@ -191,8 +208,9 @@ def textured_points(
         r = border + (chosen[k] // grid_cols) * stride
         c = border + (chosen[k] % grid_cols) * stride
         x, y = np.float32(c) - cx, np.float32(r) - cy
+        gx, gy = _gradient(level, r, c)
         xy[k, 0], xy[k, 1] = x, y
         values[k] = level[r, c]
-        jacobians[k, 0], jacobians[k, 1] = gx[r, c], gy[r, c]
-        jacobians[k, 2] = -y * gx[r, c] + x * gy[r, c]
+        jacobians[k, 0], jacobians[k, 1] = gx, gy
+        jacobians[k, 2] = -y * gx + x * gy
     return xy, values, jacobians
