@@ -251,6 +251,29 @@ def test_direct_alignment_flags_a_plain_floor() -> None:
     assert found.warning == "too little texture" and found.reason is None
 
 
+def test_textured_points_carry_opencvs_sobel_gradients_and_the_most_texture() -> None:
+    from services.odometry.kernels import textured_points
+
+    albedo = procedural_floor("concrete", seed=3, n=256).albedo[:120, :160]
+    level = (255 * albedo).astype(np.float32)
+    gx = cv2.Sobel(level, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
+    gy = cv2.Sobel(level, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
+    for stride in (1, 2):
+        xy, values, jacobians = textured_points(level, 4, stride, 500)
+        cols, rows = (xy + [(160 - 1) / 2, (120 - 1) / 2]).round().astype(int).T
+        assert ((rows - 4) % stride == 0).all() and ((cols - 4) % stride == 0).all()
+        np.testing.assert_array_equal(values, level[rows, cols])
+        np.testing.assert_allclose(jacobians[:, 0], gx[rows, cols], atol=1e-5)
+        np.testing.assert_allclose(jacobians[:, 1], gy[rows, cols], atol=1e-5)
+        np.testing.assert_allclose(
+            jacobians[:, 2], -xy[:, 1] * gx[rows, cols] + xy[:, 0] * gy[rows, cols], atol=1e-3
+        )
+        # About the 500 most textured of the candidates: their energy tops the rest's.
+        energy = (gx**2 + gy**2)[4:-4:stride, 4:-4:stride]
+        assert 300 <= len(xy) <= 800
+        assert np.median((gx**2 + gy**2)[rows, cols]) > np.quantile(energy, 0.9)
+
+
 def test_oenet_trains_exports_and_runs_at_tiny_scale(short_sequence, tmp_path) -> None:
     """OE-Net (Table 6.1) built by the command on one short sequence for one epoch: the
     ONNX file says what it is, and `run --method oenet` uses it (its accuracy is the

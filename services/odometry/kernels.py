@@ -89,7 +89,6 @@ def align_level(
     sampled = np.empty(n)
     inside = np.empty(n, np.bool_)
     error = np.zeros(n)
-    weight = np.zeros(n)
     motion = start.copy()
     hessian = np.eye(3)
     residual, overlap = np.inf, 0.0
@@ -113,22 +112,20 @@ def align_level(
             error[k] = gain * sampled[k] + offset - value[k] if inside[k] else 0.0
             absolute += abs(error[k])
         scale = 1.2533 * absolute / seen + 1e-6  # σ of Gaussian errors
-        hessian = np.zeros((3, 3))
-        gradient = np.zeros(3)
-        squares, weights = 0.0, 0.0
+        # The normal equations summed in scalars (registers), not in arrays the compiler
+        # must store to at every point.
+        h00 = h01 = h02 = h11 = h12 = h22 = g0 = g1 = g2 = squares = weights = 0.0
         for k in range(n):
             w = min(1.0, HUBER * scale / (abs(error[k]) + 1e-12)) if inside[k] else 0.0
-            weight[k] = w
-            for a in range(3):
-                wa = w * jac[k, a]
-                gradient[a] += wa * error[k]
-                for b in range(a, 3):
-                    hessian[a, b] += wa * jac[k, b]
+            j0, j1, j2 = jac[k, 0], jac[k, 1], jac[k, 2]
+            w0, w1, w2 = w * j0, w * j1, w * j2
+            g0, g1, g2 = g0 + w0 * error[k], g1 + w1 * error[k], g2 + w2 * error[k]
+            h00, h01, h02 = h00 + w0 * j0, h01 + w0 * j1, h02 + w0 * j2
+            h11, h12, h22 = h11 + w1 * j1, h12 + w1 * j2, h22 + w2 * j2
             squares += w * error[k] ** 2
             weights += w
-        for a in range(3):
-            for b in range(a):
-                hessian[a, b] = hessian[b, a]
+        hessian = np.array([[h00, h01, h02], [h01, h11, h12], [h02, h12, h22]])
+        gradient = np.array([g0, g1, g2])
         delta = np.linalg.solve(hessian + 1e-9 * np.eye(3), gradient)
         motion = _compose_inverse(motion, delta)
         residual = np.sqrt(squares / max(weights, 1.0))
@@ -164,14 +161,13 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
 def _gradient(level: np.ndarray, r: int, c: int) -> tuple[np.float32, np.float32]:
     """(d/dx, d/dy) of ``level`` at pixel (r, c): the 3 × 3 Sobel kernels over 8 (OpenCV's
     ``Sobel(ksize=3, scale=1 / 8)`` but for the order of the float additions)."""
-    above, here, below = level[r - 1], level[r], level[r + 1]
-    gx = (
-        (above[c + 1] - above[c - 1])
-        + 2 * (here[c + 1] - here[c - 1])
-        + (below[c + 1] - below[c - 1])
-    )
-    gy = (below[c - 1] - above[c - 1]) + 2 * (below[c] - above[c]) + (below[c + 1] - above[c + 1])
-    return np.float32(gx * 0.125), np.float32(gy * 0.125)
+    two, eighth = np.float32(2), np.float32(0.125)  # float32 throughout, as OpenCV's
+    up, down, left, right = r - 1, r + 1, c - 1, c + 1  # indexed, not row views: no refcounts
+    gx = (level[up, right] - level[up, left]) + two * (level[r, right] - level[r, left])
+    gy = (level[down, left] - level[up, left]) + two * (level[down, c] - level[up, c])
+    gx += level[down, right] - level[down, left]
+    gy += level[down, right] - level[up, right]
+    return gx * eighth, gy * eighth
 
 
 @njit(cache=True, nogil=True)
