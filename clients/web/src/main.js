@@ -205,6 +205,11 @@ function resetInspection() {
   state.scenePick = null;
   state.sceneEtag = null;
   $("#detail").hidden = true;
+  // Rows drawn for the last page (and the last person: their buttons) go with it, so a
+  // page opened next never shows them while its own are fetched.
+  $("#timeline").replaceChildren();
+  $("#runs-error").textContent = "";
+  $("#artifact-table tbody").replaceChildren();
 }
 
 function fold(page) {
