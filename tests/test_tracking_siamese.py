@@ -5,6 +5,7 @@ synthetic similarity, and on a tracker with a small hand-made encoder (no traini
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -176,13 +177,18 @@ def test_the_bench_compares_the_searches_over_seeds_by_their_means(
     highest score and the local mean less the full one."""
     from services.tracking import bench
     from services.tracking.detect_geometric import GeometricDetector
+    from services.tracking.siamese import SiameseTracker
     from tests.lidarfiles import small_drive
 
     monkeypatch.setattr(bench, "SEARCH_SEEDS", 2)
     model = _shape_encoder(tmp_path / "shape.onnx")
     work = bench.simulated_workload([small_drive(tmp_path / "drive")], min_frames=10)
-    runs = bench._search_runs(work, model, GeometricDetector(), bench.FULL_SEARCH_POLICIES)
+    # The bench's own seed-0 local sweep, in another order: taken by reset, not run again.
+    tracker = partial(SiameseTracker, model, threads=2)
+    first = bench.sweep(work, tracker, GeometricDetector(), bench.FULL_SEARCH_POLICIES[::-1])
+    runs = bench._search_runs(work, model, GeometricDetector(), bench.FULL_SEARCH_POLICIES, first)
     assert {search: len(seeds) for search, seeds in runs.items()} == {"local": 2, "full": 2}
+    assert all(a is b for a, b in zip(runs["local"][0], first[::-1], strict=True))
     for seeds in runs.values():
         for rows in seeds:
             assert [r["reset"] for r in rows] == list(bench.FULL_SEARCH_POLICIES)
