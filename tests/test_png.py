@@ -117,3 +117,18 @@ def test_a_frame_not_on_the_fast_path_is_still_read_grey_by_opencv(tmp_path: Pat
     (tmp_path / "damaged.png").write_bytes(_png(colour[..., 0], crc_of_data=1))
     with pytest.raises(ValueError, match="not an image OpenCV can read"):
         read_frame(tmp_path / "damaged.png", camera)
+
+
+def test_a_real_camera_frame_in_grey_decodes_as_opencv_reads_it() -> None:
+    """A KITTI camera frame (not this project's simulator): as stored (RGB) it is left to
+    OpenCV; turned grey and written by OpenCV, it takes the fast path to the same pixels."""
+    from services.odometry.bench import KITTI_FRAME
+
+    if not KITTI_FRAME.is_file():
+        pytest.skip("../shared/data is not here")
+    data = KITTI_FRAME.read_bytes()
+    assert decode_grey8(data) is None
+    grey = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    ok, encoded = cv2.imencode(".png", grey)
+    assert ok
+    np.testing.assert_array_equal(decode_grey8(encoded.tobytes()), grey)
