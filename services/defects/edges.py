@@ -174,7 +174,13 @@ def _round_residual(u: float, d: float, centre: float, radius: float) -> tuple[f
     if d >= radius:
         return u - centre - radius, -1.0, -1.0
     if u < centre:
-        return -d if d < 0 else min(d, np.hypot(u - centre - radius, d - radius)), 0.0, 0.0
+        if d < 0:
+            return -d, 0.0, 0.0
+        # The side face's distance, compared squared: its square root only where taken.
+        to_face = (u - centre - radius, d - radius)
+        if d * d <= to_face[0] ** 2 + to_face[1] ** 2:
+            return d, 0.0, 0.0
+        return np.hypot(to_face[0], to_face[1]), 0.0, 0.0
     du, dz = u - centre, d - radius
     distance = max(np.hypot(du, dz), 1e-9)
     return distance - radius, -du / distance, -dz / distance - 1.0
@@ -218,31 +224,40 @@ def _round(
 
 @njit(cache=True, nogil=True)
 def _chamfer_residual(
-    u: float, d: float, corner: float, angle: float
+    u: float, d: float, corner: float, sin: float, cos: float
 ) -> tuple[float, float, float]:
-    """(r, ∂r/∂u_c, ∂r/∂α) to the top ray (u < u_c) or the chamfer's ray from (u_c, 0)."""
-    sin, cos = np.sin(angle), np.cos(angle)
+    """(r, ∂r/∂u_c, ∂r/∂α) to the top ray (u < u_c) or the chamfer's ray from (u_c, 0) at
+    the angle α whose sine and cosine are given (computed once per pass by the caller:
+    they cost more than the rest)."""
     along = (u - corner) * cos + d * sin
     across = (u - corner) * sin - d * cos
-    to_top = abs(d) if u <= corner else np.hypot(u - corner, d)
-    if along < 0 or to_top < abs(across):
-        return to_top, 0.0, 0.0
+    # The top ray's distance is compared squared: its square root only where it is taken.
+    if u <= corner:
+        to_top = abs(d)
+        if along < 0 or to_top < abs(across):
+            return to_top, 0.0, 0.0
+    elif along < 0 or (u - corner) ** 2 + d * d < across * across:
+        return np.hypot(u - corner, d), 0.0, 0.0
     return across, -sin, (u - corner) * cos + d * sin
 
 
 @njit(cache=True, nogil=True)
-def _residual(model: int, u: float, d: float, p1: float, p2: float) -> tuple[float, float, float]:
-    """(r, ∂r/∂p1, ∂r/∂p2) of the arc (p1 = u_c, p2 = ρ) or the chamfer (u_c, α)."""
+def _residual(
+    model: int, u: float, d: float, p1: float, p2: float, trig: tuple[float, float]
+) -> tuple[float, float, float]:
+    """(r, ∂r/∂p1, ∂r/∂p2) of the arc (p1 = u_c, p2 = ρ) or the chamfer (u_c, α), with
+    ``trig`` = (sin p2, cos p2)."""
     if model == ROUND:
         return _round_residual(u, d, p1, p2)
-    return _chamfer_residual(u, d, p1, p2)
+    return _chamfer_residual(u, d, p1, trig[0], trig[1])
 
 
 @njit(cache=True, nogil=True)
 def _cost(model: int, u: np.ndarray, d: np.ndarray, p1: float, p2: float, sigma: float) -> float:
     cost = 0.0
+    trig = (np.sin(p2), np.cos(p2))
     for i in range(u.shape[0]):
-        cost += _truncated(_residual(model, u[i], d[i], p1, p2)[0], sigma)
+        cost += _truncated(_residual(model, u[i], d[i], p1, p2, trig)[0], sigma)
     return cost
 
 
@@ -268,8 +283,9 @@ def _gauss_newton(
     a = b = dd = 1.0
     for iteration in range(16):
         a, b, dd, g1, g2, here = 1e-9, 0.0, 1e-9, 0.0, 0.0, 0.0
+        trig = (np.sin(p2), np.cos(p2))
         for i in range(u.shape[0]):
-            r, j1, j2 = _residual(model, u[i], d[i], p1, p2)
+            r, j1, j2 = _residual(model, u[i], d[i], p1, p2, trig)
             here += _truncated(r, sigma)
             if abs(r) < limit:
                 a += j1 * j1
@@ -330,8 +346,9 @@ def _chamfer(
         return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, False
     on_face = np.empty(u.shape[0])
     n = 0
+    sin, cos = np.sin(angle), np.cos(angle)
     for i in range(u.shape[0]):
-        r, _, _ = _chamfer_residual(u[i], d[i], corner, angle)
+        r, _, _ = _chamfer_residual(u[i], d[i], corner, sin, cos)
         # On the face, above it (a lip), or just below it (merged with the side face).
         if -(limit + spacing) < r < LIP_MM and d[i] > limit:
             on_face[n] = u[i]
@@ -346,23 +363,32 @@ def _chamfer(
     if seen:
         x, sigma_x = wall
     cost = 0.0
+    foot = (x - corner) * np.tan(angle)  # at X as placed
+    length = np.hypot(x - corner, foot)
     for i in range(u.shape[0]):
-        cost += _truncated(_chamfer_polyline(u[i], d[i], corner, angle, x), sigma)
+        cost += _truncated(_chamfer_polyline(u[i], d[i], corner, x, foot, length), sigma)
     return corner, angle, x, sigma_x, cost, cost / u.shape[0], seen
 
 
 @njit(cache=True, nogil=True)
-def _chamfer_polyline(u: float, d: float, corner: float, angle: float, x: float) -> float:
+def _chamfer_polyline(
+    u: float, d: float, corner: float, x: float, foot: float, length: float
+) -> float:
     """Distance to the whole chamfered edge: the top up to u_c, the face down to its foot
-    at u = X, and the side face below."""
-    foot = (x - corner) * np.tan(angle)
-    to_top = abs(d) if u <= corner else np.hypot(u - corner, d)
-    length = np.hypot(x - corner, foot)
+    at u = X, depth ``foot`` ((X − u_c)·tan α), and the side face below; ``length`` is
+    the face's, from (u_c, 0) to (X, foot)."""
     t = ((u - corner) * (x - corner) + d * foot) / max(length * length, 1e-12)
     t = min(max(t, 0.0), 1.0)
-    to_face = np.hypot(u - corner - t * (x - corner), d - t * foot)
-    to_wall = abs(u - x) if d >= foot else np.hypot(u - x, d - foot)
-    return min(to_top, to_face, to_wall)
+    # The offsets to the nearest point of each part (hypot(0, δ) = |δ| exactly), compared
+    # squared: one square root, of the nearest.
+    top = (0.0 if u <= corner else u - corner, d)
+    face = (u - corner - t * (x - corner), d - t * foot)
+    wall = (u - x, 0.0 if d >= foot else d - foot)
+    nearest = top
+    for part in (face, wall):
+        if part[0] ** 2 + part[1] ** 2 < nearest[0] ** 2 + nearest[1] ** 2:
+            nearest = part
+    return np.hypot(nearest[0], nearest[1])
 
 
 @njit(cache=True, nogil=True)

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from math import erf, sqrt
@@ -35,6 +34,7 @@ from services.defects.sections import (
 )
 from services.defects.surface import SurfaceFinding, find_surface_defects
 from services.lib.pointcloud.ply import PointCloud
+from services.lib.tasks import helping_map
 from services.lib.wording import counted
 
 MAX_CELLS = 60e6
@@ -232,10 +232,10 @@ def measure(
     # as there are cores (the compiled passes, NumPy and SciPy release the GIL for the
     # heavy part); the surface work starts first, while the seam lines are found.
     with ThreadPoolExecutor(threads) if threads > 1 else nullcontext() as pool:
-        map_fn = map if pool is None else pool.map
         surface_parts = []
         if config.surface is not None:
-            surface_parts = find_surface_defects(raster, panels, config.surface, map_fn)
+            surface_parts = find_surface_defects(raster, panels, config.surface, pool)
+        map_fn = map if pool is None else pool.map
         described = map_fn(describe_panels, [raster], [panels])  # a pool task, collected below
         # A seam's band: half the widest gap, the widest edge, and the edge band.
         sections = config.sections
@@ -250,7 +250,7 @@ def measure(
         )
         lines = [_oriented(line, frame) for line in lines]
         lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
-        profiles = _profile_seams(points, raster, lines, config, spacing, map_fn, threads)
+        profiles = _profile_seams(points, raster, lines, config, spacing, pool, threads)
         surface = [finding for part in surface_parts for finding in part]
         shapes = next(iter(described))
     located, panel_id = _locate_panels(shapes, frame)
@@ -339,11 +339,12 @@ def _profile_seams(
     lines: list[SeamLine],
     config: MeasureConfig,
     spacing_mm: float,
-    map_fn: Callable = map,
+    pool: Executor | None = None,
     threads: int = 1,
 ) -> list[SeamProfile | None]:
     """Each seam's sections, from one pass over the points near any seam (on ``threads``
-    threads); ``map_fn`` runs the seams."""
+    threads). The seams are profiled by this thread and, once free, by ``pool``'s
+    threads, the seam with the most points first."""
     if not lines:
         return []
     sections = config.sections
@@ -377,7 +378,8 @@ def _profile_seams(
             return None
         return profile_seam(np.concatenate(pieces, 1), seam, sections, *at, spacing_mm)
 
-    return list(map_fn(profile, lines, slabs, ranges))
+    sizes = [sum(piece.shape[1] for piece in pieces) for pieces in slabs]
+    return helping_map(pool, profile, lines, slabs, ranges, sizes=sizes, helpers=threads)
 
 
 def _seam_result(

@@ -24,7 +24,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from math import erf, sqrt
 
@@ -215,12 +216,21 @@ def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, f
 
 
 def find_surface_defects(
-    raster: Raster, panels: Panels, config: SurfaceConfig, map_fn: Callable = map
+    raster: Raster, panels: Panels, config: SurfaceConfig, pool: Executor | None = None
 ) -> Iterator[list[SurfaceFinding]]:
     """Dents, bumps, scratches and (if the raster has colours) colour patches, panel by
-    panel: ``map_fn`` (e.g. an executor's ``map``) runs the panels."""
+    panel: each panel's findings, in label order. With a ``pool`` the panels run on its
+    threads, the largest first (so that the last to finish is a small one)."""
     boxes = [(label, box) for label, box in enumerate(panels.boxes, start=1) if box is not None]
-    return map_fn(lambda item: _panel(raster, panels.labels, *item, config), boxes)
+
+    def run(item: tuple[int, tuple[slice, slice]]) -> list[SurfaceFinding]:
+        return _panel(raster, panels.labels, *item, config)
+
+    if pool is None:
+        return map(run, boxes)
+    cells = [(rows.stop - rows.start) * (cols.stop - cols.start) for _, (rows, cols) in boxes]
+    futures = {i: pool.submit(run, boxes[i]) for i in np.argsort(cells)[::-1]}
+    return (futures[i].result() for i in range(len(boxes)))
 
 
 def _panel(
