@@ -229,7 +229,8 @@ def find_surface_defects(
     if pool is None:
         return map(run, boxes)
     cells = [(rows.stop - rows.start) * (cols.stop - cols.start) for _, (rows, cols) in boxes]
-    futures = {i: pool.submit(run, boxes[i]) for i in np.argsort(cells)[::-1]}
+    largest_first = sorted(range(len(boxes)), key=lambda i: -cells[i])
+    futures = {i: pool.submit(run, boxes[i]) for i in largest_first}
     return (futures[i].result() for i in range(len(boxes)))
 
 
