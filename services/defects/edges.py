@@ -227,8 +227,7 @@ def _chamfer_residual(
     u: float, d: float, corner: float, sin: float, cos: float
 ) -> tuple[float, float, float]:
     """(r, ∂r/∂u_c, ∂r/∂α) to the top ray (u < u_c) or the chamfer's ray from (u_c, 0) at
-    the angle α whose sine and cosine are given (computed once per pass by the caller:
-    they cost more than the rest)."""
+    the angle α whose sine and cosine are given (computed once per pass by the caller)."""
     along = (u - corner) * cos + d * sin
     across = (u - corner) * sin - d * cos
     # The top ray's distance is compared squared: its square root only where it is taken.
