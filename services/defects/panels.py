@@ -95,18 +95,23 @@ def _relabel_grow(
     corners[:, 2:] = -1
     cells = np.zeros(count, np.int64)
     for i in range(rows):
-        for j in range(cols):
-            label = relabel[labels[i, j]]
-            if label == 0 and flat[i, j] and 0 < i < rows - 1 and 0 < j < cols - 1:
-                for di in range(-1, 2):
-                    for dj in range(-1, 2):
-                        label = max(label, relabel[labels[i + di, j + dj]])
-            grown[i, j] = label
-            if label > 0:
-                box = corners[label - 1]
-                box[0], box[1] = min(box[0], i), min(box[1], j)
-                box[2], box[3] = max(box[2], i), max(box[3], j)
-                cells[label - 1] += 1
+        run_label, run_start = 0, 0  # the boxes and counts grow by runs along the row
+        for j in range(cols + 1):
+            label = 0
+            if j < cols:
+                label = relabel[labels[i, j]]
+                if label == 0 and flat[i, j] and 0 < i < rows - 1 and 0 < j < cols - 1:
+                    for di in range(-1, 2):
+                        for dj in range(-1, 2):
+                            label = max(label, relabel[labels[i + di, j + dj]])
+                grown[i, j] = label
+            if label != run_label or j == cols:
+                if run_label > 0:
+                    box = corners[run_label - 1]
+                    box[0], box[1] = min(box[0], i), min(box[1], run_start)
+                    box[2], box[3] = max(box[2], i), max(box[3], j - 1)
+                    cells[run_label - 1] += j - run_start
+                run_label, run_start = label, j
     return grown, corners, cells
 
 
