@@ -125,7 +125,7 @@ def test_a_real_camera_frame_in_grey_decodes_as_opencv_reads_it() -> None:
     from services.odometry.bench import KITTI_FRAME
 
     if not KITTI_FRAME.is_file():
-        pytest.skip("../shared/data is not here")
+        pytest.skip("../shared/data's KITTI raw drive is not here")
     data = KITTI_FRAME.read_bytes()
     assert decode_grey8(data) is None
     grey = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
