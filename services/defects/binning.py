@@ -5,8 +5,8 @@ section slabs; and the bounds and moments of an even sample of them.
 A stitched assembly is ~100 M points per m² at 0.1 mm spacing; each numpy pass over them
 costs more than the whole budget allows, so these loops are compiled (numba) and read
 each point once. They run without the GIL and hold no state, so jobs in threads may call
-them at the same time. Every pass computes a point's cell with ``_uvw`` and
-``_cell_of``, so the seam pass sees exactly the cells of the binning; points outside the
+them at the same time. Both passes compute a point's cell with ``_locate``, so the seam
+pass sees exactly the cells of the binning; points outside the
 grid (not finite, or strays beyond the sampled extent) belong to no cell. The seam pass
 reads only the runs of consecutive points whose box, noted by the binning, comes near a
 seam (a sixth of them on a 2 × 2 assembly).
@@ -159,8 +159,9 @@ def _transform(origin: np.ndarray, axes: np.ndarray, grid: np.ndarray) -> tuple:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _uvw(points: np.ndarray, i: int, t: tuple) -> tuple[float, float, float]:
-    x, y, z = points[i, 0] - t[0], points[i, 1] - t[1], points[i, 2] - t[2]
+def _uvw(px: float, py: float, pz: float, t: tuple) -> tuple[float, float, float]:
+    """(u, v, w) of the cloud point (px, py, pz) in the frame ``t`` of ``_transform``."""
+    x, y, z = px - t[0], py - t[1], pz - t[2]
     return (
         x * t[3] + y * t[4] + z * t[5],
         x * t[6] + y * t[7] + z * t[8],
@@ -169,20 +170,37 @@ def _uvw(points: np.ndarray, i: int, t: tuple) -> tuple[float, float, float]:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _row_col(u: float, v: float, t: tuple, rows: int, cols: int) -> tuple[int, int]:
-    """(row, col) of the cell holding (u, v), (−1, 0) outside the grid (or not finite);
-    ``t[12:15]`` = (u0, v0, 1 / cell)."""
-    row, col = (u - t[12]) * t[14], (v - t[13]) * t[14]
-    if not (0.0 <= row < rows and 0.0 <= col < cols):
-        return -1, 0
-    return np.int64(row), np.int64(col)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _cell_of(u: float, v: float, t: tuple, rows: int, cols: int) -> int:
-    """Flat index of the cell holding (u, v), −1 outside the grid (or not finite)."""
-    row, col = _row_col(u, v, t, rows, cols)
-    return row * cols + col if row >= 0 else -1
+def _locate(
+    points: np.ndarray,
+    start: int,
+    run: int,
+    t: tuple,
+    rows: int,
+    cols: int,
+    xyz: np.ndarray,
+    uvw: np.ndarray,
+    cell: np.ndarray,
+    row_col: np.ndarray,
+) -> None:
+    """Of ``points[start : start + run]``: (u, v, w) in ``uvw[:, :run]``, and the flat
+    index of the cell holding each in ``cell[:run]`` (−1 outside the grid, or not finite),
+    its (row, col) in ``row_col[:, :run]``; ``t[12:15]`` = (u0, v0, 1 / cell). The points
+    are first copied apart into ``xyz`` as float64, so that the second loop, free of
+    branches, runs on vector registers (3.5× the speed of a point at a time, the same
+    arithmetic so the same values)."""
+    block = points[start : start + run]
+    for j in range(run):
+        xyz[0, j], xyz[1, j], xyz[2, j] = block[j, 0], block[j, 1], block[j, 2]
+    rows_f, cols_f = np.float64(rows), np.float64(cols)
+    for j in range(run):
+        u, v, w = _uvw(xyz[0, j], xyz[1, j], xyz[2, j], t)
+        uvw[0, j], uvw[1, j], uvw[2, j] = u, v, w
+        row, col = (u - t[12]) * t[14], (v - t[13]) * t[14]
+        inside = (row >= 0.0) & (row < rows_f) & (col >= 0.0) & (col < cols_f)
+        # Clamped before the conversion, whatever the point: a select, not a branch.
+        r, c = np.int64(min(max(row, 0.0), rows_f - 1)), np.int64(min(max(col, 0.0), cols_f - 1))
+        cell[j] = r * cols + c if inside else -1
+        row_col[0, j], row_col[1, j] = r, c
 
 
 @njit(cache=True, nogil=True)
@@ -190,7 +208,7 @@ def _uv_bounds(points: np.ndarray, origin: np.ndarray, axes: np.ndarray) -> np.n
     t = _transform(origin, axes, np.zeros(3))
     u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
     for i in range(points.shape[0]):
-        u, v, w = _uvw(points, i, t)
+        u, v, w = _uvw(points[i, 0], points[i, 1], points[i, 2], t)
         if abs(u) + abs(v) + abs(w) < np.inf:
             u_min, u_max = min(u_min, u), max(u_max, u)
             v_min, v_max = min(v_min, v), max(v_max, v)
@@ -247,9 +265,9 @@ def _bin_points(
     colour channels (else a (0, 3) array); points outside the grid are left out; and the
     (u, v) box of each ``CHUNK`` points in the grid.
 
-    Each run of points is done in two loops: the first only computes where its points
-    fall, the second only adds them up. The grid's additions then no longer hold back the
-    arithmetic of the points after them (a fifth less time than one loop doing both)."""
+    Each run of points is done in loops that do one thing: ``_locate`` computes where its
+    points fall, the next loop adds them up, the last their colours. The grid's additions
+    then no longer hold back the arithmetic of the points after them."""
     rows, cols = shape
     count = np.zeros(rows * cols, np.int32)
     height = np.zeros(rows * cols, np.float32)  # a few heights of ±tens of mm: ample
@@ -262,37 +280,32 @@ def _bin_points(
     n = points.shape[0]
     chunk_uv = np.empty((-(-n // CHUNK), 4), np.float32)
     t = _transform(origin, axes, grid)
-    cells = np.empty(CHUNK, np.int64)  # −1: outside the grid
-    blocks = np.empty(CHUNK, np.int64)
-    heights = np.empty(CHUNK)
+    xyz, uvw = np.empty((3, CHUNK)), np.empty((3, CHUNK))
+    cells, row_col = np.empty(CHUNK, np.int64), np.empty((2, CHUNK), np.int64)
     for chunk in range(chunk_uv.shape[0]):
         start = chunk * CHUNK
         run = min(n, start + CHUNK) - start
+        _locate(points, start, run, t, rows, cols, xyz, uvw, cells, row_col)
         u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
-        for j in range(run):
-            u, v, w = _uvw(points, start + j, t)
-            row, col = _row_col(u, v, t, rows, cols)
-            cells[j], heights[j] = row * cols + col if row >= 0 else -1, w
-            if row >= 0:
-                blocks[j] = block_of_row[row] + block_of_col[col]
-                u_min, u_max = min(u_min, u), max(u_max, u)
-                v_min, v_max = min(v_min, v), max(v_max, v)
         for j in range(run):
             if cells[j] >= 0:
                 count[cells[j]] += 1
-                height[cells[j]] += heights[j]
+                height[cells[j]] += uvw[2, j]
+                u_min, u_max = min(u_min, uvw[0, j]), max(u_max, uvw[0, j])
+                v_min, v_max = min(v_min, uvw[1, j]), max(v_max, uvw[1, j])
         if with_color:
             # Consecutive points mostly share a block: sum a run of them in registers and
             # add it to the block once (sums of whole numbers: exact in any order).
             current, red, green, blue = -1, 0.0, 0.0, 0.0
             for j in range(run):
                 if cells[j] >= 0:
-                    if blocks[j] != current:
+                    block_of_point = block_of_row[row_col[0, j]] + block_of_col[row_col[1, j]]
+                    if block_of_point != current:
                         if current >= 0:
                             color[current, 0] += red
                             color[current, 1] += green
                             color[current, 2] += blue
-                        current, red, green, blue = blocks[j], 0.0, 0.0, 0.0
+                        current, red, green, blue = block_of_point, 0.0, 0.0, 0.0
                     i = start + j
                     red += colors[i, 0]
                     green += colors[i, 1]
@@ -395,6 +408,8 @@ def _seam_slabs(
     filled = np.zeros(seams, np.int64)
     t = _transform(origin, axes, grid)
     tile_scale = t[14] / TILE
+    xyz, uvw = np.empty((3, CHUNK)), np.empty((3, CHUNK))
+    cells, row_col = np.empty(CHUNK, np.int64), np.empty((2, CHUNK), np.int64)
     for chunk in range(-(-points.shape[0] // CHUNK)):
         # The tiles the run's box covers, give or take the box's float32 rounding (all of
         # the run if that is more than a few).
@@ -409,12 +424,14 @@ def _seam_slabs(
             row0 : row1 + 1, col0 : col1 + 1
         ].any():
             continue
-        for i in range(chunk * CHUNK, min((chunk + 1) * CHUNK, points.shape[0])):
-            u, v, w = _uvw(points, i, t)
-            cell = _cell_of(u, v, t, rows, cols)
-            code = flat[cell] if cell >= 0 else -1
+        start = chunk * CHUNK
+        run = min(points.shape[0], start + CHUNK) - start
+        _locate(points, start, run, t, rows, cols, xyz, uvw, cells, row_col)
+        for j in range(run):
+            code = flat[cells[j]] if cells[j] >= 0 else -1
             if code == -1:
                 continue
+            u, v, w = uvw[0, j], uvw[1, j], uvw[2, j]
             # A cell in several bands (at junctions): try every seam; slabs lie in bands.
             low, high = (code, code + 1) if code >= 0 else (0, seams)
             for s in range(low, high):
