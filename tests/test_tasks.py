@@ -6,7 +6,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from services.lib.tasks import helping_map
+from services.lib.tasks import helping_map, start_helping
 
 
 def test_without_a_pool_the_caller_runs_every_task_largest_first_results_in_order():
@@ -58,3 +58,27 @@ def test_a_failing_task_raises_in_the_caller_after_the_others_ended():
     ):
         helping_map(pool, task, range(6), helpers=2)
     assert sorted(ended) == [0, 1, 3, 4, 5]
+
+
+def test_started_tasks_run_on_the_pool_while_the_caller_is_busy_and_it_takes_the_rest():
+    """The pool's thread starts at once, largest first; the caller, busy with its own work
+    meanwhile, takes what is left when it finishes; results in the arguments' order."""
+    pool_started = threading.Event()
+    caller_free = threading.Event()
+    workers: dict[int, str] = {}
+
+    def task(size: int) -> int:
+        if threading.current_thread().name.startswith("pool"):
+            pool_started.set()
+            caller_free.wait(5)  # held until the caller has joined
+        else:
+            caller_free.set()
+        workers[size] = threading.current_thread().name
+        return size * 10
+
+    with ThreadPoolExecutor(1, thread_name_prefix="pool") as pool:
+        work = start_helping(pool, task, [1, 4, 2, 3], sizes=[1, 4, 2, 3], helpers=1)
+        assert pool_started.wait(5)  # before the caller joins
+        assert work.finish() == [10, 40, 20, 30]
+    assert workers[4].startswith("pool")  # the largest, taken first by the pool
+    assert {workers[s] for s in (1, 2, 3)} == {threading.current_thread().name}

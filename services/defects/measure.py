@@ -228,15 +228,16 @@ def measure(
         )
     lap("panels_s")
     report(0.3, f"{counted(panels.count, 'panel')}: seams, sections and surface")
-    # The panels' surfaces and the seams are measured independently, on as many threads
-    # as there are cores (the compiled passes, NumPy and SciPy release the GIL for the
-    # heavy part); the surface work starts first, while the seam lines are found.
-    with ThreadPoolExecutor(threads) if threads > 1 else nullcontext() as pool:
-        surface_parts = []
+    # The panels' surfaces and the seams are measured independently, on this thread and
+    # ``threads`` − 1 in a pool, one per core (the compiled passes, NumPy and SciPy release
+    # the GIL for the heavy part): the pool's threads start on the surface while this
+    # thread finds the seams and profiles them; a thread that is free takes the next seam
+    # or panel. (A pool of ``threads`` had three threads share two cores.)
+    helpers = threads - 1
+    with ThreadPoolExecutor(helpers) if threads > 1 else nullcontext() as pool:
+        surface_work = None
         if config.surface is not None:
-            surface_parts = find_surface_defects(raster, panels, config.surface, pool)
-        map_fn = map if pool is None else pool.map
-        described = map_fn(describe_panels, [raster], [panels])  # a pool task, collected below
+            surface_work = find_surface_defects(raster, panels, config.surface, pool, helpers)
         # A seam's band: half the widest gap, the widest edge, and the edge band.
         sections = config.sections
         max_half_band = (
@@ -250,9 +251,10 @@ def measure(
         )
         lines = [_oriented(line, frame) for line in lines]
         lines, junction_lines = find_junctions(lines, reach_mm=2 * max_half_band + 4.0)
-        profiles = _profile_seams(points, raster, lines, config, spacing, pool, threads)
+        profiles = _profile_seams(points, raster, lines, config, spacing, pool, helpers, threads)
+        shapes = describe_panels(raster, panels)
+        surface_parts = surface_work.finish() if surface_work is not None else []
         surface = [finding for part in surface_parts for finding in part]
-        shapes = next(iter(described))
     located, panel_id = _locate_panels(shapes, frame)
     seam_of_line: dict[int, SeamResult] = {}
     for i, profile in enumerate(profiles):
@@ -340,11 +342,12 @@ def _profile_seams(
     config: MeasureConfig,
     spacing_mm: float,
     pool: Executor | None = None,
+    helpers: int = 0,
     threads: int = 1,
 ) -> list[SeamProfile | None]:
     """Each seam's sections, from one pass over the points near any seam (on ``threads``
-    threads). The seams are profiled by this thread and, once free, by ``pool``'s
-    threads, the seam with the most points first."""
+    threads). The seams are profiled by this thread and, once free, by up to ``helpers``
+    of ``pool``'s threads, the seam with the most points first."""
     if not lines:
         return []
     sections = config.sections
@@ -379,7 +382,7 @@ def _profile_seams(
         return profile_seam(np.concatenate(pieces, 1), seam, sections, *at, spacing_mm)
 
     sizes = [sum(piece.shape[1] for piece in pieces) for pieces in slabs]
-    return helping_map(pool, profile, lines, slabs, ranges, sizes=sizes, helpers=threads)
+    return helping_map(pool, profile, lines, slabs, ranges, sizes=sizes, helpers=helpers)
 
 
 def _seam_result(

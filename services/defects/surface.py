@@ -24,7 +24,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from math import erf, sqrt
@@ -38,6 +37,7 @@ from services.defects.panels import Panels
 from services.defects.raster import Raster, block_cells, block_sums
 from services.defects.smoothing import gaussian_pair
 from services.lib.pointcloud.color import delta_e, srgb_to_lab
+from services.lib.tasks import Helping, start_helping
 
 EIGHT_CONNECTED = np.ones((3, 3), bool)
 
@@ -216,22 +216,24 @@ def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, f
 
 
 def find_surface_defects(
-    raster: Raster, panels: Panels, config: SurfaceConfig, pool: Executor | None = None
-) -> Iterator[list[SurfaceFinding]]:
+    raster: Raster,
+    panels: Panels,
+    config: SurfaceConfig,
+    pool: Executor | None = None,
+    helpers: int = 1,
+) -> Helping:
     """Dents, bumps, scratches and (if the raster has colours) colour patches, panel by
-    panel: each panel's findings, in label order. With a ``pool`` the panels run on its
-    threads, the largest first (so that the last to finish is a small one)."""
-    boxes = [(label, box) for label, box in enumerate(panels.boxes, start=1) if box is not None]
+    panel, started on up to ``helpers`` of ``pool``'s threads at once, the largest panel
+    first (so that the last to finish is a small one); ``finish()`` joins them and returns
+    each panel's findings, in label order."""
+    labels = [label for label, box in enumerate(panels.boxes, start=1) if box is not None]
+    boxes = [panels.boxes[label - 1] for label in labels]
+    cells = [(rows.stop - rows.start) * (cols.stop - cols.start) for rows, cols in boxes]
 
-    def run(item: tuple[int, tuple[slice, slice]]) -> list[SurfaceFinding]:
-        return _panel(raster, panels.labels, *item, config)
+    def run(label: int, box: tuple[slice, slice]) -> list[SurfaceFinding]:
+        return _panel(raster, panels.labels, label, box, config)
 
-    if pool is None:
-        return map(run, boxes)
-    cells = [(rows.stop - rows.start) * (cols.stop - cols.start) for _, (rows, cols) in boxes]
-    largest_first = sorted(range(len(boxes)), key=lambda i: -cells[i])
-    futures = {i: pool.submit(run, boxes[i]) for i in largest_first}
-    return (futures[i].result() for i in range(len(boxes)))
+    return start_helping(pool, run, labels, boxes, sizes=cells, helpers=helpers)
 
 
 def _panel(

@@ -5,7 +5,8 @@ only waits: a measurement that submits its surface work first and its seams afte
 its seams' last task alone on one core while the other idles. Here the tasks of one map
 form their own list; the caller and, as soon as they are free, the pool's threads take the
 next task from it, the largest first (by the size the caller gives), so the last to finish
-is a small one.
+is a small one. ``start_helping`` lets the caller do other work before it joins: the
+pool's threads start on the tasks at once.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from concurrent.futures import Executor
 from typing import Any
 
 
-class _Tasks:
+class Helping:
     """Tasks taken in turn by whichever thread asks next; each result (or exception) kept."""
 
     def __init__(self, fn: Callable, arguments: Sequence[tuple], order: list[int]) -> None:
@@ -42,13 +43,30 @@ class _Tasks:
             finally:
                 self._done.release()
 
-    def wait(self) -> list[Any]:
+    def finish(self) -> list[Any]:
+        """Run the tasks not yet taken in this thread, wait for the rest; the results in
+        the arguments' order, or the first task's exception once all have ended."""
+        self.drain()
         for _ in self._arguments:
             self._done.acquire()
         for error in self.errors:
             if error is not None:
                 raise error
         return self.results
+
+
+def start_helping(
+    pool: Executor | None,
+    fn: Callable,
+    *iterables: Iterable,
+    sizes: Sequence[float] | None = None,
+    helpers: int = 1,
+) -> Helping:
+    """The tasks ``fn(*args) for args in zip(*iterables)``, taken largest ``sizes`` first (in
+    order without) by up to ``helpers`` of ``pool``'s threads as soon as each is free; the
+    caller joins them with ``finish()``, which returns the results in the arguments'
+    order. Without a pool, ``finish()`` runs them all."""
+    return _start(pool, fn, list(zip(*iterables, strict=True)), sizes, helpers)
 
 
 def helping_map(
@@ -63,10 +81,20 @@ def helping_map(
     ``sizes`` first (in order without); results in the arguments' order. The first
     exception of a task is raised once all have ended. Without a pool: in this thread."""
     arguments = list(zip(*iterables, strict=True))
+    helpers = min(helpers, max(len(arguments) - 1, 0))  # the caller takes one
+    return _start(pool, fn, arguments, sizes, helpers).finish()
+
+
+def _start(
+    pool: Executor | None,
+    fn: Callable,
+    arguments: list[tuple],
+    sizes: Sequence[float] | None,
+    helpers: int,
+) -> Helping:
     order = sorted(range(len(arguments)), key=lambda i: -sizes[i]) if sizes else None
-    tasks = _Tasks(fn, arguments, order or list(range(len(arguments))))
+    tasks = Helping(fn, arguments, order or list(range(len(arguments))))
     if pool is not None:
-        for _ in range(min(helpers, max(len(arguments) - 1, 0))):
+        for _ in range(min(helpers, len(arguments))):
             pool.submit(tasks.drain)
-    tasks.drain()
-    return tasks.wait()
+    return tasks
