@@ -15,7 +15,7 @@ from services.defects.morphology import border_reach, dilate, erode, label4, lab
 from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, rasterize
 from services.defects.sections import _widest_gap
 from services.defects.smoothing import gaussian_pair
-from services.defects.surface import _shape, _tukey_fit, _upsample
+from services.defects.surface import _blocks, _shape, _tukey_fit, _upsample
 
 
 @pytest.mark.parametrize("shape", [(1, 7), (9, 1), (40, 33)])
@@ -41,6 +41,26 @@ def test_block_sums_and_upsampling_equal_the_references() -> None:
     blocks = rng.random((5, 4))
     zoomed = ndimage.zoom(blocks, 5, order=1, mode="nearest", grid_mode=True)[:23, :17]
     assert np.allclose(_upsample(blocks, 5, (23, 17)), zoomed)
+
+
+@pytest.mark.parametrize("shape", [(23, 17), (25, 20), (3, 4)])
+def test_block_means_equal_block_sums_bit_for_bit(shape) -> None:
+    """The one-pass block means of the masked cells: the float32 sums of ``block_sums``
+    in its order, so the same means to the last bit (NaN where a block has none)."""
+    rng = np.random.default_rng(shape[0])
+    values = (rng.normal(0.0, 30.0, shape) + 1e3 * rng.random(shape)).astype(np.float32)
+    mask = rng.random(shape) < 0.7
+    mask[: min(5, shape[0]), : min(5, shape[1])] = False  # a block with no cell inside
+    weights = mask.astype(np.float32)
+    total = block_sums(np.where(weights > 0, values, 0.0) * weights, 5)
+    count = block_sums(weights, 5)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        expected = total / count
+    mean, weight = _blocks(values, mask, 5)
+    assert mean.dtype == weight.dtype == np.float32
+    assert np.array_equal(weight, count)
+    assert np.array_equal(mean, expected, equal_nan=True)
+    assert np.isnan(mean[0, 0])
 
 
 def test_binning_agrees_with_numpy_and_skips_strays() -> None:
