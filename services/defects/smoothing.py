@@ -47,41 +47,65 @@ def _gaussian_pair(
     radius = taps // 2
     # Along the rows, then along the columns (SciPy's order and, like it, the first pass
     # stored in the arrays' dtype); each output row summed in float64 as whole-row
-    # multiply-adds, which the compiler vectorises.
-    across_a = np.empty((rows, cols), a.dtype)
-    across_b = np.empty((rows, cols), b.dtype)
+    # multiply-adds, which the compiler vectorises. The first pass is kept for the
+    # ``taps`` rows an output row needs only (a ring of rows, row k in slot k % taps): it
+    # stays in the core's cache instead of making a round trip through memory.
+    ring_a = np.empty((taps, cols), a.dtype)
+    ring_b = np.empty((taps, cols), b.dtype)
     line_a = np.empty(cols + 2 * radius)
     line_b = np.empty(cols + 2 * radius)
     sum_a = np.empty(cols)
     sum_b = np.empty(cols)
-    for i in range(rows):
-        # The row with its mirrored ends: only the ends need the mirror's index arithmetic.
-        line_a[radius : radius + cols] = a[i]
-        line_b[radius : radius + cols] = b[i]
-        for j in range(radius):
-            left, right = _reflect(j - radius, cols), _reflect(cols + j, cols)
-            line_a[j], line_b[j] = a[i, left], b[i, left]
-            line_a[radius + cols + j], line_b[radius + cols + j] = a[i, right], b[i, right]
-        sum_a[:] = 0.0
-        sum_b[:] = 0.0
-        for t in range(taps):
-            w = kernel[t]
-            for j in range(cols):
-                sum_a[j] += w * line_a[j + t]
-                sum_b[j] += w * line_b[j + t]
-        across_a[i] = sum_a
-        across_b[i] = sum_b
     out_a = np.empty((rows, cols), a.dtype)
     out_b = np.empty((rows, cols), b.dtype)
+    ready = 0  # rows of the first pass done
     for i in range(rows):
+        # Output row i reads the first pass's rows within ``radius`` of it (mirrored at
+        # the map's edges: rows on the same side).
+        while ready < min(rows, i + radius + 1):
+            _across(a, b, kernel, ready, line_a, line_b, sum_a, sum_b)
+            ring_a[ready % taps] = sum_a
+            ring_b[ready % taps] = sum_b
+            ready += 1
         sum_a[:] = 0.0
         sum_b[:] = 0.0
         for t in range(taps):
             w = kernel[t]
-            k = _reflect(i + t - radius, rows)
+            k = _reflect(i + t - radius, rows) % taps
             for j in range(cols):
-                sum_a[j] += w * across_a[k, j]
-                sum_b[j] += w * across_b[k, j]
+                sum_a[j] += w * ring_a[k, j]
+                sum_b[j] += w * ring_b[k, j]
         out_a[i] = sum_a
         out_b[i] = sum_b
     return out_a, out_b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _across(
+    a: np.ndarray,
+    b: np.ndarray,
+    kernel: np.ndarray,
+    i: int,
+    line_a: np.ndarray,
+    line_b: np.ndarray,
+    sum_a: np.ndarray,
+    sum_b: np.ndarray,
+) -> None:
+    """Row i of a and b smoothed along the row, into ``sum_a`` and ``sum_b`` (float64)."""
+    cols = a.shape[1]
+    taps = kernel.shape[0]
+    radius = taps // 2
+    # The row with its mirrored ends: only the ends need the mirror's index arithmetic.
+    line_a[radius : radius + cols] = a[i]
+    line_b[radius : radius + cols] = b[i]
+    for j in range(radius):
+        left, right = _reflect(j - radius, cols), _reflect(cols + j, cols)
+        line_a[j], line_b[j] = a[i, left], b[i, left]
+        line_a[radius + cols + j], line_b[radius + cols + j] = a[i, right], b[i, right]
+    sum_a[:] = 0.0
+    sum_b[:] = 0.0
+    for t in range(taps):
+        w = kernel[t]
+        for j in range(cols):
+            sum_a[j] += w * line_a[j + t]
+            sum_b[j] += w * line_b[j + t]
