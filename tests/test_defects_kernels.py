@@ -63,6 +63,31 @@ def test_block_means_equal_block_sums_bit_for_bit(shape) -> None:
     assert np.isnan(mean[0, 0])
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.parametrize("per_block", [40, binning.PACKED_MAX_POINTS + 1, 20_000])
+def test_block_colours_are_exact_sums_however_dense_the_cloud(workers, per_block) -> None:
+    """Each block's three colour sums, packed in one integer per point, are the exact
+    sums of its points' channels; a block too full for the packing (white points beyond
+    ``PACKED_MAX_POINTS``) is summed channel by channel instead."""
+    rng = np.random.default_rng(per_block)
+    # A 4 × 3 mm patch of 1 mm blocks (5 cells of 0.2 mm), one block per_block times over.
+    spread = np.column_stack([rng.uniform(0, 4, 3000), rng.uniform(0, 3, 3000)])
+    dense = rng.uniform(1.05, 1.95, (per_block, 2))
+    uv = np.concatenate([spread, dense])
+    points = np.column_stack([uv, np.zeros(len(uv))]).astype(np.float32)
+    colors = rng.integers(0, 256, (len(points), 3)).astype(np.uint8)
+    colors[3000:] = 255  # the fullest sums
+    origin, axes, grid = np.zeros(3), np.eye(3), np.array([0.0, 0.0, 1 / 0.2])
+    count, _, block_count, color, _ = binning.bin_points(
+        points, colors, origin, axes, grid, (20, 15), 5, workers
+    )
+    block = (uv[:, 0] // 1.0).astype(np.int64) * 3 + (uv[:, 1] // 1.0).astype(np.int64)
+    for channel in range(3):
+        expected = np.bincount(block, weights=colors[:, channel], minlength=12)
+        assert np.array_equal(color[:, channel], expected)
+    assert block_count.max() >= per_block and count.sum() == len(points)
+
+
 def test_binning_agrees_with_numpy_and_skips_strays() -> None:
     rng = np.random.default_rng(2)
     points = np.column_stack(
