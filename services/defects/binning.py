@@ -6,10 +6,10 @@ A stitched assembly is ~100 M points per m² at 0.1 mm spacing; each numpy pass 
 costs more than the whole budget allows, so these loops are compiled (numba) and read
 each point once. They run without the GIL and hold no state, so jobs in threads may call
 them at the same time. Both passes compute a point's cell with ``_locate``, so the seam
-pass sees exactly the cells of the binning; points outside the
-grid (not finite, or strays beyond the sampled extent) belong to no cell. The seam pass
-reads only the runs of consecutive points whose box, noted by the binning, comes near a
-seam (a sixth of them on a 2 × 2 assembly).
+pass sees exactly the cells of the binning; points outside the grid (not finite, or
+strays beyond the sampled extent) belong to no cell. The seam pass reads only the runs of
+consecutive points whose box, noted by the binning, comes near a seam (a sixth to a
+third of them on a 2 × 2 assembly).
 """
 
 from __future__ import annotations
@@ -200,8 +200,8 @@ def _locate(
     index of the cell holding each in ``cell[:run]`` (−1 outside the grid, or not finite),
     its (row, col) in ``row_col[:, :run]``; ``t[12:15]`` = (u0, v0, 1 / cell). The points
     are first copied apart into ``xyz`` as float64, so that the second loop, free of
-    branches, runs on vector registers (3.5× the speed of a point at a time, the same
-    arithmetic so the same values)."""
+    branches, runs on vector registers (about 4× the speed of a point at a time, the
+    same arithmetic so the same values)."""
     block = points[start : start + run]
     for j in range(run):
         xyz[0, j], xyz[1, j], xyz[2, j] = block[j, 0], block[j, 1], block[j, 2]
