@@ -32,9 +32,9 @@ from services.defects.sections import (
     reach_mm,
     section_range,
 )
-from services.defects.surface import SurfaceFinding, find_surface_defects
+from services.defects.surface import SurfaceFinding, block_lab, find_surface_defects
 from services.lib.pointcloud.ply import PointCloud
-from services.lib.tasks import helping_map
+from services.lib.tasks import helping_map, start_helping
 from services.lib.wording import counted
 
 MAX_CELLS = 60e6
@@ -215,29 +215,36 @@ def measure(
     if cell > config.cell_mm:
         raster = rasterize(points, colors, frame, cell, bounds, threads)
     lap("raster_s")
-    report(0.15, f"segmenting panels on a {raster.shape[0]} × {raster.shape[1]} height map")
-    panels = segment_panels(
-        raster,
-        max_slope_deg=config.max_slope_deg,
-        min_area_mm2=config.min_panel_area_mm2,
-        background_drop_mm=config.background_drop_mm,
-    )
-    if panels.count == 0:
-        raise MeasureError(
-            f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
-        )
-    lap("panels_s")
-    report(0.3, f"{counted(panels.count, 'panel')}: seams, sections and surface")
-    # The panels' surfaces and the seams are measured independently, on this thread and
-    # ``threads`` − 1 in a pool, one per core (the compiled passes, NumPy and SciPy release
-    # the GIL for the heavy part): the pool's threads start on the surface while this
-    # thread finds the seams and profiles them; a thread that is free takes the next seam
-    # or panel. (A pool of ``threads`` had three threads share two cores.)
+    # Segmentation's later passes, then the panels' surfaces and the seams, run on this
+    # thread and ``threads`` − 1 in a pool, one per core (the compiled passes, NumPy and
+    # SciPy release the GIL for the heavy part): the pool's threads start on the surface
+    # while this thread finds the seams and profiles them; a thread that is free takes the
+    # next seam or panel. (A pool of ``threads`` had three threads share two cores.)
     helpers = threads - 1
     with ThreadPoolExecutor(helpers) if threads > 1 else nullcontext() as pool:
-        surface_work = None
+        # The blocks' colours in L*a*b*, for the surface: on the pool during segmentation.
+        lab_work = None
         if config.surface is not None:
-            surface_work = find_surface_defects(raster, panels, config.surface, pool, helpers)
+            lab_work = start_helping(pool, block_lab, [raster], helpers=helpers)
+        report(0.15, f"segmenting panels on a {raster.shape[0]} × {raster.shape[1]} height map")
+        panels = segment_panels(
+            raster,
+            max_slope_deg=config.max_slope_deg,
+            min_area_mm2=config.min_panel_area_mm2,
+            background_drop_mm=config.background_drop_mm,
+            pool=pool,
+            helpers=helpers,
+        )
+        if panels.count == 0:
+            raise MeasureError(
+                f"no panel top of at least {config.min_panel_area_mm2:g} mm² found in the cloud"
+            )
+        lap("panels_s")
+        report(0.3, f"{counted(panels.count, 'panel')}: seams, sections and surface")
+        surface_work = None
+        if lab_work is not None:
+            lab = lab_work.finish()[0]
+            surface_work = find_surface_defects(raster, panels, config.surface, lab, pool, helpers)
         # A seam's band: half the widest gap, the widest edge, and the edge band.
         sections = config.sections
         max_half_band = (

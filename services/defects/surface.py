@@ -251,29 +251,37 @@ def _shape(rows: np.ndarray, cols: np.ndarray, cell_mm: float) -> tuple[float, f
     return float(spread[1]), float(spread[0]), direction / np.linalg.norm(direction)
 
 
+def block_lab(raster: Raster) -> np.ndarray | None:
+    """(block rows, block cols, 3) L*a*b* of the raster's mean block colours (NaN where
+    none), None without colours: what ``find_surface_defects`` cuts each panel's from."""
+    return None if raster.block_rgb is None else _block_lab(raster.block_rgb)
+
+
 def find_surface_defects(
     raster: Raster,
     panels: Panels,
     config: SurfaceConfig,
+    lab: np.ndarray | None,
     pool: Executor | None = None,
     helpers: int = 1,
 ) -> Helping:
-    """Dents, bumps, scratches and (if the raster has colours) colour patches, panel by
-    panel, started on up to ``helpers`` of ``pool``'s threads at once, the largest panel
-    first (so that the last to finish is a small one); ``finish()`` joins them and returns
-    each panel's findings, in label order."""
+    """Dents, bumps, scratches and (given the ``block_lab`` of the raster) colour patches,
+    panel by panel, started on up to ``helpers`` of ``pool``'s threads at once, the
+    largest panel first (so that the last to finish is a small one); ``finish()`` joins
+    them and returns each panel's findings, in label order."""
     labels = [label for label, box in enumerate(panels.boxes, start=1) if box is not None]
     boxes = [panels.boxes[label - 1] for label in labels]
     cells = [(rows.stop - rows.start) * (cols.stop - cols.start) for rows, cols in boxes]
 
     def run(label: int, box: tuple[slice, slice]) -> list[SurfaceFinding]:
-        return _panel(raster, panels.labels, label, box, config)
+        return _panel(raster, lab, panels.labels, label, box, config)
 
     return start_helping(pool, run, labels, boxes, sizes=cells, helpers=helpers)
 
 
 def _panel(
     raster: Raster,
+    lab: np.ndarray | None,
     labels: np.ndarray,
     label: int,
     found: tuple[slice, slice],
@@ -297,12 +305,12 @@ def _panel(
     findings = _relief(
         raster, label, height, inside, coarse, weight, coarse_inside, (r0, c0), block, config
     )
-    if raster.block_rgb is not None:
+    if lab is not None:
         lab_box = (slice(r0 // block, -(-r1 // block)), slice(c0 // block, -(-c1 // block)))
         findings += _color(
             raster,
             label,
-            _block_lab(raster.block_rgb[lab_box]),
+            lab[lab_box],
             coarse_inside,
             (r0, c0),
             block,
