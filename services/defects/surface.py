@@ -399,7 +399,7 @@ def _relief(
         )
     # The foot of a dent or bump curves like a groove: keep scratches off its rim.
     rim = int(np.ceil(config.relief_rim_mm / cell))
-    near_relief = dilate(relief_mask, rim)
+    near_relief = dilate(relief_mask, rim) if relief_mask.any() else relief_mask
     scratches = _join_collinear(
         _scratches(raster, label, deviation, background, inside, near_relief, origin, config)
     )
@@ -486,19 +486,14 @@ def _scratches(
     # The normalised smoothing over one cell (``_normalised_smooth``'s, less its general
     # steps: with weights of 0 or 1 the weighted heights are the heights).
     numerator, denominator = gaussian_pair(height, inside.astype(np.float32), 1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        band = numerator / denominator - background
-    clear = inside & ~relief
-    depth = np.where(clear, -band, 0.0)
+    depth, sample = _depth_below_band(numerator, denominator, background, inside, relief)
     # The noise level from every 4th cell: as good an estimate at a quarter of the work.
-    sample = depth[::2, ::2][clear[::2, ::2]]
     noise = 1.4826 * float(np.median(np.abs(sample))) if len(sample) else 0.0
     noise = max(noise, 1e-5)
-    score = depth / noise
-    seeds = score > config.scratch_sigma + 2
-    grown, boxes = label8(score > config.scratch_sigma)
+    score, seeded = _scores(depth, np.float32(noise), config.scratch_sigma)
+    grown, boxes = label8(seeded)
     findings = []
-    for index in np.unique(grown[seeds]).tolist():  # the parts holding a seed
+    for index in np.unique(grown[score > config.scratch_sigma + 2]).tolist():  # with a seed
         row0, col0, row1, col1 = boxes[index - 1]
         found = (slice(row0, row1 + 1), slice(col0, col1 + 1))
         own = grown[found] == index
@@ -533,6 +528,45 @@ def _scratches(
             )
         )
     return findings
+
+
+@njit(cache=True, nogil=True)
+def _depth_below_band(
+    numerator: np.ndarray,
+    denominator: np.ndarray,
+    background: np.ndarray,
+    inside: np.ndarray,
+    relief: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How far the one-cell smoothing (``numerator`` / ``denominator``) lies below the
+    ``background``, on the ``inside`` cells clear of ``relief`` (0 elsewhere), float32 as
+    the NumPy expression ``np.where(clear, -(n / d - background), 0)`` gives it; and those
+    clear cells' values on every other row and column (the noise's sample)."""
+    rows, cols = numerator.shape
+    depth = np.zeros((rows, cols), np.float32)
+    sample = np.empty(-(-rows // 2) * -(-cols // 2), np.float32)
+    n = 0
+    for i in range(rows):
+        for j in range(cols):
+            if inside[i, j] and not relief[i, j]:
+                band = np.float32(numerator[i, j] / denominator[i, j]) - background[i, j]
+                depth[i, j] = -band
+                if i % 2 == 0 and j % 2 == 0:
+                    sample[n] = -band
+                    n += 1
+    return depth, sample[:n]
+
+
+@njit(cache=True, nogil=True)
+def _scores(depth: np.ndarray, noise: np.float32, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """``depth`` / ``noise`` (float32), and where it exceeds ``level``."""
+    score = np.empty(depth.shape, np.float32)
+    above = np.empty(depth.shape, np.bool_)
+    for i in range(depth.shape[0]):
+        for j in range(depth.shape[1]):
+            score[i, j] = depth[i, j] / noise
+            above[i, j] = score[i, j] > level
+    return score, above
 
 
 def _block_lab(mean: np.ndarray) -> np.ndarray:
