@@ -157,6 +157,34 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
     return total / seen
 
 
+@njit(cache=True, nogil=True)
+def _select(values: np.ndarray, k: int) -> np.float32:
+    """The value ``np.partition(values, k)[k]`` would give (the k-th smallest), found by
+    quickselect in place: the partition's copy and its general loop cost more than the
+    selection itself on a frame's few thousand samples."""
+    low, high = 0, values.size - 1
+    while high > low:
+        a, b, c = values[low], values[(low + high) >> 1], values[high]
+        pivot = max(min(a, b), min(max(a, b), c))  # the median of three
+        i, j = low, high
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            high = j
+        elif k >= i:
+            low = i
+        else:
+            break
+    return values[k]
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _gradient(level: np.ndarray, r: int, c: int) -> tuple[np.float32, np.float32]:
     """(d/dx, d/dy) of ``level`` at pixel (r, c): the 3 × 3 Sobel kernels over 8 (OpenCV's
@@ -193,20 +221,26 @@ def textured_points(
             gx, gy = _gradient(level, border + i * stride, border + j * stride)
             energy[i * grid_cols + j] = gx * gx + gy * gy
     sample = energy[::8].copy()
-    rank = sample.size - max(1, count // 8)
-    threshold = np.partition(sample, rank)[rank]
-    chosen = np.flatnonzero(energy >= threshold)
-    xy = np.empty((chosen.size, 2), np.float32)
-    values = np.empty(chosen.size, np.float32)
-    jacobians = np.empty((chosen.size, 3), np.float32)
+    threshold = _select(sample, sample.size - max(1, count // 8))
+    chosen = 0
+    for m in range(energy.size):
+        chosen += energy[m] >= threshold
+    xy = np.empty((chosen, 2), np.float32)
+    values = np.empty(chosen, np.float32)
+    jacobians = np.empty((chosen, 3), np.float32)
     cx, cy = np.float32((cols - 1) / 2), np.float32((rows - 1) / 2)
-    for k in range(chosen.size):
-        r = border + (chosen[k] // grid_cols) * stride
-        c = border + (chosen[k] % grid_cols) * stride
-        x, y = np.float32(c) - cx, np.float32(r) - cy
-        gx, gy = _gradient(level, r, c)
-        xy[k, 0], xy[k, 1] = x, y
-        values[k] = level[r, c]
-        jacobians[k, 0], jacobians[k, 1] = gx, gy
-        jacobians[k, 2] = -y * gx + x * gy
+    k = 0
+    for i in range(grid_rows):
+        r = border + i * stride
+        for j in range(grid_cols):
+            if energy[i * grid_cols + j] < threshold:
+                continue
+            c = border + j * stride
+            x, y = np.float32(c) - cx, np.float32(r) - cy
+            gx, gy = _gradient(level, r, c)
+            xy[k, 0], xy[k, 1] = x, y
+            values[k] = level[r, c]
+            jacobians[k, 0], jacobians[k, 1] = gx, gy
+            jacobians[k, 2] = -y * gx + x * gy
+            k += 1
     return xy, values, jacobians
