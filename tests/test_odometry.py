@@ -571,10 +571,16 @@ def test_a_singular_final_covariance_leaves_the_nees_unmeasured() -> None:
     assert evaluate(estimate, truth, np.diag([1.0, 1.0, 1e-6])).final_nees is not None
 
 
-def test_frames_are_read_ahead_in_order_and_a_bad_frame_is_named(tmp_path) -> None:
+@pytest.mark.parametrize("ahead", [True, False])
+def test_frames_are_read_in_order_and_a_bad_frame_is_named(tmp_path, ahead: bool) -> None:
+    """Read ahead on a thread of their own or in the caller's thread: the same frames,
+    the same errors."""
     import threading
 
     from services.odometry.frames import READ_AHEAD, read_frames
+
+    def reading() -> bool:
+        return any(t.name == "frame-reader" for t in threading.enumerate())
 
     camera = FloorCamera(width=8, height=6, fps=60.0, mm_per_px=0.6)
     files = []
@@ -582,17 +588,19 @@ def test_frames_are_read_ahead_in_order_and_a_bad_frame_is_named(tmp_path) -> No
         path = tmp_path / f"{k:06d}.png"
         path.write_bytes(cv2.imencode(".png", np.full((6, 8), k, np.uint8))[1])
         files.append(path)
-    assert [int(f[0, 0]) for f in read_frames(files, camera)] == list(range(len(files)))
+    frames = read_frames(files, camera, ahead=ahead)
+    assert [int(f[0, 0]) for f in frames] == list(range(len(files)))
     # left after two frames: the reader stops instead of waiting on a full queue for ever
-    frames = read_frames(files, camera)
+    frames = read_frames(files, camera, ahead=ahead)
     next(frames), next(frames)
+    assert reading() == ahead
     frames.close()
-    assert not any(t.name == "frame-reader" for t in threading.enumerate())
+    assert not reading()
     (tmp_path / "000004.png").write_bytes(cv2.imencode(".png", np.zeros((5, 8), np.uint8))[1])
     seen = []
     with pytest.raises(ValueError, match="000004.png: 8 × 5 pixels, but camera.json says 8 × 6"):
-        seen.extend(read_frames(files, camera))
+        seen.extend(read_frames(files, camera, ahead=ahead))
     assert len(seen) == 4
     (tmp_path / "000002.png").write_text("not a PNG")
     with pytest.raises(ValueError, match="000002.png: not an image OpenCV can read"):
-        list(read_frames(files, camera))
+        list(read_frames(files, camera, ahead=ahead))

@@ -46,11 +46,22 @@ def read_frame(path: Path, camera: FloorCamera) -> np.ndarray:
     return image
 
 
-def read_frames(files: list[Path], camera: FloorCamera) -> Iterator[np.ndarray]:
-    """The frames in order, each decoded while the ones before it are worked on: PNG
-    decoding runs on a reader thread (libdeflate, the compiled filter pass and OpenCV let
-    go of the interpreter). An unreadable frame raises where it is reached;
-    a reader left early (the consumer failed or stopped) ends with the generator."""
+def read_frames(
+    files: list[Path], camera: FloorCamera, *, ahead: bool = True
+) -> Iterator[np.ndarray]:
+    """The frames in order. ``ahead``: each decoded while the ones before it are worked
+    on, on a reader thread (libdeflate, the compiled filter pass and OpenCV let go of the
+    interpreter) — for a consumer that leaves a core free; else each decoded in the
+    consumer's thread when asked for (with every core busy already, a reader thread only
+    adds switches: odometry on two parts of a run, one per core, ran 7 % faster without).
+    An unreadable frame raises where it is reached; a reader left early (the consumer
+    failed or stopped) ends with the generator."""
+    if not ahead:
+        return (read_frame(path, camera) for path in files)
+    return _read_ahead(files, camera)
+
+
+def _read_ahead(files: list[Path], camera: FloorCamera) -> Iterator[np.ndarray]:
     ready: queue.Queue = queue.Queue(READ_AHEAD)
     stop = threading.Event()
 

@@ -97,10 +97,13 @@ class OdometryRun:
         return sum(w is not None for w in self.steps.warnings)
 
 
-def _phase_run(files: list[Path], camera: FloorCamera, tick: Callable[[], None]) -> Steps:
-    """The peer on consecutive frames: phase correlation with a Fourier–Mellin turn."""
+def _phase_run(
+    files: list[Path], camera: FloorCamera, tick: Callable[[], None], ahead: bool
+) -> Steps:
+    """The peer on consecutive frames: phase correlation with a Fourier–Mellin turn
+    (``ahead``: as ``read_frames``)."""
     motion, confidence, reasons = [], [], []
-    frames = read_frames(files, camera)
+    frames = read_frames(files, camera, ahead=ahead)
     previous = next(frames)
     for frame in frames:
         tick()
@@ -122,11 +125,16 @@ def _implausible(motion_mm: np.ndarray, expected_mm: np.ndarray) -> bool:
 
 
 def _direct_run(
-    files: list[Path], camera: FloorCamera, flat: np.ndarray, tick: Callable[[], None]
+    files: list[Path],
+    camera: FloorCamera,
+    flat: np.ndarray,
+    tick: Callable[[], None],
+    ahead: bool,
 ) -> Steps:
     """vista's method on consecutive frames: each pair aligned from the previous pair's
-    motion, or from phase correlation when that failed or jumped implausibly."""
-    frames = read_frames(files, camera)
+    motion, or from phase correlation when that failed or jumped implausibly (``ahead``:
+    as ``read_frames``)."""
+    frames = read_frames(files, camera, ahead=ahead)
     motion, confidence, reasons, warnings, sigma = [], [], [], [], []
     previous = prepare(next(frames), flat)
     guess, trusted, sure = None, False, False
@@ -169,12 +177,14 @@ def _direct_run(
 def in_parts(
     files: list[Path],
     threads: int,
-    run_part: Callable[[list[Path], Callable[[], None]], Steps],
+    run_part: Callable[[list[Path], Callable[[], None], bool], Steps],
     progress: Progress,
 ) -> Steps:
     """``run_part`` on ``threads`` runs of consecutive frames at once (each reads its own
     frames; OpenCV and NumPy let go of the interpreter while they work), joined; each
-    calls its ``tick`` once per pair, and ``progress`` hears of every 1 %."""
+    calls its ``tick`` once per pair, and ``progress`` hears of every 1 %. A part decodes
+    its frames ahead on a thread of their own only while the parts leave a core free
+    (its third argument)."""
     count = len(files) - 1
     parts = max(1, min(threads, count // 100))
     bounds = np.linspace(0, count, parts + 1).round().astype(int)
@@ -187,11 +197,12 @@ def in_parts(
         if pairs % every == 0:
             progress(pairs / count, f"pair {pairs} of {count}")
 
+    ahead = parts < threads
     if parts == 1:
-        results = [run_part(runs[0], tick)]
+        results = [run_part(runs[0], tick, ahead)]
     else:
         with ThreadPoolExecutor(parts) as pool:
-            results = list(pool.map(lambda run: run_part(run, tick), runs))
+            results = list(pool.map(lambda run: run_part(run, tick, ahead), runs))
     return Steps(
         np.concatenate([r.motion for r in results]),
         np.concatenate([r.confidence for r in results]),
@@ -207,7 +218,10 @@ def direct_steps(files: list[Path], camera: FloorCamera, threads: int, progress:
     sample = files[:: max(1, len(files) // FLAT_FIELD_FRAMES)][:FLAT_FIELD_FRAMES]
     flat = flat_field(read_frames_at_once(sample, camera, threads))
     return in_parts(
-        files, threads, lambda run, tick: _direct_run(run, camera, flat, tick), progress
+        files,
+        threads,
+        lambda run, tick, ahead: _direct_run(run, camera, flat, tick, ahead),
+        progress,
     )
 
 
@@ -264,7 +278,12 @@ def run_odometry(
         warm_up()
     started = time.perf_counter()
     if method == "phase":
-        steps = in_parts(files, threads, lambda run, tick: _phase_run(run, camera, tick), report)
+        steps = in_parts(
+            files,
+            threads,
+            lambda run, tick, ahead: _phase_run(run, camera, tick, ahead),
+            report,
+        )
     elif method == "oenet":
         steps = oenet_steps(files, camera, model, threads)
     else:
