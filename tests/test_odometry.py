@@ -274,6 +274,21 @@ def test_textured_points_carry_opencvs_sobel_gradients_and_the_most_texture() ->
         assert np.median((gx**2 + gy**2)[rows, cols]) > np.quantile(energy, 0.9)
 
 
+def test_the_texture_threshold_is_the_value_a_partition_puts_at_its_place() -> None:
+    """``_select`` (quickselect in place) against ``np.partition``: spread, repeated and
+    all-equal values, every rank of small arrays."""
+    from services.odometry.kernels import _select
+
+    rng = np.random.default_rng(8)
+    samples = [rng.gamma(0.5, 40.0, 9_000), np.round(rng.gamma(0.5, 4.0, 5_000)), np.ones(300)]
+    samples += [rng.integers(0, 4, n).astype(float) for n in range(1, 12)]
+    for values in samples:
+        values = values.astype(np.float32)
+        ranks = range(len(values)) if len(values) < 20 else (0, len(values) // 3, len(values) - 1)
+        for rank in ranks:
+            assert _select(values.copy(), rank) == np.partition(values, rank)[rank]
+
+
 def test_oenet_trains_exports_and_runs_at_tiny_scale(short_sequence, tmp_path) -> None:
     """OE-Net (Table 6.1) built by the command on one short sequence for one epoch: the
     ONNX file says what it is, and `run --method oenet` uses it (its accuracy is the
