@@ -17,7 +17,14 @@ from services.defects.morphology import border_reach, dilate, erode, label4, lab
 from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, rasterize
 from services.defects.sections import _widest_gap
 from services.defects.smoothing import gaussian_pair
-from services.defects.surface import _blocks, _shape, _tukey_fit, _upsample
+from services.defects.surface import (
+    _blocks,
+    _depth_below_band,
+    _scores,
+    _shape,
+    _tukey_fit,
+    _upsample,
+)
 
 
 @pytest.mark.parametrize("shape", [(1, 7), (9, 1), (40, 33)])
@@ -257,8 +264,10 @@ def test_widest_gap_without_sorting_equals_sorting() -> None:
 @pytest.mark.parametrize("shape", [(1, 9), (9, 1), (60, 45), (0, 4)])
 def test_labelling_equals_scipy(shape) -> None:
     rng = np.random.default_rng(4)
-    for share in (0.3, 0.55, 0.8):
-        mask = rng.random(shape) < share
+    masks = [rng.random(shape) < share for share in (0.3, 0.55, 0.8)]
+    if min(shape) > 1:  # blobs: long runs along the rows, joined and split below
+        masks += [ndimage.gaussian_filter(rng.normal(size=shape), 3) > level for level in (0, 0.05)]
+    for mask in masks:
         labels, sizes = label4(mask)
         expected, count = ndimage.label(mask)
         assert np.array_equal(labels, expected)
@@ -270,6 +279,31 @@ def test_labelling_equals_scipy(shape) -> None:
         assert [tuple(box) for box in boxes] == [
             (rows.start, cols.start, rows.stop - 1, cols.stop - 1) for rows, cols in found
         ]
+
+
+@pytest.mark.parametrize("shape", [(31, 22), (1, 5), (6, 1)])
+def test_scratch_depth_and_scores_equal_the_numpy_expressions_bit_for_bit(shape) -> None:
+    """The compiled band-pass depth, its noise sample and the scores against the NumPy
+    expressions they replaced (float32; empty cells, so 0 / 0, included)."""
+    rng = np.random.default_rng(9)
+    numerator = rng.normal(0, 0.05, shape).astype(np.float32)
+    denominator = rng.uniform(0.2, 1.0, shape).astype(np.float32)
+    denominator[rng.random(shape) < 0.1] = 0.0
+    numerator[denominator == 0] = 0.0
+    background = rng.normal(0, 0.02, shape).astype(np.float32)
+    inside, relief = rng.random(shape) < 0.8, rng.random(shape) < 0.15
+    depth, sample = _depth_below_band(numerator, denominator, background, inside, relief)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        band = numerator / denominator - background
+    clear = inside & ~relief
+    expected = np.where(clear, -band, 0.0)
+    assert depth.dtype == expected.dtype == np.float32
+    np.testing.assert_array_equal(depth, expected)
+    np.testing.assert_array_equal(sample, expected[::2, ::2][clear[::2, ::2]])
+    noise = 1.4826 * float(np.nanmedian(np.abs(sample))) + 1e-3
+    score, above = _scores(depth, np.float32(noise), 3.5)
+    np.testing.assert_array_equal(score, depth / noise)
+    np.testing.assert_array_equal(above, depth / noise > 3.5)
 
 
 @pytest.mark.parametrize("shape", [(1, 9), (9, 1), (60, 45), (0, 4)])

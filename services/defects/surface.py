@@ -530,7 +530,7 @@ def _scratches(
     return findings
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")  # 0 / 0 is NaN, as in NumPy
 def _depth_below_band(
     numerator: np.ndarray,
     denominator: np.ndarray,
