@@ -16,7 +16,7 @@ from services.defects import binning
 from services.defects.morphology import border_reach, dilate, erode, label4, label8
 from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, rasterize
 from services.defects.sections import _widest_gap
-from services.defects.smoothing import gaussian_pair
+from services.defects.smoothing import gaussian_kernel, gaussian_pair
 from services.defects.surface import (
     _blocks,
     _depth_below_band,
@@ -281,18 +281,22 @@ def test_labelling_equals_scipy(shape) -> None:
         ]
 
 
-@pytest.mark.parametrize("shape", [(31, 22), (1, 5), (6, 1)])
+@pytest.mark.parametrize("shape", [(31, 22), (1, 5), (6, 1), (2, 40)])
 def test_scratch_depth_and_scores_equal_the_numpy_expressions_bit_for_bit(shape) -> None:
-    """The compiled band-pass depth, its noise sample and the scores against the NumPy
-    expressions they replaced (float32; empty cells, so 0 / 0, included)."""
+    """The compiled band-pass depth (smoothing and depth in one pass), its noise sample
+    and the scores against the smoothing and NumPy expressions they replaced (float32;
+    NaN heights outside the inside cells, and a strip of them wider than the kernel)."""
     rng = np.random.default_rng(9)
-    numerator = rng.normal(0, 0.05, shape).astype(np.float32)
-    denominator = rng.uniform(0.2, 1.0, shape).astype(np.float32)
-    denominator[rng.random(shape) < 0.1] = 0.0
-    numerator[denominator == 0] = 0.0
+    deviation = rng.normal(0, 0.05, shape).astype(np.float32)
+    inside = rng.random(shape) < 0.8
+    inside[:, : shape[1] // 3] = False
+    deviation[~inside] = np.nan
     background = rng.normal(0, 0.02, shape).astype(np.float32)
-    inside, relief = rng.random(shape) < 0.8, rng.random(shape) < 0.15
-    depth, sample = _depth_below_band(numerator, denominator, background, inside, relief)
+    relief = rng.random(shape) < 0.15
+    depth, sample = _depth_below_band(deviation, inside, background, relief, gaussian_kernel(1.0))
+    numerator, denominator = gaussian_pair(
+        np.where(inside, deviation, 0.0), inside.astype(np.float32), 1.0
+    )
     with np.errstate(invalid="ignore", divide="ignore"):
         band = numerator / denominator - background
     clear = inside & ~relief

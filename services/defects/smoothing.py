@@ -63,25 +63,43 @@ def _gaussian_pair(
         # Output row i reads the first pass's rows within ``radius`` of it (mirrored at
         # the map's edges: rows on the same side).
         while ready < min(rows, i + radius + 1):
-            _across(a, b, kernel, ready, line_a, line_b, sum_a, sum_b)
+            across(a, b, kernel, ready, line_a, line_b, sum_a, sum_b)
             ring_a[ready % taps] = sum_a
             ring_b[ready % taps] = sum_b
             ready += 1
-        sum_a[:] = 0.0
-        sum_b[:] = 0.0
-        for t in range(taps):
-            w = kernel[t]
-            k = _reflect(i + t - radius, rows) % taps
-            for j in range(cols):
-                sum_a[j] += w * ring_a[k, j]
-                sum_b[j] += w * ring_b[k, j]
+        down(ring_a, ring_b, kernel, i, rows, sum_a, sum_b)
         out_a[i] = sum_a
         out_b[i] = sum_b
     return out_a, out_b
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _across(
+def down(
+    ring_a: np.ndarray,
+    ring_b: np.ndarray,
+    kernel: np.ndarray,
+    i: int,
+    rows: int,
+    sum_a: np.ndarray,
+    sum_b: np.ndarray,
+) -> None:
+    """Row i of a and b smoothed down the columns, into ``sum_a`` and ``sum_b`` (float64),
+    from the ring of rows smoothed ``across`` (row k in slot k % taps) of a map of
+    ``rows`` rows."""
+    taps = kernel.shape[0]
+    radius = taps // 2
+    sum_a[:] = 0.0
+    sum_b[:] = 0.0
+    for t in range(taps):
+        w = kernel[t]
+        k = _reflect(i + t - radius, rows) % taps
+        for j in range(ring_a.shape[1]):
+            sum_a[j] += w * ring_a[k, j]
+            sum_b[j] += w * ring_b[k, j]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def across(
     a: np.ndarray,
     b: np.ndarray,
     kernel: np.ndarray,

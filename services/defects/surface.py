@@ -35,7 +35,7 @@ from scipy import ndimage
 from services.defects.morphology import dilate, erode, label8
 from services.defects.panels import Panels
 from services.defects.raster import Raster, block_cells, block_sums
-from services.defects.smoothing import gaussian_pair
+from services.defects.smoothing import across, down, gaussian_kernel, gaussian_pair
 from services.lib.pointcloud.color import delta_e, srgb_to_lab
 from services.lib.tasks import Helping, start_helping
 
@@ -482,11 +482,7 @@ def _scratches(
     and curvature removed, so smoothing near the panel's border stays unbiased), against
     its smooth ``background``."""
     cell = raster.cell_mm
-    height = np.where(inside, deviation, 0.0)
-    # The normalised smoothing over one cell (``_normalised_smooth``'s, less its general
-    # steps: with weights of 0 or 1 the weighted heights are the heights).
-    numerator, denominator = gaussian_pair(height, inside.astype(np.float32), 1.0)
-    depth, sample = _depth_below_band(numerator, denominator, background, inside, relief)
+    depth, sample = _depth_below_band(deviation, inside, background, relief, gaussian_kernel(1.0))
     # The noise level from every 4th cell: as good an estimate at a quarter of the work.
     noise = 1.4826 * float(np.median(np.abs(sample))) if len(sample) else 0.0
     noise = max(noise, 1e-5)
@@ -499,14 +495,15 @@ def _scratches(
         own = grown[found] == index
         rows, cols = np.nonzero(own)
         length, width, direction = _shape(rows, cols, cell)
-        raw_depth = (background[found] - height[found])[own]  # own ⊂ clear
+        if length < config.scratch_min_length_mm or length < 4 * width:
+            continue  # not thin (most regions: the noise's)
+        raw_depth = (background[found] - deviation[found])[own]  # own ⊂ clear
         deepest = float(np.percentile(raw_depth, 98))
-        thin = length >= config.scratch_min_length_mm and length >= 4 * width
+        if deepest < config.scratch_min_depth_mm:
+            continue
         # A parabolic groove's section is ⅔ width × depth.
         section_mm2 = float(np.clip(raw_depth, 0, None).sum()) * cell * cell / length
         width = float(np.clip(1.5 * section_mm2 / max(deepest, 1e-6), cell / 2, width))
-        if not thin or deepest < config.scratch_min_depth_mm:
-            continue
         centre = np.array([rows.mean(), cols.mean()])
         at = raster.centres_uv(
             origin[0] + found[0].start + centre[0], origin[1] + found[1].start + centre[1]
@@ -532,24 +529,46 @@ def _scratches(
 
 @njit(cache=True, nogil=True, error_model="numpy")  # 0 / 0 is NaN, as in NumPy
 def _depth_below_band(
-    numerator: np.ndarray,
-    denominator: np.ndarray,
-    background: np.ndarray,
+    deviation: np.ndarray,
     inside: np.ndarray,
+    background: np.ndarray,
     relief: np.ndarray,
+    kernel: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """How far the one-cell smoothing (``numerator`` / ``denominator``) lies below the
-    ``background``, on the ``inside`` cells clear of ``relief`` (0 elsewhere), float32 as
-    the NumPy expression ``np.where(clear, -(n / d - background), 0)`` gives it; and those
-    clear cells' values on every other row and column (the noise's sample)."""
-    rows, cols = numerator.shape
+    """How far the normalised smoothing of the ``inside`` cells' float32 ``deviation`` by
+    the Gaussian ``kernel`` lies below the ``background``, on the ``inside`` cells clear of
+    ``relief`` (0 elsewhere); and those clear cells' values on every other row and column
+    (the noise's sample).
+
+    With weights of 0 or 1 the weighted heights are the heights: this is
+    ``gaussian_pair(np.where(inside, deviation, 0), inside.astype(np.float32), σ)`` and
+    ``np.where(clear, -(numerator / denominator − background), 0)``, float32 as those give
+    it, in one pass: each smoothed row is used as it is made, not stored and read back."""
+    rows, cols = deviation.shape
+    taps = kernel.shape[0]
+    radius = taps // 2
+    height, weight = np.empty((1, cols), np.float32), np.empty((1, cols), np.float32)
+    ring_height, ring_weight = np.empty((taps, cols), np.float32), np.empty((taps, cols), np.float32)
+    line_height, line_weight = np.empty(cols + 2 * radius), np.empty(cols + 2 * radius)
+    sum_height, sum_weight = np.empty(cols), np.empty(cols)
     depth = np.zeros((rows, cols), np.float32)
     sample = np.empty(-(-rows // 2) * -(-cols // 2), np.float32)
     n = 0
+    ready = 0  # rows smoothed across
     for i in range(rows):
+        while ready < min(rows, i + radius + 1):
+            for j in range(cols):
+                height[0, j] = deviation[ready, j] if inside[ready, j] else np.float32(0.0)
+                weight[0, j] = np.float32(1.0) if inside[ready, j] else np.float32(0.0)
+            across(height, weight, kernel, 0, line_height, line_weight, sum_height, sum_weight)
+            ring_height[ready % taps] = sum_height
+            ring_weight[ready % taps] = sum_weight
+            ready += 1
+        down(ring_height, ring_weight, kernel, i, rows, sum_height, sum_weight)
         for j in range(cols):
             if inside[i, j] and not relief[i, j]:
-                band = np.float32(numerator[i, j] / denominator[i, j]) - background[i, j]
+                smooth = np.float32(sum_height[j]) / np.float32(sum_weight[j])
+                band = np.float32(smooth) - background[i, j]
                 depth[i, j] = -band
                 if i % 2 == 0 and j % 2 == 0:
                     sample[n] = -band
