@@ -548,7 +548,7 @@ def _depth_below_band(
     taps = kernel.shape[0]
     radius = taps // 2
     height, weight = np.empty((1, cols), np.float32), np.empty((1, cols), np.float32)
-    ring_height, ring_weight = np.empty((taps, cols), np.float32), np.empty((taps, cols), np.float32)
+    ring_height, ring_weight = np.empty((2, taps, cols), np.float32)
     line_height, line_weight = np.empty(cols + 2 * radius), np.empty(cols + 2 * radius)
     sum_height, sum_weight = np.empty(cols), np.empty(cols)
     depth = np.zeros((rows, cols), np.float32)
