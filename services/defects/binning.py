@@ -281,16 +281,21 @@ def _bin_points(
     per point, exact up to ``PACKED_MAX_POINTS`` in a block); points outside the grid are
     left out; and the (u, v) box of each ``CHUNK`` points in the grid.
 
-    Each run of points is done in loops that do one thing: ``_locate`` computes where its
-    points fall, the next loop adds them up, the last their colours. The grid's additions
-    then no longer hold back the arithmetic of the points after them."""
+    Each run of points is done in two loops: ``_locate`` computes where its points fall,
+    the next adds them up (and their packed colours). The grid's additions then no longer
+    hold back the arithmetic of the points after them."""
     rows, cols = shape
     count = np.zeros(rows * cols, np.int32)
     height = np.zeros(rows * cols, np.float32)  # a few heights of ±tens of mm: ample
     block_cols = -(-cols // block)
     with_color = colors.shape[0] == points.shape[0]
     color = np.zeros((-(-rows // block) * block_cols if with_color else 0, 3), np.float64)
-    rgb = np.zeros(color.shape[0] if packed else 0, np.int64)  # the packed sums
+    # Packed, the colours are added up per cell, beside the cell's count and height (the
+    # cell's lines are at hand: a third of the cost of adding each point to its block),
+    # and the cells' sums per block after the pass.
+    by_cell = with_color and packed
+    cell_rgb = np.zeros(rows * cols if by_cell else 0, np.int64)
+    rgb = np.zeros(color.shape[0] if packed else 0, np.int64)
     bits = CHANNEL_BITS
     # A cell's block from two lookups: no integer division per point.
     block_of_row = (np.arange(rows) // block) * block_cols
@@ -306,24 +311,30 @@ def _bin_points(
         _locate(points, start, run, t, rows, cols, xyz, uvw, cells, row_col)
         u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
         for j in range(run):
-            if cells[j] >= 0:
-                count[cells[j]] += 1
-                height[cells[j]] += uvw[2, j]
+            c = cells[j]
+            if c >= 0:
+                count[c] += 1
+                height[c] += uvw[2, j]
                 u_min, u_max = min(u_min, uvw[0, j]), max(u_max, uvw[0, j])
                 v_min, v_max = min(v_min, uvw[1, j]), max(v_max, uvw[1, j])
-        if with_color:
+                if by_cell:
+                    i = start + j
+                    red, green, blue = colors[i, 0], colors[i, 1], colors[i, 2]
+                    cell_rgb[c] += red | (np.int64(green) << bits) | (np.int64(blue) << 2 * bits)
+        if with_color and not packed:
             for j in range(run):
                 if cells[j] >= 0:
                     b, i = block_of_row[row_col[0, j]] + block_of_col[row_col[1, j]], start + j
-                    red, green, blue = colors[i, 0], colors[i, 1], colors[i, 2]
-                    if packed:
-                        rgb[b] += red | (np.int64(green) << bits) | (np.int64(blue) << 2 * bits)
-                    else:
-                        color[b, 0] += red
-                        color[b, 1] += green
-                        color[b, 2] += blue
+                    color[b, 0] += colors[i, 0]
+                    color[b, 1] += colors[i, 1]
+                    color[b, 2] += colors[i, 2]
         chunk_uv[chunk, 0], chunk_uv[chunk, 1] = u_min, u_max
         chunk_uv[chunk, 2], chunk_uv[chunk, 3] = v_min, v_max
+    if by_cell:
+        for r in range(rows):
+            first = block_of_row[r]
+            for c in range(cols):
+                rgb[first + block_of_col[c]] += cell_rgb[r * cols + c]
     if packed:
         field = (1 << bits) - 1
         for b in range(rgb.shape[0]):
