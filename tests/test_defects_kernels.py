@@ -18,6 +18,7 @@ from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, raster
 from services.defects.sections import _widest_gap
 from services.defects.smoothing import gaussian_kernel, gaussian_pair
 from services.defects.surface import (
+    _below,
     _blocks,
     _depth_below_band,
     _scores,
@@ -50,6 +51,13 @@ def test_block_sums_and_upsampling_equal_the_references() -> None:
     blocks = rng.random((5, 4))
     zoomed = ndimage.zoom(blocks, 5, order=1, mode="nearest", grid_mode=True)[:23, :17]
     assert np.allclose(_upsample(blocks, 5, (23, 17)), zoomed)
+    # The height above the upsampled surface, in the same pass: as NumPy gives it, bit for bit.
+    blocks, height = blocks.astype(np.float32), values.astype(np.float32)
+    inside = rng.random(values.shape) < 0.7
+    expected = np.where(inside, height - _upsample(blocks, 5, height.shape), np.nan)
+    below = _below(height, inside, blocks, 5)
+    assert below.dtype == np.float32
+    np.testing.assert_array_equal(below, expected)
 
 
 @pytest.mark.parametrize("shape", [(23, 17), (25, 20), (3, 4)])
@@ -352,7 +360,7 @@ def test_tukey_fit_and_region_shape_equal_numpy() -> None:
         residual = target - design @ coef
         sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
         weight = np.clip(1 - (residual / (4.685 * sigma)) ** 2, 0.0, None) ** 2
-    found, found_weight = _tukey_fit(design, target, 4)
+    found, found_weight = _tukey_fit(np.ascontiguousarray(design.T), target, 4)
     assert np.allclose(found, coef, atol=1e-10) and np.allclose(found_weight, weight)
     assert (found_weight[::50] == 0).all()
 

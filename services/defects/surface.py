@@ -137,13 +137,25 @@ def _upsample(blocks: np.ndarray, block: int, shape: tuple[int, int]) -> np.ndar
     """Bilinear interpolation of (rows, cols) block values at the centres of the ``shape``
     cells they cover (edge blocks held constant beyond their centres), in the blocks'
     dtype: along the rows, then along the columns."""
+    nothing = np.zeros((0, 0), blocks.dtype)
+    return _interpolate(blocks, *_steps(blocks, block, shape), nothing, nothing.astype(bool))
+
+
+def _below(height: np.ndarray, inside: np.ndarray, blocks: np.ndarray, block: int) -> np.ndarray:
+    """``np.where(inside, height − _upsample(blocks, block, height.shape), NaN)`` (all
+    float32) in one pass: the fine cells' height above a surface given on the blocks."""
+    return _interpolate(blocks, *_steps(blocks, block, height.shape), height, inside)
+
+
+def _steps(blocks: np.ndarray, block: int, shape: tuple[int, int]) -> list[np.ndarray]:
+    """Per axis: the lower and upper block of each output cell, and its weight t."""
     steps = []
     for axis in (0, 1):
         n = blocks.shape[axis]
         at = np.clip((np.arange(shape[axis]) + 0.5) / block - 0.5, 0, n - 1)
         low = np.minimum(at.astype(np.int64), max(n - 2, 0))
         steps += [low, np.minimum(low + 1, n - 1), (at - low).astype(blocks.dtype)]
-    return _interpolate(blocks, *steps)
+    return steps
 
 
 @njit(cache=True, nogil=True)
@@ -155,19 +167,28 @@ def _interpolate(
     low_col: np.ndarray,
     high_col: np.ndarray,
     t_col: np.ndarray,
+    height: np.ndarray,
+    inside: np.ndarray,
 ) -> np.ndarray:
     """a + (b − a)·t between the blocks ``low`` and ``high`` of each output row, then of
     each output column: the two NumPy passes of ``_upsample`` in one, each output row
-    written once (the same operations, in the blocks' dtype, so the same values)."""
+    written once (the same operations, in the blocks' dtype, so the same values). Given a
+    ``height`` map of the output's shape (not (0, 0)): ``height`` less that on the
+    ``inside`` cells, NaN elsewhere."""
     out = np.empty((low_row.shape[0], low_col.shape[0]), blocks.dtype)
     across = np.empty(blocks.shape[1], blocks.dtype)
+    below = height.shape[0] > 0
     for i in range(low_row.shape[0]):
         a, b, t = blocks[low_row[i]], blocks[high_row[i]], t_row[i]
         for j in range(blocks.shape[1]):
             across[j] = a[j] + (b[j] - a[j]) * t
         for j in range(low_col.shape[0]):
             left, right = across[low_col[j]], across[high_col[j]]
-            out[i, j] = left + (right - left) * t_col[j]
+            value = left + (right - left) * t_col[j]
+            if below:
+                out[i, j] = height[i, j] - value if inside[i, j] else np.nan
+            else:
+                out[i, j] = value
     return out
 
 
@@ -184,7 +205,7 @@ def _reference(
         powers_a.append(powers_a[-1] * a)
         powers_b.append(powers_b[-1] * b)
     design = np.stack([powers_a[i] * powers_b[j] for i in range(4) for j in range(4 - i)], -1)
-    coef, weight = _tukey_fit(design[inside], height[inside], 6)
+    coef, weight = _tukey_fit(np.ascontiguousarray(design[inside].T), height[inside], 6)
     surface = design @ coef
     inlier = np.zeros(inside.shape, bool)
     inlier[inside] = weight > 0
@@ -194,23 +215,39 @@ def _reference(
 
 @njit(cache=True, nogil=True)
 def _tukey_fit(
-    design: np.ndarray, target: np.ndarray, iterations: int
+    design_t: np.ndarray, target: np.ndarray, iterations: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares of ``design`` @ coef ≈ ``target`` reweighted ``iterations`` times with
-    Tukey's biweight (c = 4.685 robust σ of the residual): (coef, final weights).
-    Compiled: these passes over a panel's blocks otherwise hold the GIL, and the panels
-    are fitted on several threads."""
-    m = design.shape[1]
-    weight = np.ones(design.shape[0])
+    """Least squares of design @ coef ≈ ``target`` reweighted ``iterations`` times with
+    Tukey's biweight (c = 4.685 robust σ of the residual): (coef, final weights), the
+    (terms, n) ``design_t`` given transposed. Compiled: these passes over a panel's blocks
+    otherwise hold the GIL, and the panels are fitted on several threads. The normal
+    equations are the dot products of the weighted terms, each pair once (contiguous rows:
+    vectorised, and half the work of two matrix products)."""
+    m, n = design_t.shape
+    weight = np.ones(n)
     coef = np.zeros(m)
+    weighted = np.empty(n)
+    residual = np.empty(n)
     for _ in range(iterations):
-        # The normal equations as two matrix products (BLAS: several times the loops' speed).
-        weighted = design * weight.reshape(-1, 1)
-        normal = weighted.T @ design + 1e-9 * np.eye(m)
-        coef = np.linalg.solve(normal, weighted.T @ target)
-        residual = target - design @ coef
+        normal, rhs = np.empty((m, m)), np.empty(m)
+        for p in range(m):
+            term = design_t[p]
+            for i in range(n):
+                weighted[i] = term[i] * weight[i]
+            rhs[p] = np.dot(weighted, target)
+            for q in range(p, m):
+                normal[p, q] = normal[q, p] = np.dot(weighted, design_t[q])
+            normal[p, p] += 1e-9
+        coef = np.linalg.solve(normal, rhs)
+        residual[:] = target
+        for p in range(m):
+            c, term = coef[p], design_t[p]
+            for i in range(n):
+                residual[i] -= c * term[i]
         sigma = max(1.4826 * np.median(np.abs(residual)), 1e-4)
-        weight = np.maximum(1 - (residual / (4.685 * sigma)) ** 2, 0.0) ** 2
+        for i in range(n):
+            x = residual[i] / (4.685 * sigma)
+            weight[i] = max(1.0 - x * x, 0.0) ** 2
     return coef, weight
 
 
@@ -344,8 +381,7 @@ def _relief(
     )
     block_mm = block * cell
     reference, _ = _reference(uv, coarse, coarse_inside, config.smooth_mm / block_mm)
-    fine_reference = _upsample(reference.astype(np.float32), block, height.shape)
-    deviation = np.where(inside, height - fine_reference, np.nan)
+    deviation = _below(height, inside, reference.astype(np.float32), block)
     # The scratches' background: the deviation smoothed on the blocks (a block is well
     # under the smoothing's σ, so this is the fine smoothing at 1/25 of the work).
     background = _upsample(
