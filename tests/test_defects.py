@@ -25,6 +25,7 @@ from services.defects.simulate import (
     random_assembly,
 )
 from services.defects.truth import Truth, seam_gap_mm
+from services.lib.pointcloud import color
 from services.lib.pointcloud.color import delta_e, lab_to_srgb, srgb_to_lab
 from services.lib.pointcloud.ply import PointCloud, read_ply
 from supervisor.cli import app
@@ -44,6 +45,24 @@ def test_lab_round_trip_and_delta_e() -> None:
     assert np.all(delta_e(back, lab) < 0.6)  # 8-bit quantisation only
     white = srgb_to_lab(np.array([255, 255, 255], np.uint8))
     assert np.allclose(white, [100, 0, 0], atol=0.01)
+
+
+def test_lab_equals_the_numpy_formula_bit_for_bit() -> None:
+    """The compiled steps of ``srgb_to_lab`` against the NumPy expressions they replaced:
+    every 8-bit level (both sides of the linear toe) and block means in between."""
+    rng = np.random.default_rng(2)
+    levels = np.arange(256.0)[:, None].repeat(3, 1)
+    means = rng.uniform(0, 255, (7, 5, 3)).astype(np.float32)
+    for rgb in (levels, means, levels[:0]):
+        c = np.asarray(rgb, dtype=np.float64) / 255.0
+        linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        xyz = linear @ np.array(color._RGB_TO_XYZ).T / color._WHITE_D65
+        f = np.where(xyz > color._EPSILON, np.cbrt(xyz), (color._KAPPA * xyz + 16) / 116)
+        expected = np.stack(
+            [116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])],
+            -1,
+        )
+        np.testing.assert_array_equal(srgb_to_lab(rgb), expected)
 
 
 def test_simulated_layout_is_exact() -> None:
