@@ -78,7 +78,7 @@ def find_seams(
     distance, (near_r, near_c) = ndimage.distance_transform_edt(coarse == 0, return_indices=True)
     nearest = coarse[near_r, near_c]
     distance_mm = distance * stride * raster.cell_mm
-    centres = raster.centres_uv(*np.meshgrid(rows, cols, indexing="ij"))
+    centroids = _centroids_uv(raster, panels)
     seams = []
     first, second, mid, half = [], [], [], []  # per boundary step between two cells
     for axis in (0, 1):
@@ -86,12 +86,13 @@ def find_seams(
         b = nearest[1:, :] if axis == 0 else nearest[:, 1:]
         da = distance_mm[:-1, :] if axis == 0 else distance_mm[:, :-1]
         db = distance_mm[1:, :] if axis == 0 else distance_mm[:, 1:]
-        ca = centres[:-1, :] if axis == 0 else centres[:, :-1]
-        cb = centres[1:, :] if axis == 0 else centres[:, 1:]
         boundary = (a != b) & (a > 0) & (b > 0) & (np.maximum(da, db) <= max_half_band_mm)
+        i, j = np.nonzero(boundary)
+        ca = raster.centres_uv(rows[i], cols[j])
+        cb = raster.centres_uv(rows[i + 1 - axis], cols[j + axis])
         first.append(a[boundary])
         second.append(b[boundary])
-        mid.append(((ca + cb) / 2)[boundary])
+        mid.append((ca + cb) / 2)
         half.append(np.minimum(da, db)[boundary])
     first, second = np.concatenate(first), np.concatenate(second)
     mid, half = np.concatenate(mid), np.concatenate(half)
@@ -106,7 +107,7 @@ def find_seams(
         _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
         direction = vt[0]
         across = np.array([-direction[1], direction[0]])
-        if _side_of(raster, panels.labels, a, centre, across) > 0:
+        if (centroids[a] - centre) @ across > 0:  # panel a on the +across side
             direction = -direction
         along = (points - centre) @ direction
         seam = SeamLine(
@@ -121,14 +122,18 @@ def find_seams(
     return [s for s in seams if s.length_mm >= min_length_mm]
 
 
-def _side_of(
-    raster: Raster, labels: np.ndarray, label: int, centre: np.ndarray, across: np.ndarray
-) -> float:
-    """+1 if panel ``label`` lies on the +across side of the line through ``centre``."""
-    stride = max(1, int(np.sqrt(labels.size / 100_000)))
-    rows, cols = np.nonzero(labels[::stride, ::stride] == label)
+def _centroids_uv(raster: Raster, panels: Panels) -> np.ndarray:
+    """(count + 1, 2) (u, v) centroid of each panel's cells (row 0: none), from an even
+    sample of about 100 000 cells: which side of a seam a panel lies on."""
+    stride = max(1, int(np.sqrt(panels.labels.size / 100_000)))
+    sample = panels.labels[::stride, ::stride]
+    rows, cols = np.nonzero(sample)
     uv = raster.centres_uv(rows * stride, cols * stride)
-    return float(np.sign(np.mean((uv - centre) @ across)))
+    found = sample[rows, cols]
+    cells = np.maximum(np.bincount(found, minlength=panels.count + 1), 1)
+    return np.stack(
+        [np.bincount(found, uv[:, k], minlength=panels.count + 1) / cells for k in (0, 1)], 1
+    )
 
 
 def _trim_to_tops(raster: Raster, labels: np.ndarray, seam: SeamLine) -> SeamLine:
