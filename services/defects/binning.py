@@ -194,14 +194,12 @@ def _locate(
     xyz: np.ndarray,
     uvw: np.ndarray,
     cell: np.ndarray,
-    row_col: np.ndarray,
 ) -> None:
     """Of ``points[start : start + run]``: (u, v, w) in ``uvw[:, :run]``, and the flat
-    index of the cell holding each in ``cell[:run]`` (−1 outside the grid, or not finite),
-    its (row, col) in ``row_col[:, :run]``; ``t[12:15]`` = (u0, v0, 1 / cell). The points
-    are first copied apart into ``xyz`` as float64, so that the second loop, free of
-    branches, runs on vector registers (about 4× the speed of a point at a time, the
-    same arithmetic so the same values)."""
+    index of the cell holding each in ``cell[:run]`` (−1 outside the grid, or not finite);
+    ``t[12:15]`` = (u0, v0, 1 / cell). The points are first copied apart into ``xyz`` as
+    float64, so that the second loop, free of branches, runs on vector registers (about
+    4× the speed of a point at a time, the same arithmetic so the same values)."""
     block = points[start : start + run]
     for j in range(run):
         xyz[0, j], xyz[1, j], xyz[2, j] = block[j, 0], block[j, 1], block[j, 2]
@@ -214,7 +212,6 @@ def _locate(
         # Clamped before the conversion, whatever the point: a select, not a branch.
         r, c = np.int64(min(max(row, 0.0), rows_f - 1)), np.int64(min(max(col, 0.0), cols_f - 1))
         cell[j] = r * cols + c if inside else -1
-        row_col[0, j], row_col[1, j] = r, c
 
 
 @njit(cache=True, nogil=True)
@@ -304,11 +301,11 @@ def _bin_points(
     chunk_uv = np.empty((-(-n // CHUNK), 4), np.float32)
     t = _transform(origin, axes, grid)
     xyz, uvw = np.empty((3, CHUNK)), np.empty((3, CHUNK))
-    cells, row_col = np.empty(CHUNK, np.int64), np.empty((2, CHUNK), np.int64)
+    cells = np.empty(CHUNK, np.int64)
     for chunk in range(chunk_uv.shape[0]):
         start = chunk * CHUNK
         run = min(n, start + CHUNK) - start
-        _locate(points, start, run, t, rows, cols, xyz, uvw, cells, row_col)
+        _locate(points, start, run, t, rows, cols, xyz, uvw, cells)
         u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
         for j in range(run):
             c = cells[j]
@@ -324,7 +321,8 @@ def _bin_points(
         if with_color and not packed:
             for j in range(run):
                 if cells[j] >= 0:
-                    b, i = block_of_row[row_col[0, j]] + block_of_col[row_col[1, j]], start + j
+                    r, c = divmod(cells[j], cols)
+                    b, i = block_of_row[r] + block_of_col[c], start + j
                     color[b, 0] += colors[i, 0]
                     color[b, 1] += colors[i, 1]
                     color[b, 2] += colors[i, 2]
@@ -434,7 +432,7 @@ def _seam_slabs(
     t = _transform(origin, axes, grid)
     tile_scale = t[14] / TILE
     xyz, uvw = np.empty((3, CHUNK)), np.empty((3, CHUNK))
-    cells, row_col = np.empty(CHUNK, np.int64), np.empty((2, CHUNK), np.int64)
+    cells = np.empty(CHUNK, np.int64)
     for chunk in range(-(-points.shape[0] // CHUNK)):
         # The tiles the run's box covers, give or take the box's float32 rounding (all of
         # the run if that is more than a few).
@@ -451,7 +449,7 @@ def _seam_slabs(
             continue
         start = chunk * CHUNK
         run = min(points.shape[0], start + CHUNK) - start
-        _locate(points, start, run, t, rows, cols, xyz, uvw, cells, row_col)
+        _locate(points, start, run, t, rows, cols, xyz, uvw, cells)
         for j in range(run):
             code = flat[cells[j]] if cells[j] >= 0 else -1
             if code == -1:
