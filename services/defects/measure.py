@@ -664,15 +664,12 @@ def _surface_point(
     that plane's unit normal (towards +w)."""
     span = int(np.ceil(radius_mm / raster.cell_mm))
     row, col, _ = raster.cell_at(uv)
-    rows, cols = np.meshgrid(
-        np.arange(max(row - span, 0), min(row + span + 1, raster.shape[0])),
-        np.arange(max(col - span, 0), min(col + span + 1, raster.shape[1])),
-        indexing="ij",
-    )
-    heights = raster.height[rows, cols]
-    ok = np.isfinite(heights)
-    centres = raster.centres_uv(rows[ok], cols[ok]) - uv
-    design = np.column_stack([np.ones(ok.sum()), centres])
-    (w0, du, dv), *_ = np.linalg.lstsq(design, heights[ok].astype(np.float64), rcond=None)
+    row0, col0 = max(int(row) - span, 0), max(int(col) - span, 0)
+    window = raster.height[row0 : int(row) + span + 1, col0 : int(col) + span + 1]
+    rows, cols = np.nonzero(np.isfinite(window))
+    centres = raster.centres_uv(rows + row0, cols + col0) - uv
+    design = np.column_stack([np.ones(len(rows)), centres])
+    heights = window[rows, cols].astype(np.float64)
+    (w0, du, dv), *_ = np.linalg.lstsq(design, heights, rcond=None)
     normal = np.array([-du, -dv, 1.0])
     return np.array([uv[0], uv[1], w0]), normal / np.linalg.norm(normal)
