@@ -222,44 +222,57 @@ def _robust_plane(
     group's median height (not the backing seen through a wide gap, nor spikes), then again
     without the points beyond 3σ of it (dents, strays). Returns ((groups, 3) planes,
     (groups,) σ), NaN where too few points."""
+    return _robust_planes(group, x, w, y, low, high, min_abs, groups)
+
+
+@njit(cache=True, nogil=True)
+def _robust_planes(
+    group: np.ndarray,
+    x: np.ndarray,
+    w: np.ndarray,
+    y: np.ndarray,
+    low: float,
+    high: float,
+    min_abs: float,
+    groups: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``_robust_plane``, compiled: per group, the 3 × 3 normal equations (Σ from
+    ``_top_sums``, 1e-9·n added on the diagonal) solved by LAPACK as NumPy's batched
+    solve does, and σ² = Σw²/n − (α·Σw + β·Σx·w + γ·Σy·w)/n (0 where that is not a
+    number, as ``np.fmax`` gives it). Each step in NumPy's order: the same values."""
     plane = np.zeros((groups, 3))
     plane[:, 0] = _median_heights(group, x, w, low, high, min_abs, groups)
     clip = np.full(groups, START_WINDOW_MM)
+    sigma = np.empty(groups)
+    normal, rhs = np.empty((3, 3)), np.empty(3)
+    sums = np.zeros((10, groups))
     for _ in range(2):
         sums = _top_sums(group, x, w, y, low, high, min_abs, plane, clip, groups)
-        plane = _solve_planes(sums)
-        with np.errstate(invalid="ignore"):
-            sigma = np.sqrt(np.fmax(sums[9] / np.maximum(sums[0], 1) - _explained(sums, plane), 0))
-        clip = np.where(np.isfinite(sigma), np.maximum(3.0 * sigma, 0.01), np.inf)
-        plane = np.where(np.isfinite(plane), plane, 0.0)
-    valid = sums[0] >= MIN_POINTS
-    plane[~valid] = np.nan
-    sigma[~valid] = np.nan
+        for g in range(groups):
+            s = sums[:, g]
+            if s[0] >= MIN_POINTS:
+                normal[0, 0], normal[0, 1], normal[0, 2] = s[0], s[1], s[2]
+                normal[1, 0], normal[1, 1], normal[1, 2] = s[1], s[3], s[4]
+                normal[2, 0], normal[2, 1], normal[2, 2] = s[2], s[4], s[5]
+                for k in range(3):
+                    normal[k, k] += 1e-9 * s[0]
+                rhs[0], rhs[1], rhs[2] = s[6], s[7], s[8]
+                plane[g] = np.linalg.solve(normal, rhs)
+            else:
+                plane[g] = np.nan
+            n = max(s[0], 1.0)
+            fitted = plane[g, 0] * s[6] + plane[g, 1] * s[7] + plane[g, 2] * s[8]
+            variance = s[9] / n - (fitted / n if np.isfinite(fitted) else np.nan)
+            sigma[g] = np.sqrt(variance if variance > 0 else 0.0)  # NaN too: np.fmax
+            clip[g] = max(3.0 * sigma[g], 0.01) if np.isfinite(sigma[g]) else np.inf
+            for k in range(3):
+                if not np.isfinite(plane[g, k]):
+                    plane[g, k] = 0.0
+    for g in range(groups):
+        if not sums[0, g] >= MIN_POINTS:
+            plane[g] = np.nan
+            sigma[g] = np.nan
     return plane, sigma
-
-
-def _explained(sums: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """Σw²/n − (mean squared residual) from the normal-equation sums: the part of Σw²/n
-    the plane explains, so that σ² = Σw²/n − this."""
-    n = np.maximum(sums[0], 1)
-    with np.errstate(invalid="ignore"):
-        fitted = plane[:, 0] * sums[6] + plane[:, 1] * sums[7] + plane[:, 2] * sums[8]
-    return np.where(np.isfinite(fitted), fitted / n, np.nan)
-
-
-def _solve_planes(sums: np.ndarray) -> np.ndarray:
-    basis_products = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    groups = sums.shape[1]
-    normal = np.zeros((groups, 3, 3))
-    for row, (i, j) in enumerate(basis_products):
-        normal[:, i, j] = normal[:, j, i] = sums[row]
-    rhs = sums[6:9].T
-    enough = sums[0] >= MIN_POINTS
-    normal[~enough] = np.eye(3)
-    normal[enough] += np.eye(3) * 1e-9 * sums[0][enough, None, None]
-    solution = np.linalg.solve(normal, rhs[..., None])[..., 0]
-    solution[~enough] = np.nan
-    return solution
 
 
 def _edges(
