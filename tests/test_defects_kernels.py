@@ -15,7 +15,14 @@ from scipy import ndimage
 from services.defects import binning
 from services.defects.morphology import border_reach, dilate, erode, label4, label8
 from services.defects.raster import SAMPLE_POINTS, block_sums, fit_frame, rasterize
-from services.defects.sections import _widest_gap
+from services.defects.sections import (
+    MIN_POINTS,
+    START_WINDOW_MM,
+    _median_heights,
+    _robust_plane,
+    _top_sums,
+    _widest_gap,
+)
 from services.defects.smoothing import gaussian_kernel, gaussian_pair
 from services.defects.surface import (
     _below,
@@ -389,3 +396,44 @@ def test_frame_from_the_sample_equals_numpy() -> None:
     values, vectors = np.linalg.eigh(np.cov(sample.T))
     assert np.isclose(abs(frame.axes[0] @ vectors[:, 2]), 1.0)
     assert np.allclose(frame.axes[2], -vectors[:, 0] * np.sign(vectors[2, 0]), atol=1e-9)
+
+
+def test_robust_planes_equal_the_numpy_steps_bit_for_bit() -> None:
+    """The compiled robust planes against the NumPy steps they replaced (a batched solve
+    of the normal equations, σ through ``np.fmax``), groups with too few points and
+    outliers included."""
+    rng = np.random.default_rng(12)
+    groups = 9
+    group = rng.integers(0, groups, 4000)
+    group[group == 4] = 5  # group 4 has no point, group 7 too few
+    group[np.flatnonzero(group == 7)[5:]] = 8
+    x, y = rng.uniform(-3, 3, 4000), rng.uniform(-0.5, 0.5, 4000)
+    w = 0.1 * group + 0.02 * x - 0.01 * y + rng.normal(0, 0.01, 4000)
+    w[::37] += rng.choice([-4.0, 3.0], len(w[::37]))  # the backing, spikes
+    low, high, min_abs = -2.5, 2.5, 0.2
+    plane, sigma = _robust_plane(group, x, w, y, low, high, min_abs, groups)
+
+    expected = np.zeros((groups, 3))
+    expected[:, 0] = _median_heights(group, x, w, low, high, min_abs, groups)
+    clip = np.full(groups, START_WINDOW_MM)
+    for _ in range(2):
+        sums = _top_sums(group, x, w, y, low, high, min_abs, expected, clip, groups)
+        normal = np.zeros((groups, 3, 3))
+        for row, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+            normal[:, i, j] = normal[:, j, i] = sums[row]
+        enough = sums[0] >= MIN_POINTS
+        normal[~enough] = np.eye(3)
+        normal[enough] += np.eye(3) * 1e-9 * sums[0][enough, None, None]
+        expected = np.linalg.solve(normal, sums[6:9].T[..., None])[..., 0]
+        expected[~enough] = np.nan
+        n = np.maximum(sums[0], 1)
+        with np.errstate(invalid="ignore"):
+            fitted = expected[:, 0] * sums[6] + expected[:, 1] * sums[7] + expected[:, 2] * sums[8]
+            explained = np.where(np.isfinite(fitted), fitted / n, np.nan)
+            expected_sigma = np.sqrt(np.fmax(sums[9] / n - explained, 0))
+        clip = np.where(np.isfinite(expected_sigma), np.maximum(3.0 * expected_sigma, 0.01), np.inf)
+        expected = np.where(np.isfinite(expected), expected, 0.0)
+    expected[~enough], expected_sigma[~enough] = np.nan, np.nan
+    assert np.isnan(plane[[4, 7]]).all() and np.isfinite(plane[[0, 1, 2, 3, 5, 6, 8]]).all()
+    np.testing.assert_array_equal(plane, expected)
+    np.testing.assert_array_equal(sigma, expected_sigma)

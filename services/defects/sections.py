@@ -184,9 +184,7 @@ def profile_seam(
     k, y, x, w = slab[0].astype(np.int64), slab[1], slab[2], slab[3]
     groups = 2 * count
     outer = seam.half_band_mm + config.edge_band_mm
-    rough, rough_sigma = _robust_plane(
-        2 * k + (x > 0), x, w, y, -np.inf, np.inf, groups, min_abs=outer
-    )
+    rough, rough_sigma = _robust_plane(2 * k + (x > 0), x, w, y, -np.inf, np.inf, outer, groups)
     end_a, end_b, width = _widest_gaps(
         k, x, w, y, rough, seam.half_band_mm + 1.5, config.max_edge_depth_mm, count
     )
@@ -197,36 +195,16 @@ def profile_seam(
     else:
         end_x = _follow_tops(k, x, w, y, rough, rough_sigma, middle, outer)
     group, xm = _mirror(k, x, middle, end_x)
-    plane, sigma = _robust_plane(
-        group, xm, w, y, -config.edge_band_mm - config.top_band_mm, -config.edge_band_mm, groups
-    )
+    low, high = -config.edge_band_mm - config.top_band_mm, -config.edge_band_mm
+    plane, sigma = _robust_plane(group, xm, w, y, low, high, 0.0, groups)
     tops = _Tops(end_x, plane, sigma)
     noise = float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else np.nan
     fitted = _edges(group, xm, w, y, middle, tops, noise, spacing_mm, config, groups)
     return _sections(seam, config, first, count, spacing_mm, tops, found, noise, fitted)
 
 
-def _robust_plane(
-    group: np.ndarray,
-    x: np.ndarray,
-    w: np.ndarray,
-    y: np.ndarray,
-    low: float,
-    high: float,
-    groups: int,
-    *,
-    min_abs: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Planes w = α + β·x + γ·y per group over the points with low ≤ x ≤ high and |x| ≥
-    ``min_abs``: a least-squares fit to the points within ``START_WINDOW_MM`` of the
-    group's median height (not the backing seen through a wide gap, nor spikes), then again
-    without the points beyond 3σ of it (dents, strays). Returns ((groups, 3) planes,
-    (groups,) σ), NaN where too few points."""
-    return _robust_planes(group, x, w, y, low, high, min_abs, groups)
-
-
 @njit(cache=True, nogil=True)
-def _robust_planes(
+def _robust_plane(
     group: np.ndarray,
     x: np.ndarray,
     w: np.ndarray,
@@ -236,10 +214,16 @@ def _robust_planes(
     min_abs: float,
     groups: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``_robust_plane``, compiled: per group, the 3 × 3 normal equations (Σ from
-    ``_top_sums``, 1e-9·n added on the diagonal) solved by LAPACK as NumPy's batched
-    solve does, and σ² = Σw²/n − (α·Σw + β·Σx·w + γ·Σy·w)/n (0 where that is not a
-    number, as ``np.fmax`` gives it). Each step in NumPy's order: the same values."""
+    """Planes w = α + β·x + γ·y per group over the points with low ≤ x ≤ high and |x| ≥
+    ``min_abs``: a least-squares fit to the points within ``START_WINDOW_MM`` of the
+    group's median height (not the backing seen through a wide gap, nor spikes), then again
+    without the points beyond 3σ of it (dents, strays). Returns ((groups, 3) planes,
+    (groups,) σ), NaN where too few points.
+
+    Per group: the 3 × 3 normal equations (Σ from ``_top_sums``, 1e-9·n added on the
+    diagonal) solved by LAPACK as NumPy's batched solve does, and σ² = Σw²/n − (α·Σw +
+    β·Σx·w + γ·Σy·w)/n (0 where that is not a number, as ``np.fmax`` gives it): each step
+    in the order the NumPy version of this took, so the same values."""
     plane = np.zeros((groups, 3))
     plane[:, 0] = _median_heights(group, x, w, low, high, min_abs, groups)
     clip = np.full(groups, START_WINDOW_MM)
