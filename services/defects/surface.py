@@ -176,14 +176,14 @@ def _interpolate(
     ``height`` map of the output's shape (not (0, 0)): ``height`` less that on the
     ``inside`` cells, NaN elsewhere."""
     out = np.empty((low_row.shape[0], low_col.shape[0]), blocks.dtype)
-    across = np.empty(blocks.shape[1], blocks.dtype)
+    row = np.empty(blocks.shape[1], blocks.dtype)  # the blocks interpolated along the rows
     below = height.shape[0] > 0
     for i in range(low_row.shape[0]):
         a, b, t = blocks[low_row[i]], blocks[high_row[i]], t_row[i]
         for j in range(blocks.shape[1]):
-            across[j] = a[j] + (b[j] - a[j]) * t
+            row[j] = a[j] + (b[j] - a[j]) * t
         for j in range(low_col.shape[0]):
-            left, right = across[low_col[j]], across[high_col[j]]
+            left, right = row[low_col[j]], row[high_col[j]]
             value = left + (right - left) * t_col[j]
             if below:
                 out[i, j] = height[i, j] - value if inside[i, j] else np.nan
