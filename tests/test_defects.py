@@ -47,9 +47,11 @@ def test_lab_round_trip_and_delta_e() -> None:
     assert np.allclose(white, [100, 0, 0], atol=0.01)
 
 
-def test_lab_equals_the_numpy_formula_bit_for_bit() -> None:
+def test_lab_equals_the_numpy_formula() -> None:
     """The compiled steps of ``srgb_to_lab`` against the NumPy expressions they replaced:
-    every 8-bit level (both sides of the linear toe) and block means in between."""
+    every 8-bit level (both sides of the linear toe) and block means in between. Not bit
+    for bit: on CPUs with AVX-512, NumPy's power and cube root are SIMD routines whose last
+    bit can differ from the C library's (seen: 1.7e-13 at most)."""
     rng = np.random.default_rng(2)
     levels = np.arange(256.0)[:, None].repeat(3, 1)
     means = rng.uniform(0, 255, (7, 5, 3)).astype(np.float32)
@@ -62,7 +64,7 @@ def test_lab_equals_the_numpy_formula_bit_for_bit() -> None:
             [116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])],
             -1,
         )
-        np.testing.assert_array_equal(srgb_to_lab(rgb), expected)
+        np.testing.assert_allclose(srgb_to_lab(rgb), expected, rtol=1e-12, atol=1e-12)
 
 
 def test_simulated_layout_is_exact() -> None:
