@@ -8,6 +8,9 @@ VISTA       := $(VENV)/bin/vista
 DEB_PACKAGES := python3-venv python3-dev build-essential
 STAMP_RUN   := $(VENV)/.installed-run
 STAMP_TEST  := $(VENV)/.installed-test
+# Test files are shared among this many pytest-xdist workers, each file whole on one worker
+# (the broker's tests all live in tests/test_engine.py, so one worker owns the Redis queues).
+TEST_WORKERS ?= 2
 WEB         := clients/web
 WEB_STAMP   := $(WEB)/node_modules/.installed
 WEB_BUILT   := $(WEB)/dist/index.html
@@ -22,7 +25,7 @@ run: $(STAMP_RUN) $(WEB_BUILT)
 	$(VISTA) serve
 
 test: $(STAMP_TEST)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP_TEST)
 	$(VENV)/bin/ruff check contract supervisor services tests clients/python
