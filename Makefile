@@ -43,12 +43,14 @@ $(VENV)/bin/activate:
 	$(PY) -m pip install -q --upgrade pip setuptools wheel
 
 # torch is pinned to 2.13.0 in pyproject.toml: that takes the local CPU build.
-# open3d needs Debian's libusb-1.0-0.
+# open3d needs Debian's libusb-1.0-0. `vista precompile` fills numba's cache (about a
+# minute), so that no user's first measurement waits for the compiler.
 $(STAMP_RUN): pyproject.toml clients/python/pyproject.toml | $(VENV)/bin/activate
 	@ldconfig -p | grep -q 'libusb-1.0.so.0' || \
 	  { echo "installing Debian package libusb-1.0-0 (for open3d)"; \
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0; }
 	$(PY) -m pip install -q -e . -e clients/python
+	$(VISTA) precompile
 	@touch $@
 
 $(STAMP_TEST): pyproject.toml $(STAMP_RUN) $(WEB_BUILT)

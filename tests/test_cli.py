@@ -1,6 +1,8 @@
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 
 import pytest
 from fastapi.testclient import TestClient
@@ -62,6 +64,35 @@ def test_unknown_worker_queue_is_refused(cli, monkeypatch):
     get_settings.cache_clear()
     refused = cli("worker", "--queues", "scan,paint")
     assert refused.exit_code == 2 and "unknown queue(s) ['paint']" in refused.output
+
+
+COMPILES = """
+from numba.core import event
+from supervisor.engine.registry import declared_hooks
+
+compiled = event.RecordingListener()
+event.register("numba:compile", compiled)
+for warm_up in declared_hooks("PRECOMPILE"):
+    warm_up()
+print(len(compiled.buffer) // 2)
+"""
+
+
+def test_precompile_leaves_nothing_to_compile_for_the_next_process():
+    """`vista precompile` runs each service's small job; a process started after it
+    compiles nothing for the same jobs: every kernel comes from numba's cache. (Fast after
+    `make install`, which ran it; up to a minute after a kernel's source changed.)"""
+    ran = subprocess.run(
+        [sys.executable, "-m", "supervisor.cli", "precompile"],
+        capture_output=True, text=True, timeout=600, check=False,
+    )  # fmt: skip
+    assert ran.returncode == 0, ran.stderr
+    assert re.search(r"^defects: ready in \d+\.\d s$", ran.stdout, re.M), ran.stdout
+    assert re.search(r"^odometry: ready in \d+\.\d s$", ran.stdout, re.M), ran.stdout
+    again = subprocess.run(
+        [sys.executable, "-c", COMPILES], capture_output=True, text=True, timeout=600, check=True
+    )
+    assert again.stdout.split()[-1] == "0", again.stdout
 
 
 def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):

@@ -94,6 +94,8 @@ CLI = "services.defects.cli:register"
 """Its commands: `vista defects …` (``register(app, simulate_app, bench_app)``)."""
 DEMO_EXAMPLE = "services.defects.example:write_demo_assembly"
 """What `vista demo` simulates and runs: a cabin sidewall whose seams stray out of tolerance."""
+PRECOMPILE = "services.defects.measure:warm_up"
+"""What `vista precompile` runs to fill numba's cache: a small measurement."""
 USES = ("stitching",)
 """The services whose code this one calls (its simulator writes a stitching session and
 merges the scans by ``services.stitching.stitch``, as a real inspection does): a service

@@ -112,6 +112,8 @@ ARTIFACT_KINDS = (
 
 CLI = "services.odometry.cli:register"
 """Its commands: `vista odometry …` (``register(app, simulate_app, bench_app)``)."""
+PRECOMPILE = "services.odometry.direct:warm_up"
+"""What `vista precompile` runs to fill numba's cache: a PNG frame decoded, a pair aligned."""
 
 SAMPLE_RUN = "services.odometry.sample:sample_run"
 """A run of its jobs on files it makes (``contract.samples``): `vista bench clients` draws their pages and scenes."""

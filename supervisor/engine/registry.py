@@ -4,7 +4,8 @@ Each module named here (and each in ``VISTA_EXTRA_JOB_KINDS``) declares, as data
 kinds in a ``KINDS`` tuple of ``contract.kinds.JobKind`` and the kinds of file only it knows
 in an ``ARTIFACT_KINDS`` tuple of ``contract.artifacts.ArtifactKind`` (either may be absent,
 not both), and may name (``module:function``) its commands' ``register(app, simulate_app,
-bench_app)`` in ``CLI`` and the writer of the demo's simulated data in ``DEMO_EXAMPLE``;
+bench_app)`` in ``CLI``, the writer of the demo's simulated data in ``DEMO_EXAMPLE`` and
+what compiles its numba kernels into their cache (`vista precompile`) in ``PRECOMPILE``;
 importing it has no other effect. This is the supervisor's one way to a service: everything
 else it learns through the hooks these declarations name.
 """
@@ -80,7 +81,7 @@ def artifact_kinds() -> dict[str, ArtifactKind]:
 
 def declared_hooks(name: str) -> list:
     """The functions the service modules name in their ``name`` attribute (``CLI``,
-    ``DEMO_EXAMPLE``), in the modules' order, imported now."""
+    ``DEMO_EXAMPLE``, ``PRECOMPILE``), in the modules' order, imported now."""
     found = (getattr(importlib.import_module(m), name, None) for m in SERVICE_KIND_MODULES)
     return [load_hook(path) for path in found if path is not None]
 
