@@ -13,19 +13,26 @@ from numba import njit
 
 def _window_all(mask: np.ndarray, width: int, axis: int, outside: bool) -> np.ndarray:
     """out[i] = all(mask[i − width // 2 … i + width // 2]) along ``axis`` (odd ``width``),
-    cells beyond the edge counting as ``outside``."""
+    cells beyond the edge counting as ``outside``; in C order along either axis (the
+    compiled passes that read the masks are compiled for, and read, rows)."""
     half = width // 2
-    m = np.moveaxis(mask, axis, 0)
-    n = m.shape[0]
-    padded = np.full((n + 2 * half, *m.shape[1:]), outside, dtype=bool)
-    padded[half : half + n] = m
+    n = mask.shape[axis]
+
+    def along(start: int | None, stop: int | None) -> tuple[slice, ...]:
+        index = [slice(None)] * mask.ndim
+        index[axis] = slice(start, stop)
+        return tuple(index)
+
+    shape = list(mask.shape)
+    shape[axis] += 2 * half
+    padded = np.full(shape, outside, dtype=bool)
+    padded[along(half, half + n)] = mask
     # acc[i] = all(padded[i : i + span]); two overlapping spans cover a window.
     acc, span = padded, 1
     while span * 2 <= width:
-        acc = acc[:-span] & acc[span:]
+        acc = acc[along(None, -span)] & acc[along(span, None)]
         span *= 2
-    out = acc[:n] & acc[width - span : width - span + n]
-    return np.moveaxis(out, 0, axis)
+    return acc[along(None, n)] & acc[along(width - span, width - span + n)]
 
 
 def erode(mask: np.ndarray, radius: int) -> np.ndarray:

@@ -435,9 +435,7 @@ def _relief(
         )
     # The foot of a dent or bump curves like a groove: keep scratches off its rim.
     rim = int(np.ceil(config.relief_rim_mm / cell))
-    near_relief = relief_mask
-    if relief_mask.any():  # C order, as the scratch pass is compiled for (it reads rows)
-        near_relief = np.ascontiguousarray(dilate(relief_mask, rim))
+    near_relief = dilate(relief_mask, rim) if relief_mask.any() else relief_mask
     scratches = _join_collinear(
         _scratches(raster, label, deviation, background, inside, near_relief, origin, config)
     )
