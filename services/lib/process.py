@@ -8,12 +8,19 @@ cores, and spin while they wait. With OpenCV's own pool of two threads, odometry
 preparation (a divide, two pyramid levels) took 2.6 ms of CPU instead of 1.3, and a run on
 two threads 4.6 ms per pair instead of 4.2.
 
-A measurement's work arrays stay in the heap instead of fresh memory maps. glibc serves every allocation above 128 KB (its threshold grows to at most 32 MB) with its
-own memory map and unmaps it when freed, so each height-map-sized temporary is faulted in
-page by page again, and mapping and unmapping take a process-wide lock that the threads
-measuring panels and seams all wait on: on 2 cores the panels ran no faster on two threads
-than on one. Raising the threshold to 32 MB and trimming the heap only past 256 MB free
-lets freed arrays be reused; the process keeps up to that much memory it no longer uses.
+That holds for a BLAS loaded after this set-up too. SciPy brings its own OpenBLAS, loaded
+by the first ``from scipy import ndimage``; numba's compiled ``np.dot`` and
+``np.linalg.solve`` call it. With its default thread per core, its second thread spun on a
+core after each such call: a third of the CPU samples of a gap measurement were that
+thread waiting, and a measurement on two threads ran 398 ms instead of 288 (issue 35).
+
+A measurement's work arrays stay in the heap instead of fresh memory maps. glibc serves
+every allocation above 128 KB (its threshold grows to at most 32 MB) with its own memory
+map and unmaps it when freed, so each height-map-sized temporary is faulted in page by
+page again, and mapping and unmapping take a process-wide lock that the threads measuring
+panels and seams all wait on: on 2 cores the panels ran no faster on two threads than on
+one. Raising the threshold to 32 MB and trimming the heap only past 256 MB free lets freed
+arrays be reused; the process keeps up to that much memory it no longer uses.
 """
 
 from __future__ import annotations
@@ -56,7 +63,8 @@ def keep_work_arrays_in_heap() -> bool:
 def prepare_process() -> None:
     """Tune this process for vista's algorithms (see the module docstring); once."""
     keep_work_arrays_in_heap()
-    threadpool_limits(limits=1, user_api="blas")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # read by each OpenBLAS loaded from here on
+    threadpool_limits(limits=1, user_api="blas")  # and those already loaded
     cv2.setNumThreads(1)
 
 
