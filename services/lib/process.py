@@ -9,10 +9,11 @@ preparation (a divide, two pyramid levels) took 2.6 ms of CPU instead of 1.3, an
 two threads 4.6 ms per pair instead of 4.2.
 
 That holds for a BLAS loaded after this set-up too. SciPy brings its own OpenBLAS, loaded
-by the first ``from scipy import ndimage``; numba's compiled ``np.dot`` and
-``np.linalg.solve`` call it. With its default thread per core, its second thread spun on a
-core after each such call: a third of the CPU samples of a gap measurement were that
-thread waiting, and a measurement on two threads ran 398 ms instead of 288 (issue 35).
+by the first ``from scipy import ndimage`` (in a job worker, when its first job's handler
+is imported: after this set-up); numba's compiled ``np.dot`` and ``np.linalg.solve`` call
+it. With its default thread per core, its second thread spun on a core after each such
+call: a third of the CPU samples of a gap measurement were that thread waiting, and a
+measurement on two threads ran 398 ms instead of 288 (issue 35).
 
 A measurement's work arrays stay in the heap instead of fresh memory maps. glibc serves
 every allocation above 128 KB (its threshold grows to at most 32 MB) with its own memory
@@ -63,7 +64,7 @@ def keep_work_arrays_in_heap() -> bool:
 def prepare_process() -> None:
     """Tune this process for vista's algorithms (see the module docstring); once."""
     keep_work_arrays_in_heap()
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # read by each OpenBLAS loaded from here on
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # each OpenBLAS loaded later (children too)
     threadpool_limits(limits=1, user_api="blas")  # and those already loaded
     cv2.setNumThreads(1)
 
