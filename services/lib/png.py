@@ -33,17 +33,19 @@ def decode_grey8(data: bytes) -> np.ndarray | None:
     width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
     if (depth, colour, interlace) != (8, 0, 0) or not 0 < width * height <= 1 << 28:
         return None
-    compressed, offset, ended = [], 8, False
+    # The chunks read in place (a frame's image data comes in some 25): a chunk's type
+    # and body lie side by side, so its checksum needs no copy, and the image data is
+    # copied once, joined.
+    view, compressed, offset, ended = memoryview(data), [], 8, False
     while offset + 12 <= len(data) and not ended:
-        (length,) = struct.unpack(">I", data[offset : offset + 4])
+        length, kind = struct.unpack_from(">I4s", data, offset)
         end = offset + 8 + length
-        kind, body = data[offset + 4 : offset + 8], data[offset + 8 : end]
         if end + 4 > len(data) or kind not in READ:
             return None
-        if deflate.crc32(kind + body) != int.from_bytes(data[end : end + 4], "big"):
+        if deflate.crc32(view[offset + 4 : end]) != struct.unpack_from(">I", data, end)[0]:
             return None
         if kind == b"IDAT":
-            compressed.append(body)
+            compressed.append(view[offset + 8 : end])
         ended = kind == b"IEND"
         offset = end + 4
     size = height * (width + 1)

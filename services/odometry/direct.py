@@ -154,13 +154,7 @@ def sharpness(template: Template, image: Template, warp: np.ndarray) -> float:
     smaller): near 0 when the floor has nothing to align on (noise matches noise
     anywhere), or only lines along one direction."""
     xy, value = template.points[0][::SHARPNESS_STRIDE], template.values[0][::SHARPNESS_STRIDE]
-
-    def cost(motion: np.ndarray) -> float:
-        return kernels.match_cost(image.images[0], xy, value, motion.astype(np.float64))
-
-    base = cost(warp)
-    worse = [cost(warp + shift) for shift in ([1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0])]
-    return float(min(min(worse[:2]), min(worse[2:])) / (base + 1e-9) - 1.0)
+    return kernels.sharpness(image.images[0], xy, value, warp.astype(np.float64))
 
 
 def _inverse(motion: np.ndarray) -> np.ndarray:

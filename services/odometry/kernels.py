@@ -158,6 +158,20 @@ def match_cost(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.
 
 
 @njit(cache=True, nogil=True)
+def sharpness(image: np.ndarray, xy: np.ndarray, value: np.ndarray, motion: np.ndarray) -> float:
+    """How much worse ``image`` matches one pixel off ``motion`` (along x and y, the
+    smaller) than at it, relative: ``match_cost`` at the motion and at the four shifts,
+    one call."""
+    base = match_cost(image, xy, value, motion)
+    worse = np.empty(4)
+    for m in range(4):
+        shifted = motion.copy()
+        shifted[m // 2] += 1.0 if m % 2 == 0 else -1.0
+        worse[m] = match_cost(image, xy, value, shifted)
+    return min(min(worse[0], worse[1]), min(worse[2], worse[3])) / (base + 1e-9) - 1.0
+
+
+@njit(cache=True, nogil=True)
 def _select(values: np.ndarray, k: int) -> np.float32:
     """The value ``np.partition(values, k)[k]`` would give (the k-th smallest) of
     contiguous, non-negative float32 ``values`` (gradient energies): their bits, read as
