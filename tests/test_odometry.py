@@ -274,6 +274,22 @@ def test_textured_points_carry_opencvs_sobel_gradients_and_the_most_texture() ->
         assert np.median((gx**2 + gy**2)[rows, cols]) > np.quantile(energy, 0.9)
 
 
+def test_a_rows_energy_is_the_pixels_gradients_energy_bit_for_bit() -> None:
+    """``_energy_row`` (a row's loop, SIMD) against ``_gradient`` pixel by pixel: the same
+    float32 operations in the same order, so the same textured points are chosen."""
+    from services.odometry.kernels import _energy_row, _gradient
+
+    level = (255 * procedural_floor("concrete", seed=5, n=64).albedo[:12, :40]).astype(np.float32)
+    level[5, 7] = 3e17  # a huge value and a tiny one keep their rounding too
+    level[6, 20] = 1e-30
+    for r in range(1, 11):
+        out = np.empty(38, np.float32)
+        _energy_row(level[r - 1], level[r], level[r + 1], out)
+        for c in range(1, 39):
+            gx, gy = map(np.float32, _gradient(level, r, c))  # float32 outside too
+            assert out[c - 1] == gx * gx + gy * gy, (r, c)
+
+
 def test_the_texture_threshold_is_the_value_a_partition_puts_at_its_place() -> None:
     """``_select`` (by the values' bits) against ``np.partition``: spread, repeated,
     all-equal and zero values, subnormal and huge ones, every rank of small arrays."""

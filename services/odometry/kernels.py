@@ -177,7 +177,7 @@ def _select(values: np.ndarray, k: int) -> np.float32:
     contiguous, non-negative float32 ``values`` (gradient energies): their bits, read as
     unsigned integers, keep their order, so the k-th is found 11, 11 and 10 bits at a time,
     a counting pass each. A sixth of quickselect's time on a frame's 9 600 samples (0.070
-    → 0.012 ms: quickselect's comparisons branch unpredictably) and of a partition's."""
+    → 0.012 ms: quickselect's comparisons branch unpredictably)."""
     bits = values.view(np.uint32)
     counts = np.empty(2048, np.int64)
     prefix, high = 0, 32  # the bits found so far: those above ``high``
@@ -218,7 +218,7 @@ def _energy_row(up: np.ndarray, mid: np.ndarray, down: np.ndarray, out: np.ndarr
     1 … len(out) of the row ``mid`` between rows ``up`` and ``down``, into ``out``. Rows
     passed as arrays of their own, indexed from 0: the compiler then turns the loop into
     SIMD (16 pixels an instruction with AVX-512), which it does not for the same arithmetic
-    on a 2-D image's rows and columns (one pixel at a time, 3–4× the time)."""
+    on a 2-D image's rows and columns (one pixel at a time, about 3× the time)."""
     two, eighth = np.float32(2), np.float32(0.125)
     for j in range(out.size):
         gx = (up[j + 2] - up[j]) + two * (mid[j + 2] - mid[j])
@@ -241,8 +241,8 @@ def textured_points(
     The most textured are those whose gradient energy gx² + gy² reaches the value every 8th
     candidate puts at the ``count``-th place (a fifth of a full partition's time). The
     energy is taken a candidates' row at a time (``_energy_row``; with a stride, at every
-    pixel of the row and every ``stride``-th kept: on a quarter of the pixels, as SIMD, it
-    costs less than the candidates alone one at a time), then the chosen points' gradients
+    pixel of the row and every ``stride``-th kept: at full size half the pixels, as SIMD,
+    cost less than the quarter that compete one at a time), then the chosen points' gradients
     again: a pass over the rows instead of two whole-image Sobel filters and the dozen
     array operations (each a pass and a copy) it was in NumPy."""
     rows, cols = level.shape
