@@ -424,3 +424,40 @@ def test_limits_and_signs_read_one_way():
         "step          -0.768 mm (P1 below P0; limits |step| ≤ 0.50 mm)"
     )
     assert finding_line("color", 5.2, None, limits).endswith("ΔE (limits ≤ 3.0 ΔE)")
+
+
+def test_pinholes_are_filled_and_one_cell_gaps_are_not() -> None:
+    """A scan grid turned to the height map leaves single empty cells in a moiré, which
+    would cut a panel's flat top into pieces; a gap one cell wide stays empty."""
+    from services.defects.panels import _filled_pinholes
+
+    height = np.zeros((12, 12), np.float32)
+    height[3, 3] = height[8, 5] = np.nan  # pinholes
+    height[:, 9] = np.nan  # a gap one cell wide
+    filled = _filled_pinholes(height)
+    assert filled[3, 3] == 0 and filled[8, 5] == 0
+    assert np.isnan(filled[:, 9]).all()
+    assert np.isnan(height[3, 3])  # the map itself is left as it was
+
+
+def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
+    from services.defects.bench import SweepCase, run_defects_bench, spacing_cases
+
+    assert len(spacing_cases()) == 7 * 3 * 4 * 2  # spacings × edges × grid angles × noise
+    case = SweepCase(
+        "round 0.5 mm, grid 15°",
+        AssemblySpec(panel_mm=(110.0, 80.0), edge_radius_mm=(1.0, 2.0)),
+        spacing_mm=0.5,
+        yaw_deg=15.0,
+    )
+    document = run_defects_bench(
+        tmp_path / "defects.json", seeds=1, sweeps=("spacing",), spacing_sweep=(case,)
+    )
+    row = document["spacing_cases"][0]
+    vista, gauge = row["vista"], row["gauge"]
+    assert row["grid_angle_deg"] == 15.0 and row["spacing_mm"] == 0.5
+    # every section measured from the pooled profiles, the gap's σ honest
+    assert vista["unmeasured_share"] < 0.05
+    assert vista["gap_error_p95_mm"] < 0.1 < gauge["gap_error_p95_mm"]
+    assert vista["sections_within_2sigma"] >= 0.9
+    assert any(key.startswith("spacing over 0.2 up to 0.5 mm") for key in document["verdict"])

@@ -160,13 +160,58 @@ EDGE_CASES = (
         field_mm=(154.0, 40.0),
     ),
 )
+SPACINGS_MM = (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
+GRID_ANGLES_DEG = (0.0, 2.0, 15.0, 45.0)
+SPACING_NOISE_MM = (0.02, 0.05)
+SPACING_TARGETS = ((0.2, 0.98, 0.05), (0.5, 0.95, 0.10), (1.0, 0.90, 0.20))
+"""Issue 54, per band of spacings (up to the first number, mm): the share of sections
+measured, and the gap and step error p95 (mm); and in every band, ≥ 90 % of measured
+sections' and of seams' gaps within 2σ of the truth."""
+COVERAGE_TARGET = 0.9
+SPACING_TIMED_RUNS = 3
+"""The spacing sweep has 168 cells: each assembly is timed over fewer runs."""
+
+
+def spacing_cases(
+    spacings: tuple[float, ...] = SPACINGS_MM,
+    angles: tuple[float, ...] = GRID_ANGLES_DEG,
+    noises: tuple[float, ...] = SPACING_NOISE_MM,
+    edges: tuple[str, ...] = ("square", "chamfer", "round"),
+) -> tuple[SweepCase, ...]:
+    """The spacing sweep: every ``edges`` kind of the edge sweep (round 0.2–5 mm, chamfer
+    0.3–1 mm) at every spacing, with the scan grid at every angle to the seams (the
+    assembly turned about the vertical: the seams along x cross the pixel rows at that
+    angle, those along y at 90° less) and every noise σ."""
+    specs = {
+        "square": AssemblySpec(edge_kinds=("square",), **_EDGES),
+        "chamfer": AssemblySpec(edge_kinds=("chamfer",), **_EDGES),
+        "round": AssemblySpec(edge_radius_mm=(0.2, 5.0), **_EDGES),
+    }
+    return tuple(
+        SweepCase(
+            f"{edge} {spacing:g} mm, grid {angle:g}°, σ {noise:g}",
+            specs[edge],
+            spacing_mm=spacing,
+            noise_mm=noise,
+            yaw_deg=angle,
+        )
+        for spacing in spacings
+        for edge in edges
+        for angle in angles
+        for noise in noises
+    )
+
+
 LIMIT_CASES = ("square, rows along the seams (limit)",)
 """Shown for what they teach, not held to the accuracy targets."""
-SWEEPS = {"assemblies": CASES, "edges": EDGE_CASES}
+SWEEPS = {"assemblies": CASES, "edges": EDGE_CASES, "spacing": spacing_cases()}
 
 
-def _run(case: SweepCase, seed: int, threads: int) -> tuple[Evaluation, Evaluation]:
-    """(vista, gauge) evaluations of one simulated assembly, measured on ``threads``."""
+def _run(
+    case: SweepCase, seed: int, threads: int, timed_runs: int = TIMED_RUNS
+) -> tuple[Evaluation, Evaluation]:
+    """(vista, gauge) evaluations of one simulated assembly, measured on ``threads``, each
+    timed as the median of ``timed_runs``."""
     rng = np.random.default_rng(seed)
     assembly = random_assembly(case.spec, rng)
     width, height = case.field_mm
@@ -189,10 +234,12 @@ def _run(case: SweepCase, seed: int, threads: int) -> tuple[Evaluation, Evaluati
 
     config = MeasureConfig()
     # One scan line: the slab just wide enough to hold a continuous profile of the cloud.
-    gauge_sections = replace(config.sections, slab_mm=2 * case.spacing_mm, edge_model="void")
+    gauge_sections = replace(
+        config.sections, slab_mm=2 * case.spacing_mm, min_profiles=0, edge_model="void"
+    )
     gauge_config = replace(config, sections=gauge_sections, surface=None)
     (result, seconds), (gauge_result, gauge_seconds) = _timed(
-        cloud, (config, gauge_config), threads
+        cloud, (config, gauge_config), threads, timed_runs
     )
     vista = replace(evaluate(result, truth, config.tolerances, seen=seen), seconds=seconds)
     gauge = replace(
@@ -202,13 +249,13 @@ def _run(case: SweepCase, seed: int, threads: int) -> tuple[Evaluation, Evaluati
 
 
 def _timed(
-    cloud: PointCloud, configs: tuple[MeasureConfig, ...], threads: int
+    cloud: PointCloud, configs: tuple[MeasureConfig, ...], threads: int, runs: int
 ) -> list[tuple[MeasureResult, float]]:
-    """Each config's measurement of ``cloud`` and the median of its ``TIMED_RUNS`` times,
-    the configs' runs taken in turn."""
+    """Each config's measurement of ``cloud`` and the median of its ``runs`` times, the
+    configs' runs taken in turn."""
     results: list[MeasureResult | None] = [None] * len(configs)
     timings: list[list[float]] = [[] for _ in configs]
-    for _ in range(TIMED_RUNS):
+    for _ in range(runs):
         for i, config in enumerate(configs):
             results[i] = measure(cloud, config, threads=threads)
             timings[i].append(sum(results[i].seconds.values()))
@@ -222,6 +269,7 @@ def _row(case: SweepCase, vista: Evaluation, gauge: Evaluation, runs: int) -> di
         "runs": runs,
         "spacing_mm": case.spacing_mm,
         "noise_mm": case.noise_mm,
+        "grid_angle_deg": case.yaw_deg,
         "vista": v,
         "gauge": {
             k: g[k]
@@ -230,6 +278,7 @@ def _row(case: SweepCase, vista: Evaluation, gauge: Evaluation, runs: int) -> di
                 "gap_error_p95_mm",
                 "gap_error_max_mm",
                 "negative_gaps",
+                "unmeasured_share",
                 "step_error_p95_mm",
                 "parallelism_error_max_mm",
                 "mismatch_error_max_mm",
@@ -314,6 +363,11 @@ def _fast_enough(rows: list[dict]) -> bool:
     return bool(dense) and all(r["vista"]["seconds_per_m2"] <= SECONDS_PER_M2 for r in dense)
 
 
+def _beside(v: dict, g: dict, key: str) -> str:
+    """vista's figure, the gauge's in brackets."""
+    return f"{_fmt(v[key])} ({_fmt(g[key])})"
+
+
 def _speed(v: dict, g: dict) -> str:
     """A row's s/m², the gauge's in brackets."""
     return f"{_fmt(v['seconds_per_m2'], 1)} ({_fmt(g['seconds_per_m2'], 1)})"
@@ -333,7 +387,11 @@ def _speed_line(name: str, rows: list[dict]) -> str:
 
 
 def _sweep(
-    cases: tuple[SweepCase, ...], seeds: int, seed: int, threads: int
+    cases: tuple[SweepCase, ...],
+    seeds: int,
+    seed: int,
+    threads: int,
+    timed_runs: int = TIMED_RUNS,
 ) -> tuple[list[dict], Evaluation, Evaluation]:
     rows = []
     all_vista, all_gauge = Evaluation(), Evaluation()
@@ -341,7 +399,7 @@ def _sweep(
         vista, gauge = Evaluation(), Evaluation()
         for k in range(seeds):
             say(f"{case.name}: assembly {k + 1} of {seeds}")
-            v, g = _run(case, seed + 1000 * k + index, threads)
+            v, g = _run(case, seed + 1000 * k + index, threads, timed_runs)
             vista.add(v)
             gauge.add(g)
         all_vista.add(vista)
@@ -364,9 +422,11 @@ def run_defects_bench(
     sweeps: tuple[str, ...] = tuple(SWEEPS),
     cases: tuple[SweepCase, ...] = CASES,
     edge_cases: tuple[SweepCase, ...] = EDGE_CASES,
+    spacing_sweep: tuple[SweepCase, ...] = SWEEPS["spacing"],
 ) -> dict:
-    """Run the ``sweeps`` (``assemblies``: ``cases``; ``edges``: ``edge_cases``), print
-    the tables and the verdict, write the JSON document."""
+    """Run the ``sweeps`` (``assemblies``: ``cases``; ``edges``: ``edge_cases``;
+    ``spacing``: ``spacing_sweep``), print the tables and the verdict, write the JSON
+    document."""
     prepare_process()
     threads = available_cores()
     warm_up()  # compiling the numba passes is once per installation, not per m²
@@ -381,6 +441,12 @@ def run_defects_bench(
         edge_rows, _, _ = _sweep(edge_cases, seeds, seed + 100, threads)
         verdict |= _edge_verdict(edge_rows)
         parts["edge_cases"] = edge_rows
+    if "spacing" in sweeps:
+        spacing_rows, _, _ = _sweep(
+            spacing_sweep, seeds, seed + 200, threads, timed_runs=SPACING_TIMED_RUNS
+        )
+        verdict |= _spacing_verdict(spacing_rows)
+        parts["spacing_cases"] = spacing_rows
     document = write_document(out, bench="defects", targets=TARGETS, verdict=verdict, **parts)
     if "assemblies" in sweeps:
         print(
@@ -398,6 +464,11 @@ def run_defects_bench(
     if "edges" in sweeps:
         print(f"\n## Edge sweep ({seeds} assemblies per case; peer in brackets)\n")
         print(_edge_table(parts["edge_cases"]))
+    if "spacing" in sweeps:
+        print(f"\n## Spacing sweep ({seeds} assemblies per cell; peer in brackets)\n")
+        print(_spacing_table(parts["spacing_cases"]))
+        print("\n## Spacing sweep by spacing (all edges, grid angles and noise)\n")
+        print(_spacing_summary(parts["spacing_cases"]))
     print(f"\n## Speed ({threads} threads; median of {TIMED_RUNS} runs per assembly)\n")
     for name, key in (("assemblies", "cases"), ("edge sweep", "edge_cases")):
         if key in parts:
@@ -420,9 +491,8 @@ def _edge_table(rows: list[dict]) -> str:
         models = ", ".join(f"{k} {n}" for k, n in sorted(v["edge_models"].items()))
         lines.append(
             f"| {r['case']} | {v['sections_total']} | {_fmt(v['unmeasured_share'], 3)} "
-            f"| {_fmt(v['gap_error_p95_mm'])} ({_fmt(g['gap_error_p95_mm'])}) "
-            f"| {_fmt(v['gap_error_max_mm'])} ({_fmt(g['gap_error_max_mm'])}) "
-            f"| {_fmt(v['step_error_p95_mm'])} ({_fmt(g['step_error_p95_mm'])}) "
+            f"| {_beside(v, g, 'gap_error_p95_mm')} | {_beside(v, g, 'gap_error_max_mm')} "
+            f"| {_beside(v, g, 'step_error_p95_mm')} "
             f"| {v['negative_gaps']} ({g['negative_gaps']}) | {flagged} | {models} "
             f"| {_speed(v, g)} |"
         )
@@ -456,3 +526,118 @@ def _edge_verdict(rows: list[dict]) -> dict[str, bool]:
             _fast_enough(rows)
         ),
     }
+
+
+def _spacing_table(rows: list[dict]) -> str:
+    """One line per cell of the spacing sweep."""
+    lines = [
+        "| cell | sections measured (gauge) | gap err p95 mm (gauge) | step err p95 mm (gauge) "
+        "| sections within 2σ | seam ends within 2σ | s/m² (gauge) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        v, g = r["vista"], r["gauge"]
+        lines.append(
+            f"| {r['case']} | {_measured(v)} ({_measured(g)}) "
+            f"| {_beside(v, g, 'gap_error_p95_mm')} | {_beside(v, g, 'step_error_p95_mm')} "
+            f"| {_fmt(v['sections_within_2sigma'], 2)} | {_fmt(v['seam_ends_within_2sigma'], 2)} "
+            f"| {_speed(v, g)} |"
+        )
+    return "\n".join(lines)
+
+
+def _measured(summary: dict) -> str:
+    """The share of sections measured (–: none to measure)."""
+    share = summary["unmeasured_share"]
+    return "–" if share is None else f"{1 - share:.3f}"
+
+
+def _spacing_groups(rows: list[dict]) -> dict[float, dict]:
+    """Per spacing, over its cells: sections measured and in all, the cells' worst gap and
+    step error p95, the 2σ coverage of sections and seam ends (weighted by cell), the
+    slowest s/m², the gauge's worst gap error p95 and its slowest s/m²."""
+    groups: dict[float, dict] = {}
+    for r in rows:
+        v, g = r["vista"], r["gauge"]
+        group = groups.setdefault(
+            r["spacing_mm"],
+            {
+                "measured": 0,
+                "total": 0,
+                "gap": [],
+                "step": [],
+                "sections": [],
+                "ends": [],
+                "seconds": [],
+                "gauge_gap": [],
+                "gauge_seconds": [],
+                "cells": 0,
+            },
+        )
+        group["cells"] += 1
+        group["total"] += v["sections_total"]
+        group["measured"] += v["sections"]
+        for key, value in (
+            ("gap", v["gap_error_p95_mm"]),
+            ("step", v["step_error_p95_mm"]),
+            ("sections", v["sections_within_2sigma"]),
+            ("ends", v["seam_ends_within_2sigma"]),
+            ("seconds", v["seconds_per_m2"]),
+            ("gauge_gap", g["gap_error_p95_mm"]),
+            ("gauge_seconds", g["seconds_per_m2"]),
+        ):
+            if value is not None:
+                group[key].append(value)
+    return groups
+
+
+def _band(spacing_mm: float) -> tuple[float, float, float]:
+    """The targets (up to, measured share, error p95) of a spacing's band."""
+    return next(t for t in SPACING_TARGETS if spacing_mm <= t[0] + 1e-9)
+
+
+def _spacing_summary(rows: list[dict]) -> str:
+    lines = [
+        "| spacing mm | cells | sections measured (target) | worst cell's gap / step err p95 mm "
+        "(target) | sections within 2σ | seam ends within 2σ | slowest s/m² (gauge) "
+        "| gauge's worst gap err p95 mm |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for spacing, group in sorted(_spacing_groups(rows).items()):
+        _, share, p95 = _band(spacing)
+        measured = group["measured"] / group["total"] if group["total"] else None
+        lines.append(
+            f"| {spacing:g} | {group['cells']} | {_fmt(measured)} (≥ {share:g}) "
+            f"| {_fmt(max(group['gap'], default=None))} / {_fmt(max(group['step'], default=None))} "
+            f"(≤ {p95:g}) | {_fmt(min(group['sections'], default=None), 2)} (worst cell) "
+            f"| {_fmt(min(group['ends'], default=None), 2)} (worst cell) "
+            f"| {_fmt(max(group['seconds'], default=None), 1)} "
+            f"({_fmt(max(group['gauge_seconds'], default=None), 1)}) "
+            f"| {_fmt(max(group['gauge_gap'], default=None))} |"
+        )
+    return "\n".join(lines)
+
+
+def _spacing_verdict(rows: list[dict]) -> dict[str, bool]:
+    """Issue 54's targets, per band of spacings, over all of the band's sections (measured
+    share) and in every cell (error p95, 2σ coverage)."""
+    verdict = {}
+    groups = _spacing_groups(rows)
+    low = 0.0
+    for up_to, share, p95 in SPACING_TARGETS:
+        band = [g for spacing, g in groups.items() if low < spacing <= up_to + 1e-9]
+        name = f"spacing over {low:g} up to {up_to:g} mm" if low else f"spacing ≤ {up_to:g} mm"
+        low = up_to
+        if not band:
+            continue
+        total = sum(g["total"] for g in band)
+        verdict[f"{name}: ≥ {share:.0%} of sections measured"] = bool(total) and (
+            sum(g["measured"] for g in band) >= share * total
+        )
+        verdict[f"{name}: gap and step error p95 ≤ {p95:g} mm in every cell"] = all(
+            max(g["gap"] + g["step"], default=0.0) <= p95 for g in band
+        )
+        verdict[f"{name}: ≥ {COVERAGE_TARGET:.0%} of gaps within 2σ in every cell"] = all(
+            min(g["sections"] + g["ends"], default=1.0) >= COVERAGE_TARGET for g in band
+        )
+    return verdict

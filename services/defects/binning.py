@@ -89,7 +89,8 @@ def seam_slabs(
     Grid as for ``bin_points``, with its (rows, cols) point ``count`` and ``chunk_uv``
     boxes. Per seam, ``lines`` rows = (u, v of its centre, direction u, v, start, end
     along it) and ``sections`` rows = (position of section 0 along the line, pitch,
-    number of sections, half slab width, reach across the line). Only the runs of points
+    number of sections, half slab width, reach across the line); slabs wider than the pitch
+    overlap, and a point is in each that holds it. Only the runs of points
     whose box touches a tile near a seam (its band: cell centres within reach + one cell
     of the line) are read, on ``workers`` threads."""
     seam_of_cell, band_tiles, capacity = _seam_bands(grid, count, lines, sections)
@@ -402,12 +403,15 @@ def _seam_bands(
                 du_c, dv_c = grid[0] + (i + 0.5) * cell - cu, grid[1] + (j + 0.5) * cell - cv
                 along = du_c * du + dv_c * dv
                 if abs(dv_c * du - du_c * dv) <= wide and start - 1 <= along <= end + 1:
-                    k = min(max(np.rint((along - first) / pitch), 0.0), sections_count - 1)
-                    if abs(along - (first + k * pitch)) > half_slab + cell_along:
+                    # The sections whose slab the cell reaches (several where slabs overlap).
+                    reach = half_slab + cell_along
+                    k0 = max(np.ceil((along - reach - first) / pitch), 0.0)
+                    k1 = min(np.floor((along + reach - first) / pitch), sections_count - 1)
+                    if k1 < k0:
                         continue  # between two slabs
                     seam_of_cell[i, j] = s if seam_of_cell[i, j] == -1 else -2
                     band_tiles[i // TILE, j // TILE] = True
-                    capacity[s] += count[i, j]
+                    capacity[s] += count[i, j] * int(k1 - k0 + 1)
     return seam_of_cell, band_tiles, capacity
 
 
@@ -464,10 +468,18 @@ def _seam_slabs(
                 half_slab, reach = sections[s, 3], sections[s, 4]
                 along = (u - cu) * du + (v - cv) * dv
                 across = (v - cv) * du - (u - cu) * dv
-                k = np.rint((along - first) / pitch)
-                y = along - (first + k * pitch)
-                if 0 <= k < count and abs(y) <= half_slab and abs(across) < reach:
-                    n = offsets[s] + filled[s]
-                    slab[0, n], slab[1, n], slab[2, n], slab[3, n] = k, y, across, w
-                    filled[s] += 1
+                if abs(across) >= reach:
+                    continue
+                # Every section whose slab holds the point: one, or several where the
+                # slabs are wider than the pitch (a coarse cloud's sections, ``sections``).
+                k0 = max(np.ceil((along - half_slab - first) / pitch), 0.0)
+                k1 = min(np.floor((along + half_slab - first) / pitch), count - 1)
+                k = k0
+                while k <= k1:
+                    y = along - (first + k * pitch)
+                    if abs(y) <= half_slab:
+                        n = offsets[s] + filled[s]
+                        slab[0, n], slab[1, n], slab[2, n], slab[3, n] = k, y, across, w
+                        filled[s] += 1
+                    k += 1.0
     return slab, filled

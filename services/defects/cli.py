@@ -236,7 +236,28 @@ def bench_defects(
     sweep: list[str] = typer.Option(
         ["assemblies", "edges"],
         help="Which sweeps: `assemblies` (gap, step, taper, noise, curvature, density; "
-        "detection) and/or `edges` (edge types, tilted views and sensor artefacts).",
+        "detection), `edges` (edge types, tilted views and sensor artefacts) and/or "
+        "`spacing` (every spacing × edge type × scan-grid angle × noise: 168 cells, hours).",
+    ),
+    spacing: list[float] = typer.Option(
+        None,
+        min=0.05,
+        max=1.0,
+        help="The spacing sweep's point spacings (mm; repeat; default 0.05 0.1 0.2 0.3 0.5 "
+        "0.75 1.0).",
+    ),
+    grid_angle: list[float] = typer.Option(
+        None,
+        min=0.0,
+        max=90.0,
+        help="The spacing sweep's scan-grid angles to the seams (degrees; repeat; default 0 "
+        "2 15 45).",
+    ),
+    noise: list[float] = typer.Option(
+        None,
+        min=0.0,
+        max=0.5,
+        help="The spacing sweep's noise σ (mm; repeat; default 0.02 0.05).",
     ),
 ) -> None:
     """Gap, step, parallelism and mismatch accuracy against ground truth over a sweep (gap,
@@ -244,13 +265,27 @@ def bench_defects(
     peer; detection precision/recall per defect type; seconds per m²; and an edge sweep
     (square, chamfered, rounded and mixed edges, tilted views, dropout, burrs, narrow gaps,
     mixed pixels, dark patches, misregistration, shadowed corners) with the share of
-    sections left unmeasured. Prints tables, writes JSON."""
-    from services.defects.bench import SWEEPS, run_defects_bench
+    sections left unmeasured; and a spacing sweep (0.05–1 mm, every edge type, scan grid
+    at 0–45° to the seams, two noise levels) with the share measured, the errors, the
+    σ's coverage and the speed, the gauge beside each. Prints tables, writes JSON."""
+    from services.defects.bench import (
+        GRID_ANGLES_DEG,
+        SPACING_NOISE_MM,
+        SPACINGS_MM,
+        SWEEPS,
+        run_defects_bench,
+        spacing_cases,
+    )
 
     unknown = sorted(set(sweep) - set(SWEEPS))
     if unknown:
         fail(f"--sweep: unknown {unknown}; known: {sorted(SWEEPS)}")
-    run_defects_bench(out, seeds=seeds, seed=seed, sweeps=tuple(sweep))
+    cells = spacing_cases(
+        tuple(spacing or SPACINGS_MM),
+        tuple(grid_angle or GRID_ANGLES_DEG),
+        tuple(noise or SPACING_NOISE_MM),
+    )
+    run_defects_bench(out, seeds=seeds, seed=seed, sweeps=tuple(sweep), spacing_sweep=cells)
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:

@@ -91,6 +91,17 @@ def sampling(u: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, float]:
 
 
 @njit(cache=True, nogil=True)
+def sampling_gaps(
+    starts: np.ndarray, u: np.ndarray, d: np.ndarray, sigma: np.ndarray
+) -> np.ndarray:
+    """(sides,) each side's largest gap of ``sampling`` (NaN where too few points)."""
+    out = np.full(starts.shape[0] - 1, np.nan)
+    for g in range(starts.shape[0] - 1):
+        out[g] = sampling(u[starts[g] : starts[g + 1]], d[starts[g] : starts[g + 1]], sigma[g])[1]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def last_point(values: np.ndarray, start: float, largest_gap: float) -> float:
     """The last of the sorted ``values`` reached from ``start`` without a jump wider than
     three of the sampling's largest gaps (0.05 mm at least): a stray beyond is ignored."""

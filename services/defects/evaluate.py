@@ -48,6 +48,10 @@ class Evaluation:
     step_errors_mm: list[float] = field(default_factory=list)
     parallelism_errors_mm: list[float] = field(default_factory=list)
     mismatch_errors_mm: list[float] = field(default_factory=list)
+    gap_errors_sigma: list[float] = field(default_factory=list)
+    """Per measured section: |measured − true| over the section's 1σ."""
+    seam_end_errors_sigma: list[float] = field(default_factory=list)
+    """Per end of a measured seam: |gap line − true gap| there over the seam's 1σ."""
     sections_total: int = 0
     sections_unmeasured: int = 0
     negative_gaps: int = 0
@@ -76,6 +80,8 @@ class Evaluation:
     def add(self, other: Evaluation) -> None:
         for name in (
             "gap_errors_mm",
+            "gap_errors_sigma",
+            "seam_end_errors_sigma",
             "step_errors_mm",
             "parallelism_errors_mm",
             "mismatch_errors_mm",
@@ -110,6 +116,9 @@ class Evaluation:
         def mean(values: list[float]) -> float | None:
             return float(np.mean(values)) if values else None
 
+        def covered(values: list[float]) -> float | None:
+            return float(np.mean(np.asarray(values) <= 2.0)) if values else None
+
         false_positives = sum(c.false_positive for c in self.surface.values())
         return {
             "sections": len(self.gap_errors_mm),
@@ -128,6 +137,8 @@ class Evaluation:
             "gap_error_mean_mm": mean(self.gap_errors_mm),
             "gap_error_p95_mm": p95(self.gap_errors_mm),
             "gap_error_max_mm": max(np.abs(self.gap_errors_mm), default=None),
+            "sections_within_2sigma": covered(self.gap_errors_sigma),
+            "seam_ends_within_2sigma": covered(self.seam_end_errors_sigma),
             "step_error_mean_mm": mean(self.step_errors_mm),
             "step_error_p95_mm": p95(self.step_errors_mm),
             "parallelism_error_max_mm": max(np.abs(self.parallelism_errors_mm), default=None),
@@ -237,7 +248,19 @@ def evaluate(
             hidden = ~seen(true_seam.id, np.clip(fraction, 0, 1)).all(axis=1)
         e.unmeasurable_true += int(hidden.sum())
         e.unmeasurable_flagged += int((hidden & ~measured).sum())
-        e.gap_errors_mm += (seam.sections_gap_mm[measured] - true_gap[measured]).tolist()
+        errors = seam.sections_gap_mm[measured] - true_gap[measured]
+        e.gap_errors_mm += errors.tolist()
+        e.gap_errors_sigma += (
+            np.abs(errors) / np.maximum(seam.sections_gap_sigma_mm[measured], 1e-9)
+        ).tolist()
+        if seam.gap_at_ends_mm is not None:
+            ends = np.array([seam.start, seam.end])
+            at = np.clip((ends - start) @ segment / (segment @ segment), 0, 1)
+            true_ends = g0 + (g1 - g0) * at
+            e.seam_end_errors_sigma += [
+                abs(m - t) / max(seam.gap_sigma_mm, 1e-9)
+                for m, t in zip(seam.gap_at_ends_mm, true_ends, strict=True)
+            ]
         has_step = np.isfinite(seam.sections_step_mm)
         e.step_errors_mm += (seam.sections_step_mm[has_step] - sign * true_seam.step_mm).tolist()
         if seam.parallelism_mm is not None:

@@ -28,9 +28,11 @@ from services.defects.seams import Junction, SeamLine, find_junctions, find_seam
 from services.defects.sections import (
     EdgeShape,
     SeamProfile,
+    SectionConfig,
     profile_seam,
     reach_mm,
     section_range,
+    slab_width_mm,
 )
 from services.defects.surface import SurfaceFinding, block_lab, find_surface_defects
 from services.lib.pointcloud.ply import PointCloud
@@ -342,6 +344,16 @@ def warm_up() -> None:
     measure(PointCloud(points=points, colors=colors))
 
 
+RESOLVED_SPACINGS = 0.4
+"""A seam's sections sample its edges finely enough once their profiles together leave
+no stretch wider than this many point spacings near a top's end…"""
+MAX_WIDENING = 4.0
+"""…else its slabs are widened by up to this factor, once (``_profile_seams``), and the
+wider slabs' sections kept where their profiles sample the edges at least this much
+more finely:"""
+WIDENING_GAIN = 0.75
+
+
 def _profile_seams(
     points: np.ndarray,
     raster: Raster,
@@ -356,12 +368,82 @@ def _profile_seams(
     profiled by this thread and, once free, by up to ``helpers`` of ``pool``'s threads,
     the seam with the most points first. The pass runs on ``threads`` threads without a
     pool, on this thread alone with one: the pool's threads are then busy with the panels'
-    surfaces, and a pass split across a third thread on two cores ran 2–4 % slower."""
+    surfaces, and a pass split across a third thread on two cores ran 2–4 % slower.
+
+    A seam whose slabs' profiles sample its edges coarsely together (they cross it at
+    nearly one phase: a scan grid turned a degree or two to it) is profiled again from
+    wider slabs, whose profiles drift further in phase (``RESOLVED_SPACINGS``)."""
     if not lines:
         return []
     sections = config.sections
     margin = max(s.half_band_mm for s in lines) + sections.end_margin_mm
-    ranges = [section_range(s, sections, end_margin_mm=margin) for s in lines]
+
+    def ranges_for(slab_mm: float) -> list[tuple[float, int]]:
+        """Sections clear of the seams' ends by the margin and by what a slab thicker
+        than ``slab_mm`` reaches further along (into a crossing seam's gap)."""
+        extra = max(slab_mm - sections.slab_mm, 0.0) / 2
+        return [section_range(s, sections, end_margin_mm=margin + extra) for s in lines]
+
+    base_mm = slab_width_mm(sections, spacing_mm)
+    workers = 1 if pool is not None else threads
+    ranges = ranges_for(base_mm)
+    profiles = _profiled(
+        points,
+        raster,
+        lines,
+        ranges,
+        [base_mm] * len(lines),
+        sections,
+        spacing_mm,
+        workers,
+        pool,
+        helpers,
+    )
+    if sections.min_profiles <= 0:
+        return profiles
+    coarse = [
+        i
+        for i, p in enumerate(profiles)
+        if p is not None and p.sampling_mm > RESOLVED_SPACINGS * spacing_mm
+    ]
+    if not coarse:
+        return profiles
+    widths = [
+        base_mm * min(profiles[i].sampling_mm / (RESOLVED_SPACINGS * spacing_mm), MAX_WIDENING)
+        for i in coarse
+    ]
+    again = _profiled(
+        points,
+        raster,
+        [lines[i] for i in coarse],
+        [ranges_for(width)[i] for i, width in zip(coarse, widths, strict=True)],
+        widths,
+        sections,
+        spacing_mm,
+        workers,
+        pool,
+        helpers,
+    )
+    for i, profile in zip(coarse, again, strict=True):
+        if profile is not None and profile.sampling_mm < WIDENING_GAIN * profiles[i].sampling_mm:
+            profiles[i] = profile
+    return profiles
+
+
+def _profiled(
+    points: np.ndarray,
+    raster: Raster,
+    lines: list[SeamLine],
+    ranges: list[tuple[float, int]],
+    slabs_mm: list[float],
+    sections: SectionConfig,
+    spacing_mm: float,
+    workers: int,
+    pool: Executor | None,
+    helpers: int,
+) -> list[SeamProfile | None]:
+    """``profile_seam`` of each of ``lines`` from its slabs ``slabs_mm`` thick, the slab
+    pass on ``workers`` threads."""
     slabs = binning.seam_slabs(
         points,
         raster.frame.origin,
@@ -372,17 +454,11 @@ def _profile_seams(
         np.array([[*s.centre_uv, *s.direction_uv, s.start_mm, s.end_mm] for s in lines]),
         np.array(
             [
-                [
-                    first,
-                    sections.pitch_mm,
-                    max(count, 0),
-                    sections.slab_mm / 2,
-                    reach_mm(s, sections),
-                ]
-                for s, (first, count) in zip(lines, ranges, strict=True)
+                [first, sections.pitch_mm, max(count, 0), slab_mm / 2, reach_mm(s, sections)]
+                for s, (first, count), slab_mm in zip(lines, ranges, slabs_mm, strict=True)
             ]
         ),
-        1 if pool is not None else threads,
+        workers,
     )
 
     def profile(seam: SeamLine, pieces: list, at: tuple[float, int]) -> SeamProfile | None:

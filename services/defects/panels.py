@@ -42,12 +42,13 @@ def segment_panels(
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
     filled: they belong to the panel. The passes after the labelling run on this thread and
     up to ``helpers`` of ``pool``'s."""
-    flat, core = _flat_core(raster.height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
+    height = _filled_pinholes(raster.height)
+    flat, core = _flat_core(height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
     labels, sizes = label4(core)
     count = len(sizes)
     cell_area = raster.cell_mm**2
     keep = np.flatnonzero(sizes * cell_area >= min_area_mm2) + 1
-    keep = keep[~_below_surface(raster, labels, count, keep, background_drop_mm)]
+    keep = keep[~_below_surface(raster, height, labels, count, keep, background_drop_mm)]
     relabel = np.zeros(count + 1, dtype=np.int32)
     relabel[keep] = np.arange(1, len(keep) + 1)
     labels, corners, cells = _grown(labels, relabel, flat, len(keep), pool, helpers)
@@ -67,6 +68,37 @@ def segment_panels(
         box[hole] = label
         cells[label - 1] += np.count_nonzero(hole)
     return Panels(labels, len(keep), cells * cell_area, boxes)
+
+
+PINHOLE_NEIGHBOURS = 7
+"""An empty cell with at least this many of its 8 neighbours measured is a pinhole."""
+
+
+@njit(cache=True, nogil=True)
+def _filled_pinholes(height: np.ndarray) -> np.ndarray:
+    """``height`` with each pinhole (an empty cell, NaN, with ``PINHOLE_NEIGHBOURS`` or
+    more of its 8 neighbours measured) given its measured neighbours' mean. A scan grid
+    turned to the map's cells leaves such cells empty in a pattern (moiré) once the cell
+    is not much larger than the point spacing; each would stop the flat tops around it
+    (a cell next to an empty one is not flat) and cut a panel into pieces. A gap's empty
+    cells lie in lines, whose cells have at most 6 measured neighbours (where the gap is
+    one cell wide): they stay empty, and the panels apart."""
+    rows, cols = height.shape
+    out = height.copy()
+    for i in range(1, rows - 1):
+        for j in range(1, cols - 1):
+            if np.isfinite(height[i, j]):
+                continue
+            total, seen = 0.0, 0
+            for di in range(-1, 2):
+                for dj in range(-1, 2):
+                    value = height[i + di, j + dj]
+                    if np.isfinite(value):
+                        total += value
+                        seen += 1
+            if seen >= PINHOLE_NEIGHBOURS:
+                out[i, j] = total / seen
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -166,11 +198,17 @@ def _relabel_grow(
 
 
 def _below_surface(
-    raster: Raster, labels: np.ndarray, count: int, candidates: np.ndarray, drop_mm: float
+    raster: Raster,
+    height_mm: np.ndarray,
+    labels: np.ndarray,
+    count: int,
+    candidates: np.ndarray,
+    drop_mm: float,
 ) -> np.ndarray:
     """(len(candidates),) bool: of the ``count`` parts ``labels`` numbers, those among
     ``candidates`` whose mean height lies more than ``drop_mm`` below a quadric fitted
-    (trimmed, area-weighted) to all candidate parts."""
+    (trimmed, area-weighted) to the candidate parts; ``height_mm`` is the map's, its
+    pinholes filled."""
     stride = max(1, int(np.sqrt(labels.size / 20_000)))
     candidate = np.zeros(count + 1, bool)
     candidate[candidates] = True
@@ -179,8 +217,10 @@ def _below_surface(
     uv = raster.centres_uv(rows, cols)
     u, v = uv[:, 0], uv[:, 1]
     design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], 1)
-    height = raster.height[rows, cols].astype(np.float64)
-    inlier = np.ones(len(u), dtype=bool)
+    height = height_mm[rows, cols].astype(np.float64)
+    # Started from the parts not far below the median height: a backing seen around an
+    # assembly turned in its scans can be a large part, and a quadric through it bends.
+    inlier = height >= np.median(height) - drop_mm
     for _ in range(5):
         chosen = design[inlier]
         coef = np.linalg.lstsq(chosen.T @ chosen, chosen.T @ height[inlier], rcond=None)[0]

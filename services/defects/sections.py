@@ -40,7 +40,9 @@ from services.defects.seams import SeamLine
 MIN_POINTS = 8
 SETTINGS = MeasureSettings.model_fields
 TOP_JUMP_MM = 0.3
-"""A panel's top points are followed towards the gap until a jump this wide."""
+TOP_JUMP_SPACINGS = 2.5
+"""A panel's top points are followed towards the gap until a jump this wide, or this many
+point spacings where that is more (``top_jump_mm``)."""
 START_WINDOW_MM = 2.0
 """A top is first fitted to its points within this of its median height…"""
 MEDIAN_STRIDE = 8
@@ -87,6 +89,9 @@ class SectionConfig:
     max_edge_sigma_mm: float = 0.05
     """An edge placed with a larger 1σ uncertainty (the free fallback over an unexplained
     profile) is not measured."""
+    min_profiles: int = 10
+    """A section's slab is at least this many point spacings thick (``slab_width_mm``;
+    0: ``slab_mm`` whatever the spacing, as the single-profile gauge takes it)."""
     max_view_deg: float = SETTINGS["max_view_deg"].default
     """How far off the normal a view may have been: a square corner on the lower panel
     closer to the higher panel's edge than step × tan(this) may be in its shadow."""
@@ -127,6 +132,44 @@ class SeamProfile:
     edges: tuple[EdgeShape, EdgeShape]
     noise_mm: float
     """σ of the points about the panel tops, estimated along this seam."""
+    sampling_mm: float
+    """The median over its sides of the widest stretch between neighbouring points of a
+    top near its end, seen across the seam (``edges.sampling``): how finely the slab's
+    profiles together sample an edge; NaN where no side could tell."""
+
+
+def slab_width_mm(config: SectionConfig, spacing_mm: float) -> float:
+    """How thick a section's slab is: ``slab_mm``, or ``min_profiles`` point spacings
+    where that is more. A coarse scan samples an edge a few times per profile;
+    the profiles of a thicker slab cross it at other phases (the scan grid lies at an
+    angle to the seam, or a line scanner's lines fall anywhere along it), so that together
+    they sample it finely — a super-resolved edge — once each side's edge line is followed
+    along the slab (``profile_seam``). Slabs thicker than the pitch overlap: neighbouring
+    sections then share points, and their gaps their errors."""
+    return max(config.slab_mm, config.min_profiles * spacing_mm)
+
+
+FINEST_SPACING_MM = 0.1
+"""A corner's place is trusted to what its profiles resolve together, and to no less
+than the spacing or this, whichever is less (``resolved_mm``)."""
+
+
+def resolved_mm(sampling_mm: np.ndarray, spacing_mm: float) -> np.ndarray:
+    """(groups,) how finely each side's edge is resolved across: the widest stretch
+    between its profiles' pooled points near the top's end (its ``sampling``), no less
+    than the spacing where that is ``FINEST_SPACING_MM`` or less — two spacings of a fine
+    cloud are what a gap between corners must exceed, as before pooling; a coarse
+    cloud's thick slabs resolve more finely than its spacing — and the spacing where the
+    sampling is unknown."""
+    floor = min(spacing_mm, FINEST_SPACING_MM)
+    return np.where(np.isfinite(sampling_mm), np.maximum(sampling_mm, floor), spacing_mm)
+
+
+def top_jump_mm(spacing_mm: float) -> float:
+    """The widest stretch without points that a top is followed across towards the gap:
+    wider is a hole in the top, or the gap. A coarse cloud's profiles leave stretches of
+    up to a spacing between neighbouring points."""
+    return max(TOP_JUMP_MM, TOP_JUMP_SPACINGS * spacing_mm)
 
 
 def reach_mm(seam: SeamLine, config: SectionConfig) -> float:
@@ -158,6 +201,8 @@ class _Edges:
     past_hole: np.ndarray
     face_seen: np.ndarray
     shapes: tuple[EdgeShape, EdgeShape]
+    sampling: np.ndarray
+    """(groups,) the widest stretch between the top's points near its end (NaN: too few)."""
 
 
 @dataclass(frozen=True)
@@ -193,7 +238,11 @@ def profile_seam(
     if config.edge_model == "void":
         end_x = np.stack([end_a, end_b], 1).ravel()
     else:
-        end_x = _follow_tops(k, x, w, y, rough, rough_sigma, middle, outer)
+        jump = top_jump_mm(spacing_mm)
+        end_x = _follow_tops(k, x, w, y, rough, rough_sigma, middle, outer, jump)
+        if np.max(np.abs(y), initial=0.0) > config.slab_mm / 2:  # a thick slab
+            x = x - _edge_slopes(end_x, config.pitch_mm)[2 * k + (x > middle[k])] * y
+            end_x = _follow_tops(k, x, w, y, rough, rough_sigma, middle, outer, jump)
     group, xm = _mirror(k, x, middle, end_x)
     low, high = -config.edge_band_mm - config.top_band_mm, -config.edge_band_mm
     plane, sigma = _robust_plane(group, xm, w, y, low, high, 0.0, groups)
@@ -201,6 +250,31 @@ def profile_seam(
     noise = float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else np.nan
     fitted = _edges(group, xm, w, y, middle, tops, noise, spacing_mm, config, groups)
     return _sections(seam, config, first, count, spacing_mm, tops, found, noise, fitted)
+
+
+def _edge_slopes(end_x: np.ndarray, pitch_mm: float) -> np.ndarray:
+    """(groups,) how fast each side's top end moves across per mm along the seam: the
+    slope of a line fitted to its sections' top ends (robustly: twice, without the ends
+    beyond 3 robust σ of the first line), the same for every section of the side. The
+    seam line found on the height map runs along the gap's middle to a fraction of a
+    degree, and a tapered gap's edges leave it by their own slopes: in a slab several mm
+    thick, either would smear an edge across its profiles by as much as a coarse
+    spacing's resolution."""
+    sections = len(end_x) // 2
+    along = np.arange(sections) * pitch_mm
+    slopes = np.zeros(2)
+    for side in (0, 1):
+        ends = end_x[side::2]
+        keep = np.isfinite(ends)
+        for _ in range(2):
+            if keep.sum() < 3:
+                break
+            slope, offset = np.polyfit(along[keep], ends[keep], 1)
+            residual = ends - (slope * along + offset)
+            spread = 1.4826 * np.median(np.abs(residual[keep])) + 1e-6
+            slopes[side] = slope
+            keep = np.isfinite(ends) & (np.abs(residual) <= 3 * spread)
+    return np.tile(slopes, sections)
 
 
 @njit(cache=True, nogil=True)
@@ -277,7 +351,8 @@ def _edges(
         zero, no = np.zeros(groups), np.zeros(groups, bool)
         free = np.full(groups, edges.FREE)
         void = (EdgeShape("void"), EdgeShape("void"))
-        return _Edges(zero, zero, zero, free, np.full(groups, np.nan), no, no, void)
+        none = np.full(groups, np.nan)
+        return _Edges(zero, zero, zero, free, none, no, no, void, none)
     gap_end = np.abs(np.repeat(middle, 2) - tops.end_x)
     starts, zu, zd = _edge_zones(
         group, xm, w, y, tops.plane, gap_end, config.max_edge_depth_mm, groups
@@ -336,6 +411,7 @@ def _edges(
         past_hole=_top_beyond(starts, zu, zd, sigma, x),
         face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0) & ~poor,
         shapes=shapes,
+        sampling=edges.sampling_gaps(starts, zu, zd, sigma),
     )
 
 
@@ -511,6 +587,7 @@ def _sections(
         tuple(reasons),
         fitted.shapes,
         noise,
+        float(np.nanmedian(fitted.sampling)) if np.isfinite(fitted.sampling).any() else np.nan,
     )
 
 
@@ -527,7 +604,8 @@ def _unmeasured(
     """Why each section's gap cannot be trusted (None: it can). The first that holds, in
     this order: no gap seen; a side (a before b) without a top fit, without an edge, with
     its top going on past a hole, or whose edge no model explains; the edges crossing; a
-    gap under two point spacings at a corner placed by the points' extent; the lower
+    gap under twice what the profiles resolve (``resolved_mm``) at a corner placed by
+    the points' extent; the lower
     panel's corner possibly in the higher one's shadow. Decided for all sections at once;
     the words are written for the sections left unmeasured only."""
     count = len(gap)
@@ -550,9 +628,10 @@ def _unmeasured(
     ).reshape(count, 2)
     shadow_mm = np.abs(step) * np.tan(np.radians(config.max_view_deg))
     lower = np.where(step > 0, 0, 1)  # the side of the lower panel
+    resolved = resolved_mm(fitted.sampling, spacing_mm).reshape(count, 2).max(axis=1)
     with np.errstate(invalid="ignore"):
         crossing = gap < 0
-        narrow = (gap < 2 * spacing_mm) & extent_based.any(axis=1)
+        narrow = (gap < 2 * resolved) & extent_based.any(axis=1)
         shadowed = (
             (np.abs(step) > 3 * noise)
             & ~fitted.face_seen.reshape(count, 2).any(axis=1)
@@ -573,7 +652,8 @@ def _unmeasured(
             return f"the edges cross (gap {gap[i]:.3f} mm) and no overlap of the panels is seen"
         if reason[i] == NARROW:
             return (
-                f"gap {gap[i]:.3f} mm is under two point spacings ({2 * spacing_mm:.2f} mm) "
+                f"gap {gap[i]:.3f} mm is under twice what the profiles resolve "
+                f"({2 * resolved[i]:.2f} mm) "
                 "at a corner: not resolved"
             )
         if reason[i] == SHADOW:
@@ -763,11 +843,12 @@ def _follow_tops(
     rough_sigma: np.ndarray,
     middle: np.ndarray,
     start: float,
+    jump_mm: float,
 ) -> np.ndarray:
     """Per group (2k + side), the x where its top ends: its points within 3σ of the
     provisional top (``rough``, unmirrored), followed from the one nearest the far band's
     edge (|x| = ``start`` from the seam line; the farthest if the top ends before it)
-    towards the gap, up to a jump wider than ``TOP_JUMP_MM`` or the gap's middle.
+    towards the gap, up to a jump wider than ``jump_mm`` or the gap's middle.
     Distances run outwards from each section's gap middle (the seam line, from the height
     map, can lie off it where one side's edge is not seen), binned every
     ``FOLLOW_BIN_MM`` (the end is exact: the nearest point of the last bin reached)."""
@@ -792,7 +873,7 @@ def _follow_tops(
             nearest[g, int(distance / FOLLOW_BIN_MM)], distance
         )
     ends = np.full(groups, np.nan)
-    jump = int(TOP_JUMP_MM / FOLLOW_BIN_MM)
+    jump = int(jump_mm / FOLLOW_BIN_MM)
     for g in range(groups):
         row = nearest[g]
         top = bins - 1
