@@ -63,7 +63,10 @@ class JobKind:
     name: str
     queue: str
     handler: str
-    """``module:function`` taking a ``JobContext`` and returning a JSON-able dict."""
+    """``module:function`` taking a ``JobContext`` and returning a JSON-able dict (the
+    job's result). A ``warning`` key in it (a sentence) is what the job could not do and a
+    person must know: the job still succeeds, but its message, its API record
+    (``warning``), its run and the dashboard say so instead of a plain "done"."""
     params: type[BaseModel]
     description: str
     inputs: tuple[Inputs, ...] = ()

@@ -9,7 +9,7 @@ document is silent); ``FIELDS`` says where each finding type's limit lives in bo
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Annotated
+from typing import Annotated, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -123,36 +123,98 @@ def severity(value: float, limit: float, *, above: bool) -> str:
     return "minor" if ratio < 0.25 else "major" if ratio < 1.0 else "critical"
 
 
+ToleranceState = Literal["out", "within", "uncertain"]
+TOLERANCE_STATES: tuple[str, ...] = get_args(ToleranceState)
+"""A measured finding against its limit, given its 1σ: ``out`` of tolerance only when it
+lies beyond the limit by 2σ or more, ``within`` only when inside it by 2σ or more,
+``uncertain`` between (``tolerance_state``)."""
+DECISION_SIGMAS = 2.0
+
+
+def tolerance_state(value: float, limit: float, sigma_mm: float | None, *, above: bool) -> str:
+    """``out``, ``within`` or ``uncertain`` (``TOLERANCE_STATES``) of ``value`` against
+    ``limit`` (an upper limit if ``above``, else a lower one), its 1σ ``sigma_mm`` (None:
+    judged by the value alone, as a finding without an uncertainty is)."""
+    beyond = value > limit if above else value < limit
+    if sigma_mm is not None and abs(value - limit) < DECISION_SIGMAS * sigma_mm:
+        return "uncertain"
+    return "out" if beyond else "within"
+
+
+def stored_state(severity: str, measurements: dict | None) -> str:
+    """A stored finding's ``tolerance_state``: as measured with its σ, else by its
+    severity alone (within for info, out otherwise)."""
+    state = (measurements or {}).get("tolerance_state")
+    if state in TOLERANCE_STATES:
+        return state
+    return "within" if severity == "info" else "out"
+
+
+def advice(value: float, limit: float, sigma_mm: float, spacing_mm: float | None) -> str:
+    """What would decide an uncertain finding: its 1σ must shrink to half its distance
+    from the limit; a corner's σ shrinks with the scan's spacing, so the spacing that
+    would give it (where the cloud's spacing is known and that spacing is one a scanner
+    reaches, ≥ 0.02 mm)."""
+    distance = abs(value - limit)
+    needed = distance / DECISION_SIGMAS
+    if spacing_mm is not None and sigma_mm > 0:
+        finer = spacing_mm * needed / sigma_mm
+        if finer >= 0.02:
+            return (
+                f"{distance:.3f} mm from its limit with 1σ {sigma_mm:.3f} mm: re-scan at "
+                f"≤ {max(0.02, 0.01 * int(finer * 100)):.2f} mm spacing (now "
+                f"{spacing_mm:.2f} mm) to decide"
+            )
+    return (
+        f"{distance:.3f} mm from its limit with 1σ {sigma_mm:.3f} mm: too close for a scan to "
+        "decide; judge it by hand (a feeler gauge)"
+    )
+
+
 @dataclass(frozen=True)
 class Judged:
     value: float
     """The value judged (a gap: the widest or the narrowest of its seam)."""
     limit: float
     severity: str
+    state: str = "out"
+    """``tolerance_state`` of the value, given the finding's σ (``within`` or ``out`` by
+    the value alone when it has none)."""
 
 
 def judge(
-    finding_type: str, value: float, limits: Limits, gap_range_mm: list[float] | None = None
+    finding_type: str,
+    value: float,
+    limits: Limits,
+    gap_range_mm: list[float] | None = None,
+    sigma_mm: float | None = None,
 ) -> Judged | None:
     """A stored finding judged against ``limits`` as ``measure`` judges it: a step by its
     size either way, a gap by the range of its seam's gaps (``gap_range_mm``: the narrowest
     and the widest) — the widest against the maximum unless only the narrowest is out —
-    anything else against its upper limit. None for a gap stored without its range: it
-    cannot be judged again without measuring."""
+    anything else against its upper limit; with its 1σ ``sigma_mm``, its
+    ``tolerance_state`` too. None for a gap stored without its range: it cannot be judged
+    again without measuring."""
     if finding_type == "gap":
         if gap_range_mm is None:
             return None
         narrowest, widest = gap_range_mm
-        if widest > limits.gap_max_mm or narrowest >= limits.gap_min_mm:
-            return Judged(
-                widest, limits.gap_max_mm, severity(widest, limits.gap_max_mm, above=True)
-            )
-        return Judged(
-            narrowest, limits.gap_min_mm, severity(narrowest, limits.gap_min_mm, above=False)
+        ends = ((widest, limits.gap_max_mm, True), (narrowest, limits.gap_min_mm, False))
+        states = [tolerance_state(v, limit, sigma_mm, above=a) for v, limit, a in ends]
+        # The end out of tolerance, else the uncertain one, else the widest (ties: widest).
+        end = next(
+            i for state in ("out", "uncertain", "within") for i in (0, 1) if states[i] == state
         )
+        value, limit, above = ends[end]
+        return Judged(value, limit, severity(value, limit, above=above), states[end])
     limit = upper_limit(limits, finding_type)
     size = abs(value) if finding_type == "step" else value
-    return Judged(value, limit, severity(size, limit, above=True))
+    return Judged(
+        value,
+        limit,
+        severity(size, limit, above=True),
+        tolerance_state(size, limit, sigma_mm, above=True),
+    )
 
 
 def limit_text(finding_type: str, limits: Limits) -> str:

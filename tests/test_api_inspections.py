@@ -173,3 +173,44 @@ def test_a_change_of_tolerances_judges_the_measured_findings_again(client, token
     assert {d["id"] for d in synced["defects"]} == {step, gap}
     step_row = next(d for d in synced["defects"] if d["id"] == step)
     assert step_row["tolerance"] == 1.0 and step_row["severity"] == "info"
+
+
+def test_a_finding_within_two_sigma_of_a_new_limit_turns_uncertain(client, tokens, runtime):
+    """A step measured with its 1σ is judged out, within or uncertain: a limit it lies
+    within 2σ of makes it uncertain, with the advice its numbers give, in the API, the
+    sync and the scene's extras; a limit far from it judges it again."""
+    from supervisor.models import Defect
+
+    headers = auth(tokens["inspector"])
+    inspection = client.post("/api/v1/inspections", json=NEW, headers=headers).json()["id"]
+    with runtime.db.write() as session:
+        row = Defect(
+            inspection_id=inspection, type="step", value_mm=-0.8, tolerance_mm=0.5,
+            severity="major", source="job", location_mm=[0.0, 0.0, 0.0], normal=[0.0, 0.0, 1.0],
+            confidence=0.99,
+            measurements={"value": -0.8, "unit": "mm", "tolerance": 0.5, "sigma_mm": 0.05,
+                          "tolerance_state": "out", "spacing_mm": 0.4},
+        )  # fmt: skip
+        session.add(row)
+        session.flush()
+        step = row.id
+
+    def judged(step_max_mm: float) -> dict:
+        patched = client.patch(
+            f"/api/v1/inspections/{inspection}",
+            json={"tolerances": {"step_mm": {"max": step_max_mm}}},
+            headers=headers,
+        )
+        assert patched.status_code == 200, patched.text
+        return client.get(f"/api/v1/defects/{step}", headers=headers).json()
+
+    assert client.get(f"/api/v1/defects/{step}", headers=headers).json()["tolerance_state"] == "out"
+    near = judged(0.75)  # 0.05 mm from the limit: within 2σ (0.1 mm)
+    assert near["tolerance_state"] == "uncertain" and near["severity"] == "minor"
+    assert "re-scan at ≤ 0.20 mm spacing" in near["measurements"]["advice"]
+    synced = client.get("/api/v1/sync", params={"inspection": inspection}, headers=headers)
+    row = next(d for d in synced.json()["defects"] if d["id"] == step)
+    assert row["tolerance_state"] == "uncertain" and row["measurements"]["advice"]
+    within = judged(1.2)
+    assert within["tolerance_state"] == "within" and within["severity"] == "info"
+    assert "advice" not in within["measurements"]

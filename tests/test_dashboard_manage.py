@@ -198,3 +198,67 @@ def test_cancel_and_retry_a_job_from_its_row(start_server, tmp_path, sqlite_url,
     http.close()
     assert errors == [], errors
     runtime.db.dispose()
+
+
+def test_unmeasured_seams_and_uncertain_findings_show_as_such(
+    start_server, tmp_path, sqlite_url, browser
+):
+    """A measurement whose one seam no edge model explains: the inspection's status reads
+    "1 seam unmeasured" (not a plain status), the defects tab says which seam and why, the
+    run's job reads "succeeded · warning", and the scene draws the seam as unmeasured. A
+    finding within 2σ of its limit is listed as uncertain, filtered as such, with its σ
+    and the advice in its details."""
+    from services.lib.pointcloud.ply import write_ply
+    from supervisor.models import Defect
+
+    settings = make_settings(tmp_path, sqlite_url, embedded_workers=1, extra_job_kinds=[])
+    server = start_server(settings)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
+    inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
+    cloud = tmp_path / "rebate.ply"
+    write_ply(cloud, seam_cloud(2.0, 0.0, ("rebate", 1.0), ("square", 0.0), spacing_mm=0.25))
+    run = measure_uploaded(http, inspection, cloud)
+    job = run["jobs"][0]["id"]
+    with runtime.db.write() as session:
+        unsure = Defect(
+            inspection_id=inspection, run_id=run["id"], job_id=job, type="step", value_mm=0.52,
+            tolerance_mm=0.5, severity="minor", source="job", location_mm=[0.0, 50.0, 0.0],
+            normal=[0.0, 0.0, 1.0], confidence=0.65,
+            measurements={"value": 0.52, "unit": "mm", "tolerance": 0.5, "sigma_mm": 0.03,
+                          "tolerance_state": "uncertain", "advice": "re-scan at ≤ 0.08 mm spacing"},
+        )  # fmt: skip
+        session.add(unsure)
+        session.flush()
+        unsure_id = unsure.id
+
+    page = browser.new_page(viewport={"width": 1440, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    _sign_in(page, server.url)
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.wait_for_selector("#inspection-status:has-text('1 seam unmeasured')", timeout=120_000)
+    assert page.locator("#inspection-status.status-warning").count() == 1
+    banner = page.text_content("#run-warning")
+    assert "seam 0 (P0–P1)" in banner and "fits no model" in banner, banner
+    row = f"#defect-list .row[data-id='{unsure_id}']"
+    assert page.text_content(f"{row} .severity-uncertain") == "uncertain"
+    page.select_option("#filter-severity", "uncertain")
+    assert page.locator("#defect-list .row").count() == 1
+    page.select_option("#filter-severity", "out")
+    assert page.locator(row).count() == 0
+    page.select_option("#filter-severity", "")
+    page.click(row)
+    page.wait_for_selector("#detail:not([hidden])")
+    facts = page.text_content("#detail-facts")
+    assert "± 0.030 mm (1σ)" in facts and "re-scan at ≤ 0.08 mm spacing" in facts, facts
+    assert "uncertain" in page.text_content("#detail-title")
+    page.wait_for_selector("#legend:has-text('unmeasured seam')")
+    page.click("[role=tab][data-tab=timeline]")
+    status = f"#timeline .job[data-job='{job}'] .status-warning"
+    page.wait_for_selector(status)
+    assert page.text_content(status) == "succeeded · warning"
+    http.close()
+    assert errors == [], errors
+    runtime.db.dispose()

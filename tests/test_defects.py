@@ -223,6 +223,32 @@ def test_tolerances_decide_what_is_a_defect(flat_example) -> None:
     assert severity(0.2, 0.5, above=False) == "major" and severity(0.4, 0.5, above=True) == "info"
 
 
+def test_a_measurement_within_two_sigma_of_its_limit_is_uncertain(flat_example) -> None:
+    """Each seam measurement carries its 1σ; one within 2σ of its limit is neither a
+    defect nor within tolerance: it is uncertain, listed with the advice its numbers give."""
+    from services.defects.report import result_document
+
+    cloud = read_ply(flat_example / "cloud.ply")
+    steps = [f for f in measure(cloud, MeasureConfig()).findings if f.type == "step"]
+    assert all(
+        f.sigma_mm > 0 and abs(f.measurements["sigma_mm"] - f.sigma_mm) < 1e-4 for f in steps
+    )
+    step = min(steps, key=lambda f: abs(f.value))
+    limit = round(abs(step.value) + 0.5 * step.sigma_mm, 4)  # half a σ above the value
+    config = parse_config({"step_mm": {"max": limit}})
+    result = measure(cloud, config)
+    unsure = [f for f in result.uncertain if f.type == "step"]
+    assert [f.source["seam"] for f in unsure] == [step.source["seam"]]
+    assert unsure[0] not in result.defects and unsure[0].severity == "info"
+    assert "re-scan at ≤" in unsure[0].measurements["advice"]
+    document = result_document(result, config)
+    assert [d["seam"] for d in document["uncertain"] if d["type"] == "step"] == [
+        step.source["seam"]
+    ]
+    assert document["uncertain"][0]["tolerance_state"] == "uncertain"
+    assert all(d["tolerance_state"] == "out" for d in document["defects"])
+
+
 def test_config_errors_name_the_key() -> None:
     with pytest.raises(ConfigError, match=r"config.step_mm.max: Input should be greater than 0"):
         parse_config({"step_mm": {"max": -1}})

@@ -101,6 +101,15 @@ def measure(
             + finding_line(d["type"], d["value"], d.get("panels"), settings.tolerances)
             + f" {d['severity']:<8} confidence {d['confidence']:.2f} at {[round(v, 1) for v in d['location']]}"
         )
+    unsure = document["uncertain"]
+    if unsure:
+        typer.echo(f"{counted(len(unsure), 'finding')} within 2σ of a limit (uncertain):")
+    for d in unsure:
+        typer.echo(
+            "  "
+            + finding_line(d["type"], d["value"], d.get("panels"), settings.tolerances)
+            + f" ± {d['sigma_mm']:.3f} (1σ) UNCERTAIN — {d['measurements']['advice']}"
+        )
     if plot is not None:
         profile_png(result, settings, plot)
         typer.echo(f"wrote {plot}")

@@ -52,6 +52,8 @@ class Evaluation:
     """Per measured section: |measured − true| over the section's 1σ."""
     seam_end_errors_sigma: list[float] = field(default_factory=list)
     """Per end of a measured seam: |gap line − true gap| there over the seam's 1σ."""
+    uncertain_findings: int = 0
+    """Findings within 2σ of their limit (counted as found where the truth is out)."""
     sections_total: int = 0
     sections_unmeasured: int = 0
     negative_gaps: int = 0
@@ -88,6 +90,7 @@ class Evaluation:
         ):
             getattr(self, name).extend(getattr(other, name))
         for name in (
+            "uncertain_findings",
             "sections_total",
             "sections_unmeasured",
             "negative_gaps",
@@ -133,6 +136,7 @@ class Evaluation:
                 else None
             ),
             "unmeasurable_sections": self.unmeasurable_true,
+            "uncertain_findings": self.uncertain_findings,
             "edge_models": dict(self.edge_models),
             "gap_error_mean_mm": mean(self.gap_errors_mm),
             "gap_error_p95_mm": p95(self.gap_errors_mm),
@@ -215,7 +219,11 @@ def evaluate(
     """Compare ``result`` with the truth (``truth.truth_of``); ``seen``
     tells which sections' edges no view saw (their truth cannot be measured)."""
     e = Evaluation(panel_area_m2=result.panel_area_m2, seconds=sum(result.seconds.values()))
+    # A finding out of tolerance, or uncertain (shown for a person to decide), is found;
+    # only one out of tolerance counts as a false alarm.
     flagged = {(f.type, f.source.get("seam", f.source.get("junction"))) for f in result.defects}
+    unsure = {(f.type, f.source.get("seam", f.source.get("junction"))) for f in result.uncertain}
+    e.uncertain_findings = len(unsure)
     matched_seams: dict[int, SeamResult] = {}
     for true_seam in truth.seams:
         e.seams_true += 1
@@ -268,8 +276,8 @@ def evaluate(
         for kind, out in true_out.items():
             found = (kind, seam.id) in flagged
             counts = e.geometric[kind]
-            counts.true_positive += int(out and found)
-            counts.false_negative += int(out and not found)
+            counts.true_positive += int(out and (found or (kind, seam.id) in unsure))
+            counts.false_negative += int(out and not (found or (kind, seam.id) in unsure))
             counts.false_positive += int(found and not out)
     matched_ids = {s.id for s in matched_seams.values()}
     for seam in result.seams:
@@ -294,8 +302,9 @@ def evaluate(
         e.junctions_found += 1
         e.mismatch_errors_mm.append(junction.mismatch_mm - true_junction.mismatch_mm)
         found = ("mismatch", junction.id) in flagged
-        counts.true_positive += int(out and found)
-        counts.false_negative += int(out and not found)
+        shown = found or ("mismatch", junction.id) in unsure
+        counts.true_positive += int(out and shown)
+        counts.false_negative += int(out and not shown)
         counts.false_positive += int(found and not out)
     for junction in result.junctions:
         if junction.id not in used_junctions:

@@ -8,7 +8,7 @@ from contract.errors import JobInputError
 from contract.tolerances import limits_of
 from services.defects.config import measure_config
 from services.defects.kinds import PROFILES, RESULT
-from services.defects.measure import Finding, MeasureError, MeasureResult, measure
+from services.defects.measure import Finding, MeasureError, MeasureResult, SeamResult, measure
 from services.defects.report import finding_document, profile_png, result_document
 from services.lib.pointcloud.ply import PlyError, read_ply
 from services.lib.wording import counted
@@ -37,8 +37,9 @@ def _new_defect(finding: Finding, severity: str | None = None) -> NewDefect:
 
 
 def _in_tolerance_seams(result: MeasureResult) -> list[NewDefect]:
-    """One `info` row per seam none of whose measurements is out of tolerance."""
-    flagged = {f.source["seam"] for f in result.defects if "seam" in f.source}
+    """One `info` row per seam none of whose measurements is out of tolerance or
+    uncertain."""
+    flagged = {f.source["seam"] for f in result.defects + result.uncertain if "seam" in f.source}
     rows = []
     for finding in result.findings:
         seam = finding.source.get("seam")
@@ -72,7 +73,7 @@ def measure_job(ctx: JobContext) -> dict:
     plot = ctx.workdir / PROFILES.file_name()
     profile_png(result, config, plot)
     ctx.add_artifact_file(plot, kind=PROFILES.kind, name=plot.name, media_type="image/png")
-    defects = [_new_defect(f) for f in result.defects]
+    defects = [_new_defect(f) for f in result.defects + result.uncertain]
     if params.keep_in_tolerance:
         defects += _in_tolerance_seams(result)
     for defect in defects:
@@ -80,12 +81,18 @@ def measure_job(ctx: JobContext) -> dict:
     by_type: dict[str, int] = {}
     for finding in result.defects:
         by_type[finding.type] = by_type.get(finding.type, 0) + 1
+    unmeasured = [s for s in result.seams if s.unmeasured is not None]
+    for seam in unmeasured:  # each in the job's log, with why
+        ctx.progress(0.97, f"{_seam_name(seam)} unmeasured: {seam.unmeasured}")
+    warning = _warning(unmeasured, len(result.seams))
     ctx.progress(
         1.0,
-        f"{counted(len(result.defects), 'defect')} out of tolerance in "
-        f"{counted(len(result.seams), 'seam')}",
+        f"{counted(len(result.defects), 'defect')} out of tolerance, "
+        f"{len(result.uncertain)} uncertain, in {counted(len(result.seams), 'seam')}"
+        + (f"; {len(unmeasured)} of them unmeasured" if unmeasured else ""),
     )
     return {
+        **({"warning": warning} if warning else {}),
         "panels": len(result.panels),
         "panel_area_m2": round(result.panel_area_m2, 5),
         "seams": len(result.seams),
@@ -93,6 +100,25 @@ def measure_job(ctx: JobContext) -> dict:
         "unmeasured_sections": sum(int((~s.measured).sum()) for s in result.seams),
         "junctions": len(result.junctions),
         "defects": len(result.defects),
+        "uncertain": len(result.uncertain),
         "defects_by_type": by_type,
         "seconds": round(sum(result.seconds.values()), 3),
     }
+
+
+def _seam_name(seam: SeamResult) -> str:
+    return f"seam {seam.id} (P{seam.panels[0]}–P{seam.panels[1]})"
+
+
+def _warning(unmeasured: list[SeamResult], seams: int) -> str | None:
+    """What a person must know before signing the measurement off: the seams whose gaps it
+    could not judge, and why (None: every seam measured)."""
+    if not unmeasured:
+        return None
+    head = (
+        f"none of the {counted(seams, 'seam')} measured"
+        if len(unmeasured) == seams
+        else f"{len(unmeasured)} of {counted(seams, 'seam')} unmeasured"
+    )
+    reasons = "; ".join(f"{_seam_name(s)}: {s.unmeasured}" for s in unmeasured)
+    return f"{head}: their gaps, parallelism and mismatch are not judged ({reasons})"

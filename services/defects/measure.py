@@ -18,7 +18,7 @@ from math import erf, sqrt
 import numpy as np
 from scipy import ndimage
 
-from contract.tolerances import severity, upper_limit
+from contract.tolerances import advice, judge, severity, tolerance_state, upper_limit
 from contract.vocabulary import Progress
 from services.defects import binning
 from services.defects.config import MeasureConfig
@@ -126,10 +126,19 @@ class Finding:
     confidence: float
     source: dict
     measurements: dict
+    sigma_mm: float | None = None
+    """1σ of the value (a seam's or junction's measurement); None for surface findings."""
+    state: str = ""
+    """``contract.tolerances.tolerance_state`` given ``sigma_mm``: out, within or
+    uncertain ('': by the severity alone)."""
 
     @property
     def out_of_tolerance(self) -> bool:
-        return self.severity != "info"
+        return self.state == "out" if self.state else self.severity != "info"
+
+    @property
+    def uncertain(self) -> bool:
+        return self.state == "uncertain"
 
 
 @dataclass(frozen=True)
@@ -161,6 +170,11 @@ class MeasureResult:
     @property
     def defects(self) -> list[Finding]:
         return [f for f in self.findings if f.out_of_tolerance]
+
+    @property
+    def uncertain(self) -> list[Finding]:
+        """Findings too close to their limit for their σ to tell out from within."""
+        return [f for f in self.findings if f.uncertain]
 
     @property
     def panel_area_m2(self) -> float:
@@ -272,7 +286,7 @@ def measure(
     seams = list(seam_of_line.values())
     junctions = _junction_results(junction_lines, seam_of_line, frame)
     lap("seams_and_surface_s")
-    findings = _seam_findings(seams, junctions, config)
+    findings = _seam_findings(seams, junctions, config, spacing)
     findings += [_surface_finding(f, raster, frame, config, panel_id) for f in surface]
     report(
         1.0,
@@ -573,11 +587,40 @@ def _junction_results(
     return results
 
 
+def _judged(
+    value: float,
+    limit: float,
+    sigma_mm: float,
+    *,
+    above: bool,
+    spacing_mm: float,
+    measurements: dict,
+) -> tuple[str, str, float, dict]:
+    """(severity, tolerance state, confidence, measurements with the 1σ, the state and,
+    for an uncertain finding, the advice) of a seam's or junction's measurement."""
+    sigma_mm = round(sigma_mm, 4)  # as stored, so the advice quotes the same σ
+    state = tolerance_state(value, limit, sigma_mm, above=above)
+    extra = {
+        "sigma_mm": sigma_mm,
+        "tolerance_state": state,
+        "spacing_mm": round(spacing_mm, 4),
+    }
+    if state == "uncertain":
+        extra["advice"] = advice(value, limit, sigma_mm, spacing_mm)
+    return (
+        severity(value, limit, above=above),
+        state,
+        confidence(value, limit, sigma_mm),
+        {**measurements, **extra},
+    )
+
+
 def _gap_findings(
-    seam: SeamResult, config: MeasureConfig, source: dict, profile: dict
+    seam: SeamResult, config: MeasureConfig, source: dict, profile: dict, spacing_mm: float
 ) -> list[Finding]:
     """The gap (worst running median of the measured sections, or the gap line at the
-    seam's ends) and the parallelism of a measured seam."""
+    seam's ends) and the parallelism of a measured seam, each with its 1σ and judged by
+    ``contract.tolerances.judge``'s rule."""
     t = config.tolerances
     measured = seam.measured
     # The gap line at the seam's ends counts too: sections stop short of them.
@@ -585,35 +628,53 @@ def _gap_findings(
     gaps = np.concatenate([medians, seam.gap_at_ends_mm])
     places = np.concatenate([seam.sections_at[measured], [seam.start, seam.end]])
     sigmas = np.concatenate([seam.sections_gap_sigma_mm[measured], [0.0, 0.0]])
-    low, high = gaps < t.gap_min_mm, gaps > t.gap_max_mm
-    if high.any() or not low.any():
-        worst = int(np.argmax(gaps))
-        value, limit, above, outside = float(gaps[worst]), t.gap_max_mm, True, high
-    else:
-        worst = int(np.argmin(gaps))
-        value, limit, above, outside = float(gaps[worst]), t.gap_min_mm, False, low
-    sigma = max(seam.gap_sigma_mm, float(sigmas[worst]))
+    narrowest, widest = int(np.argmin(gaps)), int(np.argmax(gaps))
+    sigma = max(seam.gap_sigma_mm, float(sigmas[narrowest]), float(sigmas[widest]))
+    gap_range = [round(float(gaps[narrowest]), 4), round(float(gaps[widest]), 4)]
+    judged = judge("gap", gaps[widest], t, gap_range, sigma)  # which end, against which limit
+    above = judged.value == gap_range[1] and judged.limit == t.gap_max_mm
+    worst = widest if above else narrowest
+    outside = gaps > t.gap_max_mm if above else gaps < t.gap_min_mm
+    severity_, state, confidence_, measurements = _judged(
+        float(gaps[worst]),
+        judged.limit,
+        sigma,
+        above=above,
+        spacing_mm=spacing_mm,
+        # what it was judged on, and where: a change of tolerances judges it again
+        # (contract.tolerances.judge) and moves it to the end of the range it is judged by
+        measurements={
+            **profile,
+            "gap_range_mm": gap_range,
+            "gap_range_at_mm": [
+                [round(float(v), 4) for v in places[narrowest]],
+                [round(float(v), 4) for v in places[widest]],
+            ],
+        },
+    )
     gap = Finding(
         "gap",
-        value,
+        float(gaps[worst]),
         "mm",
-        limit,
+        judged.limit,
         places[worst],
         seam.normal,
         float(max(outside[:-2].sum(), 1) * config.sections.pitch_mm),
-        severity(value, limit, above=above),
-        confidence(value, limit, sigma),
+        severity_,
+        confidence_,
         source,
-        # what it was judged on, and where: a change of tolerances judges it again
-        # (contract.tolerances.judge) and moves it to the end of the range it is judged by
-        {
-            **profile,
-            "gap_range_mm": [round(float(gaps.min()), 4), round(float(gaps.max()), 4)],
-            "gap_range_at_mm": [
-                [round(float(v), 4) for v in places[int(np.argmin(gaps))]],
-                [round(float(v), 4) for v in places[int(np.argmax(gaps))]],
-            ],
-        },
+        measurements,
+        sigma,
+        state,
+    )
+    parallelism_sigma = float(np.sqrt(2) * seam.gap_sigma_mm)
+    severity_, state, confidence_, measurements = _judged(
+        seam.parallelism_mm,
+        t.parallelism_max_mm,
+        parallelism_sigma,
+        above=True,
+        spacing_mm=spacing_mm,
+        measurements=profile,
     )
     parallelism = Finding(
         "parallelism",
@@ -623,10 +684,12 @@ def _gap_findings(
         (seam.start + seam.end) / 2,
         seam.normal,
         seam.length_mm,
-        severity(seam.parallelism_mm, t.parallelism_max_mm, above=True),
-        confidence(seam.parallelism_mm, t.parallelism_max_mm, np.sqrt(2) * seam.gap_sigma_mm),
+        severity_,
+        confidence_,
         source,
-        profile,
+        measurements,
+        parallelism_sigma,
+        state,
     )
     return [gap, parallelism]
 
@@ -640,7 +703,10 @@ def running_median(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def _seam_findings(
-    seams: list[SeamResult], junctions: list[JunctionResult], config: MeasureConfig
+    seams: list[SeamResult],
+    junctions: list[JunctionResult],
+    config: MeasureConfig,
+    spacing_mm: float,
 ) -> list[Finding]:
     """Gap, step and parallelism of every seam and mismatch of every junction, judged on
     measured sections only: an unmeasured section or seam yields no finding."""
@@ -658,12 +724,20 @@ def _seam_findings(
         }
         on_seam = []
         if seam.unmeasured is None:
-            on_seam += _gap_findings(seam, config, source, profile)
+            on_seam += _gap_findings(seam, config, source, profile, spacing_mm)
         has_step = np.isfinite(seam.sections_step_mm)
         if has_step.sum() >= 3:
             steps = running_median(seam.sections_step_mm[has_step], window)
             worst = int(np.argmax(np.abs(steps)))
             value = float(steps[worst])
+            severity_, state, confidence_, measurements = _judged(
+                abs(value),
+                t.step_max_mm,
+                seam.step_sigma_mm,
+                above=True,
+                spacing_mm=spacing_mm,
+                measurements=profile,
+            )
             on_seam.append(
                 Finding(
                     "step",
@@ -673,16 +747,26 @@ def _seam_findings(
                     seam.sections_at[has_step][worst],
                     seam.normal,
                     float(max((np.abs(steps) > t.step_max_mm).sum(), 1) * pitch),
-                    severity(abs(value), t.step_max_mm, above=True),
-                    confidence(abs(value), t.step_max_mm, seam.step_sigma_mm),
+                    severity_,
+                    confidence_,
                     source,
-                    profile,
+                    measurements,
+                    seam.step_sigma_mm,
+                    state,
                 )
             )
         findings += [_along_seam(f, seam) for f in on_seam]
     normal_of = {s.id: s.normal for s in seams}
     for junction in junctions:
         normal = np.mean([normal_of[i] for i in junction.seams], axis=0)
+        severity_, state, confidence_, measurements = _judged(
+            junction.mismatch_mm,
+            t.mismatch_max_mm,
+            junction.mismatch_sigma_mm,
+            above=True,
+            spacing_mm=spacing_mm,
+            measurements={"gaps_mm": list(junction.gaps_mm)},
+        )
         findings.append(
             Finding(
                 "mismatch",
@@ -692,10 +776,12 @@ def _seam_findings(
                 junction.at,
                 normal / np.linalg.norm(normal),
                 2 * config.max_gap_mm,
-                severity(junction.mismatch_mm, t.mismatch_max_mm, above=True),
-                confidence(junction.mismatch_mm, t.mismatch_max_mm, junction.mismatch_sigma_mm),
+                severity_,
+                confidence_,
                 {"junction": junction.id, "seams": list(junction.seams)},
-                {"gaps_mm": list(junction.gaps_mm)},
+                measurements,
+                junction.mismatch_sigma_mm,
+                state,
             )
         )
     return findings

@@ -36,6 +36,8 @@ def finding_document(f: Finding) -> dict:
         "extent_mm": _number(f.extent_mm, 3),
         "severity": f.severity,
         "confidence": _number(f.confidence, 3),
+        "sigma_mm": _number(f.sigma_mm),
+        "tolerance_state": f.state or ("out" if f.out_of_tolerance else "within"),
         **f.source,
         "measurements": {
             k: (_number(v) if isinstance(v, float) else v) for k, v in f.measurements.items()
@@ -89,6 +91,10 @@ def seam_document(s: SeamResult) -> dict:
         if s.gap_at_ends_mm is None
         else [_number(g) for g in s.gap_at_ends_mm],
         "gap_sigma_mm": _number(s.gap_sigma_mm),
+        "step_sigma_mm": _number(s.step_sigma_mm),
+        "parallelism_sigma_mm": None
+        if s.parallelism_mm is None
+        else _number(np.sqrt(2) * s.gap_sigma_mm),
         "edges": [_edge(e) for e in s.edges],
         "noise_mm": _number(s.noise_mm),
         "normal": _point(s.normal),
@@ -108,7 +114,9 @@ def panel_document(p: PanelResult) -> dict:
 
 
 def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
-    """RESULT.json: panels, seams, junctions, defects (out of tolerance) and every finding."""
+    """RESULT.json: panels, seams, junctions, defects (out of tolerance by 2σ or more),
+    the uncertain findings (within 2σ of their limit), the unmeasured seams with why, and
+    every finding."""
     junctions = [
         {
             "id": j.id,
@@ -116,6 +124,7 @@ def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
             "seams": list(j.seams),
             "gaps_mm": [_number(g) for g in j.gaps_mm],
             "mismatch_mm": _number(j.mismatch_mm),
+            "mismatch_sigma_mm": _number(j.mismatch_sigma_mm),
         }
         for j in result.junctions
     ]
@@ -139,6 +148,12 @@ def result_document(result: MeasureResult, config: MeasureConfig) -> dict:
         "junctions": junctions,
         "defects": [
             d for d, f in zip(findings, result.findings, strict=True) if f.out_of_tolerance
+        ],
+        "uncertain": [d for d, f in zip(findings, result.findings, strict=True) if f.uncertain],
+        "unmeasured_seams": [
+            {"seam": s.id, "panels": list(s.panels), "why": s.unmeasured}
+            for s in result.seams
+            if s.unmeasured is not None
         ],
         "findings": findings,
         "config": config_document(config),

@@ -381,6 +381,7 @@ def _edges(
         fits[poor, edges.FREE] = fallback[poor, edges.FREE]
     models = np.where(poor, edges.FREE, side_model)
     final = fits[index, models]
+    sampling = edges.sampling_gaps(starts, zu, zd, sigma)
     x = final[:, 2]
     depth = np.where(
         models == edges.ROUND,
@@ -403,15 +404,18 @@ def _edges(
     return _Edges(
         x=x,
         depth=depth,
+        # No edge is placed more finely than its profiles sample it near the top's end
+        # (a lattice that crosses a seam at one or two phases: rows along it or at 45°).
         sigma=np.hypot(
-            final[:, 3], np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0)
+            np.fmax(final[:, 3], sampling / np.sqrt(12.0)),
+            np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0),
         ),
         models=models,
         residual=np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma,
         past_hole=_top_beyond(starts, zu, zd, sigma, x),
         face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0) & ~poor,
         shapes=shapes,
-        sampling=edges.sampling_gaps(starts, zu, zd, sigma),
+        sampling=sampling,
     )
 
 

@@ -3,8 +3,9 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, computed_field
 
+from contract.tolerances import ToleranceState, stored_state
 from contract.vocabulary import DefectType, Severity
 from supervisor.models.defects import DefectStatus, Verdict
 from supervisor.requests import MAX_MM, Millimetres, RequestId, RequestModel
@@ -74,3 +75,12 @@ class DefectOut(BaseModel):
     status_reason: str = Field("", description="Why they did.")
     created_at: datetime
     consensus: Consensus | None = None
+
+    @computed_field(
+        description="out (beyond its limit by 2σ or more), within (inside it by 2σ or "
+        "more) or uncertain (within 2σ of it: `measurements.advice` says what would decide "
+        "it); by the severity alone for a finding measured without a σ."
+    )
+    @property
+    def tolerance_state(self) -> ToleranceState:
+        return stored_state(self.severity, self.measurements)

@@ -195,7 +195,10 @@ def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: WorkerContext, result: dic
             status="succeeded",
             progress=1.0,
             result=result,
-            message="done",
+            # a result's warning (what was not done) is its last word, not "done"
+            message=f"done, with a warning: {result['warning']}"
+            if result.get("warning")
+            else "done",
             finished_at=utcnow(),
         )
         if ready is None:

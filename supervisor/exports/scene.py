@@ -32,6 +32,7 @@ from sqlalchemy.orm import Session
 
 from contract.kinds import Presenter
 from contract.scene import LineGroup
+from contract.tolerances import stored_state
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 from supervisor.defects.service import reading
 from supervisor.engine.registry import all_kinds, get_kind, load_kinds
@@ -274,12 +275,15 @@ def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray
 
 
 def _defect_extras(defect: dict, consensus: dict | None) -> dict:
+    measurements = defect["measurements"] or {}
     return {
         "defect_id": defect["id"],
         "type": defect["type"],
         **reading(defect["value_mm"], defect["tolerance_mm"], defect["measurements"]),
         "status": defect["status"],
         "severity": defect["severity"],
+        "tolerance_state": stored_state(defect["severity"], measurements),
+        **{k: measurements[k] for k in ("sigma_mm", "advice") if k in measurements},
         "confidence": defect["confidence"],
         "location_mm": defect["location_mm"],
         "normal": defect["normal"],

@@ -3,7 +3,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, computed_field
 
 from supervisor.models.jobs import JobStatus
 from supervisor.requests import RequestId, RequestModel
@@ -57,6 +57,15 @@ class JobOut(BaseModel):
     finished_at: datetime | None
     heartbeat_at: datetime | None
 
+    @computed_field(
+        description="What a succeeded job could not do and a person must know (e.g. seams "
+        "a measurement left unmeasured, and why): its result's `warning`; null when none."
+    )
+    @property
+    def warning(self) -> str | None:
+        warning = (self.result or {}).get("warning") if self.status == "succeeded" else None
+        return warning if isinstance(warning, str) else None
+
 
 class RunOut(BaseModel):
     id: int
@@ -67,6 +76,12 @@ class RunOut(BaseModel):
     created_by: int | None
     created_at: datetime
     jobs: list[JobOut]
+
+    @computed_field(description="Its jobs' warnings, one a line; null when none.")
+    @property
+    def warning(self) -> str | None:
+        warnings = [f"{job.step}: {job.warning}" for job in self.jobs if job.warning]
+        return "\n".join(warnings) or None
 
 
 class InputsOut(BaseModel):

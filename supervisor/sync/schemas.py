@@ -6,6 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, field_validator
 
+from contract.tolerances import ToleranceState
 from supervisor.defects.schemas import Consensus, DefectType
 from supervisor.judgments.schemas import JudgmentIn, JudgmentOut
 from supervisor.requests import RequestId, RequestModel
@@ -26,6 +27,9 @@ class SyncDefect(BaseModel):
     type: DefectType
     status: str
     severity: str
+    tolerance_state: ToleranceState = Field(
+        description="out, within or uncertain (within 2σ of its limit: see `measurements.advice`)."
+    )
     value: float | None
     unit: str
     tolerance: float | None
@@ -51,6 +55,17 @@ class JobSceneRef(BaseModel):
     url: str = Field(description="Its glTF: `GET` it with the same token.")
 
 
+class JobWarning(BaseModel):
+    job_id: int
+    run_id: int
+    kind: str
+    step: str
+    warning: str = Field(description="What the job could not do, and why.")
+    unmeasured_seams: int | None = Field(
+        None, description="A measurement's seams left unmeasured (null: another kind)."
+    )
+
+
 class SyncOut(BaseModel):
     inspection: dict | None = Field(
         description="The inspection, when this page starts a full sync or it changed."
@@ -65,6 +80,12 @@ class SyncOut(BaseModel):
         default_factory=list,
         description="The inspection's finished jobs with a 3D scene of their own (a "
         "trajectory, depth clouds, a track through a drive), newest first.",
+    )
+    warnings: list[JobWarning] = Field(
+        default_factory=list,
+        description="The inspection's succeeded jobs that could not do all they were asked "
+        "(a measurement's unmeasured seams, and why), newest first: the inspection is not "
+        "done while one is here.",
     )
     next_cursor: str = Field(description="Pass as `since` next time.")
     more: bool = Field(description="More is waiting: call again at once with next_cursor.")

@@ -26,6 +26,7 @@ from sqlalchemy import bindparam, select, text, update
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
+from contract.tolerances import stored_state
 from supervisor.db import Database
 from supervisor.defects.service import READING_KEYS, reading
 from supervisor.engine.registry import all_kinds
@@ -163,6 +164,7 @@ def _defect_doc(row) -> dict:  # noqa: ANN001 - a result row
     return {
         **doc,
         **read,
+        "tolerance_state": stored_state(doc["severity"], measurements),
         "measurements": {k: v for k, v in measurements.items() if k not in READING_KEYS},
         "created_at": doc["created_at"].isoformat(timespec="seconds"),
     }
@@ -206,32 +208,52 @@ def changes_since(
         page = _change_page(session, inspection, cursor, limit, now)
     page["scene_etag"] = scene_etag(session, inspection_id=inspection_id, max_points=scene_points)
     page["job_scenes"] = job_scenes(session, inspection_id)
+    page["warnings"] = job_warnings(session, inspection_id)
     return page
+
+
+def _succeeded_jobs(
+    session: Session, inspection_id: int, *columns, kinds: list[str] | None = None
+) -> list:
+    """The inspection's succeeded jobs (of ``kinds``), newest first: id, run, kind, step
+    and ``columns``."""
+    query = select(Job.id, Job.run_id, Job.kind, Job.step, *columns).where(
+        Job.inspection_id == inspection_id, Job.status == "succeeded"
+    )
+    if kinds is not None:
+        query = query.where(Job.kind.in_(kinds))
+    return session.execute(query.order_by(Job.id.desc())).all()
+
+
+def _job_ref(job) -> dict:  # noqa: ANN001 - a result row
+    return {"job_id": job.id, "run_id": job.run_id, "kind": job.kind, "step": job.step}
+
+
+def job_warnings(session: Session, inspection_id: int) -> list[dict]:
+    """The inspection's succeeded jobs whose results carry a warning (seams a measurement
+    left unmeasured, and why), newest first: what a headset shows before anyone signs."""
+    return [
+        {
+            **_job_ref(j),
+            "warning": warning,
+            "unmeasured_seams": (j.result or {}).get("unmeasured_seams"),
+        }
+        for j in _succeeded_jobs(session, inspection_id, Job.result)
+        if isinstance(warning := (j.result or {}).get("warning"), str)
+    ]
 
 
 def job_scenes(session: Session, inspection_id: int) -> list[dict]:
     """The inspection's finished jobs that have a 3D scene (a trajectory, depth clouds, a
     track), newest first: what a headset lists beside the inspection's scene."""
     with_scene = [k.name for k in all_kinds() if k.scene is not None]
-    jobs = session.execute(
-        select(Job.id, Job.run_id, Job.kind, Job.step, Job.finished_at)
-        .where(
-            Job.inspection_id == inspection_id,
-            Job.status == "succeeded",
-            Job.kind.in_(with_scene),
-        )
-        .order_by(Job.id.desc())
-    ).all()
     return [
         {
-            "job_id": j.id,
-            "run_id": j.run_id,
-            "kind": j.kind,
-            "step": j.step,
+            **_job_ref(j),
             "finished_at": j.finished_at.isoformat() if j.finished_at else None,
             "url": f"/api/v1/jobs/{j.id}/scene.glb",
         }
-        for j in jobs
+        for j in _succeeded_jobs(session, inspection_id, Job.finished_at, kinds=with_scene)
     ]
 
 

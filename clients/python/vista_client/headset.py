@@ -88,6 +88,9 @@ class Headset:
         self.judgments: dict[tuple[int, int], dict] = {}
         self.consensus: dict[int, dict] = {}
         self.scene_etag: str | None = None
+        self.warnings: list[dict] = []
+        """The inspection's succeeded jobs that could not do all they were asked (a
+        measurement's unmeasured seams, and why), as the last sync listed them."""
         self.loaded_scene_etag: str | None = None
         self.outbox: list[dict] = []
         self.refused: list[dict] = []
@@ -132,6 +135,7 @@ class Headset:
             report.defects += len(page["defects"])
             report.judgments += len(page["judgments"])
             self.scene_etag = page["scene_etag"]
+            self.warnings = page.get("warnings", [])
             self.cursor = page["next_cursor"]
             if not page["more"]:
                 break

@@ -18,3 +18,14 @@ export function sizeText(bytes) {
   if (bytes < 1024 ** 2) return `${(bytes / 1024).toFixed(1)} kB`;
   return `${(bytes / 1024 ** 2).toFixed(1)} MB`;
 }
+
+// A job's or run's status as shown: a succeeded one with a warning (seams a measurement
+// left unmeasured) reads "succeeded · warning", never a plain success.
+export function statusNode(item, attributes = {}) {
+  const warned = item.status === "succeeded" && item.warning;
+  return el(
+    "span",
+    { ...attributes, class: warned ? "status-warning" : `status-${item.status}`, title: warned ? item.warning : "" },
+    warned ? "succeeded · warning" : item.status,
+  );
+}

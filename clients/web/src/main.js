@@ -1,7 +1,7 @@
 // vista's dashboard: sign in, inspections, the run timeline with live progress, defects
 // with filters and sort, the 3D scene, judgments and consensus, and the feedback loop.
 import { api, ApiError, followJob, session } from "./api.js";
-import { el } from "./dom.js";
+import { el, statusNode } from "./dom.js";
 import { canEdit, Files, FINISHED, jobButtons, RunForm, setUpNewInspection } from "./manage.js";
 import { showJob } from "./runpage.js";
 import { SceneView } from "./scene.js";
@@ -15,7 +15,8 @@ const TYPE_COLORS = {
 // The scene's lines, each shown in the legend when the scene holds it.
 const SCENE_LINES = [
   ["#59d9ff", "panel outline (P0, P1, …)", (facts) => facts.panels > 0],
-  ["#ffffff", "seam", (facts) => facts.seams > 0],
+  ["#ffffff", "seam", (facts) => facts.seams > (facts.unmeasured || 0)],
+  ["#ff6b00", "unmeasured seam (hover it: why)", (facts) => facts.unmeasured > 0], // present.py UNMEASURED_RGBA
   ["#1de9b6", "selected", (facts) => facts.markers > 0], // scene.js SELECTED: no type's colour
 ];
 const LIVE_POLL_MS = 3000;
@@ -36,6 +37,7 @@ const state = {
   scene: null,
   sceneFacts: { markers: 0, panels: 0, seams: 0 }, // what the scene on show holds
   sceneRuns: [], // the measured runs, newest first: each has a scene of its own
+  warnings: [], // the sync's: succeeded jobs that could not do all they were asked
   scenePick: null, // the run picked (null: the newest measured run)
   sceneEtag: null, // the scene's version in the last sync page: a new one reloads it
   stopJob: null, // ends the live updates of the job page on show
@@ -62,6 +64,13 @@ function valueOf(defect) {
 const known = (x) => x !== null && x !== undefined;
 
 // A gap narrower than its minimum is the one finding judged against a lower limit.
+// out (beyond its limit by 2σ or more), within, or uncertain (within 2σ of it).
+function stateOf(defect) {
+  return defect.tolerance_state || (defect.severity === "info" ? "within" : "out");
+}
+
+const STATE_TEXT = { within: "within tolerance", uncertain: "uncertain" };
+
 function belowMinimum(defect) {
   return defect.type === "gap" && defect.severity !== "info" && known(defect.value) && defect.value < defect.tolerance;
 }
@@ -109,6 +118,8 @@ function signOf(defect) {
 function relationText(defect) {
   const { value, tolerance, unit } = valueOf(defect);
   if (!known(value) || !known(tolerance)) return "";
+  const sigma = defect.measurements?.sigma_mm;
+  if (stateOf(defect) === "uncertain") return `within 2σ of the limit (1σ ${number(sigma)} ${unit}): measure again`;
   if (defect.severity === "info") return "within tolerance";
   if (belowMinimum(defect)) return `${number(tolerance - value)} ${unit} below the minimum`;
   return `${number(Math.abs(value) - tolerance)} ${unit} over the limit`;
@@ -202,6 +213,7 @@ function resetInspection() {
   state.selected = null;
   state.sceneFacts = { markers: 0, panels: 0, seams: 0 };
   state.sceneRuns = [];
+  state.warnings = [];
   state.scenePick = null;
   state.sceneEtag = null;
   $("#detail").hidden = true;
@@ -223,8 +235,22 @@ function fold(page) {
     byUser.set(judgment.user_id, history ? { ...judgment, history } : judgment);
   }
   for (const consensus of page.consensus) state.consensus.set(consensus.defect_id, consensus);
+  state.warnings = page.warnings || [];
   state.cursor = page.next_cursor;
   return page;
+}
+
+// The warnings of the run on show (the newest measured run's, unless one is picked): what
+// its jobs could not do — seams a measurement left unmeasured, and why.
+function shownWarnings() {
+  const run = shownRun();
+  return (state.warnings || []).filter((w) => run === null || w.run_id === run);
+}
+
+function renderWarnings() {
+  const warnings = shownWarnings();
+  $("#run-warning").hidden = warnings.length === 0;
+  $("#run-warning").replaceChildren(...warnings.map((w) => el("p", {}, el("b", {}, `run ${w.run_id}, ${w.step}: `), w.warning)));
 }
 
 async function pull() {
@@ -270,18 +296,24 @@ async function showInspection(id, defectId) {
 
 function renderCrumbs() {
   const { title, status } = state.inspection;
+  // never a plain status while the run on show left seams unmeasured
+  const unmeasured = shownWarnings().reduce((n, w) => n + (w.unmeasured_seams || 0), 0);
+  const warned = shownWarnings().length > 0;
+  const text = unmeasured ? `${status} · ${unmeasured} seam${unmeasured === 1 ? "" : "s"} unmeasured` : warned ? `${status} · warning` : status;
   $("#crumbs").replaceChildren(
     el("a", { href: "#/inspections" }, "inspections"), ` / ${title} `,
-    el("span", { class: "inspection-status", id: "inspection-status" }, status),
+    el("span", { class: `inspection-status${warned ? " status-warning" : ""}`, id: "inspection-status" }, text),
   );
+  renderWarnings();
 }
 
 async function live() {
   try {
     const before = state.cursor;
     const status = state.inspection.status;
+    const warnings = JSON.stringify(state.warnings);
     const page = await pull();
-    if (state.inspection.status !== status) {
+    if (state.inspection.status !== status || JSON.stringify(state.warnings) !== warnings) {
       renderCrumbs();
       loadTimeline();
     }
@@ -338,8 +370,8 @@ function visibleDefects() {
     if (!ofShownRun(d, run)) return false; // another run's scene
     if (type && d.type !== type) return false;
     if (status && d.status !== status) return false;
-    if (severity === "out" && d.severity === "info") return false;
-    if (severity && severity !== "out" && d.severity !== severity) return false;
+    if ((severity === "out" || severity === "uncertain") && stateOf(d) !== severity) return false;
+    if (severity && !["out", "uncertain"].includes(severity) && d.severity !== severity) return false;
     if (wanted === "none" && consensus?.total) return false;
     if (wanted === "review" && !consensus?.needs_review) return false;
     if (["confirmed", "rejected", "reclassified"].includes(wanted) && consensus?.majority !== wanted) return false;
@@ -374,7 +406,9 @@ function rowFor(defect) {
     },
     el("span", { class: "dot", style: `background:${TYPE_COLORS[defect.type]}` }),
     el("span", { class: "what", title }, text),
-    el("span", { class: `severity severity-${defect.severity}` }, defect.severity === "info" ? "within" : defect.severity),
+    stateOf(defect) === "uncertain"
+      ? el("span", { class: "severity severity-uncertain", title: defect.measurements?.advice || "" }, "uncertain")
+      : el("span", { class: `severity severity-${defect.severity}` }, defect.severity === "info" ? "within" : defect.severity),
     el("span", { class: "verdict" }, consensusText(state.consensus.get(defect.id))),
   );
 }
@@ -460,11 +494,13 @@ function renderDetail() {
   if (!defect) return;
   const { value, unit } = valueOf(defect);
   $("#detail").hidden = false;
-  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${defect.severity === "info" ? "within tolerance" : defect.severity}, ${defect.status}`;
+  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${STATE_TEXT[stateOf(defect)] || defect.severity}, ${defect.status}`;
   const relation = relationText(defect);
   const facts = [
     ["value", `${number(value)} ${unit}${signOf(defect)}${relation ? ` — ${relation}` : ""}`], ["limits", limitsOf(defect)],
     ["confidence", number(defect.confidence, 2)], ["extent", `${number(defect.extent_mm, 1)} mm`],
+    ...(known(defect.measurements?.sigma_mm) ? [["uncertainty", `± ${number(defect.measurements.sigma_mm)} ${unit} (1σ)`]] : []),
+    ...(defect.measurements?.advice ? [["advice", defect.measurements.advice]] : []),
     ...placeOf(defect.measurements || {}),
     ["coordinates", `${defect.location_mm.map((c) => number(c, 1)).join(", ")} mm (base frame)`],
     // a finding the tolerances' change could not judge again says so, and offers the run
@@ -614,6 +650,7 @@ async function loadSceneRuns(id) {
     $("#scene-run").value = state.scenePick === null ? "" : String(state.scenePick);
     $("#scene-run-box").hidden = runs.length === 0;
     renderList();
+    if (state.inspection.title !== undefined) renderCrumbs(); // the run on show's warnings
   } catch { /* the picker stays as it was; the next change tries again */ }
 }
 
@@ -621,6 +658,7 @@ function pickSceneRun(run) {
   state.scenePick = run;
   $("#scene-run").value = run === null ? "" : String(run);
   renderList();
+  renderCrumbs();
   loadScene(state.inspection.id, api.scene(state.inspection.id, PREVIEW_POINTS, run ?? undefined));
 }
 
@@ -644,8 +682,8 @@ async function showScene(id, pending, { frame, mark }) {
 
 function jobRow(job) {
   const bar = el("progress", { max: "1", value: String(job.progress) });
-  const status = el("span", { class: `status-${job.status}` }, job.status);
-  const message = el("div", { class: job.error ? "job-error" : "job-message muted" }, job.error || job.message || "");
+  const status = statusNode(job);
+  const message = el("div", { class: job.error ? "job-error" : job.warning ? "job-warning" : "job-message muted" }, job.error || job.message || "");
   const name = el("a", { class: "job-step", title: `job ${job.id}: its page`, href: `#/inspections/${job.inspection_id}/jobs/${job.id}` }, `${job.step} `, el("span", { class: "muted" }, job.kind));
   const refused = (error) => { $("#runs-error").textContent = `job ${job.id}: ${error.message}`; };
   const actions = el("span", { class: "job-actions" }, ...jobButtons(job, state.me, loadTimeline, refused));
@@ -677,7 +715,7 @@ async function loadTimeline() {
     });
     return el(
       "li", {},
-      el("div", { class: "run-head" }, el("b", {}, `run ${run.id} ${run.name || ""}`), el("span", { class: `status-${run.status}` }, run.status), el("span", { class: "muted" }, new Date(run.created_at).toLocaleString())),
+      el("div", { class: "run-head" }, el("b", {}, `run ${run.id} ${run.name || ""}`), statusNode(run), el("span", { class: "muted" }, new Date(run.created_at).toLocaleString())),
       ...rows,
     );
   }));

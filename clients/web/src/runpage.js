@@ -2,7 +2,7 @@
 // results as its kind declares them (GET /jobs/{id}/view: figures, plots, pictures —
 // contract/views.py). Nothing here knows a service: a new kind's panels draw the same way.
 import { api, followJob } from "./api.js";
-import { el, sizeText } from "./dom.js";
+import { el, sizeText, statusNode } from "./dom.js";
 import { JobPlayer } from "./player.js";
 
 const SVG = "http://www.w3.org/2000/svg";
@@ -194,8 +194,8 @@ export async function showJob(root, jobId, { onFinished, points } = {}) {
   const view = await api.jobView(jobId);
   const { job } = view;
   const bar = el("progress", { max: "1", value: String(job.progress) });
-  const status = el("span", { class: `status-${job.status}`, id: "job-status" }, job.status);
-  const message = el("p", { class: job.error ? "job-error" : "muted", id: "job-message" }, job.error || job.message || "");
+  const status = statusNode(job, { id: "job-status" });
+  const message = el("p", { class: job.error ? "job-error" : job.warning ? "job-warning" : "muted", id: "job-message" }, job.error || job.message || "");
   const params = Object.entries(job.params || {});
   const logLine = (line) => el(
     "li", {}, el("span", { class: "muted" }, `${new Date(line.at).toLocaleTimeString()} · ${Math.round(line.progress * 100)} %${line.attempt > 1 ? ` · attempt ${line.attempt}` : ""}  `), line.message,

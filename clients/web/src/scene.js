@@ -125,7 +125,9 @@ export class SceneView {
     this.selectedSeam = null;
     this.flight = null;
     this.root = null;
+    this.unmeasured = []; // seam lines a measurement could not measure: why, on hover
     canvas.addEventListener("click", (event) => this.pick(event));
+    canvas.addEventListener("pointermove", (event) => this.hover(event));
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
     this.renderer.setAnimationLoop((time) => this.frame(time));
@@ -152,6 +154,7 @@ export class SceneView {
     this.scene.add(this.root);
     this.markers.clear();
     this.seams.clear();
+    this.unmeasured = [];
     this.clouds = [];
     let points = 0;
     const labels = [];
@@ -163,6 +166,7 @@ export class SceneView {
         node.material.depthTest = false;
         node.renderOrder = 5;
         this.seams.set(node.userData.seam, { node });
+        if (node.userData.unmeasured) this.unmeasured.push(node);
       }
       const id = node.userData?.defect_id;
       if (id !== undefined && node.isMesh) {
@@ -192,7 +196,29 @@ export class SceneView {
     if (this.selected !== null) this.select(this.selected, false, this.selectedSeam);
     this.pendingMark = mark;
     this.invalidate();
-    return { markers: this.markers.size, points, panels: labels.length, seams: this.seams.size };
+    return { markers: this.markers.size, points, panels: labels.length, seams: this.seams.size, unmeasured: this.unmeasured.length };
+  }
+
+  // Over an unmeasured seam's line (within a few pixels on screen), the canvas's tooltip
+  // says which seam and why it was not measured.
+  hover(event) {
+    const rect = this.canvas.getBoundingClientRect();
+    const x = event.clientX - rect.left;
+    const y = event.clientY - rect.top;
+    let found = null;
+    for (const node of this.unmeasured) {
+      const position = node.geometry.attributes.position;
+      let previous = null;
+      for (let i = 0; i < position.count && !found; i += 1) {
+        const point = new THREE.Vector3().fromBufferAttribute(position, i).applyMatrix4(node.matrixWorld);
+        const here = this.toScreen(point, rect);
+        if (here[0] !== null && previous && segmentDistance(x, y, previous, here) <= PICK_SLACK_PX) found = node;
+        previous = here[0] === null ? null : here;
+      }
+      if (found) break;
+    }
+    const text = found ? unmeasuredText(found.userData) : "";
+    if (this.canvas.title !== text) this.canvas.title = text;
   }
 
   frameAll() {
@@ -314,4 +340,18 @@ export class SceneView {
       this.canvas.dataset.drawn = "true";
     }
   }
+}
+
+// The distance on screen from (x, y) to the segment a–b (pixels).
+function segmentDistance(x, y, [ax, ay], [bx, by]) {
+  const dx = bx - ax;
+  const dy = by - ay;
+  const t = Math.max(0, Math.min(1, ((x - ax) * dx + (y - ay) * dy) / Math.max(dx * dx + dy * dy, 1e-9)));
+  return Math.hypot(x - (ax + t * dx), y - (ay + t * dy));
+}
+
+// What an unmeasured seam's line says on hover.
+export function unmeasuredText({ seam, panels, unmeasured }) {
+  const between = Array.isArray(panels) ? ` (P${panels[0]}–P${panels[1]})` : "";
+  return `seam ${seam}${between} unmeasured: ${unmeasured}`;
 }

@@ -92,6 +92,9 @@ namespace Vista.Client
         public string Status;
         /// <summary>info, minor, major, critical.</summary>
         public string Severity;
+        /// <summary>out (beyond its limit by 2σ or more), within, or uncertain (within 2σ of
+        /// its limit: measure again; <c>Measurements["advice"]</c> says how).</summary>
+        public string ToleranceState;
         /// <summary>The measured value, in <see cref="Unit"/>, if the type has one.</summary>
         public double? Value;
         /// <summary>mm, or delta_e for a colour patch.</summary>
@@ -123,6 +126,8 @@ namespace Vista.Client
                 Type = json.GetRequiredString("type"),
                 Status = json.GetRequiredString("status"),
                 Severity = json.GetString("severity"),
+                ToleranceState = json.GetString("tolerance_state")
+                    ?? (json.GetString("severity") == "info" ? "within" : "out"),
                 Value = json.GetNullableDouble("value"),
                 Unit = json.GetString("unit") ?? "mm",
                 Tolerance = json.GetNullableDouble("tolerance"),
@@ -142,7 +147,8 @@ namespace Vista.Client
             return new Dictionary<string, object>
             {
                 { "id", Id }, { "run_id", RunId }, { "type", Type }, { "status", Status },
-                { "severity", Severity }, { "value", Value }, { "unit", Unit }, { "tolerance", Tolerance },
+                { "severity", Severity }, { "tolerance_state", ToleranceState },
+                { "value", Value }, { "unit", Unit }, { "tolerance", Tolerance },
                 { "location_mm", LocationMm }, { "normal", Normal }, { "extent_mm", ExtentMm },
                 { "confidence", Confidence }, { "source", Source }, { "measurements", Measurements },
                 { "created_at", CreatedAt },
@@ -423,6 +429,35 @@ namespace Vista.Client
         }
     }
 
+    /// <summary>A succeeded job that could not do all it was asked (a measurement's unmeasured
+    /// seams), as a sync page lists it: the inspection is not done while one is listed.</summary>
+    public sealed class JobWarning
+    {
+        /// <summary>The job.</summary>
+        public long JobId;
+        /// <summary>Its run.</summary>
+        public long RunId;
+        /// <summary>Its kind (<c>defects.measure</c>, …).</summary>
+        public string Kind;
+        /// <summary>Its step's name in the run.</summary>
+        public string Step;
+        /// <summary>What it could not do, and why.</summary>
+        public string Warning;
+
+        /// <summary>Reads <c>{job_id, run_id, kind, step, warning}</c>.</summary>
+        public static JobWarning FromJson(IDictionary<string, object> json)
+        {
+            return new JobWarning
+            {
+                JobId = json.GetInt64("job_id"),
+                RunId = json.GetInt64("run_id"),
+                Kind = json.GetRequiredString("kind"),
+                Step = json.GetString("step"),
+                Warning = json.GetRequiredString("warning"),
+            };
+        }
+    }
+
     /// <summary>One page of <c>GET /api/v1/sync</c>: what changed after a cursor.</summary>
     public sealed class SyncPage
     {
@@ -438,6 +473,9 @@ namespace Vista.Client
         public string SceneEtag;
         /// <summary>The inspection's finished jobs with a 3D scene of their own, newest first.</summary>
         public List<JobSceneRef> JobScenes;
+        /// <summary>The inspection's succeeded jobs with a warning (unmeasured seams), newest
+        /// first.</summary>
+        public List<JobWarning> Warnings;
         /// <summary>Pass as <c>since</c> next time.</summary>
         public string NextCursor;
         /// <summary>Another page waits: call again at once with <see cref="NextCursor"/>.</summary>
@@ -455,6 +493,7 @@ namespace Vista.Client
                 Consensus = json.GetObjects("consensus").Select(Vista.Client.Consensus.FromJson).ToList(),
                 SceneEtag = json.GetString("scene_etag"),
                 JobScenes = json.GetObjects("job_scenes").Select(JobSceneRef.FromJson).ToList(),
+                Warnings = json.GetObjects("warnings").Select(JobWarning.FromJson).ToList(),
                 NextCursor = json.GetRequiredString("next_cursor"),
                 More = json.GetBoolean("more", false),
             };

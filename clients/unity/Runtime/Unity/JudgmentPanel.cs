@@ -112,7 +112,8 @@ namespace Vista.Client.Unity
                 details.text = notice ?? "";
                 return;
             }
-            heading.text = $"Defect {defect.Id} · {defect.Type} · {defect.Severity}";
+            string judged = defect.ToleranceState == "uncertain" ? "uncertain (within 2σ)" : defect.Severity;
+            heading.text = $"Defect {defect.Id} · {defect.Type} · {judged}";
             details.text = string.Join("\n", Lines(defect));
         }
 
