@@ -214,6 +214,10 @@ def test_result_and_cli_report_unmeasured_sections(tmp_path) -> None:
     done = CliRunner().invoke(app, ["defects", "measure", str(path), "-o", str(out)])
     assert done.exit_code == 0, done.output
     assert "UNMEASURED — only 0 of" in done.output and "panel 0: centre" in done.output
+    assert "WARNING: 1 of 1 seam unmeasured: their gap, parallelism and mismatch" in done.output
+    assert document["unmeasured_seams"] == [
+        {"seam": 0, "panels": seam["panels"], "why": seam["unmeasured"]}
+    ]
 
 
 def test_measurement_settings_name_their_choices() -> None:

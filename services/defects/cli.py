@@ -93,6 +93,12 @@ def measure(
         typer.echo(
             f"  junction {junction['id']} seams {junction['seams']}: mismatch {junction['mismatch_mm']:.3f} mm"
         )
+    unmeasured = document["unmeasured_seams"]
+    if unmeasured:  # never a plain summary: their gaps were not judged
+        typer.echo(
+            f"WARNING: {len(unmeasured)} of {counted(len(document['seams']), 'seam')} "
+            "unmeasured: their gap, parallelism and mismatch are not judged (why: above)"
+        )
     found = len(document["defects"])
     typer.echo(f"{counted(found, 'defect')} out of tolerance" + (":" if found else "."))
     for d in document["defects"]:

@@ -248,6 +248,8 @@ def measure(
             max_slope_deg=config.max_slope_deg,
             min_area_mm2=config.min_panel_area_mm2,
             background_drop_mm=config.background_drop_mm,
+            # a map coarsened for a sparse cloud: gaps its rows skip bridge the panels
+            bridge_cells=BRIDGE_CELLS if cell > config.cell_mm else 0,
             pool=pool,
             helpers=helpers,
         )
@@ -358,6 +360,9 @@ def warm_up() -> None:
     measure(PointCloud(points=points, colors=colors))
 
 
+BRIDGE_CELLS = 6
+"""On a height map coarsened for a sparse cloud, the panels' flat tops are eroded by this
+many more cells before they are told apart (``segment_panels``)."""
 RESOLVED_SPACINGS = 0.4
 """A seam's sections sample its edges finely enough once their profiles together leave
 no stretch wider than this many point spacings near a top's end…"""

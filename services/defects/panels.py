@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from scipy import ndimage
 
 from services.defects.morphology import border_reach, label4
 from services.defects.raster import Raster
@@ -31,12 +32,16 @@ def segment_panels(
     max_slope_deg: float,
     min_area_mm2: float,
     background_drop_mm: float,
+    bridge_cells: int = 0,
     pool: Executor | None = None,
     helpers: int = 0,
 ) -> Panels:
     """Cells of a panel top are measured and flatter than ``max_slope_deg``; rounded
     edges and gaps are not, so they part the panels. The tops are eroded by one cell
-    before labelling (4-connected) so a seam is never bridged diagonally, then grown back.
+    before labelling (4-connected) so a seam is never bridged diagonally, then grown back;
+    and by ``bridge_cells`` more where a coarse scan leaves a gap unseen over stretches
+    of a few cells (its rows skip a gap narrower than their spacing): the stretches no
+    longer join two panels, which then grow back towards each other.
     Parts smaller than ``min_area_mm2`` are dropped, and so are parts lying more than
     ``background_drop_mm`` below the surface the panels make (the backing structure seen
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
@@ -44,14 +49,21 @@ def segment_panels(
     up to ``helpers`` of ``pool``'s."""
     height = _filled_pinholes(raster.height)
     flat, core = _flat_core(height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
+    if bridge_cells:
+        core = ndimage.binary_erosion(core, iterations=bridge_cells)
     labels, sizes = label4(core)
     count = len(sizes)
     cell_area = raster.cell_mm**2
-    keep = np.flatnonzero(sizes * cell_area >= min_area_mm2) + 1
+    # a square panel of the least area keeps this much of it through the extra erosion
+    side = max(np.sqrt(min_area_mm2) - 2 * bridge_cells * raster.cell_mm, raster.cell_mm)
+    keep = np.flatnonzero(sizes * cell_area >= min(min_area_mm2, side**2)) + 1
     keep = keep[~_below_surface(raster, height, labels, count, keep, background_drop_mm)]
     relabel = np.zeros(count + 1, dtype=np.int32)
     relabel[keep] = np.arange(1, len(keep) + 1)
     labels, corners, cells = _grown(labels, relabel, flat, len(keep), pool, helpers)
+    same = np.arange(len(keep) + 1, dtype=np.int32)
+    for _ in range(bridge_cells):  # back to the flat cells the erosion took
+        labels, corners, cells = _grown(labels, same, flat, len(keep), pool, helpers)
     boxes = [(slice(r0, r1 + 1), slice(c0, c1 + 1)) for r0, c0, r1, c1 in corners]
 
     # Holes: cells of no panel that the rest of the panel's box does not join to the box's

@@ -404,11 +404,8 @@ def _edges(
     return _Edges(
         x=x,
         depth=depth,
-        # No edge is placed more finely than its profiles sample it near the top's end
-        # (a lattice that crosses a seam at one or two phases: rows along it or at 45°).
         sigma=np.hypot(
-            np.fmax(final[:, 3], sampling / np.sqrt(12.0)),
-            np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0),
+            final[:, 3], np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0)
         ),
         models=models,
         residual=np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma,
