@@ -567,7 +567,10 @@ def _check_each_run_shows_its_own_scene(engine: Engine, first: dict, defects: li
     write_ply(plate_path, plane_grid(400, 400, spacing_mm=0.5))
     plate = _upload(engine, plate_path, "cloud", "application/x-ply")
     second = engine.run([{"name": "measure", "kind": "defects.measure", "inputs": [plate]}])
-    assert engine.wait(second["jobs"][0]["id"])["status"] == "succeeded"
+    plate_job = engine.wait(second["jobs"][0]["id"])
+    assert plate_job["status"] == "succeeded"
+    # one panel, no seam: not a plain "done", since nothing of a seam was judged
+    assert plate_job["warning"].startswith("no seam found (1 panel told apart)")
     base = f"/api/v1/inspections/{engine.inspection}"
     runs = engine.http.get(f"{base}/scene-runs").json()
     assert [r["run_id"] for r in runs] == [second["id"], first["id"]]  # not the failed spray
@@ -616,7 +619,9 @@ def test_a_measurement_that_leaves_a_seam_unmeasured_says_so_everywhere(
     job = engine.wait(run["jobs"][0]["id"])
     assert job["status"] == "succeeded", job
     assert job["warning"].startswith("none of the 1 seam measured")
-    assert "seam 0 (P0–P1): only" in job["warning"] and "fits no model" in job["warning"]
+    assert (
+        "not judged — seam 0 (P0–P1): only" in job["warning"] and "fits no model" in job["warning"]
+    )
     assert job["message"].startswith("done, with a warning: none of the 1 seam measured")
     assert job["result"]["unmeasured_seams"] == 1
     runs = engine.http.get(f"/api/v1/inspections/{engine.inspection}/runs").json()["items"]

@@ -84,7 +84,7 @@ def measure_job(ctx: JobContext) -> dict:
     unmeasured = [s for s in result.seams if s.unmeasured is not None]
     for seam in unmeasured:  # each in the job's log, with why
         ctx.progress(0.97, f"{_seam_name(seam)} unmeasured: {seam.unmeasured}")
-    warning = _warning(unmeasured, len(result.seams))
+    warning = _warning(unmeasured, len(result.seams), len(result.panels))
     ctx.progress(
         1.0,
         f"{counted(len(result.defects), 'defect')} out of tolerance, "
@@ -110,9 +110,16 @@ def _seam_name(seam: SeamResult) -> str:
     return f"seam {seam.id} (P{seam.panels[0]}–P{seam.panels[1]})"
 
 
-def _warning(unmeasured: list[SeamResult], seams: int) -> str | None:
-    """What a person must know before signing the measurement off: the seams whose gaps it
-    could not judge, and why (None: every seam measured)."""
+def _warning(unmeasured: list[SeamResult], seams: int, panels: int) -> str | None:
+    """What a person must know before signing the measurement off: that it found no seam
+    at all, or the seams whose gaps it could not judge, and why (None: every seam
+    measured)."""
+    if seams == 0:
+        return (
+            f"no seam found ({counted(panels, 'panel')} told apart): no gap, step, "
+            "parallelism or mismatch is judged — if the part has seams, its panels may have "
+            "merged on a scan too coarse to show the gaps between them"
+        )
     if not unmeasured:
         return None
     head = (
@@ -121,4 +128,4 @@ def _warning(unmeasured: list[SeamResult], seams: int) -> str | None:
         else f"{len(unmeasured)} of {counted(seams, 'seam')} unmeasured"
     )
     reasons = "; ".join(f"{_seam_name(s)}: {s.unmeasured}" for s in unmeasured)
-    return f"{head}: their gaps, parallelism and mismatch are not judged ({reasons})"
+    return f"{head}, so their gap, parallelism and mismatch are not judged — {reasons}"

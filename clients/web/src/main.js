@@ -69,7 +69,8 @@ function stateOf(defect) {
   return defect.tolerance_state || (defect.severity === "info" ? "within" : "out");
 }
 
-const STATE_TEXT = { within: "within tolerance", uncertain: "uncertain" };
+// (the measurement's "uncertain", not a reviewer's verdict of that name)
+const STATE_TEXT = { within: "within tolerance", uncertain: "uncertain measurement" };
 
 function belowMinimum(defect) {
   return defect.type === "gap" && defect.severity !== "info" && known(defect.value) && defect.value < defect.tolerance;
