@@ -46,7 +46,19 @@ ZONE_BACK_MM = 1.5
 within 1.1 mm of it at σ 0.02 mm)."""
 EXTENT_BAND_MM = (1.5, 0.2)
 """The extent rule learns the sampling from the top's points 1.5 to 0.2 mm inside its last
-point."""
+point…"""
+BAND_SPACINGS = 4.0
+"""…or from this many point spacings inside it, where that is further: the band must hold
+several of a coarse grid's columns (a grid along the seam puts every profile's points at
+the same few u)."""
+
+
+@njit(cache=True, nogil=True)
+def band_far_mm(spacing: float) -> float:
+    """How far inside the top's last point the sampling band (and the edge zone) begins."""
+    return max(EXTENT_BAND_MM[0], BAND_SPACINGS * spacing)
+
+
 MIN_RADIUS_MM, MAX_RADIUS_MM = 0.1, 10.0
 MIN_ANGLE, MAX_ANGLE = np.radians(10.0), np.radians(80.0)
 MIN_EDGE_POINTS = (6, 2)
@@ -67,13 +79,13 @@ def _truncated(r: float, sigma: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def sampling(u: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, float]:
+def sampling(u: np.ndarray, d: np.ndarray, sigma: float, spacing: float) -> tuple[float, float]:
     """(mean residual gap, largest gap) of the top's sampling along u, from the sorted u
-    of its points between −1.5 and −0.2 mm. The mean distance from the last sample to an
+    of its points between −``band_far_mm`` and −0.2 mm. The mean distance from the last sample to an
     edge that falls anywhere between samples is Σg² / 2Σg over the gaps g (the renewal
     residual): s/2 for a grid whose lines all share one phase, 1/density for lines at
     random phases — unlike "half the mean spacing" it is right for both."""
-    far, near = EXTENT_BAND_MM
+    far, near = band_far_mm(spacing), EXTENT_BAND_MM[1]
     band = np.empty(u.shape[0])
     n = 0
     for i in range(u.shape[0]):
@@ -92,12 +104,13 @@ def sampling(u: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, float]:
 
 @njit(cache=True, nogil=True)
 def sampling_gaps(
-    starts: np.ndarray, u: np.ndarray, d: np.ndarray, sigma: np.ndarray
+    starts: np.ndarray, u: np.ndarray, d: np.ndarray, sigma: np.ndarray, spacing: float
 ) -> np.ndarray:
     """(sides,) each side's largest gap of ``sampling`` (NaN where too few points)."""
     out = np.full(starts.shape[0] - 1, np.nan)
     for g in range(starts.shape[0] - 1):
-        out[g] = sampling(u[starts[g] : starts[g + 1]], d[starts[g] : starts[g + 1]], sigma[g])[1]
+        lo, hi = starts[g], starts[g + 1]
+        out[g] = sampling(u[lo:hi], d[lo:hi], sigma[g], spacing)[1]
     return out
 
 
@@ -124,7 +137,7 @@ def extent(u: np.ndarray, d: np.ndarray, sigma: float, spacing: float) -> tuple[
     stitch merged the corner's last top point with a side-face point seen in the same
     voxel, their mean lies just below the top (a pixel mixed with the floor lies far
     deeper)."""
-    residual, largest = sampling(u, d, sigma)
+    residual, largest = sampling(u, d, sigma, spacing)
     if not np.isfinite(residual):
         return np.nan, np.nan
     top = np.empty(u.shape[0])
@@ -157,7 +170,7 @@ def _square(
     if not np.isfinite(x):
         return np.nan, np.nan, np.nan, np.nan, False
     reach = max(sigma_x * np.sqrt(12.0), spacing)
-    wall, seen = _side_face(u, d, x, TRUNCATION * sigma, max_depth, reach)
+    wall, seen = _side_face(u, d, x, TRUNCATION * sigma, max_depth, reach, _tall(sigma, spacing))
     if seen:
         x, sigma_x = wall
     cost = 0.0
@@ -351,7 +364,7 @@ def _chamfer(
     )
     # The foot: the chamfer's last point (in u, sampled like the top) plus the residual
     # gap — or the side face below it, where a view sees it.
-    residual, largest = sampling(u, d, sigma)
+    residual, largest = sampling(u, d, sigma, spacing)
     if not np.isfinite(residual):
         return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan, False
     on_face = np.empty(u.shape[0])
@@ -369,7 +382,9 @@ def _chamfer(
     x = last_point(on_face[:n], corner + limit / np.tan(angle), largest) + residual
     sigma_x = largest / np.sqrt(12.0)
     foot = (x - corner) * np.tan(angle)
-    wall, seen = _side_face(u, d, x, foot + limit, max_depth, max(largest, spacing))
+    wall, seen = _side_face(
+        u, d, x, foot + limit, max_depth, max(largest, spacing), _tall(sigma, spacing)
+    )
     if seen:
         x, sigma_x = wall
     cost = 0.0
@@ -402,18 +417,36 @@ def _chamfer_polyline(
 
 
 @njit(cache=True, nogil=True)
+def _tall(sigma: float, spacing: float) -> float:
+    """The least height a side face's points span to count as one: more than the noise
+    spreads points of one depth (2 × 3σ) and than one point spacing."""
+    return max(2.0 * TRUNCATION * sigma, spacing)
+
+
+@njit(cache=True, nogil=True)
 def _side_face(
-    u: np.ndarray, d: np.ndarray, x: float, below: float, max_depth: float, reach: float
+    u: np.ndarray,
+    d: np.ndarray,
+    x: float,
+    below: float,
+    max_depth: float,
+    reach: float,
+    tall: float,
 ) -> tuple[tuple[float, float], bool]:
     """((X, σ_X), seen) from the points of a side face standing near u = ``x`` deeper than
-    ``below``: their median u, when at least five lie within a third of ``reach`` of it."""
+    ``below``: their median u, when at least five lie within a third of ``reach`` of it
+    and they stand at least ``tall`` high. A wall is seen down its height; points at one u
+    and one depth are a sloped face sampled by one column of a grid turned along the
+    seam, not a wall."""
     wall = np.empty(u.shape[0])
+    depth = np.empty(u.shape[0])
     n = 0
     for i in range(u.shape[0]):
         if below < d[i] < max_depth and abs(u[i] - x) < 1.5 * reach:
             wall[n] = u[i]
+            depth[n] = d[i]
             n += 1
-    if n < 5:
+    if n < 5 or depth[:n].max() - depth[:n].min() < tall:
         return (x, np.nan), False
     face = np.sort(wall[:n])
     median = face[n // 2]
