@@ -76,6 +76,10 @@ COARSE = [
     # Rows 2° off the seam: their phases drift by a spacing only over 30 of them, so the
     # corner is placed more coarsely — and its σ says so (still within 2σ).
     (1.0, 2.0, ("square", 0), ("square", 0), 0.30),
+    # Rows exactly along the seam: every profile samples the corner at one phase, which no
+    # pooling refines; the corner is placed within a spacing, σ s/√12 per side (it was
+    # left unmeasured: a 1.5 mm band held one column, the top 'continued past a hole').
+    (1.0, 0.0, ("square", 0), ("square", 0), 0.75),
 ]
 
 
@@ -86,7 +90,7 @@ def test_coarse_clouds_measure_from_many_profiles_with_an_honest_sigma(
     """A coarse cloud's sections pool the profiles of a slab many spacings thick, each
     side's edge followed along it, so their phases sample the edge finely together; each
     gap's 1σ covers its error."""
-    gap, step = 2.0, 0.4
+    gap, step = 2.3, 0.4  # the corners between columns of a grid along the seam
     seam = _one_seam(_measured(gap, step, a, b, spacing_mm=spacing, yaw_deg=yaw))
     assert seam.measured.mean() >= 0.9, seam.sections_unmeasured
     errors = seam.sections_gap_mm[seam.measured] - gap
@@ -95,6 +99,19 @@ def test_coarse_clouds_measure_from_many_profiles_with_an_honest_sigma(
     assert np.mean(np.abs(errors) <= 2 * sigma) >= 0.9
     steps = seam.sections_step_mm[np.isfinite(seam.sections_step_mm)]
     assert np.percentile(np.abs(steps - step), 95) <= bound
+
+
+@pytest.mark.parametrize("edge", [("chamfer", 1.0), ("round", 1.5)])
+def test_a_coarse_grid_along_the_seam_never_claims_what_it_cannot_see(edge) -> None:
+    """A chamfer or an arc sampled at 0.5 mm by rows along the seam: one or two columns
+    of points on it, all at one phase. Its shape is then barely pinned — a column on a
+    chamfer, all at one depth, once passed for a side face seen (σ 0.003 mm on a 0.5 mm
+    error) — so every gap measured lies within 2σ of the truth."""
+    gap = 2.3
+    seam = _one_seam(_measured(gap, 0.4, edge, edge, spacing_mm=0.5, yaw_deg=0.0))
+    errors = seam.sections_gap_mm[seam.measured] - gap
+    sigma = seam.sections_gap_sigma_mm[seam.measured]
+    assert len(errors) and np.mean(np.abs(errors) <= 2 * sigma) >= 0.9, (errors, sigma)
 
 
 def test_gap_modes_follow_the_trade_definitions() -> None:

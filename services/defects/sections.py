@@ -382,6 +382,11 @@ def _edges(
     models = np.where(poor, edges.FREE, side_model)
     final = fits[index, models]
     sampling = edges.sampling_gaps(starts, zu, zd, sigma, spacing_mm)
+    # An arc or chamfer seen at too few places across is placed no finer than its points.
+    unverified = np.isin(models, [edges.ROUND, edges.CHAMFER]) & (
+        edges.shape_columns(starts, zu, zd, sigma, spacing_mm) < edges.SHAPE_COLUMNS
+    )
+    floor = np.where(unverified, np.nan_to_num(sampling, nan=spacing_mm) / np.sqrt(12.0), 0.0)
     x = final[:, 2]
     depth = np.where(
         models == edges.ROUND,
@@ -404,8 +409,11 @@ def _edges(
     return _Edges(
         x=x,
         depth=depth,
-        sigma=np.hypot(
-            final[:, 3], np.where(models == side_model, np.tile(shape_sigma, sections), 0)
+        sigma=np.maximum(
+            np.hypot(
+                final[:, 3], np.where(models == edges.ROUND, np.tile(shape_sigma, sections), 0)
+            ),
+            floor,
         ),
         models=models,
         residual=np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma,
@@ -422,8 +430,8 @@ def _choose_models(
     """Each side's model and shape, from ``SELECTION_SECTIONS`` sections spread along the
     seam: every model fitted freely there; the shape (radius, angle) taken as the median,
     since it belongs to the edge; the models fitted again with it and compared
-    (``_choose``). Returns the two models, the shape per group, and each side's 1σ that
-    its shape (a wrong ρ moves X = u_c + ρ) and the choice of its model add to X."""
+    (``_choose``). Returns the two models, the shape per group, and each side's 1σ of the
+    radius (a wrong ρ moves X = u_c + ρ)."""
     if config.edge_model == "auto":
         candidates = [edges.SQUARE, edges.CHAMFER, edges.ROUND, edges.FREE]
     else:
@@ -444,34 +452,14 @@ def _choose_models(
             trial[:, model] = fit(_wanted(trial_sections, [model]), shapes[model])[0][:, model]
     wanted = np.zeros(4, bool)
     wanted[candidates] = True
-    chosen, weights = _choose(trial[trial_sections], np.maximum(points, 1)[trial_sections], wanted)
-    sigma = [0.0, 0.0]
+    chosen = _choose(trial[trial_sections], np.maximum(points, 1)[trial_sections], wanted)
+    radius_sigma = [0.0, 0.0]
     for s in (0, 1):
         if chosen[s] == edges.ROUND:
             radii = free[s::2, edges.ROUND, 1][trial_sections[s::2]]
-            sigma[s] = _median_sigma(radii[np.isfinite(radii)])
-        side = trial[s::2][trial_sections[s::2]]
-        sigma[s] = float(np.hypot(sigma[s], _model_sigma(side, chosen[s], weights[s])))
+            radius_sigma[s] = _median_sigma(radii[np.isfinite(radii)])
     shape = np.where(np.arange(groups) % 2 == 0, shapes[chosen[0]], shapes[chosen[1]])
-    return (chosen[0], chosen[1]), shape, sigma
-
-
-def _model_sigma(side: np.ndarray, chosen: int, weights: np.ndarray) -> float:
-    """1σ that the choice of model adds to X: where the information criterion barely tells
-    two models apart (a coarse grid samples a chamfer and an arc alike), each other
-    model's X over the trial sections, weighted by the model's likelihood, as in Bayesian
-    model averaging."""
-    if chosen == edges.FREE:
-        return 0.0
-    variance = 0.0
-    for model in (edges.SQUARE, edges.CHAMFER, edges.ROUND):
-        if model == chosen or weights[model] < 1e-4:
-            continue
-        shift = side[:, model, 2] - side[:, chosen, 2]
-        shift = shift[np.isfinite(shift)]
-        if len(shift):
-            variance += weights[model] * float(np.median(shift**2))
-    return float(np.sqrt(variance))
+    return (chosen[0], chosen[1]), shape, radius_sigma
 
 
 def _wanted(sides: np.ndarray, models: list[int]) -> np.ndarray:
@@ -490,16 +478,13 @@ def _median_sigma(values: np.ndarray) -> float:
     return float(1.25 * mad / np.sqrt(len(values)))
 
 
-def _choose(
-    fits: np.ndarray, n: np.ndarray, wanted: np.ndarray
-) -> tuple[list[int], list[np.ndarray]]:
+def _choose(fits: np.ndarray, n: np.ndarray, wanted: np.ndarray) -> list[int]:
     """Each side's model: the least information criterion over its (trial) sections — the
     truncated costs summed, plus ln n̄ for each parameter: per section (square: X; round:
     u_c; chamfer: u_c and its foot) and once per edge (the shared radius or angle). Where a
     chamfer or an arc could not be fitted (no points below the top) it costs what the
-    square corner costs: it would fit no better. Also each side's (4,) model weights,
-    exp(−Δ/2) of each criterion over the least, normalised."""
-    chosen, weights = [], []
+    square corner costs: it would fit no better."""
+    chosen = []
     for s in (0, 1):
         side = fits[s::2]
         log_n = float(np.log(np.mean(n[s::2]))) if len(n[s::2]) else 0.0
@@ -518,12 +503,7 @@ def _choose(
             )
             totals.append(float(np.nansum(cost[usable])) + parameters * log_n)
         chosen.append(int(np.argmin(totals)) if np.isfinite(min(totals)) else edges.FREE)
-        weight = np.zeros(4)
-        if np.isfinite(min(totals)):
-            weight[:3] = np.exp(-(np.array(totals) - min(totals)) / 2)
-            weight /= weight.sum()
-        weights.append(weight)
-    return chosen, weights
+    return chosen
 
 
 @njit(cache=True, nogil=True)
