@@ -645,7 +645,7 @@ def _unmeasured(
             (np.abs(step) > 3 * noise)
             & ~fitted.face_seen.reshape(count, 2).any(axis=1)
             & extent_based[np.arange(count), lower]
-            & (gap < shadow_mm + spacing_mm)
+            & (gap < shadow_mm + resolved)  # within what the corners are placed to
         )
     reason = np.select(
         [~found, side > 0, crossing, narrow, shadowed],
