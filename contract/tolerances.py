@@ -150,20 +150,34 @@ def stored_state(severity: str, measurements: dict | None) -> str:
     return "within" if severity == "info" else "out"
 
 
-def advice(value: float, limit: float, sigma_mm: float, spacing_mm: float | None) -> str:
+def advice(
+    value: float,
+    limit: float,
+    sigma_mm: float,
+    spacing_mm: float | None,
+    one_phase: bool = False,
+) -> str:
     """What would decide an uncertain finding: its 1σ must shrink to half its distance
     from the limit; a corner's σ shrinks with the scan's spacing, so the spacing that
     would give it (where the cloud's spacing is known and that spacing is one a scanner
-    reaches, ≥ 0.02 mm)."""
+    reaches, ≥ 0.02 mm) — or, where every profile sampled the seam's edges at one place
+    (``one_phase``: scan lines exactly along or across the seam), scan lines turned a few
+    degrees to it, whose profiles together sample an edge finely."""
     distance = abs(value - limit)
     needed = distance / DECISION_SIGMAS
+    turn = (
+        "; or with the scan lines turned 5–15° to the seam (its profiles all sampled the "
+        "edges at one place)"
+        if one_phase
+        else ""
+    )
     if spacing_mm is not None and sigma_mm > 0:
         finer = spacing_mm * needed / sigma_mm
         if finer >= 0.02:
             return (
                 f"{distance:.3f} mm from its limit with 1σ {sigma_mm:.3f} mm: re-scan at "
                 f"≤ {max(0.02, 0.01 * int(finer * 100)):.2f} mm spacing (now "
-                f"{spacing_mm:.2f} mm) to decide"
+                f"{spacing_mm:.2f} mm){turn} to decide"
             )
     return (
         f"{distance:.3f} mm from its limit with 1σ {sigma_mm:.3f} mm: too close for a scan to "

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from contract.tolerances import advice
 from services.defects.config import ConfigError, MeasureConfig, parse_config
 from services.defects.edges import MODELS
 from services.defects.measure import MeasureResult, SeamResult, measure
@@ -112,6 +113,21 @@ def test_a_coarse_grid_along_the_seam_never_claims_what_it_cannot_see(edge) -> N
     errors = seam.sections_gap_mm[seam.measured] - gap
     sigma = seam.sections_gap_sigma_mm[seam.measured]
     assert len(errors) and np.mean(np.abs(errors) <= 2 * sigma) >= 0.9, (errors, sigma)
+
+
+def test_rows_along_the_seam_advise_turning_the_scan() -> None:
+    """Profiles that all sample the edges at one place leave stretches of a spacing near
+    the tops' ends however many are pooled: the gap's advice, when it is uncertain, says
+    to turn the scan lines to the seam as well as to scan finer."""
+    along = _measured(2.3, 0.4, ("square", 0), ("square", 0), spacing_mm=1.0, yaw_deg=0.0)
+    assert _one_seam(along).edge_sampling_mm >= 0.9 * along.spacing_mm
+    assert next(f for f in along.findings if f.type == "gap").measurements["one_phase"]
+    turned = _measured(2.3, 0.4, ("square", 0), ("square", 0), spacing_mm=1.0, yaw_deg=15.0)
+    assert _one_seam(turned).edge_sampling_mm < 0.5 * turned.spacing_mm
+    assert "one_phase" not in next(f for f in turned.findings if f.type == "gap").measurements
+    words = advice(2.3, 2.0, 0.4, 1.0, one_phase=True)
+    assert "re-scan at ≤ 0.37 mm spacing" in words and "turned 5–15° to the seam" in words
+    assert "turned" not in advice(2.3, 2.0, 0.4, 1.0)
 
 
 def test_gap_modes_follow_the_trade_definitions() -> None:

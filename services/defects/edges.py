@@ -81,10 +81,10 @@ def _truncated(r: float, sigma: float) -> float:
 @njit(cache=True, nogil=True)
 def sampling(u: np.ndarray, d: np.ndarray, sigma: float, spacing: float) -> tuple[float, float]:
     """(mean residual gap, largest gap) of the top's sampling along u, from the sorted u
-    of its points between −``band_far_mm`` and −0.2 mm. The mean distance from the last sample to an
-    edge that falls anywhere between samples is Σg² / 2Σg over the gaps g (the renewal
-    residual): s/2 for a grid whose lines all share one phase, 1/density for lines at
-    random phases — unlike "half the mean spacing" it is right for both."""
+    of its points between −``band_far_mm`` and −0.2 mm. The mean distance from the last
+    sample to an edge that falls anywhere between samples is Σg² / 2Σg over the gaps g
+    (the renewal residual): s/2 for a grid whose lines all share one phase, 1/density for
+    lines at random phases — unlike "half the mean spacing" it is right for both."""
     far, near = band_far_mm(spacing), EXTENT_BAND_MM[1]
     band = np.empty(u.shape[0])
     n = 0

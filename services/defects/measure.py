@@ -91,6 +91,9 @@ class SeamResult:
     sections_unmeasured: tuple[str | None, ...]
     unmeasured: str | None
     """Why the seam as a whole yields no gap or parallelism (too few measured sections)."""
+    edge_sampling_mm: float = np.nan
+    """The widest stretch its sections' pooled profiles leave near the tops' ends (median):
+    about a spacing where every profile samples the edges at one place."""
 
     @property
     def measured(self) -> np.ndarray:
@@ -543,6 +546,7 @@ def _seam_result(
         sections_residual_mm=profile.residual_mm,
         sections_unmeasured=profile.unmeasured,
         unmeasured=unmeasured,
+        edge_sampling_mm=profile.sampling_mm,
     )
 
 
@@ -600,24 +604,32 @@ def _judged(
     above: bool,
     spacing_mm: float,
     measurements: dict,
+    one_phase: bool = False,
 ) -> tuple[str, str, float, dict]:
     """(severity, tolerance state, confidence, measurements with the 1σ, the state and,
-    for an uncertain finding, the advice) of a seam's or junction's measurement."""
+    for an uncertain finding, the advice) of a seam's or junction's measurement;
+    ``one_phase``: its edges were sampled at one place by every profile (kept, for the
+    advice when the tolerances change)."""
     sigma_mm = round(sigma_mm, 4)  # as stored, so the advice quotes the same σ
     state = tolerance_state(value, limit, sigma_mm, above=above)
     extra = {
         "sigma_mm": sigma_mm,
         "tolerance_state": state,
         "spacing_mm": round(spacing_mm, 4),
-    }
+    } | ({"one_phase": True} if one_phase else {})
     if state == "uncertain":
-        extra["advice"] = advice(value, limit, sigma_mm, spacing_mm)
+        extra["advice"] = advice(value, limit, sigma_mm, spacing_mm, one_phase)
     return (
         severity(value, limit, above=above),
         state,
         confidence(value, limit, sigma_mm),
         {**measurements, **extra},
     )
+
+
+ONE_PHASE_SAMPLING = 0.9
+"""A seam whose pooled profiles leave stretches of this many (measured) spacings near the
+tops' ends was sampled at one place by all of them: its advice says to turn the scan."""
 
 
 def _gap_findings(
@@ -628,6 +640,7 @@ def _gap_findings(
     ``contract.tolerances.judge``'s rule."""
     t = config.tolerances
     measured = seam.measured
+    one_phase = bool(seam.edge_sampling_mm >= ONE_PHASE_SAMPLING * spacing_mm)
     # The gap line at the seam's ends counts too: sections stop short of them.
     medians = running_median(seam.sections_gap_mm[measured], config.sections.decision_sections)
     gaps = np.concatenate([medians, seam.gap_at_ends_mm])
@@ -646,6 +659,7 @@ def _gap_findings(
         sigma,
         above=above,
         spacing_mm=spacing_mm,
+        one_phase=one_phase,
         # what it was judged on, and where: a change of tolerances judges it again
         # (contract.tolerances.judge) and moves it to the end of the range it is judged by
         measurements={
@@ -680,6 +694,7 @@ def _gap_findings(
         above=True,
         spacing_mm=spacing_mm,
         measurements=profile,
+        one_phase=one_phase,
     )
     parallelism = Finding(
         "parallelism",

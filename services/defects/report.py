@@ -92,6 +92,7 @@ def seam_document(s: SeamResult) -> dict:
         else [_number(g) for g in s.gap_at_ends_mm],
         "gap_sigma_mm": _number(s.gap_sigma_mm),
         "step_sigma_mm": _number(s.step_sigma_mm),
+        "edge_sampling_mm": _number(s.edge_sampling_mm),
         "parallelism_sigma_mm": None
         if s.parallelism_mm is None
         else _number(np.sqrt(2) * s.gap_sigma_mm),

@@ -50,7 +50,9 @@ def rejudge_findings(session: Session, inspection: Inspection, *, user_id: int |
                 if judged.state == "uncertain":
                     size = abs(judged.value) if defect.type == "step" else judged.value
                     spacing = measurements.get("spacing_mm")
-                    measurements["advice"] = advice(size, judged.limit, sigma, spacing)
+                    measurements["advice"] = advice(
+                        size, judged.limit, sigma, spacing, bool(measurements.get("one_phase"))
+                    )
             if measurements.get("unit", "mm") == "mm":
                 defect.value_mm, defect.tolerance_mm = judged.value, judged.limit
             if judged.severity == defect.severity and measurements == defect.measurements:
