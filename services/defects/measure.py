@@ -374,6 +374,10 @@ MAX_WIDENING = 4.0
 wider slabs' sections kept where their profiles sample the edges at least this much
 more finely:"""
 WIDENING_GAIN = 0.75
+WIDENED_SPACINGS = 0.25
+"""The wider slabs are made thick enough for their profiles' phases to leave stretches of
+this many spacings — finer than ``RESOLVED_SPACINGS``: a slab widened just to it drifts
+too little in phase to reach it."""
 
 
 def _profile_seams(
@@ -431,7 +435,7 @@ def _profile_seams(
     if not coarse:
         return profiles
     widths = [
-        base_mm * min(profiles[i].sampling_mm / (RESOLVED_SPACINGS * spacing_mm), MAX_WIDENING)
+        base_mm * min(profiles[i].sampling_mm / (WIDENED_SPACINGS * spacing_mm), MAX_WIDENING)
         for i in coarse
     ]
     again = _profiled(
