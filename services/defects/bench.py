@@ -30,7 +30,7 @@ import numpy as np
 
 from contract.bench import print_verdict, say, write_document
 from services.defects.config import MeasureConfig
-from services.defects.evaluate import Evaluation, evaluate
+from services.defects.evaluate import Evaluation, error_p95, evaluate, within_2sigma
 from services.defects.example import BASE_T_PART, merged_cloud
 from services.defects.measure import MeasureResult, measure, warm_up
 from services.defects.simulate import (
@@ -608,14 +608,6 @@ SPACING_WORST = {
 """The per-cell figures a spacing's summary shows the worst of (summary key: row key)."""
 
 
-def _p95(values: list[float]) -> float | None:
-    return float(np.percentile(values, 95)) if values else None
-
-
-def _within_2sigma(values: list[float]) -> float | None:
-    return float(np.mean(np.asarray(values) <= 2.0)) if values else None
-
-
 def _band(spacing_mm: float) -> tuple[float, float, float]:
     """The targets (up to, measured share, error p95) of a spacing's band."""
     return next(t for t in SPACING_TARGETS if spacing_mm <= t[0] + 1e-9)
@@ -636,10 +628,10 @@ def _spacing_summary(rows: list[dict]) -> str:
         least = {key: min(group[key], default=None) for key in ("cell_sections", "cell_ends")}
         lines.append(
             f"| {spacing:g} | {group['cells']} | {_fmt(measured)} (≥ {share:g}) "
-            f"| {_fmt(_p95(group['gap_mm']))} / {_fmt(_p95(group['step_mm']))} (≤ {p95:g}) "
+            f"| {_fmt(error_p95(group['gap_mm']))} / {_fmt(error_p95(group['step_mm']))} (≤ {p95:g}) "
             f"[{_fmt(worst['cell_gap'])} / {_fmt(worst['cell_step'])}] "
-            f"| {_fmt(_within_2sigma(group['sections_sigma']), 2)} / "
-            f"{_fmt(_within_2sigma(group['seam_ends_sigma']), 2)} "
+            f"| {_fmt(within_2sigma(group['sections_sigma']), 2)} / "
+            f"{_fmt(within_2sigma(group['seam_ends_sigma']), 2)} "
             f"[{_fmt(least['cell_sections'], 2)} / {_fmt(least['cell_ends'], 2)}] "
             f"| {_fmt(max(group['seconds'], default=None), 1)} "
             f"({_fmt(max(group['gauge_seconds'], default=None), 1)}) "
@@ -671,14 +663,14 @@ def _spacing_verdict(rows: list[dict]) -> dict[str, bool]:
         verdict[f"{name}: gap and step error p95 ≤ {p95:g} mm at every spacing"] = all(
             value is not None and value <= p95
             for g in band
-            for value in (_p95(g["gap_mm"]), _p95(g["step_mm"]))
+            for value in (error_p95(g["gap_mm"]), error_p95(g["step_mm"]))
         )
         verdict[f"{name}: ≥ {COVERAGE_TARGET:.0%} of gaps within 2σ at every spacing"] = all(
             value is not None and value >= COVERAGE_TARGET
             for g in band
             for value in (
-                _within_2sigma(g["sections_sigma"]),
-                _within_2sigma(g["seam_ends_sigma"]),
+                within_2sigma(g["sections_sigma"]),
+                within_2sigma(g["seam_ends_sigma"]),
             )
         )
     return verdict

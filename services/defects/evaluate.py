@@ -41,6 +41,16 @@ class Counts:
         self.false_negative += other.false_negative
 
 
+def error_p95(errors: list[float]) -> float | None:
+    """95th percentile of |error| (None without any)."""
+    return float(np.percentile(np.abs(errors), 95)) if errors else None
+
+
+def within_2sigma(errors_sigma: list[float]) -> float | None:
+    """The share of |error| / σ at 2 or less (None without any)."""
+    return float(np.mean(np.asarray(errors_sigma) <= 2.0)) if errors_sigma else None
+
+
 @dataclass
 class Evaluation:
     gap_errors_mm: list[float] = field(default_factory=list)
@@ -113,14 +123,8 @@ class Evaluation:
             self.edge_models[model] = self.edge_models.get(model, 0) + n
 
     def summary(self) -> dict:
-        def p95(values: list[float]) -> float | None:
-            return float(np.percentile(np.abs(values), 95)) if values else None
-
         def mean(values: list[float]) -> float | None:
             return float(np.mean(values)) if values else None
-
-        def covered(values: list[float]) -> float | None:
-            return float(np.mean(np.asarray(values) <= 2.0)) if values else None
 
         false_positives = sum(c.false_positive for c in self.surface.values())
         return {
@@ -139,16 +143,16 @@ class Evaluation:
             "uncertain_findings": self.uncertain_findings,
             "edge_models": dict(self.edge_models),
             "gap_error_mean_mm": mean(self.gap_errors_mm),
-            "gap_error_p95_mm": p95(self.gap_errors_mm),
+            "gap_error_p95_mm": error_p95(self.gap_errors_mm),
             "gap_error_max_mm": max(np.abs(self.gap_errors_mm), default=None),
-            "sections_within_2sigma": covered(self.gap_errors_sigma),
-            "seam_ends_within_2sigma": covered(self.seam_end_errors_sigma),
+            "sections_within_2sigma": within_2sigma(self.gap_errors_sigma),
+            "seam_ends_within_2sigma": within_2sigma(self.seam_end_errors_sigma),
             "step_error_mean_mm": mean(self.step_errors_mm),
-            "step_error_p95_mm": p95(self.step_errors_mm),
+            "step_error_p95_mm": error_p95(self.step_errors_mm),
             "parallelism_error_max_mm": max(np.abs(self.parallelism_errors_mm), default=None),
-            "parallelism_error_p95_mm": p95(self.parallelism_errors_mm),
+            "parallelism_error_p95_mm": error_p95(self.parallelism_errors_mm),
             "mismatch_error_max_mm": max(np.abs(self.mismatch_errors_mm), default=None),
-            "mismatch_error_p95_mm": p95(self.mismatch_errors_mm),
+            "mismatch_error_p95_mm": error_p95(self.mismatch_errors_mm),
             "seams": f"{self.seams_found}/{self.seams_true} (+{self.seams_spurious} spurious)",
             "junctions": f"{self.junctions_found}/{self.junctions_true}",
             "geometric": {

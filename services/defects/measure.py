@@ -631,9 +631,11 @@ def _judged(
     )
 
 
-ONE_PHASE_SAMPLING = 0.9
+ONE_PHASE_SAMPLING = (0.9, 1.5)
 """A seam whose pooled profiles leave stretches of this many (measured) spacings near the
-tops' ends was sampled at one place by all of them: its advice says to turn the scan."""
+tops' ends was sampled at one place by all of them: its advice says to turn the scan. The
+measured spacing runs up to a fifth under the grid's pitch where scans overlap; stretches
+much wider than a spacing are missing points (dropout), not one phase."""
 
 
 def _gap_findings(
@@ -644,7 +646,8 @@ def _gap_findings(
     ``contract.tolerances.judge``'s rule."""
     t = config.tolerances
     measured = seam.measured
-    one_phase = bool(seam.edge_sampling_mm >= ONE_PHASE_SAMPLING * spacing_mm)
+    low, high = ONE_PHASE_SAMPLING
+    one_phase = bool(low * spacing_mm <= seam.edge_sampling_mm <= high * spacing_mm)
     # The gap line at the seam's ends counts too: sections stop short of them.
     medians = running_median(seam.sections_gap_mm[measured], config.sections.decision_sections)
     gaps = np.concatenate([medians, seam.gap_at_ends_mm])
