@@ -427,17 +427,15 @@ def _profile_seams(
     )
     if sections.min_profiles <= 0:
         return profiles
-    coarse = [
-        i
+    factors = {
+        i: min(p.sampling_mm / (WIDENED_SPACINGS * spacing_mm), MAX_WIDENING)
         for i, p in enumerate(profiles)
         if p is not None and p.sampling_mm > RESOLVED_SPACINGS * spacing_mm
-    ]
+    }
+    coarse = [i for i, factor in factors.items() if _widening_gains(profiles[i], factor)]
     if not coarse:
         return profiles
-    widths = [
-        base_mm * min(profiles[i].sampling_mm / (WIDENED_SPACINGS * spacing_mm), MAX_WIDENING)
-        for i in coarse
-    ]
+    widths = [base_mm * factors[i] for i in coarse]
     again = _profiled(
         points,
         raster,
@@ -454,6 +452,22 @@ def _profile_seams(
         if profile is not None and profile.sampling_mm < WIDENING_GAIN * profiles[i].sampling_mm:
             profiles[i] = profile
     return profiles
+
+
+def _widening_gains(profile: SeamProfile, factor: float) -> bool:
+    """Whether slabs ``factor`` times thicker could sample the seam's edges at least
+    ``WIDENING_GAIN`` as coarsely. The profiles' phase drifts along the seam at a steady
+    rate (the scan grid's small angle to it), so the stretches they leave shrink linearly
+    with the slab's thickness T: by s(T/2) − s(T) from the slab's middle half to the whole
+    of it (``sampling_mid_mm``), and by 2(factor − 1) times that more at factor · T. Where
+    the middle half samples as finely as the whole (every profile crosses the edges at one
+    phase: rows exactly along the seam, or at 45° on a square grid), a thicker slab cannot
+    gain and is not profiled. Unknown drift (NaN): it is tried."""
+    base, mid = profile.sampling_mm, profile.sampling_mid_mm
+    if not np.isfinite(mid):
+        return True
+    predicted = base - 2 * (factor - 1) * max(mid - base, 0.0)
+    return predicted < WIDENING_GAIN * base
 
 
 def _profiled(

@@ -136,6 +136,10 @@ class SeamProfile:
     """The median over its sides of the widest stretch between neighbouring points of a
     top near its end, seen across the seam (``edges.sampling``): how finely the slab's
     profiles together sample an edge; NaN where no side could tell."""
+    sampling_mid_mm: float
+    """The same from the middle half of each slab along the seam: as wide as
+    ``sampling_mm`` where every profile crosses the edges at one phase, wider where their
+    phase drifts along the seam (what a thicker slab would gain, ``measure``)."""
 
 
 def slab_width_mm(config: SectionConfig, spacing_mm: float) -> float:
@@ -203,6 +207,8 @@ class _Edges:
     shapes: tuple[EdgeShape, EdgeShape]
     sampling: np.ndarray
     """(groups,) the widest stretch between the top's points near its end (NaN: too few)."""
+    sampling_mid: np.ndarray
+    """(groups,) the same from the points of the slab's middle half along the seam."""
 
 
 @dataclass(frozen=True)
@@ -352,9 +358,9 @@ def _edges(
         free = np.full(groups, edges.FREE)
         void = (EdgeShape("void"), EdgeShape("void"))
         none = np.full(groups, np.nan)
-        return _Edges(zero, zero, zero, free, none, no, no, void, none)
+        return _Edges(zero, zero, zero, free, none, no, no, void, none, none)
     gap_end = np.abs(np.repeat(middle, 2) - tops.end_x)
-    starts, zu, zd = _edge_zones(
+    starts, zu, zd, zy = _edge_zones(
         group, xm, w, y, tops.plane, gap_end, config.max_edge_depth_mm, groups, spacing_mm
     )
     sigma = np.full(groups, max(noise, 0.005) if np.isfinite(noise) else 0.02)
@@ -382,6 +388,11 @@ def _edges(
     models = np.where(poor, edges.FREE, side_model)
     final = fits[index, models]
     sampling = edges.sampling_gaps(starts, zu, zd, sigma, spacing_mm)
+    # The same from the slab's middle half: how much of that the slab's thickness gave.
+    mid = np.abs(zy) <= np.max(np.abs(y), initial=0.0) / 2
+    owner = np.repeat(np.arange(groups), np.diff(starts))
+    mid_starts = np.concatenate([[0], np.cumsum(np.bincount(owner[mid], minlength=groups))])
+    sampling_mid = edges.sampling_gaps(mid_starts, zu[mid], zd[mid], sigma, spacing_mm)
     # An arc or chamfer seen at too few places across is placed no finer than its points.
     unverified = np.isin(models, [edges.ROUND, edges.CHAMFER]) & (
         edges.shape_columns(starts, zu, zd, sigma, spacing_mm) < edges.SHAPE_COLUMNS
@@ -421,6 +432,7 @@ def _edges(
         face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0) & ~poor,
         shapes=shapes,
         sampling=sampling,
+        sampling_mid=sampling_mid,
     )
 
 
@@ -596,8 +608,14 @@ def _sections(
         tuple(reasons),
         fitted.shapes,
         noise,
-        float(np.nanmedian(fitted.sampling)) if np.isfinite(fitted.sampling).any() else np.nan,
+        _median(fitted.sampling),
+        _median(fitted.sampling_mid),
     )
+
+
+def _median(values: np.ndarray) -> float:
+    """The median of the finite ``values``; NaN where there are none."""
+    return float(np.nanmedian(values)) if np.isfinite(values).any() else np.nan
 
 
 def _unmeasured(
@@ -936,9 +954,9 @@ def _edge_zones(
     max_depth: float,
     groups: int,
     spacing_mm: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The points of each side's edge zone in its top's frame, in CSR order: (starts,
-    u along the top towards the gap, δ below it). The zone runs from
+    u along the top towards the gap, δ below it, y along the seam). The zone runs from
     ``edges.ZONE_BACK_MM`` (or the sampling band's start, if further) inside the top end
     to the gap's middle (``gap_end`` past the top end), above ``max_depth``."""
     back = max(edges.ZONE_BACK_MM, edges.band_far_mm(spacing_mm))
@@ -961,10 +979,11 @@ def _edge_zones(
     starts = np.cumsum(counts)
     zu = np.empty(starts[-1])
     zd = np.empty(starts[-1])
+    zy = np.empty(starts[-1])
     fill = starts[:-1].copy()
     for i in range(group.shape[0]):
         if np.isfinite(u[i]):
             g = group[i]
-            zu[fill[g]], zd[fill[g]] = u[i], d[i]
+            zu[fill[g]], zd[fill[g]], zy[fill[g]] = u[i], d[i], y[i]
             fill[g] += 1
-    return starts, zu, zd
+    return starts, zu, zd, zy
