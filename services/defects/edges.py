@@ -240,6 +240,28 @@ def _round_residual(u: float, d: float, centre: float, radius: float) -> tuple[f
 
 
 @njit(cache=True, nogil=True)
+def implied_corner(model: int, u: np.ndarray, d: np.ndarray, sigma: float, shape: float) -> float:
+    """Where the points below the top (by more than 3σ, at most a radius for an arc) place
+    the chamfer's or the arc's start u_c, given its angle or radius ``shape``: the median
+    over them of u − δ / tan α, or of u − √(2ρδ − δ²). A coarse profile has one or two
+    such points, anywhere up to a spacing past the top's last point: a start at that point
+    leaves each of them beyond the truncation, where the fit has no slope to follow.
+    NaN where no point is below the top."""
+    implied = np.empty(u.shape[0])
+    n = 0
+    for i in range(u.shape[0]):
+        if d[i] <= TRUNCATION * sigma:
+            continue
+        if model == CHAMFER:
+            implied[n] = u[i] - d[i] / np.tan(shape)
+            n += 1
+        elif d[i] <= shape:
+            implied[n] = u[i] - np.sqrt(2.0 * shape * d[i] - d[i] * d[i])
+            n += 1
+    return np.median(implied[:n]) if n else np.nan
+
+
+@njit(cache=True, nogil=True)
 def _round(
     u: np.ndarray, d: np.ndarray, sigma: float, fixed_radius: float
 ) -> tuple[float, float, float, float, float, float]:
@@ -255,12 +277,16 @@ def _round(
     best_cost, centre, radius = np.inf, 0.0, 1.0
     starts = RADIUS_STARTS if fit_radius else np.array([fixed_radius])
     for start in starts:
-        # Tangent where the top's points leave the top by about 3σ.
+        # Tangent where the top's points leave the top by about 3σ; and where the points
+        # below the top place it on an arc of this radius.
         c0 = -np.sqrt(2.0 * start * TRUNCATION * sigma)
-        for shift in np.array([0.0, 0.5 * c0])[: 2 if fit_radius else 1]:
-            cost = _cost(ROUND, u[::START_STRIDE], d[::START_STRIDE], c0 + shift, start, sigma)
+        tries = np.array([c0, 1.5 * c0, implied_corner(ROUND, u, d, sigma, start)])
+        for c in tries if fit_radius else tries[::2]:
+            if not np.isfinite(c):
+                continue
+            cost = _cost(ROUND, u[::START_STRIDE], d[::START_STRIDE], c, start, sigma)
             if cost < best_cost:
-                best_cost, centre, radius = cost, c0 + shift, start
+                best_cost, centre, radius = cost, c, start
     centre, radius, best_cost, a, b, dd = _gauss_newton(
         ROUND, u, d, sigma, centre, radius, best_cost, fit_radius
     )
@@ -384,7 +410,10 @@ def _chamfer(
     best_cost, corner, angle = np.inf, 0.0, np.radians(45.0)
     starts = ANGLE_STARTS if fit_angle else np.array([fixed_angle])
     for start in starts:
-        for c0 in np.array([0.0, -0.1])[: 2 if fit_angle else 1]:
+        tries = np.array([0.0, -0.1, implied_corner(CHAMFER, u, d, sigma, start)])
+        for c0 in tries if fit_angle else tries[::2]:
+            if not np.isfinite(c0):
+                continue
             cost = _cost(CHAMFER, u[::START_STRIDE], d[::START_STRIDE], c0, start, sigma)
             if cost < best_cost:
                 best_cost, corner, angle = cost, c0, start

@@ -393,11 +393,12 @@ def _edges(
     owner = np.repeat(np.arange(groups), np.diff(starts))
     mid_starts = np.concatenate([[0], np.cumsum(np.bincount(owner[mid], minlength=groups))])
     sampling_mid = edges.sampling_gaps(mid_starts, zu[mid], zd[mid], sigma, spacing_mm)
-    # An arc or chamfer seen at too few places across is placed no finer than its points.
+    # An arc or chamfer seen at too few places across is placed no finer than its points:
+    # the model that fits them best may put the side face a whole stretch either way.
     unverified = np.isin(models, [edges.ROUND, edges.CHAMFER]) & (
         edges.shape_columns(starts, zu, zd, sigma, spacing_mm) < edges.SHAPE_COLUMNS
     )
-    floor = np.where(unverified, np.nan_to_num(sampling, nan=spacing_mm) / np.sqrt(12.0), 0.0)
+    floor = np.where(unverified, np.nan_to_num(sampling, nan=spacing_mm) / np.sqrt(3.0), 0.0)
     x = final[:, 2]
     depth = np.where(
         models == edges.ROUND,
