@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -145,6 +146,23 @@ def test_measures_gap_step_parallelism_and_mismatch_against_truth(flat_example) 
     assert all(e.model == "round" for s in result.seams for e in s.edges)
     assert all(min(abs(r - t) for t in radii) < 0.15 for r in measured)
     assert all(s.measured.all() for s in result.seams)
+
+
+def test_a_seam_not_found_counts_its_sections_as_unmeasured(flat_example) -> None:
+    """A seam lost with its panels merged (a coarse scan across a narrow gap) is no
+    section measured: the evaluation counts the sections it would have had (its length
+    over the pitch) as unmeasured, so a sweep's share measured cannot rise by losing seams."""
+    cloud = read_ply(flat_example / "cloud.ply")
+    truth = Truth.from_document(json.loads((flat_example / "truth.json").read_text()))
+    config = MeasureConfig(surface=None)
+    result = measure(cloud, config, threads=2)
+    whole = evaluate(result, truth, config.tolerances).summary()
+    lost = replace(result, seams=result.seams[1:])
+    fewer = evaluate(lost, truth, config.tolerances).summary()
+    length = result.seams[0].length_mm
+    assert fewer["seams"] == "3/4 (+0 spurious)"
+    assert abs(fewer["sections_total"] - whole["sections_total"]) <= 0.05 * length / 2 + 2
+    assert fewer["unmeasured_share"] > whole["unmeasured_share"] + 0.15
 
 
 def test_finds_every_surface_defect_without_false_alarms(flat_example) -> None:

@@ -182,6 +182,25 @@ def test_slabs_are_thickened_only_where_the_phase_drifts(monkeypatch, yaw, passe
     assert seam.measured.mean() >= 0.9
 
 
+def test_seams_beside_panels_merged_across_a_corner_are_found() -> None:
+    """A 2 × 2 assembly whose top-left panel touches its two neighbours (no gap: the
+    three read as one L-shaped top, as a coarse scan across narrow gaps merges them): the
+    fourth panel's boundary with it is bent, and was fitted as one diagonal line that
+    no top ran beside — no seam found. Split at the bend, it is two seams, each measured."""
+    rng = np.random.default_rng(4)
+    x, y = np.meshgrid(np.arange(-100, 100, 0.25), np.arange(-60, 60, 0.25), indexing="ij")
+    x, y = x.ravel() + 0.03, y.ravel() + 0.03
+    in_gap = ((np.abs(x) < 1.5) & (y < 0)) | ((np.abs(y) < 1.5) & (x > 0))
+    z = np.where(in_gap, -15.0, 0.0) + rng.normal(0, 0.02, x.shape)
+    cloud = PointCloud(points=np.stack([x, y, z], 1).astype(np.float32))
+    result = measure(cloud, CONFIG)
+    assert len(result.panels) == 2 and len(result.seams) == 2
+    for seam in result.seams:
+        assert seam.length_mm > 40
+        assert seam.measured.mean() > 0.9, seam.sections_unmeasured
+        assert abs(seam.gap_mm.mean - 3.0) < 0.05
+
+
 def test_gap_modes_follow_the_trade_definitions() -> None:
     """walls (default) and surface: along the tops; distance and sharp: straight from edge
     point to edge point (here with a 0.8 mm step between the corners)."""

@@ -11,9 +11,11 @@ import numpy as np
 
 from contract.tolerances import Limits, upper_limit
 from services.defects.measure import MeasureResult, SeamResult
+from services.defects.sections import SectionConfig
 from services.defects.truth import TrueSeam, Truth
 
 SEAM_MATCH_MM = 10.0
+PITCH_MM = SectionConfig.pitch_mm
 JUNCTION_MATCH_MM = 15.0
 SURFACE_TYPES = ("dent", "bump", "scratch", "color")
 GEOMETRIC_TYPES = ("gap", "step", "parallelism", "mismatch")
@@ -65,6 +67,8 @@ class Evaluation:
     uncertain_findings: int = 0
     """Findings within 2σ of their limit (counted as found where the truth is out)."""
     sections_total: int = 0
+    """Sections of the seams found, and those a seam not found would have had (its length
+    over the default pitch): a seam lost with its panels merged is unmeasured too."""
     sections_unmeasured: int = 0
     negative_gaps: int = 0
     """Measured sections with a gap below zero (the panels never overlap here)."""
@@ -242,6 +246,9 @@ def evaluate(
         if match is None:
             for kind, out in true_out.items():
                 e.geometric[kind].false_negative += int(out)
+            lost = int(np.linalg.norm(np.subtract(true_seam.end, true_seam.start)) // PITCH_MM)
+            e.sections_total += lost
+            e.sections_unmeasured += lost
             continue
         seam, sign = match
         matched_seams[true_seam.id] = seam

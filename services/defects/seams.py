@@ -100,26 +100,62 @@ def find_seams(
     for pair in np.unique(low * (panels.count + 1) + high):
         a, b = divmod(int(pair), panels.count + 1)
         on = (low == a) & (high == b)
-        points = mid[on]
-        if len(points) * coarse_mm < min_length_mm:
-            continue
-        centre = points.mean(0)
-        _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
-        direction = vt[0]
-        across = np.array([-direction[1], direction[0]])
-        if (centroids[a] - centre) @ across > 0:  # panel a on the +across side
-            direction = -direction
-        along = (points - centre) @ direction
-        seam = SeamLine(
-            (a, b),
-            centre,
-            direction,
-            float(along.min()),
-            float(along.max()),
-            float(np.median(half[on])),
-        )
-        seams.append(_trim_to_tops(raster, panels.labels, seam))
+        for run in _straight_runs(mid[on]):
+            points = mid[on][run]
+            if len(points) * coarse_mm < min_length_mm:
+                continue
+            centre, direction = _line(points)
+            across = np.array([-direction[1], direction[0]])
+            if (centroids[a] - centre) @ across > 0:  # panel a on the +across side
+                direction = -direction
+            along = (points - centre) @ direction
+            seam = SeamLine(
+                (a, b),
+                centre,
+                direction,
+                float(along.min()),
+                float(along.max()),
+                float(np.median(half[on][run])),
+            )
+            seams.append(_trim_to_tops(raster, panels.labels, seam))
     return [s for s in seams if s.length_mm >= min_length_mm]
+
+
+STRAIGHT_MM = 2.0
+"""A boundary between two panels whose points stray further than this from one line is
+bent — two seams, where the panels on one side of a corner were not told apart (a coarse
+scan across a narrow gap merges them) — and is split into straight runs."""
+
+
+def _line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, unit direction) of the line fitted to (N, 2) ``points``."""
+    centre = points.mean(0)
+    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+    return centre, vt[0]
+
+
+def _straight_runs(points: np.ndarray) -> list[np.ndarray]:
+    """Boolean masks of (N, 2) boundary ``points``: all of them, if they lie along one
+    line (95 % within ``STRAIGHT_MM``); else two runs, one each side of the bend: split
+    along the line's own direction (an L's arms lie either side of its middle), then each
+    point given to the nearer of the two lines fitted, three times."""
+    everything = np.ones(len(points), bool)
+    if len(points) < 8:
+        return [everything]
+    centre, direction = _line(points)
+    normal = np.array([-direction[1], direction[0]])
+    if np.percentile(np.abs((points - centre) @ normal), 95) <= STRAIGHT_MM:
+        return [everything]
+    first = (points - centre) @ direction < 0
+    for _ in range(3):
+        if first.sum() < 2 or (~first).sum() < 2:
+            return [everything]
+        distances = []
+        for run in (first, ~first):
+            c, d = _line(points[run])
+            distances.append(np.abs((points - c) @ np.array([-d[1], d[0]])))
+        first = distances[0] <= distances[1]
+    return [first, ~first]
 
 
 def _centroids_uv(raster: Raster, panels: Panels) -> np.ndarray:
