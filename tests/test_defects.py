@@ -484,6 +484,30 @@ def test_pinholes_are_filled_and_one_cell_gaps_are_not() -> None:
     assert np.isnan(height[3, 3])  # the map itself is left as it was
 
 
+def test_a_step_parts_a_coarse_map_where_no_gap_is_seen() -> None:
+    """On a coarse map a gap the rows skip leaves no slope to see, but the tops either
+    side of it stand at two heights: the two cells at a 0.3 mm step are marked, on a
+    tilted plane and whichever way the step runs; the plane itself, a groove one cell
+    wide (a scratch: its tops are level), and a step beside a gap seen (the edge's own
+    business) are not."""
+    from services.defects.panels import STEP_MM, _steps
+
+    rows, cols = np.mgrid[0:40, 0:30]
+    plane = (0.02 * rows - 0.015 * cols).astype(np.float32)
+    flat = np.ones(plane.shape, bool)
+    assert not _steps(plane, flat, STEP_MM).any()
+    stepped = plane + np.where(cols >= 15, 0.3, 0.0).astype(np.float32)
+    marked = _steps(stepped, flat, STEP_MM)
+    assert marked[6:-6, 14:16].all() and not np.delete(marked, [14, 15], axis=1).any()
+    across = plane + np.where(rows >= 20, -0.3, 0.0).astype(np.float32)
+    assert _steps(across, flat, STEP_MM)[6:-6].any(axis=1).sum() == 2
+    groove = plane - np.where(cols == 15, 0.3, 0.0).astype(np.float32)
+    assert not _steps(groove, flat, STEP_MM).any()
+    seen = flat.copy()
+    seen[:, 15] = False  # the gap seen: its cells are not flat
+    assert not _steps(stepped, seen, STEP_MM).any()
+
+
 def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
     from services.defects.bench import SweepCase, run_defects_bench, spacing_cases
 

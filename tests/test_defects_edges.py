@@ -201,6 +201,25 @@ def test_seams_beside_panels_merged_across_a_corner_are_found() -> None:
         assert abs(seam.gap_mm.mean - 3.0) < 0.05
 
 
+@pytest.mark.parametrize(
+    ("gap", "step", "spacing", "yaw"),
+    [(0.0, 0.5, 0.75, 2.0), (0.0, 0.3, 1.0, 15.0), (0.02, 0.4, 0.5, 15.0)],
+)
+def test_panels_at_a_step_are_told_apart_where_no_gap_is_seen(gap, step, spacing, yaw) -> None:
+    """Panels that touch (or all but: no scan row falls in the gap) at a coarse spacing
+    read as one flat top — a step smaller than a cell is no steep slope — and the seam
+    was not found at all. The step parts them (``panels._steps``): the seam is found,
+    its step measured, and its gap left unmeasured with the reason."""
+    cloud = seam_cloud(gap, step, ("square", 0), ("square", 0), spacing_mm=spacing, yaw_deg=yaw)
+    result = measure(cloud, CONFIG)
+    assert len(result.panels) == 2
+    seam = _one_seam(result)
+    steps = seam.sections_step_mm[np.isfinite(seam.sections_step_mm)]
+    assert len(steps) >= 0.9 * len(seam.sections_step_mm)
+    assert np.percentile(np.abs(np.abs(steps) - step), 95) < 0.05
+    assert not seam.measured.any() and all(seam.sections_unmeasured)
+
+
 def test_gap_modes_follow_the_trade_definitions() -> None:
     """walls (default) and surface: along the tops; distance and sharp: straight from edge
     point to edge point (here with a 0.8 mm step between the corners)."""

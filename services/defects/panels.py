@@ -45,12 +45,16 @@ def segment_panels(
     Parts smaller than ``min_area_mm2`` are dropped, and so are parts lying more than
     ``background_drop_mm`` below the surface the panels make (the backing structure seen
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
-    filled: they belong to the panel. The passes after the labelling run on this thread and
+    filled: they belong to the panel. On such a coarse map the cells beside a step between
+    two tops (``_steps``) part them too: a gap its rows skip leaves no slope to see there,
+    where a cell is as wide as the step is high. The passes after the labelling run on this thread and
     up to ``helpers`` of ``pool``'s."""
     height = _filled_pinholes(raster.height)
     flat, core = _flat_core(height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
     if bridge_cells:
-        core = ndimage.binary_erosion(core, iterations=bridge_cells)
+        steps = _steps(height, flat, STEP_MM)
+        flat &= ~steps
+        core = ndimage.binary_erosion(core & ~steps, iterations=bridge_cells)
     labels, sizes = label4(core)
     count = len(sizes)
     cell_area = raster.cell_mm**2
@@ -110,6 +114,48 @@ def _filled_pinholes(height: np.ndarray) -> np.ndarray:
                         seen += 1
             if seen >= PINHOLE_NEIGHBOURS:
                 out[i, j] = total / seen
+    return out
+
+
+STEP_MM = 0.2
+"""On a coarse map (``bridge_cells``), two cells lie beside a step where the tops either
+side of them, three cells each way, are offset by more than this beyond their slope."""
+
+
+@njit(cache=True, nogil=True)
+def _steps(height: np.ndarray, flat: np.ndarray, min_step_mm: float) -> np.ndarray:
+    """(rows, cols) bool: the two cells either side of each step along a row or a column
+    of ``flat`` cells — between cells i and i + 1, the mean height of cells i + 1…i + 3
+    less that of i − 2…i, less the slope either side (the means of i + 4…i + 6 and of
+    i − 5…i − 3, averaged), beyond ``min_step_mm`` and no less than within three cells
+    of it (a step shifts the windows one and three cells beside it by half as much), where
+    all twelve are flat (a gap seen, an edge or the backing is no step). A plane gives 0
+    and a step its height; a groove one cell wide half its depth."""
+    rows, cols = height.shape
+    out = np.zeros((rows, cols), np.bool_)
+    m = np.zeros(4)  # means of i−5…i−3, i−2…i, i+1…i+3, i+4…i+6
+    for axis in range(2):
+        length, other = (rows, cols) if axis == 0 else (cols, rows)
+        step = np.zeros(length)
+        for k in range(other):
+            step[:] = 0.0
+            for i in range(5, length - 6):
+                m[:] = 0.0
+                level = True
+                for part in range(4):
+                    for t in range(3):
+                        at = i - 5 + 3 * part + t
+                        level &= flat[at, k] if axis == 0 else flat[k, at]
+                        m[part] += height[at, k] if axis == 0 else height[k, at]
+                if level:
+                    m /= 3.0
+                    step[i] = abs((m[2] - m[1]) - ((m[3] - m[2]) + (m[1] - m[0])) / 2)
+            for i in range(5, length - 6):
+                if step[i] > min_step_mm and step[i] >= step[i - 3 : i + 4].max():
+                    if axis == 0:
+                        out[i, k] = out[i + 1, k] = True
+                    else:
+                        out[k, i] = out[k, i + 1] = True
     return out
 
 

@@ -124,7 +124,9 @@ def find_seams(
 STRAIGHT_MM = 2.0
 """A boundary between two panels whose points stray further than this from one line is
 bent — two seams, where the panels on one side of a corner were not told apart (a coarse
-scan across a narrow gap merges them) — and is split into straight runs."""
+scan across a narrow gap merges them) — and is split into straight runs…"""
+BEND_DEG = 20.0
+"""…if they turn by more than this: a jog along one seam is no corner."""
 
 
 def _line(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +157,10 @@ def _straight_runs(points: np.ndarray) -> list[np.ndarray]:
             c, d = _line(points[run])
             distances.append(np.abs((points - c) @ np.array([-d[1], d[0]])))
         first = distances[0] <= distances[1]
-    return [first, ~first]
+    if first.sum() < 2 or (~first).sum() < 2:
+        return [everything]
+    turn = abs(_line(points[first])[1] @ _line(points[~first])[1])
+    return [everything] if turn > np.cos(np.radians(BEND_DEG)) else [first, ~first]
 
 
 def _centroids_uv(raster: Raster, panels: Panels) -> np.ndarray:
@@ -181,13 +186,28 @@ def _trim_to_tops(raster: Raster, labels: np.ndarray, seam: SeamLine) -> SeamLin
         uv = seam.point_uv(along) + side * offset * seam.across_uv
         rows, cols, inside = raster.cell_at(uv)
         beside.append(inside & (labels[rows, cols] == label))
-    both = beside[0] & beside[1]
+    both = _bridged(beside[0] & beside[1], int(MAX_BREAK_MM / raster.cell_mm))
     if not both.any():
         return replace(seam, start_mm=0.0, end_mm=0.0)
     runs = ndimage.label(both)[0]
     longest = np.argmax(np.bincount(runs)[1:]) + 1
     kept = along[runs == longest]
     return replace(seam, start_mm=float(kept.min()), end_mm=float(kept.max()))
+
+
+MAX_BREAK_MM = 5.0
+"""A seam runs on across a break this short where a top is not beside it (a dent or a
+notch at its edge)."""
+
+
+def _bridged(runs: np.ndarray, cells: int) -> np.ndarray:
+    """(N,) bool ``runs`` with every break of at most ``cells`` between two runs filled."""
+    on = np.flatnonzero(runs)
+    out = runs.copy()
+    for start, stop in zip(on[:-1], on[1:], strict=True):
+        if 1 < stop - start <= cells + 1:
+            out[start:stop] = True
+    return out
 
 
 def find_junctions(
