@@ -50,6 +50,9 @@ MEDIAN_STRIDE = 8
 SELECTION_SECTIONS = 12
 """Sections per seam (evenly spread) on which each side's edge model is chosen."""
 NO_GAP, SIDE, CROSSING, NARROW, SHADOW = range(1, 6)
+PITCH_SPACINGS = 1.25
+"""The scan grid's pitch in measured point spacings, at most: scans that overlap make the
+spacing measured (√(area / points)) up to a fifth finer than the pitch of each."""
 """Why a section is unmeasured (``_unmeasured``), in the order they are checked…"""
 SIDE_NO_TOP, SIDE_NO_EDGE, SIDE_PAST_HOLE, SIDE_NO_MODEL = range(1, 5)
 """…and, for SIDE, what is wrong with the side."""
@@ -632,7 +635,8 @@ def _unmeasured(
     """Why each section's gap cannot be trusted (None: it can). The first that holds, in
     this order: no gap seen; a side (a before b) without a top fit, without an edge, with
     its top going on past a hole, or whose edge no model explains; the edges crossing; a
-    gap under twice what the profiles resolve (``resolved_mm``) at a corner placed by the
+    gap under twice what the profiles resolve (``resolved_mm``), or under the scan's pitch
+    (``PITCH_SPACINGS``), at a corner placed by the
     points' extent; the lower panel's corner possibly in the higher one's shadow. Decided
     for all sections at once; the words are written for the sections left unmeasured
     only."""
@@ -659,7 +663,10 @@ def _unmeasured(
     resolved = resolved_mm(fitted.sampling, spacing_mm).reshape(count, 2).max(axis=1)
     with np.errstate(invalid="ignore"):
         crossing = gap < 0
-        narrow = (gap < 2 * resolved) & extent_based.any(axis=1)
+        # …and under a grid pitch, which the scan rows skip over long stretches (panels a
+        # coarse scan merged): their few crossings place such corners no better.
+        least = np.maximum(2 * resolved, PITCH_SPACINGS * spacing_mm)
+        narrow = (gap < least) & extent_based.any(axis=1)
         shadowed = (
             (np.abs(step) > 3 * noise)
             & ~fitted.face_seen.reshape(count, 2).any(axis=1)
@@ -680,9 +687,8 @@ def _unmeasured(
             return f"the edges cross (gap {gap[i]:.3f} mm) and no overlap of the panels is seen"
         if reason[i] == NARROW:
             return (
-                f"gap {gap[i]:.3f} mm is under twice what the profiles resolve "
-                f"({2 * resolved[i]:.2f} mm) "
-                "at a corner: not resolved"
+                f"gap {gap[i]:.3f} mm is under twice what the profiles resolve, or the "
+                f"scan's pitch ({least[i]:.2f} mm), at a corner: not resolved"
             )
         if reason[i] == SHADOW:
             low = lower[i]
