@@ -186,28 +186,13 @@ def _trim_to_tops(raster: Raster, labels: np.ndarray, seam: SeamLine) -> SeamLin
         uv = seam.point_uv(along) + side * offset * seam.across_uv
         rows, cols, inside = raster.cell_at(uv)
         beside.append(inside & (labels[rows, cols] == label))
-    both = _bridged(beside[0] & beside[1], int(MAX_BREAK_MM / raster.cell_mm))
+    both = beside[0] & beside[1]
     if not both.any():
         return replace(seam, start_mm=0.0, end_mm=0.0)
     runs = ndimage.label(both)[0]
     longest = np.argmax(np.bincount(runs)[1:]) + 1
     kept = along[runs == longest]
     return replace(seam, start_mm=float(kept.min()), end_mm=float(kept.max()))
-
-
-MAX_BREAK_MM = 5.0
-"""A seam runs on across a break this short where a top is not beside it (a dent or a
-notch at its edge)."""
-
-
-def _bridged(runs: np.ndarray, cells: int) -> np.ndarray:
-    """(N,) bool ``runs`` with every break of at most ``cells`` between two runs filled."""
-    on = np.flatnonzero(runs)
-    out = runs.copy()
-    for start, stop in zip(on[:-1], on[1:], strict=True):
-        if 1 < stop - start <= cells + 1:
-            out[start:stop] = True
-    return out
 
 
 def find_junctions(
