@@ -140,7 +140,8 @@ def _straight_runs(points: np.ndarray) -> list[np.ndarray]:
     """Boolean masks of (N, 2) boundary ``points``: all of them, if they lie along one
     line (95 % within ``STRAIGHT_MM``); else two runs, one each side of the bend: split
     along the line's own direction (an L's arms lie either side of its middle), then each
-    point given to the nearer of the two lines fitted, three times."""
+    point given to the nearer of the two lines fitted, three times — kept whole where the
+    two lines turn by less than ``BEND_DEG``."""
     everything = np.ones(len(points), bool)
     if len(points) < 8:
         return [everything]
