@@ -47,8 +47,8 @@ def segment_panels(
     through gaps and around the assembly). Holes in a top (steep scratches and dents) are
     filled: they belong to the panel. On such a coarse map the cells beside a step between
     two tops (``_steps``) part them too: a gap its rows skip leaves no slope to see there,
-    where a cell is as wide as the step is high. The passes after the labelling run on this thread and
-    up to ``helpers`` of ``pool``'s."""
+    where a cell is as wide as the step is high. The passes after the labelling run on
+    this thread and up to ``helpers`` of ``pool``'s."""
     height = _filled_pinholes(raster.height)
     flat, core = _flat_core(height, 2 * raster.cell_mm * np.tan(np.radians(max_slope_deg)))
     if bridge_cells:

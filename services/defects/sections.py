@@ -636,8 +636,8 @@ def _unmeasured(
     this order: no gap seen; a side (a before b) without a top fit, without an edge, with
     its top going on past a hole, or whose edge no model explains; the edges crossing; a
     gap under twice what the profiles resolve (``resolved_mm``), or under the scan's pitch
-    (``PITCH_SPACINGS``), at a corner placed by the
-    points' extent; the lower panel's corner possibly in the higher one's shadow. Decided
+    (``PITCH_SPACINGS``), at a corner placed by the points' extent; the lower panel's
+    corner possibly in the higher one's shadow. Decided
     for all sections at once; the words are written for the sections left unmeasured
     only."""
     count = len(gap)
