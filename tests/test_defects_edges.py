@@ -157,29 +157,32 @@ def test_rows_along_the_seam_advise_turning_the_scan() -> None:
     assert "turned" not in advice(2.3, 2.0, 0.4, 1.0)
 
 
-@pytest.mark.parametrize(("yaw", "passes"), [(0.0, 1), (2.0, 2)])
-def test_slabs_are_thickened_only_where_the_phase_drifts(monkeypatch, yaw, passes) -> None:
+@pytest.mark.parametrize(("yaw", "widened"), [(0.0, False), (2.0, True)])
+def test_slabs_are_thickened_only_where_the_phase_drifts(monkeypatch, yaw, widened) -> None:
     """Rows 2° off the seam drift in phase along it: the middle half of a slab samples
-    the edges more coarsely than the whole, so a thicker slab gains and the seam is
-    profiled again. Rows exactly along it sample the edges at one phase whatever the
-    slab's thickness: the second pass, which cost a 0.1 mm cloud a third of its time and
-    was thrown away, is not made."""
+    the edges more coarsely than the whole, so a thicker slab gains, and the seam's
+    sections are all profiled from thicker slabs — their probe alone at the usual width.
+    Rows exactly along it sample the edges at one phase whatever the slab's thickness: no
+    thicker slab is taken (it cost a 0.1 mm cloud a third of its time, then thrown away)."""
     calls = []
-    profiled = measure_module._profiled
+    profiled = measure_module.profile_seam
 
-    def counted(*args, **kw):
-        calls.append(args[4])  # the slabs' thicknesses
-        return profiled(*args, **kw)
+    def counted(slab, seam, config, first, count, spacing_mm):
+        calls.append((count, float(np.abs(slab[1]).max())))  # sections, half thickness
+        return profiled(slab, seam, config, first, count, spacing_mm)
 
-    monkeypatch.setattr(measure_module, "_profiled", counted)
+    monkeypatch.setattr(measure_module, "profile_seam", counted)
     seam = _one_seam(
         measure(
             seam_cloud(2.3, 0.4, ("square", 0), ("square", 0), spacing_mm=1.0, yaw_deg=yaw),
             CONFIG,
         )
     )
-    assert len(calls) == passes, calls
     assert seam.measured.mean() >= 0.9
+    (probe, probe_half), (count, half) = calls
+    assert measure_module.PROBE_SECTIONS <= probe < count
+    assert probe_half <= 5.0  # ten spacings: the usual slab
+    assert (half > 10.0) == widened, calls
 
 
 def test_seams_beside_panels_merged_across_a_corner_are_found() -> None:

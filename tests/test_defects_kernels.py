@@ -194,21 +194,29 @@ def test_binning_agrees_with_numpy_and_skips_strays() -> None:
     assert np.array_equal(shared.chunk_uv, raster.chunk_uv, equal_nan=True)
 
 
-def _slab_reference(local: np.ndarray, line: np.ndarray, sections: np.ndarray) -> np.ndarray:
-    """(M, 4) sorted (k, y, x, w) rows of the points in one seam's slabs, by NumPy."""
+def _slab_reference(
+    local: np.ndarray, index: np.ndarray, line: np.ndarray, sections: np.ndarray
+) -> np.ndarray:
+    """(M, 4) sorted (k, y, x, w) rows of the points in one seam's slabs, by NumPy
+    (``index``: each point's in the cloud)."""
     rel = local[:, :2] - line[:2]
     along = rel @ line[2:4]
     across = rel @ np.array([-line[3], line[2]])
-    first, pitch, count, half_slab, reach = sections
+    first, pitch, count, half_slab, reach, dense_half, dense_reach, stride = sections
     k = np.rint((along - first) / pitch)
     y = along - (first + k * pitch)
     inside = (k >= 0) & (k < count) & (np.abs(y) <= half_slab) & (np.abs(across) < reach)
+    kept = index % stride == 0  # the cloud's every stride-th point…
+    inside &= kept | (np.abs(y) <= dense_half) | (np.abs(across) < dense_reach)  # …or dense
     rows = np.column_stack([k, y, across, local[:, 2]])[inside]
     return rows[np.lexsort(rows.T[::-1])]
 
 
 @pytest.mark.parametrize("order", ["scan", "shuffled"])
-def test_seam_slabs_equal_numpy_with_and_without_skipping_runs(order) -> None:
+@pytest.mark.parametrize("thinned", [False, True])
+def test_seam_slabs_equal_numpy_with_and_without_skipping_runs(order, thinned) -> None:
+    """Every point within a slab, once per slab; a thinned slab keeps every point within
+    its dense half width or reach across, and the cloud's every stride-th beyond both."""
     rng = np.random.default_rng(3)
     u, v = np.meshgrid(np.arange(0, 60, 0.1), np.arange(0, 40, 0.1), indexing="ij")
     points = np.column_stack([u.ravel(), v.ravel(), rng.normal(0, 0.05, u.size)])
@@ -230,7 +238,11 @@ def test_seam_slabs_equal_numpy_with_and_without_skipping_runs(order) -> None:
             [local[:, 0].mean(), local[:, 1].mean(), *direction, -20.0, 20.0],
         ]
     )
-    sections = np.array([[-20.0, 2.0, 21, 0.5, 4.0], [-15.0, 2.5, 13, 0.5, 3.0]])
+    sections = np.array(
+        [[-20.0, 2.0, 21, 0.5, 4.0, 0.5, 4.0, 1], [-15.0, 2.5, 13, 0.5, 3.0, 0.5, 3.0, 1]]
+    )
+    if thinned:  # dense within 0.2 mm of the plane or 1–1.5 mm of the line; every 7th beyond
+        sections[:, 5:] = [[0.2, 1.0, 7], [0.2, 1.5, 7]]
     pieces = binning.seam_slabs(
         points,
         frame.origin,
@@ -240,11 +252,14 @@ def test_seam_slabs_equal_numpy_with_and_without_skipping_runs(order) -> None:
         raster.chunk_uv,
         lines,
         sections,
+        workers=2 if thinned else 1,  # the second share's points keep their index
     )
     for seam in range(2):
         found = np.concatenate(pieces[seam], 1).T
         found = found[np.lexsort(found.T[::-1])]
-        expected = _slab_reference(local, lines[seam, :4], sections[seam])
+        expected = _slab_reference(
+            local, np.arange(3, len(points)), lines[seam, :4], sections[seam]
+        )
         assert len(found) > 1000
         assert np.allclose(found, expected, atol=1e-9)
 

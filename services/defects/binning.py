@@ -89,8 +89,10 @@ def seam_slabs(
     Grid as for ``bin_points``, with its (rows, cols) point ``count`` and ``chunk_uv``
     boxes. Per seam, ``lines`` rows = (u, v of its centre, direction u, v, start, end
     along it) and ``sections`` rows = (position of section 0 along the line, pitch,
-    number of sections, half slab width, reach across the line); slabs wider than the pitch
-    overlap, and a point is in each that holds it. Only the runs of points
+    number of sections, half slab width, reach across the line, and the thinning: the
+    half width and the reach across within which every point is kept, and the stride of
+    those kept beyond both — each ``stride``-th point of the cloud); slabs wider than the
+    pitch overlap, and a point is in each that holds it. Only the runs of points
     whose box touches a tile near a seam (its band: cell centres within reach + one cell
     of the line) are read, on ``workers`` threads."""
     seam_of_cell, band_tiles, capacity = _seam_bands(grid, count, lines, sections)
@@ -98,6 +100,7 @@ def seam_slabs(
     parts = _in_shares(
         lambda share: _seam_slabs(
             points[share],
+            share.start,
             chunk_uv[share.start // CHUNK :],
             origin,
             axes,
@@ -418,6 +421,7 @@ def _seam_bands(
 @njit(cache=True, nogil=True)
 def _seam_slabs(
     points: np.ndarray,
+    first_index: int,
     chunk_uv: np.ndarray,
     origin: np.ndarray,
     axes: np.ndarray,
@@ -428,7 +432,9 @@ def _seam_slabs(
     sections: np.ndarray,
     offsets: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(4, offsets[-1]) slab rows, seam s's from offsets[s]; and how many each seam has."""
+    """(4, offsets[-1]) slab rows, seam s's from offsets[s]; and how many each seam has.
+    ``points`` are the cloud's from its ``first_index``-th on (a point's index in the cloud
+    decides whether a thinned slab keeps it)."""
     rows, cols = seam_of_cell.shape
     seams = lines.shape[0]
     flat = seam_of_cell.ravel()
@@ -466,10 +472,13 @@ def _seam_slabs(
                 cu, cv, du, dv = lines[s, 0], lines[s, 1], lines[s, 2], lines[s, 3]
                 first, pitch, count = sections[s, 0], sections[s, 1], sections[s, 2]
                 half_slab, reach = sections[s, 3], sections[s, 4]
+                dense_half, dense_reach = sections[s, 5], sections[s, 6]
+                stride = int(sections[s, 7])
                 along = (u - cu) * du + (v - cv) * dv
                 across = (v - cv) * du - (u - cu) * dv
                 if abs(across) >= reach:
                     continue
+                thinned = abs(across) >= dense_reach and (first_index + start + j) % stride != 0
                 # Every section whose slab holds the point: one, or several where the
                 # slabs are wider than the pitch (a coarse cloud's sections, ``sections``).
                 k0 = max(np.ceil((along - half_slab - first) / pitch), 0.0)
@@ -477,7 +486,7 @@ def _seam_slabs(
                 k = k0
                 while k <= k1:
                     y = along - (first + k * pitch)
-                    if abs(y) <= half_slab:
+                    if abs(y) <= half_slab and not (thinned and abs(y) > dense_half):
                         n = offsets[s] + filled[s]
                         slab[0, n], slab[1, n], slab[2, n], slab[3, n] = k, y, across, w
                         filled[s] += 1

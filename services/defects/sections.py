@@ -185,6 +185,12 @@ def reach_mm(seam: SeamLine, config: SectionConfig) -> float:
     return seam.half_band_mm + config.edge_band_mm + config.top_band_mm + 1.0
 
 
+def edge_reach_mm(seam: SeamLine, spacing_mm: float) -> float:
+    """How far across its centre line a seam's edge zones reach: its band (where the tops
+    end), the zone's start inside a top's end (``edges.band_far_mm``), and 1 mm to spare."""
+    return seam.half_band_mm + edges.band_far_mm(spacing_mm) + 1.0
+
+
 def section_range(
     seam: SeamLine, config: SectionConfig, *, end_margin_mm: float
 ) -> tuple[float, int]:
