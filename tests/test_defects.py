@@ -508,6 +508,61 @@ def test_a_step_parts_a_coarse_map_where_no_gap_is_seen() -> None:
     assert not _steps(stepped, seen, STEP_MM).any()
 
 
+def test_a_dents_floor_takes_no_disc_out_of_a_coarse_top() -> None:
+    """The step rule fires on a dent's floor (a raised cosine 0.6 mm deep and 12 mm
+    across, on cells of 0.9 mm: a ring of cells), and each cell marked took a disc 13
+    cells across out of the top with the 6-cell erosion — beside a gap, the top's edge
+    over 20 mm, which growing back 6 cells did not restore. The cells at a step part the
+    core ``STEP_REACH_CELLS`` either side: the top is one panel, grown back whole, while
+    a 0.3 mm step still parts it in two."""
+    from services.defects.panels import segment_panels
+    from services.defects.raster import Raster, SurfaceFrame
+
+    rows, cols = np.mgrid[0:80, 0:60] * 0.9
+    r = np.hypot(rows - 24.0, cols - 10.0)
+    dent = np.where(r < 6.0, -0.3 * (1 + np.cos(np.pi * r / 6.0)), 0.0).astype(np.float32)
+    dent[:, :2] = np.nan  # a gap seen beside the dent, 8 mm from its centre
+    for height, count in ((dent, 1), (dent + np.where(rows > 45, 0.3, 0.0), 2)):
+        raster = Raster(
+            SurfaceFrame(np.zeros(3), np.eye(3)),
+            0.9,
+            np.zeros(2),
+            height.astype(np.float32),
+            np.isfinite(height).astype(np.int32),
+            np.zeros((1, 1), np.int32),
+            None,
+            np.zeros((0, 4), np.float32),
+        )
+        panels = segment_panels(
+            raster, max_slope_deg=30, min_area_mm2=100, background_drop_mm=5, bridge_cells=6
+        )
+        assert panels.count == count
+        top = panels.labels > 0
+        assert top[12:34, 3:30].all()  # the dent's ring and the top's edge beside the gap
+
+
+def test_a_seam_found_over_part_of_its_length_counts_the_rest_unmeasured() -> None:
+    """A seam found over 28 of its 150 mm counted 14 of 14 sections measured: the rest of
+    it, where a view saw both edges, now counts as sections not measured (every pitch,
+    clear of the ends by ``END_ALLOWANCE_MM``); a seam found whole loses none."""
+    from services.defects.evaluate import END_ALLOWANCE_MM, PITCH_MM, _sections_not_reached
+
+    segment = np.array([150.0, 0.0, 0.0])
+    part = np.arange(20.0, 48.1, PITCH_MM) / 150.0
+    whole = np.arange(7.0, 143.1, PITCH_MM) / 150.0
+    positions = np.arange(END_ALLOWANCE_MM, 150 - END_ALLOWANCE_MM, PITCH_MM)
+    expected = len(positions) - 16  # those at 19…49 mm lie within a pitch of a section
+    assert _sections_not_reached(part, segment, 0, None) == expected
+    assert _sections_not_reached(whole, segment, 0, None) == 0
+    assert _sections_not_reached(np.array([]), segment, 0, None) == expected + 16
+
+    def unseen_beyond_100(seam_id: int, fraction: np.ndarray) -> np.ndarray:
+        return np.repeat((fraction * 150.0 <= 100.0)[:, None], 2, axis=1)
+
+    far = int((positions > 100).sum())
+    assert _sections_not_reached(part, segment, 0, unseen_beyond_100) == expected - far
+
+
 def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
     from services.defects.bench import SweepCase, run_defects_bench, spacing_cases
 

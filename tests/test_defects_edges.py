@@ -185,6 +185,24 @@ def test_slabs_are_thickened_only_where_the_phase_drifts(monkeypatch, yaw, widen
     assert (half > 10.0) == widened, calls
 
 
+def test_a_seam_is_followed_where_a_view_saw_the_backing_under_a_panels_edge() -> None:
+    """A second view looked through the gap at an angle and saw the backing under panel
+    a's edge (open behind the panels): over 60 mm of the seam, the backing's points lie
+    among the top's within 4 mm of its edge, and those cells are no top on the height map.
+    The seam was cut where they were (a 2 × 2 assembly at 15° to the scan lost a third of
+    its long seams); it is now followed along its whole length, and measured there."""
+    cloud = seam_cloud(3.0, 0.4, ("square", 0), ("square", 0), spacing_mm=0.2)
+    rng = np.random.default_rng(5)
+    y = rng.uniform(50.0, 90.0, 5_000)  # as dense as the top: 25 points per mm²
+    x = -1.5 - rng.uniform(0.0, 5.0, y.shape)  # under panel a's top, beside the gap
+    backing = np.stack([x, y, rng.normal(-15.0, 0.02, y.shape)], 1).astype(np.float32)
+    result = measure(PointCloud(points=np.concatenate([cloud.points, backing])), CONFIG)
+    seam = _one_seam(result)
+    assert seam.length_mm > 90
+    assert seam.measured.mean() > 0.9, seam.sections_unmeasured
+    assert np.percentile(np.abs(seam.sections_gap_mm[seam.measured] - 3.0), 95) < 0.05
+
+
 def test_seams_beside_panels_merged_across_a_corner_are_found() -> None:
     """A 2 × 2 assembly whose top-left panel touches its two neighbours (no gap: the
     three read as one L-shaped top, as a coarse scan across narrow gaps merges them): the

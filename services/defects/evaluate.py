@@ -221,6 +221,31 @@ EdgesSeen = Callable[[int, np.ndarray], np.ndarray]
 there (``AssemblyScanner.edges_seen``)."""
 
 
+END_ALLOWANCE_MM = 15.0
+"""Sections stay clear of a seam's ends (its junctions and corners) by up to about this."""
+
+
+def _sections_not_reached(
+    fraction: np.ndarray, segment: np.ndarray, seam_id: int, seen: EdgesSeen | None
+) -> int:
+    """How many sections the measured seam's (at ``fraction`` of the true seam along
+    ``segment``) leave out of the true seam's length: those, every pitch along it, more
+    than ``END_ALLOWANCE_MM`` from its ends and more than a pitch from any section, where
+    a view saw both edges — a seam found over a part of its length lost the rest (a seam
+    found over 28 of its 150 mm counted 4 of 4 sections measured)."""
+    length = float(np.linalg.norm(segment))
+    along = np.arange(END_ALLOWANCE_MM, length - END_ALLOWANCE_MM, PITCH_MM)
+    if not len(along):
+        return 0
+    at = np.asarray(fraction) * length
+    missed = np.ones(len(along), bool)
+    if len(at):
+        missed = np.abs(np.subtract.outer(along, at)).min(axis=1) > PITCH_MM
+    if seen is not None and missed.any():
+        missed[missed] = seen(seam_id, along[missed] / length).all(axis=1)
+    return int(missed.sum())
+
+
 def evaluate(
     result: MeasureResult, truth: Truth, tolerances: Limits, *, seen: EdgesSeen | None = None
 ) -> Evaluation:
@@ -259,8 +284,9 @@ def evaluate(
         measured = seam.measured
         for edge in seam.edges:
             e.edge_models[edge.model] = e.edge_models.get(edge.model, 0) + 1
-        e.sections_total += len(measured)
-        e.sections_unmeasured += int((~measured).sum())
+        lost = _sections_not_reached(fraction, segment, true_seam.id, seen)
+        e.sections_total += len(measured) + lost
+        e.sections_unmeasured += int((~measured).sum()) + lost
         e.negative_gaps += int((seam.sections_gap_mm[measured] < 0).sum())
         hidden = np.zeros(len(fraction), bool)
         if seen is not None:

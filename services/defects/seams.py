@@ -178,15 +178,24 @@ def _centroids_uv(raster: Raster, panels: Panels) -> np.ndarray:
     )
 
 
+BESIDE_MM = (2.5, 8.5)
+"""A panel's top runs beside a seam where its cells lie this far beyond the seam's band
+somewhere (where the sections fit the tops)."""
+
+
 def _trim_to_tops(raster: Raster, labels: np.ndarray, seam: SeamLine) -> SeamLine:
-    """Cut the seam to where both panel tops run beside it, 2.5 mm beyond its band."""
+    """Cut the seam to where both panel tops run beside it (``BESIDE_MM``). Not only just
+    beyond its band: a view that saw through a gap under a panel's edge (open behind the
+    panels) put the backing among that top's points, over a wedge millimetres wide and
+    tens long, whose cells are no top on the height map — a seam cut where they were lost
+    a third of its length (a 2 × 2 assembly scanned at 15° to its seams)."""
     along = np.arange(seam.start_mm - 5.0, seam.end_mm + 5.0, raster.cell_mm)
-    offset = seam.half_band_mm + 2.5
+    offsets = seam.half_band_mm + np.arange(*BESIDE_MM, raster.cell_mm)
     beside = []
     for side, label in ((-1, seam.panels[0]), (1, seam.panels[1])):
-        uv = seam.point_uv(along) + side * offset * seam.across_uv
+        uv = seam.point_uv(along)[:, None] + side * np.multiply.outer(offsets, seam.across_uv)
         rows, cols, inside = raster.cell_at(uv)
-        beside.append(inside & (labels[rows, cols] == label))
+        beside.append((inside & (labels[rows, cols] == label)).any(axis=1))
     both = beside[0] & beside[1]
     if not both.any():
         return replace(seam, start_mm=0.0, end_mm=0.0)
