@@ -159,24 +159,75 @@ def last_point(values: np.ndarray, start: float, largest_gap: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def extent(u: np.ndarray, d: np.ndarray, sigma: float, spacing: float) -> tuple[float, float]:
-    """(X, σ_X) of a top that ends where its points stop: its last point plus the
-    sampling's mean residual gap; σ_X = largest gap / √12. Points above the top (a burr)
-    count, and so do points less than 3σ + one point ``spacing`` below it: where a
-    stitch merged the corner's last top point with a side-face point seen in the same
-    voxel, their mean lies just below the top (a pixel mixed with the floor lies far
-    deeper)."""
+def top_end(
+    u: np.ndarray, d: np.ndarray, sigma: float, spacing: float
+) -> tuple[float, float, float]:
+    """(last point, the sampling's mean residual gap, its largest gap) of a top that ends
+    where its points stop (NaN where too few). Points above the top (a burr) count, and so
+    do points less than 3σ + one point ``spacing`` below it: where a stitch merged the
+    corner's last top point with a side-face point seen in the same voxel, their mean
+    lies just below the top (a pixel mixed with the floor lies far deeper)."""
     residual, largest = sampling(u, d, sigma, spacing)
     if not np.isfinite(residual):
-        return np.nan, np.nan
+        return np.nan, np.nan, np.nan
     top = np.empty(u.shape[0])
     n = 0
     for i in range(u.shape[0]):
         if d[i] < TRUNCATION * sigma + spacing and u[i] >= -EXTENT_BAND_MM[1]:
             top[n] = u[i]
             n += 1
-    last = last_point(top[:n], -EXTENT_BAND_MM[1], largest)
+    return last_point(top[:n], -EXTENT_BAND_MM[1], largest), residual, largest
+
+
+@njit(cache=True, nogil=True)
+def extent(u: np.ndarray, d: np.ndarray, sigma: float, spacing: float) -> tuple[float, float]:
+    """(X, σ_X) of a top that ends where its points stop (``top_end``): its last point plus
+    the sampling's mean residual gap; σ_X = largest gap / √12."""
+    last, residual, largest = top_end(u, d, sigma, spacing)
     return last + residual, largest / np.sqrt(12.0)
+
+
+MIN_RETURN_DEG = 60.0
+"""A sensor returns points from a surface inclined up to this much to its view at least
+(the simulator's up to 75°; laser profilers 60–80°): an arc is seen from its start to at
+least this slope."""
+
+
+@njit(cache=True, nogil=True)
+def arc_extent(
+    u: np.ndarray, d: np.ndarray, sigma: float, spacing: float, radius: float
+) -> tuple[float, float]:
+    """(X, σ_X) of an arc of ``radius`` that no point of the section lies on (none below
+    the top by 3σ): its start u_c is no further in than the top's last point less where
+    the arc leaves the top by 3σ (√(6ρσ)), and no further out than where the next sample
+    after that point — in the gap, or where the arc is too steep to return a point —
+    lies, less the arc's part a sensor sees (ρ sin ``MIN_RETURN_DEG``). X = u_c + ρ, in the
+    middle of that range, σ_X its width / √12 (NaN where the range is empty: a radius
+    the points contradict). A round edge on a coarse grid along the seam: its arc may
+    fall between two samples in every section — a corner's extent put its side face
+    half a spacing in (ρ 1 mm at 0.75 mm spacing)."""
+    last, _, largest = top_end(u, d, sigma, spacing)
+    seen = np.sin(np.radians(MIN_RETURN_DEG))
+    low = last - np.sqrt(2.0 * radius * TRUNCATION * sigma) + radius
+    high = last + largest + radius * (1.0 - seen)
+    if not low <= high:
+        return np.nan, np.nan
+    return (low + high) / 2, (high - low) / np.sqrt(12.0)
+
+
+@njit(cache=True, nogil=True)
+def bare_extent(last: float, largest: float, sigma: float) -> tuple[float, float]:
+    """(X, σ_X) of a top whose last point at ``last`` has no point below the top beyond
+    it, whatever its edge's shape: a square corner stands within the stretch after it
+    (``largest``), and an arc may have fallen between two samples — any radius whose
+    seen part below 3σ (``arc_extent``) is shorter than the stretch, its side face up to
+    ρ(1 − sin ``MIN_RETURN_DEG``) further out; its least, 1.5σ in (ρ = 1.5σ)."""
+    seen = np.sin(np.radians(MIN_RETURN_DEG))
+    root = np.sqrt(2.0 * TRUNCATION * sigma)
+    radius = ((root + np.sqrt(root * root + 4.0 * seen * largest)) / (2.0 * seen)) ** 2
+    low = last - 0.5 * TRUNCATION * sigma
+    high = last + largest + radius * (1.0 - seen)
+    return (low + high) / 2, (high - low) / np.sqrt(12.0)
 
 
 @njit(cache=True, nogil=True)
@@ -263,7 +314,7 @@ def implied_corner(model: int, u: np.ndarray, d: np.ndarray, sigma: float, shape
 
 @njit(cache=True, nogil=True)
 def _round(
-    u: np.ndarray, d: np.ndarray, sigma: float, fixed_radius: float
+    u: np.ndarray, d: np.ndarray, sigma: float, spacing: float, fixed_radius: float
 ) -> tuple[float, float, float, float, float, float]:
     """(u_c, ρ, X, σ_X, cost, mean truncated r²/σ²) of the arc model; ρ fixed when
     ``fixed_radius`` is finite. Started from several radii (the fit has local minima),
@@ -272,6 +323,10 @@ def _round(
     below = 0
     for i in range(u.shape[0]):
         below += d[i] > TRUNCATION * sigma
+    if below == 0 and not fit_radius:  # the arc between two samples: its extent
+        x, sigma_x = arc_extent(u, d, sigma, spacing, fixed_radius)
+        cost = _cost(ROUND, u, d, x - fixed_radius, fixed_radius, sigma)
+        return x - fixed_radius, fixed_radius, x, sigma_x, cost, cost / u.shape[0]
     if below < MIN_EDGE_POINTS[0 if fit_radius else 1]:
         return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     best_cost, centre, radius = np.inf, 0.0, 1.0
@@ -519,11 +574,12 @@ def _free(
     u: np.ndarray, d: np.ndarray, sigma: float, spacing: float, max_depth: float
 ) -> tuple[float, float, float]:
     """(X, σ_X, unexplained width): the top's extent; σ_X covers the contiguous run of
-    points below the top beyond it, which no model explains."""
-    x, sigma_x = extent(u, d, sigma, spacing)
-    if not np.isfinite(x):
+    points below the top beyond it, which no model explains — or, where there is none,
+    any shape of edge the points allow (``bare_extent``)."""
+    last, residual, largest = top_end(u, d, sigma, spacing)
+    if not np.isfinite(last):
         return np.nan, np.nan, np.nan
-    largest = sigma_x * np.sqrt(12.0)
+    x = last + residual
     beyond = np.empty(u.shape[0])
     n = 0
     for i in range(u.shape[0]):
@@ -536,6 +592,9 @@ def _free(
             break
         reach = value
     width = reach - x
+    if n == 0:
+        x, sigma_x = bare_extent(last, largest, sigma)
+        return x, sigma_x, 0.0
     return x, np.sqrt((largest**2 + width**2) / 12.0), width
 
 
@@ -590,7 +649,7 @@ def fit_sides(
             out[g, CHAMFER] = c, a, x, sx, cost, q
             extra[g, 3] = seen
         if models[g, ROUND]:
-            out[g, ROUND] = _round(ug, dg, s, fixed_shape[g])
+            out[g, ROUND] = _round(ug, dg, s, spacing, fixed_shape[g])
         if models[g, FREE]:
             x, sx, width = _free(ug, dg, s, spacing, max_depth)
             out[g, FREE, 2], out[g, FREE, 3] = x, sx

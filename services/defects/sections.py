@@ -90,8 +90,10 @@ class SectionConfig:
     """A model whose truncated RMS residual exceeds this many σ does not explain the edge
     (with residuals truncated at 3σ, a sixth of the points off it already does that)."""
     max_edge_sigma_mm: float = 0.05
-    """An edge placed with a larger 1σ uncertainty (the free fallback over an unexplained
-    profile) is not measured."""
+    """An edge placed with a larger 1σ uncertainty by the free fallback over points below
+    the top that no model explains (a profile none describes) is not measured; with none
+    beyond the top's end, it is, with the σ of any shape its points allow
+    (``edges.bare_extent``)."""
     min_profiles: int = 10
     """A section's slab is at least this many point spacings thick (``slab_width_mm``;
     0: ``slab_mm`` whatever the spacing, as the single-profile gauge takes it)."""
@@ -213,6 +215,9 @@ class _Edges:
     residual: np.ndarray
     past_hole: np.ndarray
     face_seen: np.ndarray
+    unexplained: np.ndarray
+    """(groups,) how wide the points below the top beyond a free edge run, which no model
+    explains (0: none, or a model's edge)."""
     shapes: tuple[EdgeShape, EdgeShape]
     sampling: np.ndarray
     """(groups,) the widest stretch between the top's points near its end (NaN: too few)."""
@@ -367,12 +372,13 @@ def _edges(
         free = np.full(groups, edges.FREE)
         void = (EdgeShape("void"), EdgeShape("void"))
         none = np.full(groups, np.nan)
-        return _Edges(zero, zero, zero, free, none, no, no, void, none, none)
+        return _Edges(zero, zero, zero, free, none, no, no, zero, void, none, none)
     gap_end = np.abs(np.repeat(middle, 2) - tops.end_x)
     starts, zu, zd, zy = _edge_zones(
         group, xm, w, y, tops.plane, gap_end, config.max_edge_depth_mm, groups, spacing_mm
     )
-    sigma = np.full(groups, max(noise, 0.005) if np.isfinite(noise) else 0.02)
+    seam_sigma = max(noise, 0.005) if np.isfinite(noise) else 0.02
+    sigma = np.fmax(tops.sigma, seam_sigma)  # the noise here, where more than the seam's
 
     def fit(models: np.ndarray, shape: np.ndarray) -> tuple:
         """``edges.fit_sides`` of the (groups, 4) ``models`` wanted on each side."""
@@ -380,7 +386,7 @@ def _edges(
             starts, zu, zd, sigma, spacing_mm, config.max_edge_depth_mm, models, shape
         )
 
-    chosen, shape, shape_sigma = _choose_models(fit, np.diff(starts), config, groups)
+    chosen, shape, shape_sigma, shapes = _choose_models(fit, np.diff(starts), config, groups)
     side_model = np.tile(chosen, sections)
     index = np.arange(groups)
     own = np.zeros((groups, 4), bool)
@@ -391,10 +397,18 @@ def _edges(
     fits, extra = fit(own, shape)
     best = fits[index, side_model]
     poor = ~np.isfinite(best[:, 2]) | ~(best[:, 5] <= config.fit_gate**2)
-    if poor.any():  # the fallback, where the side's model does not explain the edge
-        fallback, _ = fit(_wanted(poor, [edges.FREE]), shape)
+    models = side_model.copy()
+    columns = edges.shape_columns(starts, zu, zd, sigma, spacing_mm)
+    if poor.any() and config.edge_model == "auto":
+        models[poor] = _another_model(fit, poor, shapes, fits, np.diff(starts), columns, config)[
+            poor
+        ]
+    poor = models == edges.FREE
+    unexplained = np.zeros(groups)
+    if poor.any():  # the fallback, where no model explains the edge
+        fallback, widths = fit(_wanted(poor, [edges.FREE]), shape)
         fits[poor, edges.FREE] = fallback[poor, edges.FREE]
-    models = np.where(poor, edges.FREE, side_model)
+        unexplained[poor] = widths[poor, 1]
     final = fits[index, models]
     sampling = edges.sampling_gaps(starts, zu, zd, sigma, spacing_mm)
     # The same from the slab's middle half: how much of that the slab's thickness gave.
@@ -404,9 +418,7 @@ def _edges(
     sampling_mid = edges.sampling_gaps(mid_starts, zu[mid], zd[mid], sigma, spacing_mm)
     # An arc or chamfer seen at too few places across is placed no finer than its points:
     # the model that fits them best may put the side face a whole stretch either way.
-    unverified = np.isin(models, [edges.ROUND, edges.CHAMFER]) & (
-        edges.shape_columns(starts, zu, zd, sigma, spacing_mm) < edges.SHAPE_COLUMNS
-    )
+    unverified = np.isin(models, [edges.ROUND, edges.CHAMFER]) & (columns < edges.SHAPE_COLUMNS)
     floor = np.where(unverified, np.nan_to_num(sampling, nan=spacing_mm) / np.sqrt(3.0), 0.0)
     x = final[:, 2]
     depth = np.where(
@@ -437,9 +449,11 @@ def _edges(
             floor,
         ),
         models=models,
-        residual=np.sqrt(np.fmin(best[:, 5], edges.TRUNCATION**2)) * sigma,
+        residual=np.sqrt(np.fmin(np.where(poor, best[:, 5], final[:, 5]), edges.TRUNCATION**2))
+        * sigma,
         past_hole=_top_beyond(starts, zu, zd, sigma, x),
         face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0) & ~poor,
+        unexplained=unexplained,
         shapes=shapes,
         sampling=sampling,
         sampling_mid=sampling_mid,
@@ -448,12 +462,13 @@ def _edges(
 
 def _choose_models(
     fit: Callable, points: np.ndarray, config: SectionConfig, groups: int
-) -> tuple[tuple[int, int], np.ndarray, list[float]]:
+) -> tuple[tuple[int, int], np.ndarray, list[float], np.ndarray]:
     """Each side's model and shape, from ``SELECTION_SECTIONS`` sections spread along the
     seam: every model fitted freely there; the shape (radius, angle) taken as the median,
     since it belongs to the edge; the models fitted again with it and compared
-    (``_choose``). Returns the two models, the shape per group, and each side's 1σ of the
-    radius (a wrong ρ moves X = u_c + ρ)."""
+    (``_choose``). Returns the two models, the shape per group, each side's 1σ of the
+    radius (a wrong ρ moves X = u_c + ρ), and every model's shape per group ((4, groups),
+    NaN where it has none)."""
     if config.edge_model == "auto":
         candidates = [edges.SQUARE, edges.CHAMFER, edges.ROUND, edges.FREE]
     else:
@@ -481,7 +496,40 @@ def _choose_models(
             radii = free[s::2, edges.ROUND, 1][trial_sections[s::2]]
             radius_sigma[s] = _median_sigma(radii[np.isfinite(radii)])
     shape = np.where(np.arange(groups) % 2 == 0, shapes[chosen[0]], shapes[chosen[1]])
-    return (chosen[0], chosen[1]), shape, radius_sigma
+    return (chosen[0], chosen[1]), shape, radius_sigma, shapes
+
+
+def _another_model(
+    fit: Callable,
+    poor: np.ndarray,
+    shapes: np.ndarray,
+    fits: np.ndarray,
+    points: np.ndarray,
+    columns: np.ndarray,
+    config: SectionConfig,
+) -> np.ndarray:
+    """For each ``poor`` side (its seam's model does not explain its points), the other
+    shaped model that does — a chamfer or an arc, with the shape its seam's sections gave
+    that model — where points lie below its top (``columns``), with the least information
+    criterion (cost + ln n per parameter of the section); ``edges.FREE`` where none does.
+    Their fits are written into ``fits``. A coarse grid along a seam samples an edge at a
+    few places, the same in every section: three points on a round edge's curve at
+    0.75 mm, which the seam's chamfer could not follow, left half the seam's sections
+    unmeasured."""
+    tried = np.full((len(poor), 4), np.inf)
+    poor = poor & (columns > 0)
+    for model in (edges.CHAMFER, edges.ROUND):
+        for shape in (shapes[model], np.full(len(poor), np.nan)):  # the seam's, or its own
+            left = poor & ~np.isfinite(tried[:, model])
+            trial, _ = fit(_wanted(left, [model]), shape)
+            explains = left & np.isfinite(trial[:, model, 2])
+            explains &= trial[:, model, 5] <= config.fit_gate**2
+            fits[explains, model] = trial[explains, model]
+            parameters = edges.LOCAL_PARAMETERS[model] + ~np.isfinite(shape[explains])
+            penalty = parameters * np.log(np.maximum(points[explains], 1))
+            tried[explains, model] = trial[explains, model, 4] + penalty
+    best = np.argmin(tried, axis=1)
+    return np.where(np.isfinite(tried[np.arange(len(poor)), best]), best, edges.FREE)
 
 
 def _wanted(sides: np.ndarray, models: list[int]) -> np.ndarray:
@@ -653,7 +701,9 @@ def _unmeasured(
             ~np.isfinite(tops.plane[:, 0]),
             ~np.isfinite(fitted.x),
             fitted.past_hole,
-            (models == edges.FREE) & ~(fitted.sigma <= config.max_edge_sigma_mm),
+            (models == edges.FREE)
+            & (fitted.unexplained > 0)
+            & ~(fitted.sigma <= config.max_edge_sigma_mm),
         ],
         [SIDE_NO_TOP, SIDE_NO_EDGE, SIDE_PAST_HOLE, SIDE_NO_MODEL],
         0,
