@@ -169,6 +169,19 @@ def test_a_coarse_round_edged_assembly_along_the_rows_is_measured_where_it_is_se
     assert summary["sections_within_2sigma"] >= 0.9
 
 
+def test_arcs_sampled_at_one_phase_claim_no_finer_than_a_share_of_the_stretch() -> None:
+    """Rounded edges (0.2–5 mm) at 0.2 mm, rows at 45° to the seams (the spacing sweep's
+    cell): the same few places on each arc in every section bias its fit alike — 0.89 of
+    the sections were within 2σ, their σ from the fit's noise alone. An arc is placed no
+    finer than ``SHAPE_PHASE`` of the stretch its profiles leave."""
+    from services.defects.bench import _run, spacing_cases
+
+    case = spacing_cases((0.2,), (45.0,), (0.02,), ("round",))[0]
+    vista, _ = _run(case, 270, threads=1, timed_runs=1)
+    assert vista.summary()["sections_within_2sigma"] >= 0.95
+    assert vista.summary()["gap_error_p95_mm"] <= 0.11
+
+
 def test_a_gap_wider_than_the_shadow_and_the_corners_placing_is_measured() -> None:
     """A 0.8 mm gap beside a 0.8 mm step, at 0.5 mm spacing: a view 30° off the normal
     would hide 0.46 mm beyond the higher panel's wall, and the corners are placed to about
