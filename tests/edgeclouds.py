@@ -50,9 +50,11 @@ def seam_cloud(
     width_mm: float = 60.0,
     max_slope_deg: float = 75.0,
     seed: int = 0,
+    taper_mm: float = 0.0,
 ) -> PointCloud:
     """The sampled cloud (float32, mm). The sampling grid is turned by ``yaw_deg`` against
-    the seam, as a sensor's rows rarely run exactly along one."""
+    the seam, as a sensor's rows rarely run exactly along one. The gap widens by
+    ``taper_mm`` along the seam, each edge leaving the seam's line by half of it."""
     rng = np.random.default_rng(seed)
     u, v = np.meshgrid(
         np.arange(-width_mm, width_mm, spacing_mm),
@@ -66,9 +68,10 @@ def seam_cloud(
     x, y = x[keep], y[keep]
     z = np.full(x.shape, -15.0)
     seen = np.ones(x.shape, bool)
+    half_gap = (gap_mm + taper_mm * y / length_mm) / 2
     for side, (kind, size), top in ((-1, edge_a, 0.0), (1, edge_b, step_mm)):
-        on = side * x > gap_mm / 2
-        inside = side * x[on] - gap_mm / 2
+        on = side * x > half_gap
+        inside = side * x[on] - half_gap[on]
         z[on] = top - _drop(kind, size, inside)
         seen[on] = _slope_deg(kind, size, inside) < max_slope_deg
     z += rng.normal(0.0, sigma_mm, z.shape)

@@ -182,6 +182,22 @@ def test_arcs_sampled_at_one_phase_claim_no_finer_than_a_share_of_the_stretch() 
     assert vista.summary()["gap_error_p95_mm"] <= 0.11
 
 
+def test_a_tapered_seam_along_the_rows_claims_the_lattice_it_shares() -> None:
+    """Square corners 0.1 mm apart in the scan, rows along a seam whose gap widens from
+    2.3 to 2.7 mm: both edges cross the lattice's points together, and the gap's error
+    runs evenly from −s to +s along the seam (σ s/√3) — in quadrature the sides' σ gave
+    s/√6, and a fifth of the sections lay beyond 2σ."""
+    cloud = seam_cloud(
+        2.3, 0.3, ("square", 0), ("square", 0), spacing_mm=0.1, yaw_deg=0.0, taper_mm=0.4
+    )
+    seam = _one_seam(measure(cloud, CONFIG))
+    truth = 2.3 + 0.4 * (seam.sections_at[:, 1] - cloud.points[:, 1].min()) / 100.0
+    errors = seam.sections_gap_mm[seam.measured] - truth[seam.measured]
+    assert seam.measured.mean() > 0.9
+    assert np.abs(errors).max() > 0.09  # the lattice's error, as it is
+    assert np.mean(np.abs(errors) <= 2 * seam.sections_gap_sigma_mm[seam.measured]) >= 0.95
+
+
 def test_a_gap_wider_than_the_shadow_and_the_corners_placing_is_measured() -> None:
     """A 0.8 mm gap beside a 0.8 mm step, at 0.5 mm spacing: a view 30° off the normal
     would hide 0.46 mm beyond the higher panel's wall, and the corners are placed to about
