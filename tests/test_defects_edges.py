@@ -198,6 +198,22 @@ def test_a_tapered_seam_along_the_rows_claims_the_lattice_it_shares() -> None:
     assert np.mean(np.abs(errors) <= 2 * seam.sections_gap_sigma_mm[seam.measured]) >= 0.95
 
 
+def test_a_wide_arc_seen_at_few_places_is_placed_by_its_radius(tmp_path) -> None:
+    """The seed-3 assembly at 0.75 mm (``vista simulate defects --seed 3``): arcs of about
+    1.6 mm, one or two of the coarse grid's columns on them in most sections. Their
+    radius, shared along each seam, pins the edge where no chamfer explains the points as
+    well; the floor a few columns gave (the stretch / √3) made every parallelism's σ
+    0.65–1.2 mm on errors of 0.02 — each judged "too close for a scan to decide"."""
+    from services.defects.example import write_defects_example
+    from services.defects.simulate import AssemblySpec
+    from services.lib.pointcloud.ply import read_ply
+
+    write_defects_example(tmp_path, AssemblySpec(), grid=(133, 205), seed=3)
+    result = measure(read_ply(tmp_path / "cloud.ply"), CONFIG)
+    sigmas = [f.sigma_mm for f in result.findings if f.type == "parallelism"]
+    assert len(sigmas) == 4 and max(sigmas) < 0.25, sigmas
+
+
 def test_a_gap_wider_than_the_shadow_and_the_corners_placing_is_measured() -> None:
     """A 0.8 mm gap beside a 0.8 mm step, at 0.5 mm spacing: a view 30° off the normal
     would hide 0.46 mm beyond the higher panel's wall, and the corners are placed to about

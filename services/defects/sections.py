@@ -57,6 +57,11 @@ phase (rows along or at 45° to the seam), the same few places on the shape in e
 section bias it alike — rounded edges at 0.1 mm, rows along the seam, were off by up to
 0.011 mm a seam with σ 0.007 (0.85 of their sections within 2σ; 0.97 with this). Where
 the profiles' phase drifts, the stretch, and this, are a fraction of the spacing."""
+WIDE_ARC_STRETCHES = 2.0
+"""An arc this many stretches of its profiles wide or more, seen at few places across, is
+placed by its radius where no chamfer explains its points (``_ambiguity``); a narrower
+one fits a chamfer's columns as the side face and its corner (chamfers of 0.3–1 mm at
+0.5 mm fitted as arcs of 0.2–0.5 mm, 0.43 mm off)."""
 PITCH_SPACINGS = 1.25
 """The scan grid's pitch in measured point spacings, at most: scans that overlap make the
 spacing measured (√(area / points)) up to a fifth finer than the pitch of each."""
@@ -423,13 +428,19 @@ def _edges(
     owner = np.repeat(np.arange(groups), np.diff(starts))
     mid_starts = np.concatenate([[0], np.cumsum(np.bincount(owner[mid], minlength=groups))])
     sampling_mid = edges.sampling_gaps(mid_starts, zu[mid], zd[mid], sigma, spacing_mm)
-    # An arc or chamfer seen at too few places across is placed no finer than its points:
-    # the model that fits them best may put the side face a whole stretch either way; one
-    # seen at more, no finer than ``SHAPE_PHASE`` of a stretch.
+    # An arc or chamfer seen at too few places across is placed no finer than its points
+    # — the model that fits them best may put the side face a whole stretch either way —
+    # but an arc that spans two stretches or more, no finer than a chamfer that explains
+    # them as well would place it (``_ambiguity``); either, seen at more, no finer than
+    # ``SHAPE_PHASE`` of a stretch.
     shaped = np.isin(models, [edges.ROUND, edges.CHAMFER])
-    unverified = shaped & (columns < edges.SHAPE_COLUMNS)
     stretch = np.nan_to_num(sampling, nan=spacing_mm)
-    floor = np.where(unverified, 1 / np.sqrt(3.0), np.where(shaped, SHAPE_PHASE, 0.0)) * stretch
+    few = shaped & (columns < edges.SHAPE_COLUMNS)
+    wide_arc = (models == edges.ROUND) & (final[:, 1] >= WIDE_ARC_STRETCHES * stretch)
+    floor = np.maximum(
+        np.where(few & ~wide_arc, 1 / np.sqrt(3.0), np.where(shaped, SHAPE_PHASE, 0.0)) * stretch,
+        _ambiguity(fit, few & wide_arc, final[:, 2], shapes, config),
+    )
     x = final[:, 2]
     depth = np.where(
         models == edges.ROUND,
@@ -540,6 +551,29 @@ def _another_model(
             tried[explains, model] = trial[explains, model, 4] + penalty
     best = np.argmin(tried, axis=1)
     return np.where(np.isfinite(tried[np.arange(len(poor)), best]), best, edges.FREE)
+
+
+def _ambiguity(
+    fit: Callable, few: np.ndarray, x: np.ndarray, shapes: np.ndarray, config: SectionConfig
+) -> np.ndarray:
+    """(groups,) 1σ that covers a chamfer where it explains as well the points of a round
+    side (its wide arc seen at ``few`` places across): half the distance between the side
+    faces the two place (0 where no chamfer explains them). One or two columns of a coarse
+    grid on an edge, and a chamfer fits as an arc does (a 1 mm chamfer at 0.5 mm, rows
+    along the seam, fitted as an arc 0.38 mm off with σ 0.024 mm); yet where no chamfer
+    can follow them, the arc's radius, shared along the seam, pins the edge (a 1.6 mm
+    arc at 0.6 mm spacing, one or two columns on it: a floor of the stretch / √3 gave σ
+    0.42 mm on errors of 0.05)."""
+    out = np.zeros(len(few))
+    if not few.any():
+        return out
+    for shape in (shapes[edges.CHAMFER], np.full(len(few), np.nan)):  # the seam's, its own
+        trial, _ = fit(_wanted(few, [edges.CHAMFER]), shape)
+        explains = few & np.isfinite(trial[:, edges.CHAMFER, 2])
+        explains &= trial[:, edges.CHAMFER, 5] <= config.fit_gate**2
+        apart = np.abs(trial[explains, edges.CHAMFER, 2] - x[explains]) / 2
+        out[explains] = np.maximum(out[explains], apart)
+    return out
 
 
 def _wanted(sides: np.ndarray, models: list[int]) -> np.ndarray:
