@@ -564,7 +564,13 @@ def test_a_seam_found_over_part_of_its_length_counts_the_rest_unmeasured() -> No
 
 
 def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
-    from services.defects.bench import SweepCase, run_defects_bench, spacing_cases
+    from services.defects.bench import (
+        SweepCase,
+        _angle_table,
+        _one_phase,
+        run_defects_bench,
+        spacing_cases,
+    )
 
     assert len(spacing_cases()) == 7 * 3 * 4 * 2  # spacings × edges × grid angles × noise
     case = SweepCase(
@@ -572,6 +578,7 @@ def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
         AssemblySpec(panel_mm=(110.0, 80.0), edge_radius_mm=(1.0, 2.0)),
         spacing_mm=0.5,
         yaw_deg=15.0,
+        edge="round",
     )
     document = run_defects_bench(
         tmp_path / "defects.json", seeds=1, sweeps=("spacing",), spacing_sweep=(case,)
@@ -587,3 +594,9 @@ def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
     assert len(row["errors"]["gap_mm"]) == vista["sections"] > 0
     verdict = [key for key in document["verdict"] if key.startswith("spacing over 0.2 up to 0.5")]
     assert len(verdict) == 3 and all("at every spacing" in key for key in verdict)
+    # by the grid's angle, and without the cells that sample a corner at one phase
+    assert "| 0.5 | " in _angle_table([row]) and "15°" in _angle_table([row])
+    assert not _one_phase(row)
+    assert _one_phase(row | {"edge": "square", "grid_angle_deg": 45.0})
+    assert _one_phase(row | {"edge": "chamfer", "grid_angle_deg": 0.0})
+    assert not _one_phase(row | {"edge": "square", "grid_angle_deg": 2.0})
