@@ -6,13 +6,16 @@ from pathlib import Path
 
 from sqlalchemy import insert, select
 
-from supervisor.models import Change, Defect
+from supervisor.models import Change, Defect, Job, Run
 
 TYPES = ("gap", "step", "scratch", "dent")
 
 
-def seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> list[int]:
-    """``count`` defects: types cycle gap, step, scratch, dent; defect i sits at x = i mm."""
+def seed_defects(
+    runtime, inspection_id: int, count: int, *, run_id=None, uncertain: tuple[int, ...] = ()
+) -> list[int]:
+    """``count`` defects: types cycle gap, step, scratch, dent; defect i sits at x = i mm;
+    those in ``uncertain`` were measured within 2σ of their limit (σ 0.1 mm)."""
     rows = [
         {
             "inspection_id": inspection_id,
@@ -21,7 +24,9 @@ def seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> lis
             "status": "open" if i % 5 else "resolved",
             "value_mm": 1.0 + i / 100,
             "tolerance_mm": 1.0,
-            "measurements": {},
+            "measurements": {"tolerance_state": "uncertain", "sigma_mm": 0.1}
+            if i in uncertain
+            else {},
             "location_mm": [float(i), 0.0, 0.0],
             "normal": [0.0, 0.0, 1.0],
             "extent_mm": 3.0,
@@ -43,6 +48,29 @@ def seed_defects(runtime, inspection_id: int, count: int, *, run_id=None) -> lis
             ],
         )
         return ids
+
+
+def seed_warning(runtime, inspection_id: int, warning: str, unmeasured_seams: int) -> int:
+    """A succeeded defects.measure job of a run of the inspection whose result carries
+    ``warning`` and ``unmeasured_seams``, as a measurement that left seams unmeasured ends;
+    its id."""
+    with runtime.db.write() as session:
+        run = Run(inspection_id=inspection_id, name="measure")
+        session.add(run)
+        session.flush()
+        job = Job(
+            run_id=run.id,
+            inspection_id=inspection_id,
+            step="measure",
+            position=0,
+            kind="defects.measure",
+            queue="defects",
+            status="succeeded",
+            result={"warning": warning, "unmeasured_seams": unmeasured_seams},
+        )
+        session.add(job)
+        session.flush()
+        return job.id
 
 
 def measure_uploaded(http, inspection: int, cloud: Path) -> dict:

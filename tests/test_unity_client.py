@@ -16,7 +16,7 @@ import pytest
 
 from supervisor.engine.runtime import Runtime
 from tests.conftest import add_user, auth, make_settings
-from tests.seeding import seed_defects
+from tests.seeding import seed_defects, seed_warning
 
 UNITY = Path(__file__).resolve().parent.parent / "clients" / "unity"
 CORE = UNITY / "Runtime" / "Core"
@@ -26,6 +26,7 @@ NO_MONO = (
     "and libmono-system-net-http4.0-cil)"
 )
 DEFECTS = 7
+WARNING = "2 of 4 seams unmeasured, so their gap, parallelism and mismatch are not judged"
 COMMENT = 'Spalt größer als 1 mm – "gut sichtbar"\n\N{EYES}'  # as ProtocolSmoke.cs writes it
 MARKER = {
     "name": "cabin-left",
@@ -82,7 +83,8 @@ def test_protocol_core_against_a_live_supervisor(smoke_exe, start_server, sqlite
         )
         assert created.status_code == 201, created.text
         inspection = created.json()["id"]
-        ids = seed_defects(runtime, inspection, DEFECTS)
+        ids = seed_defects(runtime, inspection, DEFECTS, uncertain=(6,))
+        warned = seed_warning(runtime, inspection, WARNING, 2)
     finally:
         runtime.db.dispose()
 
@@ -98,6 +100,11 @@ def test_protocol_core_against_a_live_supervisor(smoke_exe, start_server, sqlite
     assert "password" in summary["problem_detail"]
     assert summary["defects"] == summary["scene_defect_nodes"] == DEFECTS
     assert summary["sync_pages"] == 3  # 7 defects in pages of 3
+    # a measurement that left seams unmeasured, and a finding within 2σ of its limit, as the
+    # headset reads them — and keeps them through a restart
+    assert summary["warnings"] == [{"job_id": warned, "warning": WARNING, "unmeasured_seams": 2}]
+    assert summary["warnings_restored"] is True
+    assert summary["uncertain_defects"] == [ids[6]]
     assert summary["scene_not_modified"] is True and summary["scene_changed"] is True
     assert summary["anchors"] == 1
     assert summary["anchor_error"] < 1e-6 and summary["alignment_error"] < 1e-9

@@ -75,6 +75,12 @@ namespace Vista.Client.Smoke
                 Check(await device.SyncAsync() == 1, "a sync with nothing new takes one page");
                 summary["defects"] = count;
                 summary["sync_pages"] = pages;
+                summary["warnings"] = device.Warnings.Select(w => (object)new Dictionary<string, object>
+                {
+                    { "job_id", w.JobId }, { "warning", w.Warning }, { "unmeasured_seams", w.UnmeasuredSeams },
+                }).ToList();
+                summary["uncertain_defects"] = device.Defects.Values
+                    .Where(d => d.ToleranceState == "uncertain").Select(d => (object)d.Id).OrderBy(id => id).ToList();
 
                 await CheckScene(device, inspection, summary);
 
@@ -278,6 +284,9 @@ namespace Vista.Client.Smoke
                     "the cursor, defects or user did not survive the restart");
                 Check(restarted.DownloadedSceneEtag == device.DownloadedSceneEtag && restarted.SceneChanged == device.SceneChanged,
                     "the scene's ETags did not survive the restart");
+                summary["warnings_restored"] = device.Warnings.Count > 0
+                    && Json.Serialize(restarted.Warnings.Select(w => (object)w.ToJson()).ToList())
+                        == Json.Serialize(device.Warnings.Select(w => (object)w.ToJson()).ToList());
                 Check(restarted.Inspection.Markers.Count == device.Inspection.Markers.Count
                     && restarted.Inspection.Markers.Zip(device.Inspection.Markers, (a, b) => a.BaseFromMarker.MaxDifference(b.BaseFromMarker)).All(d => d == 0),
                     "the markers did not survive the restart");

@@ -443,8 +443,10 @@ namespace Vista.Client
         public string Step;
         /// <summary>What it could not do, and why.</summary>
         public string Warning;
+        /// <summary>How many seams a measurement left unmeasured (null: not a measurement's).</summary>
+        public long? UnmeasuredSeams;
 
-        /// <summary>Reads <c>{job_id, run_id, kind, step, warning}</c>.</summary>
+        /// <summary>Reads <c>{job_id, run_id, kind, step, warning, unmeasured_seams}</c>.</summary>
         public static JobWarning FromJson(IDictionary<string, object> json)
         {
             return new JobWarning
@@ -454,6 +456,17 @@ namespace Vista.Client
                 Kind = json.GetRequiredString("kind"),
                 Step = json.GetString("step"),
                 Warning = json.GetRequiredString("warning"),
+                UnmeasuredSeams = json.GetNullableInt64("unmeasured_seams"),
+            };
+        }
+
+        /// <summary>The fields <see cref="FromJson"/> reads.</summary>
+        public Dictionary<string, object> ToJson()
+        {
+            return new Dictionary<string, object>
+            {
+                { "job_id", JobId }, { "run_id", RunId }, { "kind", Kind }, { "step", Step },
+                { "warning", Warning }, { "unmeasured_seams", UnmeasuredSeams },
             };
         }
     }

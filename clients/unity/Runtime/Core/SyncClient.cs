@@ -74,6 +74,11 @@ namespace Vista.Client
         /// <summary>The ETag of the scene last downloaded by <see cref="DownloadSceneAsync"/>.</summary>
         public string DownloadedSceneEtag { get; private set; }
 
+        /// <summary>The inspection's succeeded jobs with a warning as of the last sync (a
+        /// measurement that left seams unmeasured, and why), newest first: show them before
+        /// anyone signs. Saved with the state, so an offline headset still shows them.</summary>
+        public List<JobWarning> Warnings { get; private set; } = new List<JobWarning>();
+
         /// <summary>The server's scene differs from the one downloaded: fetch it again.</summary>
         public bool SceneChanged
         {
@@ -218,6 +223,7 @@ namespace Vista.Client
                 consensus[item.DefectId] = item;
             }
             SceneEtag = page.SceneEtag;
+            Warnings = page.Warnings;
             Cursor = page.NextCursor;
         }
 
@@ -358,6 +364,7 @@ namespace Vista.Client
                 { "consensus", consensus.Values.Select(c => c.ToJson()).ToList() },
                 { "outbox", outbox.Select(item => item.ToJson()).ToList() },
                 { "refused", refused.Select(item => item.ToJson()).ToList() },
+                { "warnings", Warnings.Select(item => item.ToJson()).ToList() },
             };
             string temporary = path + ".part";
             File.WriteAllText(temporary, Json.Serialize(state), new UTF8Encoding(false));
@@ -419,6 +426,7 @@ namespace Vista.Client
             }
             outbox.AddRange(state.GetObjects("outbox").Select(OfflineJudgment.FromJson));
             refused.AddRange(state.GetObjects("refused").Select(RefusedJudgment.FromJson));
+            Warnings = state.GetObjects("warnings").Select(JobWarning.FromJson).ToList();
             return true;
         }
 
