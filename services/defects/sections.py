@@ -412,9 +412,8 @@ def _edges(
     models = side_model.copy()
     columns = edges.shape_columns(starts, zu, zd, sigma, spacing_mm)
     if poor.any() and config.edge_model == "auto":
-        models[poor] = _another_model(fit, poor, shapes, fits, np.diff(starts), columns, config)[
-            poor
-        ]
+        rescued = _another_model(fit, poor, shapes, fits, np.diff(starts), columns, config)
+        models[poor] = rescued[poor]
     poor = models == edges.FREE
     unexplained = np.zeros(groups)
     if poor.any():  # the fallback, where no model explains the edge
@@ -473,7 +472,8 @@ def _edges(
         residual=np.sqrt(np.fmin(np.where(poor, best[:, 5], final[:, 5]), edges.TRUNCATION**2))
         * sigma,
         past_hole=_top_beyond(starts, zu, zd, sigma, x),
-        face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0) & ~poor,
+        face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0)
+        & (models == side_model),
         unexplained=unexplained,
         shapes=shapes,
         sampling=sampling,
@@ -529,26 +529,22 @@ def _another_model(
     columns: np.ndarray,
     config: SectionConfig,
 ) -> np.ndarray:
-    """For each ``poor`` side (its seam's model does not explain its points), the other
-    shaped model that does — a chamfer or an arc, with the shape its seam's sections gave
-    that model — where points lie below its top (``columns``), with the least information
-    criterion (cost + ln n per parameter of the section); ``edges.FREE`` where none does.
-    Their fits are written into ``fits``. A coarse grid along a seam samples an edge at a
-    few places, the same in every section: three points on a round edge's curve at
-    0.75 mm, which the seam's chamfer could not follow, left half the seam's sections
-    unmeasured."""
+    """(groups,) for each ``poor`` side (its seam's model does not explain its points), the
+    other shaped model that does — a chamfer or an arc — where points lie below its top
+    (``columns``), with the least information criterion (cost + ln n per parameter of the
+    section); ``edges.FREE`` where none does. Their fits are written into ``fits``. A
+    coarse grid along a seam samples an edge at a few places, the same in every section:
+    three points on a round edge's curve at 0.75 mm, which the seam's chamfer could not
+    follow, left half the seam's sections unmeasured."""
     tried = np.full((len(poor), 4), np.inf)
     poor = poor & (columns > 0)
     for model in (edges.CHAMFER, edges.ROUND):
-        for shape in (shapes[model], np.full(len(poor), np.nan)):  # the seam's, or its own
-            left = poor & ~np.isfinite(tried[:, model])
-            trial, _ = fit(_wanted(left, [model]), shape)
-            explains = left & np.isfinite(trial[:, model, 2])
-            explains &= trial[:, model, 5] <= config.fit_gate**2
-            fits[explains, model] = trial[explains, model]
-            parameters = edges.LOCAL_PARAMETERS[model] + ~np.isfinite(shape[explains])
-            penalty = parameters * np.log(np.maximum(points[explains], 1))
-            tried[explains, model] = trial[explains, model, 4] + penalty
+        for shape, trial, explains in _explaining(fit, poor, model, shapes, config):
+            parameters = edges.LOCAL_PARAMETERS[model] + ~np.isfinite(shape)
+            criterion = trial[:, 4] + parameters * np.log(np.maximum(points, 1))
+            better = explains & (criterion < tried[:, model])
+            fits[better, model] = trial[better]
+            tried[better, model] = criterion[better]
     best = np.argmin(tried, axis=1)
     return np.where(np.isfinite(tried[np.arange(len(poor)), best]), best, edges.FREE)
 
@@ -565,15 +561,25 @@ def _ambiguity(
     arc at 0.6 mm spacing, one or two columns on it: a floor of the stretch / √3 gave σ
     0.42 mm on errors of 0.05)."""
     out = np.zeros(len(few))
-    if not few.any():
-        return out
-    for shape in (shapes[edges.CHAMFER], np.full(len(few), np.nan)):  # the seam's, its own
-        trial, _ = fit(_wanted(few, [edges.CHAMFER]), shape)
-        explains = few & np.isfinite(trial[:, edges.CHAMFER, 2])
-        explains &= trial[:, edges.CHAMFER, 5] <= config.fit_gate**2
-        apart = np.abs(trial[explains, edges.CHAMFER, 2] - x[explains]) / 2
-        out[explains] = np.maximum(out[explains], apart)
+    for _, trial, explains in _explaining(fit, few, edges.CHAMFER, shapes, config):
+        out[explains] = np.maximum(out[explains], np.abs(trial[explains, 2] - x[explains]) / 2)
     return out
+
+
+def _explaining(
+    fit: Callable, sides: np.ndarray, model: int, shapes: np.ndarray, config: SectionConfig
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``model`` fitted on ``sides`` with the shape the seam's sections gave it, then with
+    its own: per try, (the shape, the (groups, FIELDS) fits, where the fit explains the
+    points: within the gate). Nothing is fitted where no side is asked."""
+    tries = []
+    for shape in (shapes[model], np.full(len(sides), np.nan)):
+        if not sides.any():
+            break
+        trial = fit(_wanted(sides, [model]), shape)[0][:, model]
+        explains = sides & np.isfinite(trial[:, 2]) & (trial[:, 5] <= config.fit_gate**2)
+        tries.append((shape, trial, explains))
+    return tries
 
 
 def _wanted(sides: np.ndarray, models: list[int]) -> np.ndarray:
