@@ -365,10 +365,17 @@ def test_a_gap_narrower_than_two_spacings_between_corners_is_not_measured() -> N
     assert np.percentile(np.abs(seam.sections_gap_mm[seam.measured] - 0.12), 95) < 0.05
 
 
-def test_a_corner_that_may_be_in_a_steps_shadow_is_not_measured() -> None:
+def test_a_corner_that_may_be_in_a_steps_shadow_is_measured_only_where_seen() -> None:
     """A square corner on the lower panel closer to the higher one than step × tan 30° may
-    be hidden from an oblique view: without the view, vista does not trust it."""
-    result = _measured(0.5, 1.5, ("square", 0), ("square", 0))
+    be hidden from an oblique view: the cloud does not say where it was seen from. Where
+    nothing below the corner beside it returned (no ray reached into the gap there),
+    vista does not trust it; where the backing was seen through the gap beside it, a view
+    passed the higher panel's edge to the corner — it is measured (it was refused whatever
+    was seen: a 0.1 mm scan at 2° to its seams lost 16 % of its sections so)."""
+    cloud = seam_cloud(0.5, 1.5, ("square", 0), ("square", 0))
+    x, z = cloud.points[:, 0], cloud.points[:, 2]
+    hidden = PointCloud(points=cloud.points[~((z < -5) & (x < 0.1))])  # none beside a's corner
+    result = measure(hidden, CONFIG)
     seam = _one_seam(result)
     assert not seam.measured.any()
     assert "panel a's edge may lie in panel b's shadow" in seam.sections_unmeasured[0]
@@ -377,6 +384,11 @@ def test_a_corner_that_may_be_in_a_steps_shadow_is_not_measured() -> None:
     kinds = {f.type for f in result.findings}
     assert kinds == {"step"}
     assert np.isfinite(seam.sections_step_mm).all()
+    seen = _one_seam(_measured(0.5, 1.5, ("square", 0), ("square", 0)))
+    assert seen.measured.all()
+    errors = seen.sections_gap_mm - 0.5
+    assert np.percentile(np.abs(errors), 95) < 0.03
+    assert np.mean(np.abs(errors) <= 2 * seen.sections_gap_sigma_mm) >= 0.9
 
 
 def test_a_hole_at_the_edge_is_not_taken_for_the_edge() -> None:

@@ -227,6 +227,9 @@ class _Edges:
     residual: np.ndarray
     past_hole: np.ndarray
     face_seen: np.ndarray
+    gap_seen: np.ndarray
+    """(groups,) whether views saw down into the gap beside the edge: points below its
+    corner (or its foot) beyond it, or the backing (``GAP_SEEN_POINTS`` of them)."""
     unexplained: np.ndarray
     """(groups,) how wide the points below the top beyond a free edge run, which no model
     explains (0: none, or a model's edge)."""
@@ -384,9 +387,9 @@ def _edges(
         free = np.full(groups, edges.FREE)
         void = (EdgeShape("void"), EdgeShape("void"))
         none = np.full(groups, np.nan)
-        return _Edges(zero, zero, zero, free, none, no, no, zero, void, none, none)
+        return _Edges(zero, zero, zero, free, none, no, no, no, zero, void, none, none)
     gap_end = np.abs(np.repeat(middle, 2) - tops.end_x)
-    starts, zu, zd, zy = _edge_zones(
+    starts, zu, zd, zy, deep = _edge_zones(
         group, xm, w, y, tops.plane, gap_end, config.max_edge_depth_mm, groups, spacing_mm
     )
     seam_sigma = max(noise, 0.005) if np.isfinite(noise) else 0.02
@@ -474,11 +477,36 @@ def _edges(
         past_hole=_top_beyond(starts, zu, zd, sigma, x),
         face_seen=(np.where(side_model == edges.CHAMFER, extra[:, 3], extra[:, 2]) > 0)
         & (models == side_model),
+        gap_seen=_gap_seen(starts, zu, zd, x, depth, sigma, deep),
         unexplained=unexplained,
         shapes=shapes,
         sampling=sampling,
         sampling_mid=sampling_mid,
     )
+
+
+GAP_SEEN_POINTS = 3
+"""Points below a corner beyond it that show a view saw down into the gap beside it (a
+stray or two may lie anywhere)."""
+
+
+def _gap_seen(
+    starts: np.ndarray,
+    zu: np.ndarray,
+    zd: np.ndarray,
+    x: np.ndarray,
+    depth: np.ndarray,
+    sigma: np.ndarray,
+    deep: np.ndarray,
+) -> np.ndarray:
+    """(groups,) whether a view saw down into the gap beside each side's edge: its zone's
+    points beyond X more than 3σ below its corner or foot (``depth``), and the backing
+    beyond its top's end (``deep``), ``GAP_SEEN_POINTS`` or more. A ray that reached below
+    the corner beside it passed the other panel's edge, and so did that view's rays to
+    the corner: it was not in the other panel's shadow, whatever the step."""
+    owner = np.repeat(np.arange(len(x)), np.diff(starts))
+    below = (zu > x[owner]) & (zd > depth[owner] + 3 * sigma[owner])
+    return np.bincount(owner[below], minlength=len(x)) + deep >= GAP_SEEN_POINTS
 
 
 def _choose_models(
@@ -797,6 +825,7 @@ def _unmeasured(
         shadowed = (
             (np.abs(step) > 3 * noise)
             & ~fitted.face_seen.reshape(count, 2).any(axis=1)
+            & ~fitted.gap_seen.reshape(count, 2)[np.arange(count), lower]
             & extent_based[np.arange(count), lower]
             & (gap < shadow_mm + resolved)  # within what the corners are placed to
         )
@@ -1088,15 +1117,19 @@ def _edge_zones(
     max_depth: float,
     groups: int,
     spacing_mm: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The points of each side's edge zone in its top's frame, in CSR order: (starts,
     u along the top towards the gap, δ below it, y along the seam). The zone runs from
     ``edges.ZONE_BACK_MM`` (or the sampling band's start, if further) inside the top end
-    to the gap's middle (``gap_end`` past the top end), above ``max_depth``."""
+    to the gap's middle (``gap_end`` past the top end), above ``max_depth``; and per side,
+    how many points lie deeper beyond its top's end, up to the gap's middle, along the top
+    (the backing a view saw through the gap beside it: in the surface frame, tilted to the
+    tops of a stepped seam, a point 15 mm down lies some tenths of a mm aside)."""
     back = max(edges.ZONE_BACK_MM, edges.band_far_mm(spacing_mm))
     u = np.empty(group.shape[0])
     d = np.empty(group.shape[0])
     counts = np.zeros(groups + 1, np.int64)
+    deep = np.zeros(groups, np.int64)
     for i in range(group.shape[0]):
         g = group[i]
         u[i] = np.nan
@@ -1107,6 +1140,8 @@ def _edge_zones(
         flat = w[i] - gamma * y[i]
         ui = (xm[i] + beta * (flat - alpha)) / norm
         di = (alpha + beta * xm[i] - flat) / norm
+        if 0.0 < ui <= gap_end[g] and di >= max_depth:
+            deep[g] += 1
         if ui > -back and di < max_depth:
             u[i], d[i] = ui, di
             counts[g + 1] += 1
@@ -1120,4 +1155,4 @@ def _edge_zones(
             g = group[i]
             zu[fill[g]], zd[fill[g]], zy[fill[g]] = u[i], d[i], y[i]
             fill[g] += 1
-    return starts, zu, zd, zy
+    return starts, zu, zd, zy, deep
