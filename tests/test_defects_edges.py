@@ -365,6 +365,14 @@ def test_a_gap_narrower_than_two_spacings_between_corners_is_not_measured() -> N
     assert np.percentile(np.abs(seam.sections_gap_mm[seam.measured] - 0.12), 95) < 0.05
 
 
+def _shadowed() -> PointCloud:
+    """A 0.5 mm gap beside a 1.5 mm step whose lower corner no ray is seen to have reached:
+    nothing returned from the gap beside it (as where a view's rays were blocked)."""
+    cloud = seam_cloud(0.5, 1.5, ("square", 0), ("square", 0))
+    x, z = cloud.points[:, 0], cloud.points[:, 2]
+    return PointCloud(points=cloud.points[~((z < -5) & (x < 0.1))])
+
+
 def test_a_corner_that_may_be_in_a_steps_shadow_is_measured_only_where_seen() -> None:
     """A square corner on the lower panel closer to the higher one than step × tan 30° may
     be hidden from an oblique view: the cloud does not say where it was seen from. Where
@@ -372,10 +380,7 @@ def test_a_corner_that_may_be_in_a_steps_shadow_is_measured_only_where_seen() ->
     vista does not trust it; where the backing was seen through the gap beside it, a view
     passed the higher panel's edge to the corner — it is measured (it was refused whatever
     was seen: a 0.1 mm scan at 2° to its seams lost 16 % of its sections so)."""
-    cloud = seam_cloud(0.5, 1.5, ("square", 0), ("square", 0))
-    x, z = cloud.points[:, 0], cloud.points[:, 2]
-    hidden = PointCloud(points=cloud.points[~((z < -5) & (x < 0.1))])  # none beside a's corner
-    result = measure(hidden, CONFIG)
+    result = measure(_shadowed(), CONFIG)
     seam = _one_seam(result)
     assert not seam.measured.any()
     assert "panel a's edge may lie in panel b's shadow" in seam.sections_unmeasured[0]
@@ -436,7 +441,7 @@ def test_panels_can_be_located_and_the_step_sign_follows_the_rule() -> None:
 
 
 def test_result_and_cli_report_unmeasured_sections(tmp_path) -> None:
-    result = _measured(0.5, 1.5, ("square", 0), ("square", 0))
+    result = measure(_shadowed(), CONFIG)
     document = result_document(result, CONFIG)
     json.dumps(document, allow_nan=False)
     seam = document["seams"][0]
@@ -449,7 +454,7 @@ def test_result_and_cli_report_unmeasured_sections(tmp_path) -> None:
     assert set(panel["bounds_mm"]) == {"min", "max"} and len(panel["outline"][0]) == 3
     assert "step" in document["rules"] and "seam panels" in document["rules"]
     path = tmp_path / "cloud.ply"
-    write_ply(path, seam_cloud(0.5, 1.5, ("square", 0), ("square", 0)))
+    write_ply(path, _shadowed())
     out = tmp_path / "result.json"
     done = CliRunner().invoke(app, ["defects", "measure", str(path), "-o", str(out)])
     assert done.exit_code == 0, done.output
