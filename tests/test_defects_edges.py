@@ -182,6 +182,29 @@ def test_arcs_sampled_at_one_phase_claim_no_finer_than_a_share_of_the_stretch() 
     assert vista.summary()["gap_error_p95_mm"] <= 0.11
 
 
+def test_an_arc_is_placed_no_finer_than_a_share_of_its_radius() -> None:
+    """Rounded edges of 3.5 and 4 mm at 0.05 mm, grid 2°: the radius a seam's sections
+    share carries their common error, which their noise does not show — a sixth of the
+    sections lay beyond 2σ (σ 0.0035 mm on errors up to 0.008). An arc's side face is
+    placed no finer than ``ARC_FORM`` of its radius."""
+    cloud = seam_cloud(
+        2.0,
+        0.3,
+        ("round", 3.5),
+        ("round", 4.0),
+        spacing_mm=0.05,
+        yaw_deg=2.0,
+        length_mm=60.0,
+        width_mm=50.0,
+    )
+    seam = _one_seam(measure(cloud, CONFIG))
+    measured = seam.measured
+    errors = np.abs(seam.sections_gap_mm[measured] - 2.0)
+    assert measured.mean() > 0.95
+    assert np.mean(errors <= 2 * seam.sections_gap_sigma_mm[measured]) >= 0.95
+    assert np.median(seam.sections_gap_sigma_mm[measured]) < 0.02
+
+
 def test_a_tapered_seam_along_the_rows_claims_the_lattice_it_shares() -> None:
     """Square corners 0.1 mm apart in the scan, rows along a seam whose gap widens from
     2.3 to 2.7 mm: both edges cross the lattice's points together, and the gap's error

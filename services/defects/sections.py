@@ -57,6 +57,11 @@ phase (rows along or at 45° to the seam), the same few places on the shape in e
 section bias it alike — rounded edges at 0.1 mm, rows along the seam, were off by up to
 0.011 mm a seam with σ 0.007 (0.85 of their sections within 2σ; 0.97 with this). Where
 the profiles' phase drifts, the stretch, and this, are a fraction of the spacing."""
+ARC_FORM = 0.003
+"""An arc places its side face no finer than this share of its radius: the radius its
+seam's sections share carries their common error (the radii of 12 sections agree to
+their noise, and their median's σ says nothing of what they all miss) — rounded edges of
+3.5–4 mm at 0.05 mm spacing, grid 15°, were 0.009–0.012 mm off with σ 0.003–0.004."""
 WIDE_ARC_STRETCHES = 2.0
 """An arc this many stretches of its profiles wide or more, seen at few places across, is
 placed by its radius where no chamfer explains its points (``_ambiguity``); a narrower
@@ -441,7 +446,10 @@ def _edges(
     wide_arc = (models == edges.ROUND) & (final[:, 1] >= WIDE_ARC_STRETCHES * stretch)
     floor = np.maximum(
         np.where(few & ~wide_arc, 1 / np.sqrt(3.0), np.where(shaped, SHAPE_PHASE, 0.0)) * stretch,
-        _ambiguity(fit, few & wide_arc, final[:, 2], shapes, config),
+        np.maximum(
+            _ambiguity(fit, few & wide_arc, final[:, 2], shapes, config),
+            np.where(models == edges.ROUND, ARC_FORM * np.nan_to_num(final[:, 1]), 0.0),
+        ),
     )
     x = final[:, 2]
     depth = np.where(
