@@ -16,7 +16,12 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-from services.lib.process import available_cores
+from services.lib.pointcloud.promises import ReaderLimits
+from services.lib.process import available_cores, default_job_memory_mb
+
+_READER = ReaderLimits()
+"""The cloud readers' limits: read from the same variables by ``ReaderLimits.from_env``
+where a reader runs; declared here so that a bad value stops the server at its start."""
 
 
 class Settings(BaseSettings):
@@ -39,12 +44,29 @@ class Settings(BaseSettings):
     api_workers: int = Field(1, ge=1, description="API processes of `vista serve`.")
     access_log: bool = Field(False, description="Log every request (costs ~4 % under load).")
     max_upload_mb: int = Field(4096, ge=1, description="Largest artifact upload, MiB.")
+    max_cloud_points: int = Field(
+        _READER.max_points, ge=1, description="Most points a cloud upload's header may promise."
+    )
+    reader_memory_mb: int = Field(
+        _READER.memory_mb, ge=256, description="Address space of a cloud reader process, MiB."
+    )
+    reader_cpu_s: int = Field(_READER.cpu_s, ge=1, description="CPU seconds of a cloud reader.")
+    readers_at_once: int = Field(
+        _READER.at_once, ge=1, description="Cloud readers at once on a host; beyond: 429."
+    )
     embedded_workers: int = Field(2, ge=0, description="Worker processes of the embedded engine.")
     job_threads: int = Field(
         default_factory=available_cores,
         ge=1,
         le=256,
         description="Threads one job's algorithms run on (default: the cores available).",
+    )
+    job_memory_mb: int = Field(
+        default_factory=default_job_memory_mb,
+        ge=1024,
+        description="Address space of one job worker process, MiB (default: ¾ of the "
+        "machine's memory, at least 8192): a job that needs more fails with a sentence, "
+        "and is not retried.",
     )
     heartbeat_interval_s: float = Field(5.0, gt=0, description="How often a running job beats.")
     heartbeat_timeout_s: float = Field(

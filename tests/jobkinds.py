@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.context import JobContext
@@ -22,10 +23,13 @@ class SleepParams(BaseModel):
         0, ge=0, le=10, description="Attempts that fail transiently first."
     )
     fail_with: str | None = Field(None, description="Fail permanently with this message.")
+    allocate_mb: int = Field(0, ge=0, description="Allocate (and touch) this much first.")
 
 
 def sleep_job(ctx: JobContext) -> dict:
     params = ctx.params
+    if params.allocate_mb:
+        np.ones(params.allocate_mb << 17)  # float64: 8 bytes each
     steps = max(1, int(params.seconds / 0.05))
     for step in range(steps):
         ctx.progress(step / steps, f"step {step} of {steps}")

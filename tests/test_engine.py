@@ -71,6 +71,7 @@ class Engine:
             "VISTA_HEARTBEAT_TIMEOUT_S": str(s.heartbeat_timeout_s),
             "VISTA_RETRY_BACKOFF_S": str(s.retry_backoff_s),
             "VISTA_JOB_MAX_ATTEMPTS": str(s.job_max_attempts),
+            "VISTA_JOB_MEMORY_MB": str(s.job_memory_mb),
         }
         log = open(self.tmp_path / f"worker-{len(self.workers)}.log", "wb")  # noqa: SIM115
         self.workers.append(
@@ -268,6 +269,22 @@ def test_cancel_reaches_a_running_job_and_retry_runs_it_again(engine_factory):
     engine.wait(long_id, statuses=("running",))
     engine.http.post(f"/api/v1/jobs/{long_id}/cancel")
     assert engine.wait(long_id, timeout=10)["status"] == "cancelled"
+
+
+def test_a_job_beyond_the_workers_memory_fails_with_a_sentence_and_is_not_retried(
+    engine_factory,
+):
+    """A job that asks for more memory than a worker's address space: MemoryError where it
+    allocates, one sentence with the limit, no second attempt (a job the kernel's OOM
+    killer ended was retried twice, to meet the same end)."""
+    engine = engine_factory(job_memory_mb=3072)
+    job_id = engine.run([sleep_step("greedy", seconds=0.1, allocate_mb=8192)])["jobs"][0]["id"]
+    failed = engine.wait(job_id, timeout=90)
+    assert failed["status"] == "failed" and failed["attempts"] == 1, failed
+    assert "more memory than a worker allows" in failed["error"], failed["error"]
+    assert "3.0 GiB" in failed["error"] and "8.00 GiB" in failed["error"], failed["error"]
+    ok = engine.run([sleep_step("modest", seconds=0.1, allocate_mb=64)])["jobs"][0]["id"]
+    assert engine.wait(ok, timeout=90)["status"] == "succeeded"  # the worker lives on
 
 
 def _kill_worker_running(engine: Engine, job_id: int) -> None:

@@ -83,7 +83,8 @@ def inspect_cloud(path: Path, media_type: str, units: str | None = None) -> Insp
     """A point cloud: vista's PLY checked for header, element sizes and finite
     coordinates; any other cloud format a scanner writes (``scanner.sniff``) converted to
     it, in millimetres, the source's format and unit in the metadata."""
-    from services.lib.pointcloud.scanner import ScannerFormatError, convert_isolated, sniff
+    from services.lib.pointcloud.reader import convert_isolated
+    from services.lib.pointcloud.scanner import ScannerFormatError, sniff
 
     if sniff(path) in (None, "ply") and units in (None, "mm"):
         return _ply(path, mesh=False)

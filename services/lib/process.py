@@ -69,6 +69,27 @@ def prepare_process() -> None:
     cv2.setNumThreads(1)
 
 
+def physical_memory_mb() -> int:
+    """This machine's memory, MiB."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") >> 20
+
+
+def default_job_memory_mb() -> int:
+    """Three quarters of the machine's memory, and at least 8 GiB (an address space holds
+    more than the memory in use: the libraries' reservations, each thread's stack)."""
+    return max(physical_memory_mb() * 3 // 4, 8192)
+
+
+def limit_address_space(memory_mb: int) -> None:
+    """Cap this process's address space (RLIMIT_AS): an allocation beyond it raises
+    MemoryError where it happens, instead of the kernel's OOM killer taking the whole
+    process (and a job it ran being retried to meet the same end)."""
+    import resource
+
+    limit = memory_mb << 20
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+
 def available_cores() -> int:
     """The cores this process may run on."""
     try:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import PurePath
+import asyncio
+import threading
+from pathlib import Path, PurePath
 from typing import Literal
 
 from fastapi import APIRouter, Depends, Query, Request, Response
@@ -10,6 +12,8 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 
+from contract.artifacts import Inspected
+from services.lib.pointcloud.reader import CANCELLED
 from services.lib.pointcloud.scanner import UNITS_MM
 from supervisor.artifacts import service
 from supervisor.artifacts.schemas import (
@@ -56,6 +60,30 @@ def _media_type(request: Request) -> str:
             f"request body with one of {accepted}.",
         )
     return declared
+
+
+DISCONNECT_POLL_S = 0.5
+
+
+async def _validate_while_connected(
+    request: Request, path: Path, **upload: str | None
+) -> Inspected:
+    """``validate_upload`` in a worker thread, its cloud reader (if any) killed when the
+    client goes away: nobody waits for the answer any more (a reader kept running up to
+    900 s after its client had gone)."""
+    gone = threading.Event()
+    CANCELLED.set(gone)  # copied into the worker thread's context
+
+    async def watch() -> None:
+        while not await request.is_disconnected():
+            await asyncio.sleep(DISCONNECT_POLL_S)
+        gone.set()
+
+    watcher = asyncio.create_task(watch())
+    try:
+        return await run_in_threadpool(validate_upload, path, **upload)
+    finally:
+        watcher.cancel()
 
 
 @router.post(
@@ -111,8 +139,8 @@ async def upload_artifact(
     try:
         if received.size_bytes == 0:
             raise Problem(422, "The upload is empty.")
-        found = await run_in_threadpool(
-            validate_upload, temp_path, media_type=media_type, name=name, kind=kind, units=units
+        found = await _validate_while_connected(
+            request, temp_path, media_type=media_type, name=name, kind=kind, units=units
         )
         meta = found.meta
         if found.replacement is not None:  # the file sent, named in what is kept of it

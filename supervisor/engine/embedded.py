@@ -19,7 +19,12 @@ import threading
 
 from sqlalchemy import or_, select
 
-from services.lib.process import die_with_parent, parent_alive, prepare_process
+from services.lib.process import (
+    die_with_parent,
+    limit_address_space,
+    parent_alive,
+    prepare_process,
+)
 from supervisor.engine.maintenance import release_jobs_of_worker
 from supervisor.engine.runner import run_job
 from supervisor.engine.runtime import Runtime, worker_name
@@ -51,7 +56,9 @@ def _worker_main(settings_json: str, stop: mp.synchronize.Event, parent_pid: int
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when workers stop
     prepare_process()
-    rt = Runtime.create(Settings.model_validate_json(settings_json))
+    settings = Settings.model_validate_json(settings_json)
+    limit_address_space(settings.job_memory_mb)
+    rt = Runtime.create(settings)
     while not stop.is_set() and parent_alive(parent_pid):
         ran = False
         for job_id in next_due_jobs(rt):

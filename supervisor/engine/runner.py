@@ -274,13 +274,20 @@ def _end_after_error(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
         log.warning("job %s (%s, step %r) failed: %s", claim.id, claim.kind, claim.step, exc)
     else:
         log.error("job %s (%s, step %r) failed", claim.id, claim.kind, claim.step, exc_info=exc)
-    return _end_failed(rt, claim, user_error(exc, claim))
+    return _end_failed(rt, claim, user_error(exc, claim, rt.settings.job_memory_mb))
 
 
-def user_error(exc: Exception, claim: JobClaim) -> str:
+def user_error(exc: Exception, claim: JobClaim, memory_mb: int) -> str:
     """One sentence a user can act on; the traceback stays in the worker's log."""
     if isinstance(exc, JobInputError):
         return sentence(str(exc))
+    if isinstance(exc, MemoryError):  # not a passing fault: another attempt needs as much
+        needs = f" ({exc})" if str(exc) else ""
+        return sentence(
+            f"{claim.kind} needs more memory than a worker allows{needs}: the worker allows "
+            f"{memory_mb / 1024:.1f} GiB (VISTA_JOB_MEMORY_MB); give the workers more, or "
+            "send a smaller input"
+        )
     text = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
     if is_transient(exc):
         return sentence(

@@ -8,7 +8,7 @@ from functools import lru_cache
 import dramatiq
 from dramatiq.middleware import Middleware
 
-from services.lib.process import prepare_process
+from services.lib.process import limit_address_space, prepare_process
 from supervisor.engine.broker import actor_name, make_broker
 from supervisor.engine.maintenance import MaintenanceLoop
 from supervisor.engine.registry import load_kinds, queues
@@ -54,6 +54,7 @@ prepare_process()  # each worker process imports this module
 _settings = get_settings()
 if not _settings.broker_url:
     raise SystemExit("vista worker needs VISTA_BROKER_URL (redis://… or amqp://…)")
+limit_address_space(_settings.job_memory_mb)
 load_kinds(_settings.extra_job_kinds)
 broker = make_broker(_settings.broker_url)
 broker.add_middleware(_Maintenance())

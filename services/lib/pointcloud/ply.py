@@ -98,6 +98,17 @@ class PointCloud:
 
 
 def _parse_header(handle: BinaryIO) -> PlyHeader:
+    fmt, header = parse_any_header(handle)
+    if fmt != ["binary_little_endian", "1.0"]:
+        raise PlyError(
+            f"format {' '.join(fmt)!r} is not supported: vista reads binary_little_endian 1.0"
+        )
+    return header
+
+
+def parse_any_header(handle: BinaryIO) -> tuple[list[str], PlyHeader]:
+    """The words of a PLY header's ``format`` line and its elements, whatever the format
+    (ASCII and big-endian too: their elements' sizes are those of ``_SCALAR_TYPES``)."""
     raw = handle.read(MAX_HEADER_BYTES)
     if not raw.startswith(b"ply\n") and not raw.startswith(b"ply\r\n"):
         raise PlyError("the file does not start with the PLY magic line 'ply'")
@@ -133,10 +144,6 @@ def _parse_header(handle: BinaryIO) -> PlyHeader:
 
     if fmt is None:
         raise PlyError("the PLY header has no 'format' line")
-    if fmt != ["binary_little_endian", "1.0"]:
-        raise PlyError(
-            f"format {' '.join(fmt)!r} is not supported: vista reads binary_little_endian 1.0"
-        )
 
     parsed = tuple(
         PlyElement(
@@ -147,7 +154,7 @@ def _parse_header(handle: BinaryIO) -> PlyHeader:
         )
         for e in elements
     )
-    return PlyHeader(
+    return fmt, PlyHeader(
         elements=parsed,
         comments=tuple(comments),
         header_bytes=header_bytes,

@@ -23,6 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from services.lib.pointcloud.ply import PointCloud, grid_shape_of
+from services.lib.pointcloud.promises import (
+    PromiseRefused,
+    ReaderLimits,
+    check_grid,
+    check_promise,
+)
 
 UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "ft": 304.8}
 FORMAT_UNITS = {
@@ -128,9 +134,17 @@ def _numbers(words: list[str]) -> bool:
     return True
 
 
-def read_cloud(path: Path, *, fmt: str | None = None, units: str | None = None) -> Converted:
-    """Any supported cloud file as vista's cloud in millimetres. Raises
+def read_cloud(
+    path: Path,
+    *,
+    fmt: str | None = None,
+    units: str | None = None,
+    limits: ReaderLimits | None = None,
+) -> Converted:
+    """Any supported cloud file as vista's cloud in millimetres, its header's promise
+    checked first (``promises``; ``limits`` from the environment unless given). Raises
     ``ScannerFormatError`` naming what cannot be read."""
+    limits = limits or ReaderLimits.from_env()
     fmt = fmt or sniff(path)
     if fmt is None:
         raise ScannerFormatError(
@@ -142,8 +156,11 @@ def read_cloud(path: Path, *, fmt: str | None = None, units: str | None = None) 
     if fmt == "e57" and units not in (None, "m"):
         raise ScannerFormatError("an E57 file is in metres by its standard; give no units")
     try:
-        cloud = _READERS[fmt](path)
-    except ScannerFormatError:
+        check_promise(path, fmt, limits)
+        cloud = _READERS[fmt](path, limits)
+    except PromiseRefused as exc:
+        raise ScannerFormatError(f"is not a {FORMAT_NAMES[fmt]} file vista reads: {exc}") from exc
+    except (ScannerFormatError, MemoryError):
         raise
     except Exception as exc:  # a library reading a damaged file: whatever it raises, say so
         reason = str(exc).strip().splitlines()[0][:300] if str(exc).strip() else type(exc).__name__
@@ -250,7 +267,7 @@ def _from_columns(columns: dict[str, np.ndarray], *, grid_shape=None) -> _Raw:  
     )
 
 
-def _read_ply(path: Path) -> _Raw:
+def _read_ply(path: Path, limits: ReaderLimits) -> _Raw:
     from plyfile import PlyData, PlyParseError
 
     fast = _read_ascii_vertices(path)
@@ -310,7 +327,7 @@ def _read_ascii_vertices(path: Path) -> _Raw | None:
     return _from_columns(columns, grid_shape=grid if grid and grid[0] * grid[1] == count else None)
 
 
-def _read_pcd(path: Path) -> _Raw:
+def _read_pcd(path: Path, limits: ReaderLimits) -> _Raw:
     from pypcd4 import PointCloud as Pcd
 
     pcd = Pcd.from_path(path)
@@ -325,7 +342,7 @@ def _read_pcd(path: Path) -> _Raw:
     return _from_columns(columns, grid_shape=grid)
 
 
-def _read_las(path: Path) -> _Raw:
+def _read_las(path: Path, limits: ReaderLimits) -> _Raw:
     import laspy
 
     las = laspy.read(path)
@@ -338,7 +355,7 @@ def _read_las(path: Path) -> _Raw:
     return _from_columns({k: np.asarray(v) for k, v in columns.items()})
 
 
-def _read_e57(path: Path) -> _Raw:
+def _read_e57(path: Path, limits: ReaderLimits) -> _Raw:
     """Every scan in the file's common frame; a single scan with row and column indices
     keeps its grid."""
     import pye57
@@ -353,7 +370,7 @@ def _read_e57(path: Path) -> _Raw:
     if not scans:
         raise ScannerFormatError("the E57 file holds no scans")
     if len(scans) == 1 and "rowIndex" in scans[0] and len(scans[0]["rowIndex"]):
-        return _e57_grid(scans[0])
+        return _e57_grid(scans[0], limits)
     columns: dict[str, np.ndarray] = {}
     for source, target in _E57_FIELDS.items():
         if all(source in scan for scan in scans):
@@ -372,9 +389,12 @@ _E57_FIELDS = {
 }
 
 
-def _e57_grid(scan: dict) -> _Raw:
+def _e57_grid(scan: dict, limits: ReaderLimits) -> _Raw:
     rows, cols = scan["rowIndex"].astype(np.int64), scan["columnIndex"].astype(np.int64)
-    shape = (int(rows.max()) + 1, int(cols.max()) + 1)
+    try:
+        shape = check_grid(rows, cols, limits)
+    except PromiseRefused as exc:
+        raise ScannerFormatError(f"is not an E57 file vista reads: {exc}") from exc
     at = rows * shape[1] + cols
     columns = {}
     for source, target in _E57_FIELDS.items():
@@ -427,8 +447,8 @@ _READERS = {
     "las": _read_las,
     "laz": _read_las,
     "e57": _read_e57,
-    "xyz": lambda path: _read_text(path, pts=False),
-    "pts": lambda path: _read_text(path, pts=True),
+    "xyz": lambda path, _limits: _read_text(path, pts=False),
+    "pts": lambda path, _limits: _read_text(path, pts=True),
 }
 
 
@@ -439,59 +459,3 @@ def load_cloud(path: Path, *, units: str | None = None) -> PointCloud:
     if units in (None, "mm") and sniff(path) == "ply":
         return read_ply(path)
     return read_cloud(path, units=units).cloud
-
-
-CONVERT_TIMEOUT_S = 900.0
-_PRELOAD = ["services.lib.pointcloud.scanner", "plyfile", "pypcd4", "laspy", "pye57"]
-
-
-def convert_isolated(
-    path: Path, out: Path, *, units: str | None = None, timeout_s: float = CONVERT_TIMEOUT_S
-) -> dict:
-    """``path`` converted to vista's PLY at ``out`` in a child process (forked from a
-    clean fork server), so a format library that crashes on a damaged file (lazrs aborts
-    on some) or loops takes only the child; returns ``Converted.meta()``. Raises
-    ``ScannerFormatError`` naming what went wrong."""
-    import multiprocessing
-
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(_PRELOAD)
-    receive, send = context.Pipe(duplex=False)
-    child = context.Process(target=_convert_child, args=(path, out, units, send), daemon=True)
-    child.start()
-    send.close()
-    try:
-        answer = receive.recv() if receive.poll(timeout_s) else None
-    except EOFError:  # the child died before answering
-        answer = None
-    finally:
-        receive.close()
-    child.join(timeout=5.0 if answer is not None else 0.1)
-    if child.is_alive():
-        child.kill()
-        child.join()
-    if answer is None:
-        fmt = FORMAT_NAMES.get(sniff(path) or "", "cloud")
-        code = child.exitcode
-        why = (
-            f"it took longer than {timeout_s:.0f} s to read"
-            if code is None or code == -9
-            else f"its reader crashed on it ({f'signal {-code}' if code < 0 else f'exit {code}'})"
-        )
-        raise ScannerFormatError(f"is not a readable {fmt} file: {why}")
-    if "error" in answer:
-        raise ScannerFormatError(answer["error"])
-    return answer["meta"]
-
-
-def _convert_child(path: Path, out: Path, units: str | None, send) -> None:  # noqa: ANN001
-    from services.lib.pointcloud.ply import write_ply
-
-    try:
-        converted = read_cloud(path, units=units)
-        write_ply(out, converted.cloud)
-        send.send({"meta": converted.meta()})
-    except ScannerFormatError as exc:
-        send.send({"error": str(exc)})
-    finally:
-        send.close()
