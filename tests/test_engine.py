@@ -299,6 +299,29 @@ def _kill_worker_running(engine: Engine, job_id: int) -> None:
         engine.start_worker()
 
 
+def test_a_cancel_outlives_the_worker_that_was_asked(engine_factory):
+    """Cancel a running job whose worker is frozen (it cannot see the request), then kill
+    the worker: the job ends cancelled, not re-queued to run to "succeeded" (the flag was
+    cleared when it was re-queued)."""
+    engine = engine_factory()
+    job_id = engine.run([sleep_step("victim", seconds=20.0)])["jobs"][0]["id"]
+    job = wait_for(
+        lambda: (j := engine.job(job_id))["status"] == "running" and j["progress"] > 0 and j,
+        what="the job to make progress",
+    )
+    pid = int(job["worker"].rsplit(":", 1)[1])
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        assert engine.http.post(f"/api/v1/jobs/{job_id}/cancel").json()["cancel_requested"]
+    finally:
+        os.kill(pid, signal.SIGKILL)
+    if engine.kind == "dramatiq":
+        engine.workers[-1].wait(timeout=30)
+        engine.start_worker()
+    ended = engine.wait(job_id, timeout=90)
+    assert ended["status"] == "cancelled" and ended["attempts"] == 1, ended
+
+
 def test_killed_worker_job_runs_again(engine_factory):
     engine = engine_factory()
     job_id = engine.run([sleep_step("victim", seconds=2.0)])["jobs"][0]["id"]

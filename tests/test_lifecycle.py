@@ -229,6 +229,23 @@ def test_start_up_removes_what_killed_processes_left(
     )
 
 
+def test_the_maintenance_loop_removes_a_killed_attempts_scratch_while_it_runs(
+    tmp_path: Path, sqlite_url: str, runtime_factory
+) -> None:
+    """A scratch folder that appears after start-up (an attempt killed since) goes within
+    a maintenance round, not at the next start only."""
+    _, _, rt = runtime_factory(make_settings(tmp_path, sqlite_url))
+    loop = MaintenanceLoop(rt)
+    loop.start()
+    try:
+        killed = rt.scratch_dir / "job99-a1-killed"
+        killed.mkdir(parents=True)
+        (killed / "big.bin").write_bytes(b"x" * 1000)
+        wait_for(lambda: not killed.exists(), timeout=60, what="the killed attempt's scratch")
+    finally:
+        loop.stop()
+
+
 def test_an_attempts_scratch_folder_is_private_and_named_by_its_owner(
     tmp_path: Path, sqlite_url: str
 ) -> None:

@@ -64,6 +64,8 @@ class JobClaim:
     tolerances: dict = field(default_factory=dict)
     """The inspection's acceptance limits (its ``tolerances`` document) when the job was
     claimed; the handler sees them as a ``Tolerances`` model."""
+    cancel_requested: bool = False
+    """A cancel asked for before this attempt began (the previous one's worker died)."""
 
 
 @dataclass(frozen=True)

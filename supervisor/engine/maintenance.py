@@ -1,5 +1,6 @@
-"""Keeping the job table honest: lost workers and jobs that were never sent; and, once
-at start-up, the files that killed processes left behind.
+"""Keeping the job table honest: lost workers, jobs that were never sent and the
+scratch folders of attempts that ended; and, once at start-up, the unfinished files that
+killed processes left behind.
 
 Any number of processes may run this (the supervisor and every worker do): each step is
 a conditional UPDATE, so two of them acting on the same job cannot both win.
@@ -67,21 +68,32 @@ def _exit_description(exit_code: int | None) -> str:
 def release_jobs(
     rt: Runtime, condition: ColumnElement[bool], reason: Callable[[str | None], str]
 ) -> list[int]:
-    """Re-queue (or fail, when out of attempts) the running jobs that meet ``condition``
-    (their worker is gone); ``reason(worker)`` says why, for the job's message and error.
+    """Re-queue (or fail, when out of attempts; or cancel, when a cancel was asked for)
+    the running jobs that meet ``condition`` (their worker is gone); ``reason(worker)``
+    says why, for the job's message and error.
     ``condition`` guards each job's update too, so a job that beat again or ended in the
     meantime is left alone, and two processes releasing one job cannot both win."""
     with rt.db.read() as session:
         lost = session.execute(
-            select(Job.id, Job.attempts, Job.max_attempts, Job.worker, Job.queue).where(
-                Job.status == "running", condition
-            )
+            select(
+                Job.id, Job.attempts, Job.max_attempts, Job.worker, Job.queue, Job.cancel_requested
+            ).where(Job.status == "running", condition)
         ).all()
     touched, resend = [], []
-    for job_id, attempts, max_attempts, worker, queue in lost:
+    for job_id, attempts, max_attempts, worker, queue, cancel in lost:
         why = reason(worker)
         with rt.db.write() as session:
-            if attempts < max_attempts:
+            if cancel:  # asked to stop: its worker's death does not undo that
+                ended = end_attempt(
+                    session,
+                    job_id,
+                    attempts,
+                    status="cancelled",
+                    guard=(condition,),
+                    message=f"cancelled on request ({why} before it stopped)",
+                    finished_at=utcnow(),
+                )
+            elif attempts < max_attempts:
                 ended = end_attempt(
                     session,
                     job_id,
@@ -208,5 +220,8 @@ class MaintenanceLoop:
             try:
                 recover_lost_jobs(self._rt)
                 resend_queued(self._rt)
+                # a killed attempt's scratch goes once the attempt is not running, not
+                # at the next start-up only
+                remove_stale_scratch(self._rt)
             except Exception:  # the next round tries again
                 log.warning("job maintenance failed", exc_info=True)

@@ -45,6 +45,8 @@ def run_job(job_id: int, *, runtime: Runtime) -> str:
     claim = claim_job(rt, job_id)
     if claim is None:
         return "skipped"
+    if claim.cancel_requested:  # the cancel outlives the attempt it was asked of
+        return _end(rt, claim, status="cancelled", message="cancelled on request", error=None)
     kind = get_kind(claim.kind)
     stop = StopSignal()
     try:
@@ -96,7 +98,6 @@ def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:
                 progress=0.0,
                 message="started",
                 error=None,
-                cancel_requested=False,
             )
         ).rowcount
         if claimed != 1:
@@ -115,6 +116,7 @@ def claim_job(rt: Runtime, job_id: int) -> JobClaim | None:
             attempt=job.attempts,
             max_attempts=job.max_attempts,
             inputs=_inputs(rt, session, job),
+            cancel_requested=bool(job.cancel_requested),
             tolerances=dict(
                 session.scalar(
                     select(Inspection.tolerances).where(Inspection.id == job.inspection_id)
@@ -316,6 +318,10 @@ _CODE = re.compile(r"`([^`]+)`")
 
 def _requeue(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
     delay_s = rt.settings.retry_backoff_s * 2 ** (claim.attempt - 1)
+    with rt.db.write() as session:
+        cancel = session.scalar(select(Job.cancel_requested).where(Job.id == claim.id))
+    if cancel:  # asked to stop: not another attempt
+        return _end(rt, claim, status="cancelled", message="cancelled on request", error=None)
     with rt.db.write() as session:
         requeued = end_attempt(
             session,
