@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import re
+import struct
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -287,3 +289,23 @@ def test_the_dashboard_colours_each_type_as_the_scene_does_and_distinctly():
     rgb = np.array([rgba(c)[:3] for c in TYPE_COLORS.values()]) * 255
     closest = min(np.linalg.norm(a - b) for i, a in enumerate(rgb) for b in rgb[i + 1 :])
     assert closest > 80, "two types look alike"  # dent and bump were 58 apart
+
+
+def test_readers_of_one_scene_at_different_budgets_all_get_it_whole(
+    client, tokens, scene_inspection
+):
+    """Eight clients asking for the scene at alternating point budgets: each build kept
+    one file and deleted the other budget's while it was about to be sent (500s: "File at
+    path … does not exist"); each answer is now read through a handle taken before it."""
+    url = f"/api/v1/inspections/{scene_inspection['id']}/scene.glb"
+    viewer = auth(tokens["viewer"])
+
+    def fetch(i: int) -> tuple[int, int, bytes]:
+        answer = client.get(url, params={"points": (2000, 3000, 5000)[i % 3]}, headers=viewer)
+        return answer.status_code, int(answer.headers.get("content-length", -1)), answer.content
+
+    with ThreadPoolExecutor(8) as pool:
+        answers = list(pool.map(fetch, range(48)))
+    for status, length, body in answers:
+        assert status == 200
+        assert body[:4] == b"glTF" and length == len(body) == struct.unpack("<I", body[8:12])[0]

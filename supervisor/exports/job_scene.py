@@ -16,14 +16,14 @@ Node layout (names are stable; clients find things by them)::
 from __future__ import annotations
 
 import hashlib
-import os
-from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from contract.scene import JobScene, MovingBox, PointSet
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime
+from supervisor.exports.cache import open_cached, publish, remove_others
 from supervisor.exports.gltf import (
     Animation,
     Channel,
@@ -47,9 +47,9 @@ WIRE_BOX = _CORNERS[[0, 1, 3, 2, 0, 4, 5, 1, 5, 7, 3, 7, 6, 2, 6, 4]]
 """(16, 3) in the box's own frame (x along its length, y its width, z its height)."""
 
 
-def job_scene_file(runtime: Runtime, job_id: int, max_points: int) -> Path:
-    """The cached GLB of job ``job_id``'s scene at ``max_points``, built if missing; a
-    problem (404, 409) when the job has none."""
+def job_scene_file(runtime: Runtime, job_id: int, max_points: int) -> BinaryIO:
+    """The cached GLB of job ``job_id``'s scene at ``max_points``, built if missing, open
+    for reading; a problem (404, 409) when the job has none."""
     with runtime.db.read() as session:
         job = get_job(session, job_id=job_id)
         kind = get_kind(job.kind)
@@ -63,23 +63,17 @@ def job_scene_file(runtime: Runtime, job_id: int, max_points: int) -> Path:
         key = f"{job.id}:{job.finished_at}:{max_points}"
         folder = runtime.storage.export_dir(job.inspection_id)
         path = folder / f"job-{job.id}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.glb"
-        if path.exists():
-            return path
+        if (cached := open_cached(path)) is not None:
+            return cached
         files = job_files(session, runtime.storage, job)[2]
         about = {"job_id": job.id, "kind": job.kind, "step": job.step}
     try:
         scene = hook(files, max_points)
     except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
         raise Problem(409, f"Job {job_id}'s results could not be drawn: {exc}") from exc
-    data = job_scene_glb(scene, about)
-    folder.mkdir(parents=True, exist_ok=True)
-    temp = path.with_suffix(f".{os.getpid()}.part")
-    temp.write_bytes(data)
-    os.replace(temp, path)
-    for other in folder.glob(f"job-{job_id}-*.glb"):  # one budget kept a job: no disk to fill
-        if other != path:
-            other.unlink(missing_ok=True)
-    return path
+    handle = publish(path, job_scene_glb(scene, about))
+    remove_others(folder, f"job-{job_id}-*.glb", path)  # one budget a job: no disk to fill
+    return handle
 
 
 def job_scene_glb(scene: JobScene, about: dict) -> bytes:

@@ -4,23 +4,15 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse
 
 from supervisor.deps import READ_ROLES, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
+from supervisor.exports.cache import OpenFileResponse
 from supervisor.exports.job_scene import job_scene_file
 from supervisor.exports.scene import SceneRun, scene_runs
 from supervisor.exports.service import scene_file
 from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
-
-
-class SceneFile(FileResponse):
-    """A file sent in 1 MiB reads: a scene is megabytes, and each 64 KiB default read is a
-    trip through a worker thread."""
-
-    chunk_size = 1024 * 1024
-
 
 router = APIRouter(tags=["exports"])
 readers = require(*READ_ROLES, action="read scenes")
@@ -59,13 +51,13 @@ async def scene_glb(
     any measurement: the newest cloud). Send the ETag back in `If-None-Match` to get 304
     while nothing in the scene changed."""
     max_points = points or runtime.settings.scene_max_points
-    etag, path = await run_in_threadpool(
+    etag, handle = await run_in_threadpool(
         scene_file, runtime, inspection_id, max_points, request.headers.get("if-none-match"), run
     )
     headers = {"ETag": etag, "Cache-Control": "private, no-cache"}
-    if path is None:
+    if handle is None:
         return Response(status_code=304, headers=headers)
-    return SceneFile(path, media_type=GLB_MEDIA_TYPE, headers=headers)
+    return OpenFileResponse(handle, media_type=GLB_MEDIA_TYPE, headers=headers)
 
 
 @router.get("/inspections/{inspection_id}/scene-runs", response_model=list[SceneRun])
@@ -101,7 +93,7 @@ async def job_scene_glb(
     box moving one key a frame (the animation ``frames``; each scan shown for its frame)
     and the true box when the drive had labels. Node ``job-<id>``'s extras hold the run's
     figures."""
-    path = await run_in_threadpool(
+    handle = await run_in_threadpool(
         job_scene_file, runtime, job_id, points or runtime.settings.scene_max_points
     )
-    return SceneFile(path, media_type=GLB_MEDIA_TYPE, headers={"Cache-Control": "private"})
+    return OpenFileResponse(handle, media_type=GLB_MEDIA_TYPE, headers={"Cache-Control": "private"})
