@@ -9,8 +9,11 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import Field
+from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from typing_extensions import TypedDict  # pydantic reads typing.TypedDict from 3.12 only
+
+from supervisor.engine.transient import is_transient
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 log = logging.getLogger("vista.api")
@@ -177,6 +180,10 @@ def _validation_sentence(errors: list[dict]) -> str:
     return "; ".join(sentences) + more + "."
 
 
+OUTAGE_RETRY_AFTER_S = 2
+"""A database that went away is back within seconds (a restart) or not soon at all."""
+
+
 def install_problem_handlers(app: FastAPI) -> None:
     @app.exception_handler(Problem)
     async def _problem(request: Request, exc: Problem) -> JSONResponse:
@@ -205,6 +212,24 @@ def install_problem_handlers(app: FastAPI) -> None:
         return problem_response(
             exc.status_code, detail, instance=request.url.path, headers=exc.headers
         )
+
+    async def _fault(request: Request, exc: Exception) -> JSONResponse:
+        """The database (or the network to it) away: 503. Handled here, by class, and not
+        by the handler of every ``Exception`` below, which Starlette runs after the fact
+        and then raises again — the server closes the connection, and a client on it
+        reads a reset."""
+        if not is_transient(exc):
+            return await _unexpected(request, exc)
+        log.warning("%s %s: a passing fault: %s", request.method, request.url.path, exc)
+        return problem_response(
+            503,
+            f"The database cannot be reached just now; try again in {OUTAGE_RETRY_AFTER_S} s.",
+            instance=request.url.path,
+            headers={"Retry-After": str(OUTAGE_RETRY_AFTER_S)},
+        )
+
+    for fault in (DBAPIError, ConnectionError, TimeoutError):
+        app.add_exception_handler(fault, _fault)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
