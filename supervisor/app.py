@@ -33,6 +33,7 @@ from supervisor.judgments.router import router as judgments_router
 from supervisor.migrate import check_schema
 from supervisor.openapi import install_openapi
 from supervisor.problems import install_problem_handlers
+from supervisor.requests import JsonGuardRoute
 from supervisor.settings import Settings, get_settings, secure_data_dir
 from supervisor.sync.router import router as sync_router
 from supervisor.users.router import router as users_router
@@ -109,7 +110,7 @@ def create_app(
     app.add_middleware(SecurityHeaders)
     install_problem_handlers(app)
     install_openapi(app)
-    api = APIRouter(prefix=API_PREFIX)
+    api = APIRouter(route_class=JsonGuardRoute, prefix=API_PREFIX)
     # Routes are matched in order, a regular expression each: the reviewers' hot paths
     # (a judgment PUT, a headset's sync) first saves 0.1 ms of every such request.
     for router in (

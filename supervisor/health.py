@@ -9,8 +9,9 @@ from sqlalchemy import text
 from supervisor.deps import get_runtime
 from supervisor.engine.runtime import Runtime
 from supervisor.problems import problem_response
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["health"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["health"])
 
 
 @router.get("/healthz")

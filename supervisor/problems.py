@@ -8,9 +8,11 @@ from typing import Annotated, Any, NotRequired
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import iter_route_contexts
 from pydantic import Field
 from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 from typing_extensions import TypedDict  # pydantic reads typing.TypedDict from 3.12 only
 
 from supervisor.engine.transient import is_transient
@@ -180,6 +182,21 @@ def _validation_sentence(errors: list[dict]) -> str:
     return "; ".join(sentences) + more + "."
 
 
+def _allowed_methods(request: Request) -> list[str]:
+    """Every method some route of this path answers (Starlette's ``Allow`` lists those of
+    the first route it matched only: a path served by a GET route and a PUT route said
+    ``Allow: GET``)."""
+    scope = {**request.scope, "method": "GET"}
+    methods: set[str] = set()
+    for route in iter_route_contexts(request.app.router.routes):  # included routers' too
+        match, _ = route.matches(scope)
+        if match is not Match.NONE:
+            methods |= route.methods or set()
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
+
+
 OUTAGE_RETRY_AFTER_S = 2
 """A database that went away is back within seconds (a restart) or not soon at all."""
 
@@ -207,11 +224,14 @@ def install_problem_handlers(app: FastAPI) -> None:
         detail = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
         if exc.status_code == 404 and detail == "Not Found":
             detail = f"There is nothing at {request.url.path}."
-        elif exc.status_code == 405:
-            detail = f"{request.method} is not allowed on {request.url.path}."
-        return problem_response(
-            exc.status_code, detail, instance=request.url.path, headers=exc.headers
-        )
+        headers = exc.headers
+        if exc.status_code == 405:
+            allowed = _allowed_methods(request)
+            detail = (
+                f"{request.method} is not allowed on {request.url.path}: {', '.join(allowed)} are."
+            )
+            headers = {**(headers or {}), "Allow": ", ".join(allowed)}
+        return problem_response(exc.status_code, detail, instance=request.url.path, headers=headers)
 
     async def _fault(request: Request, exc: Exception) -> JSONResponse:
         """The database (or the network to it) away: 503. Handled here, by class, and not

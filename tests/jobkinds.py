@@ -23,7 +23,7 @@ class SleepParams(BaseModel):
         0, ge=0, le=10, description="Attempts that fail transiently first."
     )
     fail_with: str | None = Field(None, description="Fail permanently with this message.")
-    allocate_mb: int = Field(0, ge=0, description="Allocate (and touch) this much first.")
+    allocate_mb: int = Field(0, ge=0, le=1 << 20, description="Allocate (and touch) this much.")
 
 
 def sleep_job(ctx: JobContext) -> dict:

@@ -32,9 +32,10 @@ from supervisor.inspections.service import get as get_inspection
 from supervisor.models import Artifact
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page
 from supervisor.problems import Problem
+from supervisor.requests import JsonGuardRoute
 from supervisor.storage import UploadTooLarge
 
-router = APIRouter(tags=["artifacts"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["artifacts"])
 readers = require(*READ_ROLES, action="read artifacts")
 editors = require(*EDIT_ROLES, action="upload or delete artifacts")
 ARTIFACT_KINDS = artifact_kinds()

@@ -13,8 +13,9 @@ from supervisor.inspections.service import get as get_inspection
 from supervisor.models import AuditEvent
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 from supervisor.problems import Problem
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["audit"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["audit"])
 readers = require(*READ_ROLES, action="read the audit log")
 
 

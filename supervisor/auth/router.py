@@ -27,10 +27,11 @@ from supervisor.engine.runtime import Runtime
 from supervisor.models import User
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem
+from supervisor.requests import JsonGuardRoute
 from supervisor.users import service as users
 from supervisor.users.schemas import PasswordChange
 
-router = APIRouter(tags=["auth"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["auth"])
 signed_in = require(*READ_ROLES, action="sign out")
 NO_STORE = {"Cache-Control": "no-store", "Pragma": "no-cache"}
 T = TypeVar("T")

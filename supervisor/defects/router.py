@@ -20,8 +20,9 @@ from supervisor.ids import IdPath, IdQuery
 from supervisor.inspections.service import live
 from supervisor.models import Defect
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["defects"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["defects"])
 readers = require(*READ_ROLES, action="read defects")
 editors = require(*EDIT_ROLES, action="report or update defects")
 

@@ -13,8 +13,9 @@ from supervisor.exports.scene import SceneRun, scene_runs
 from supervisor.exports.service import scene_file
 from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["exports"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["exports"])
 readers = require(*READ_ROLES, action="read scenes")
 GLB_MEDIA_TYPE = "model/gltf-binary"
 

@@ -8,8 +8,9 @@ from supervisor.feedback import service
 from supervisor.feedback.schemas import FeedbackOut
 from supervisor.ids import IdQuery
 from supervisor.inspections.service import get as get_inspection
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["feedback"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["feedback"])
 readers = require(*READ_ROLES, action="read the review feedback")
 
 

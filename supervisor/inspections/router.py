@@ -27,8 +27,9 @@ from supervisor.inspections.schemas import (
 )
 from supervisor.models import Inspection
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["inspections"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["inspections"])
 readers = require(*READ_ROLES, action="read inspections")
 editors = require(*EDIT_ROLES, action="change inspections")
 admins = require(*ADMIN_ROLES, action="manage the trash")

@@ -35,8 +35,9 @@ from supervisor.jobs.view import JobViewOut, job_view
 from supervisor.models import Job, Run
 from supervisor.models.jobs import FINISHED
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["runs and jobs"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["runs and jobs"])
 readers = require(*READ_ROLES, action="read runs and jobs")
 operators = require(*EDIT_ROLES, action="start, cancel or retry jobs")
 EVENT_POLL_S = 0.5

@@ -16,8 +16,9 @@ from supervisor.engine.runtime import Runtime
 from supervisor.ids import IdPath
 from supervisor.judgments import service
 from supervisor.judgments.schemas import DefectJudgmentsOut, JudgmentIn, MyJudgmentOut
+from supervisor.requests import JsonGuardRoute
 
-router = APIRouter(tags=["judgments"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["judgments"])
 readers = require(*READ_ROLES, action="read judgments")
 judges = require(*JUDGE_ROLES, action="judge defects")
 

@@ -11,10 +11,11 @@ from fastapi.concurrency import run_in_threadpool
 from supervisor.deps import JUDGE_ROLES, READ_ROLES, CurrentUser, get_runtime, require
 from supervisor.engine.runtime import Runtime
 from supervisor.ids import MAX_ID
+from supervisor.requests import JsonGuardRoute
 from supervisor.sync import service
 from supervisor.sync.schemas import BatchOut, JudgmentBatch, SyncOut
 
-router = APIRouter(tags=["sync"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["sync"])
 readers = require(*READ_ROLES, action="sync inspections")
 judges = require(*JUDGE_ROLES, action="judge defects")
 GZIP_MIN_BYTES = 1400

@@ -28,6 +28,7 @@ from supervisor.models._types import utcnow
 from supervisor.models.users import TokenKind
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 from supervisor.problems import Problem, not_found
+from supervisor.requests import JsonGuardRoute
 from supervisor.users import service
 from supervisor.users.schemas import (
     RevokedOut,
@@ -40,7 +41,7 @@ from supervisor.users.schemas import (
     UserUpdate,
 )
 
-router = APIRouter(tags=["users"])
+router = APIRouter(route_class=JsonGuardRoute, tags=["users"])
 manage_users = require(*ADMIN_ROLES, action="manage users")
 signed_in = require(*READ_ROLES, action="manage tokens")
 
