@@ -500,3 +500,26 @@ def test_measurement_settings_name_their_choices() -> None:
     forced = replace(CONFIG, sections=replace(CONFIG.sections, edge_model="round"))
     seam = _one_seam(measure(cloud, forced))
     assert [e.model for e in seam.edges] == ["round", "round"]
+
+
+def test_a_fallback_edge_far_off_its_seams_line_is_left_unmeasured() -> None:
+    """The spacing sweep's square edges at 0.1 mm, rows along the seams: where a seam met
+    a junction, the free fallback took the crossing seam's edge in seven sections, gaps
+    1.5–2.3 mm too wide with σ 0.076 (30σ). A fallback section that departs from the line
+    of the seam's modelled sections by more than ``DEPARTURE_SIGMAS`` is unmeasured; one
+    within it, and any modelled section, is kept."""
+    from services.defects.edges import FREE, SQUARE
+    from services.defects.sections import _departing
+
+    along = np.arange(12.0) * 2
+    gap = 1.2 - 0.01 * along + np.tile([0.0, 0.02, -0.02], 4)  # a tapered seam's gaps
+    models = np.full((12, 2), SQUARE)
+    models[[9, 10], 1] = FREE
+    gap[9] += 0.05  # a fallback within the spread
+    gap[10] += 1.5  # a fallback on another edge
+    gap[11] += 1.5  # a modelled section: kept, whatever its gap
+    sigma = np.full(12, 0.02)
+    assert _departing(gap, sigma, along, models).tolist() == [False] * 10 + [True, False]
+    few = models.copy()
+    few[2:, 0] = FREE  # fewer than three modelled sections: no line to depart from
+    assert not _departing(gap, sigma, along, few).any()
