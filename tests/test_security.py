@@ -5,6 +5,7 @@ private. Each fails on the code before the issue and passes after."""
 
 from __future__ import annotations
 
+import re
 import stat
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -249,6 +250,48 @@ def test_deletion_goes_to_a_trash_an_admin_restores_or_purges(client, tokens, ru
         ).json()["items"]
     ]
     assert actions[-4:] == ["delete", "restore", "delete", "purge"]
+
+
+def test_nothing_of_a_trashed_inspection_is_read_through_another_route(client, tokens):
+    """Every GET route that takes the id of an inspection, its artifact, run, job or
+    defect answers 404 once the inspection is in the trash, as ``GET /jobs/{id}`` does
+    (``GET /jobs/{id}/events`` streamed the job's params, result and inputs)."""
+    from fastapi.routing import APIRoute, iter_route_contexts
+
+    ines = tokens["inspector"]
+    inspection = _inspection(client, ines)
+    artifact = client.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "report", "name": "r.json"},
+        content=b"{}",
+        headers={**auth(ines), "Content-Type": "application/json"},
+    ).json()["id"]
+    step = {"name": "s", "kind": "test.sleep", "params": {}, "after": []}
+    run = client.post(
+        f"/api/v1/inspections/{inspection}/runs", json={"steps": [step]}, headers=auth(ines)
+    ).json()
+    ids = {
+        "inspection_id": inspection,
+        "artifact_id": artifact,
+        "run_id": run["id"],
+        "job_id": run["jobs"][0]["id"],
+        "defect_id": _defect(client, ines, inspection),
+    }
+    cancel = client.post(f"/api/v1/jobs/{ids['job_id']}/cancel", headers=auth(ines))
+    assert cancel.status_code == 200  # a finished job's stream ends: its inspection may go
+    assert client.delete(f"/api/v1/inspections/{inspection}", headers=auth(ines)).status_code == 204
+    checked = []
+    for route in iter_route_contexts(client.app.routes):
+        names = re.findall(r"\{(\w+)\}", route.path or "")
+        if not isinstance(route.original_route, APIRoute) or "GET" not in route.methods:
+            continue
+        if not names or route.path.startswith("/api/v1/trash") or not set(names) <= set(ids):
+            continue
+        url = re.sub(r"\{(\w+)\}", lambda m: str(ids[m.group(1)]), route.path)
+        answer = client.get(url, headers=auth(ines))
+        assert answer.status_code == 404, (url, answer.status_code, answer.text[:200])
+        checked.append(route.path)
+    assert len(checked) >= 12, checked
 
 
 def test_dismissing_records_who_and_why_and_critical_needs_the_owner(client, tokens):

@@ -35,6 +35,7 @@ from supervisor.jobs.view import JobViewOut, job_view
 from supervisor.models import Job, Run
 from supervisor.models.jobs import FINISHED
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
+from supervisor.problems import Problem
 from supervisor.requests import JsonGuardRoute
 
 router = APIRouter(route_class=JsonGuardRoute, tags=["runs and jobs"])
@@ -193,9 +194,14 @@ def retry_job(
 
 
 def _snapshot(runtime: Runtime, job_id: int) -> dict | None:
+    """The job as ``GET /jobs/{id}`` shows it, or None where that is a 404 (no such job,
+    or its inspection is in the trash: a stream ends when it goes there)."""
     with runtime.db.read() as session:
-        job = session.get(Job, job_id)
-        return None if job is None else service.job_out(session, job).model_dump(mode="json")
+        try:
+            job = service.get_job(session, job_id=job_id)
+        except Problem:
+            return None
+        return service.job_out(session, job).model_dump(mode="json")
 
 
 @router.get(
