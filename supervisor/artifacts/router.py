@@ -150,7 +150,7 @@ async def upload_artifact(
             received = await run_in_threadpool(runtime.storage.adopt, found.replacement)
             name = f"{PurePath(name).stem}{MEDIA_TYPES[found.media_type]}"
         upload = service.Upload(inspection_id, kind, name, found.media_type, received, meta)
-        return await run_in_threadpool(service.store, request, runtime, user.id, upload)
+        return await run_in_threadpool(service.store, request, runtime, user, upload)
     finally:
         temp_path.unlink(missing_ok=True)
         if found is not None and found.replacement is not None:

@@ -126,7 +126,7 @@ class Upload:
     meta: dict
 
 
-def store(request: Request, runtime: Runtime, user_id: int, upload: Upload) -> Response:
+def store(request: Request, runtime: Runtime, actor: Actor, upload: Upload) -> Response:
     """Keep the upload (its file moved into the inspection's folder, its row and change
     written) once per Idempotency-Key; the response to send. The upload is read before
     the transaction starts, so this holds the write lock only while it stores the row
@@ -148,7 +148,21 @@ def store(request: Request, runtime: Runtime, user_id: int, upload: Upload) -> R
             media_type=upload.media_type,
             stored=replace(upload.received, uri=uri),
             meta=upload.meta,
-            created_by=user_id,
+            created_by=actor.id,
+        )
+        audit(
+            session,
+            actor,
+            "upload",
+            entity="artifact",
+            entity_id=artifact_id,
+            inspection_id=upload.inspection_id,
+            after={
+                "name": upload.name,
+                "kind": upload.kind,
+                "size_bytes": upload.received.size_bytes,
+                "sha256": upload.received.sha256,
+            },
         )
         artifact = session.get(Artifact, artifact_id)
         body = ArtifactOut.model_validate(artifact).model_dump(mode="json")
@@ -158,7 +172,7 @@ def store(request: Request, runtime: Runtime, user_id: int, upload: Upload) -> R
     with runtime.db.session(write=True) as session:
         try:
             response = create_once(
-                request, session, user_id=user_id, body_digest=digest, create=create
+                request, session, user_id=actor.id, body_digest=digest, create=create
             )
             commit(session)
         except BaseException:

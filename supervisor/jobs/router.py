@@ -89,7 +89,7 @@ def create_run(
             session,
             inspection_id=inspection_id,
             data=body,
-            user_id=user.id,
+            actor=user,
             max_attempts=runtime.settings.job_max_attempts,
         )
         ready.extend(to_send)

@@ -24,7 +24,7 @@ RUN_STATUS_ORDER = ("failed", "running", "queued", "waiting", "cancelled", "succ
 
 
 def create_run(
-    session: Session, *, inspection_id: int, data: RunCreate, user_id: int, max_attempts: int
+    session: Session, *, inspection_id: int, data: RunCreate, actor: Actor, max_attempts: int
 ) -> tuple[Run, list[Dispatch]]:
     """Validate the steps and add the run with one job per step; returns what to send."""
     names = [step.name for step in data.steps]
@@ -69,7 +69,7 @@ def create_run(
             params=kinds[step.name][1].model_dump(mode="json"),
         )
 
-    run = Run(inspection_id=inspection_id, name=data.name, created_by=user_id)
+    run = Run(inspection_id=inspection_id, name=data.name, created_by=actor.id)
     session.add(run)
     session.flush()
     jobs_by_name: dict[str, Job] = {}
@@ -102,7 +102,7 @@ def create_run(
             entity_id=job.id,
             op="create",
             inspection_id=inspection_id,
-            user_id=user_id,
+            user_id=actor.id,
         )
     record_change(
         session,
@@ -110,7 +110,16 @@ def create_run(
         entity_id=run.id,
         op="create",
         inspection_id=inspection_id,
-        user_id=user_id,
+        user_id=actor.id,
+    )
+    audit(
+        session,
+        actor,
+        "create",
+        entity="run",
+        entity_id=run.id,
+        inspection_id=inspection_id,
+        after={"steps": [{"name": s.name, "kind": s.kind} for s in data.steps]},
     )
     session.flush()
     follow_runs(session, inspection_id=inspection_id)
