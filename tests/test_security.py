@@ -5,6 +5,7 @@ private. Each fails on the code before the issue and passes after."""
 
 from __future__ import annotations
 
+import itertools
 import re
 import stat
 from datetime import UTC, datetime, timedelta
@@ -405,3 +406,61 @@ def test_a_password_hashed_with_older_parameters_is_re_hashed_at_sign_in(client,
     with runtime.db.read() as session:
         stored = session.scalar(select(User.password_hash).where(User.username == "olga"))
     assert "p=1$" in stored and stored != four_lanes
+
+
+def _readme_permissions() -> dict[str, list[bool]]:
+    """The README's "Who may do what" table: per action, whether each column (admin,
+    owner, other inspector, viewer, device) may (anything but "–")."""
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    table = text.split("### Who may do what", 1)[1].split("\n\n", 2)[1]
+    rows = [line.split("|")[1:-1] for line in table.splitlines()[2:]]
+    return {cells[0].strip(): [c.strip() != "–" for c in cells[1:]] for cells in rows}
+
+
+def test_the_readme_permission_table_is_what_the_api_does(client, tokens):
+    """Each row of the README's table that one request decides, asked of every column's
+    user: refused (403) exactly where the table says "–" (it said a device may PUT a
+    judgment, which answers 403, and not that it may list its tokens)."""
+    owner, other = tokens["inspector"], tokens["inspector2"]
+    inspection = _inspection(client, owner)
+    defect = _defect(client, owner, inspection)
+    now = datetime.now(UTC).isoformat()
+    item = {"client_id": "x", "defect_id": defect, "verdict": "confirmed", "client_time": now}
+    wider = itertools.count(1)  # each user's change a change (the same value changes nothing)
+    probes = {
+        "read inspections, defects, runs, files, scenes; sync": lambda h: client.get(
+            f"/api/v1/defects/{defect}", headers=h
+        ),
+        "judge a defect online (`PUT …/judgments/me`)": lambda h: client.put(
+            f"/api/v1/defects/{defect}/judgments/me", json={"verdict": "confirmed"}, headers=h
+        ),
+        "judge defects by sync push (`POST /sync/judgments`)": lambda h: client.post(
+            "/api/v1/sync/judgments", json={"items": [item]}, headers=h
+        ),
+        "create inspections, upload, start/cancel/retry runs, report defects, rename, edit markers": (
+            lambda h: client.post(
+                "/api/v1/inspections", json={"title": "p", "area": "cabin"}, headers=h
+            )
+        ),
+        "change an inspection's tolerances, close or reopen it": lambda h: client.patch(
+            f"/api/v1/inspections/{inspection}",
+            json={"tolerances": {"gap_mm": {"min": 0.5, "max": 2.0 + next(wider)}}},
+            headers=h,
+        ),
+        "restore or purge the trash, manage users, any token": lambda h: client.get(
+            "/api/v1/users", headers=h
+        ),
+        "list your own tokens (`GET /tokens`), sign out": lambda h: client.get(
+            "/api/v1/tokens", headers=h
+        ),
+        "revoke your own tokens, change your password": lambda h: client.delete(
+            "/api/v1/tokens/999999",
+            headers=h,  # 404 where it may, 403 where it may not
+        ),
+    }
+    table = _readme_permissions()
+    columns = [tokens["admin"], owner, other, tokens["viewer"], tokens["device"]]
+    assert set(probes) <= set(table), set(probes) - set(table)
+    for action, probe in probes.items():
+        answered = [probe(auth(token)).status_code for token in columns]
+        assert [code != 403 for code in answered] == table[action], (action, answered)
