@@ -115,6 +115,12 @@ def test_short_run_writes_json_and_loses_nothing(tmp_path: Path, with_postgres: 
         assert 0 < writes["loadgen_machine_percent"] <= 100  # the generator's share, stated
         assert result["cpus"] == cpu_plan(os.sched_getaffinity(0))
     assert "writes/s" in format_table(report) and "gen CPU %" in format_table(report)
+    if with_postgres:  # the fault row: the database away a third of the window
+        fault = report["fault"]
+        assert (fault["server_errors"], fault["resets"], fault["lost"]) == (0, 0, 0), fault
+        assert fault["writes_per_s"] > 0 and fault["meets_targets"]
+    else:
+        assert report["fault"] is None
 
 
 def test_sqlite_is_held_to_its_own_targets_and_postgresql_to_the_stricter_ones() -> None:

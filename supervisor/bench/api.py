@@ -27,6 +27,7 @@ from __future__ import annotations
 import os
 import random
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -173,6 +174,78 @@ def bench_backend(
     }
     result["meets_targets"] = meets_targets(result)
     return result
+
+
+OUTAGE_S = 5.0
+"""How long the fault row's database is away (a restart of PostgreSQL takes a few s)."""
+
+
+def bench_fault(
+    postgres_url: str, *, clients: int, seconds: float, defects: int, outage_s: float = OUTAGE_S
+) -> dict[str, Any]:
+    """The write test against PostgreSQL through a proxy cut for ``outage_s`` a third of
+    the way into the measured window (every connection dropped, new ones refused: what the
+    API sees while the database restarts), then restored: writes/s and p99 over the whole
+    window, every answer's status — 5xx other than 503 (target 0), 503s with Retry-After
+    counted apart, connections reset — and whether an acknowledged write was lost."""
+    from urllib.parse import urlsplit
+
+    from sqlalchemy.engine import make_url
+
+    from supervisor.bench.faultproxy import FaultProxy
+
+    with (
+        fresh_postgres_database(postgres_url) as url,
+        tempfile.TemporaryDirectory(prefix="vista-bench-fault-") as tmp,
+    ):
+        upgrade(url)
+        seeded = seed_database(url, clients=clients, defects=defects, rng=random.Random(SEED))
+        target = urlsplit(make_url(url).render_as_string(hide_password=False))
+        proxy = FaultProxy((target.hostname or "127.0.0.1", target.port or 5432))
+        proxied = make_url(url).set(host="127.0.0.1", port=proxy.port)
+        try:
+            with running_server(Path(tmp), proxied.render_as_string(False), 1) as server:
+                cut_at = WARMUP_S + seconds / 3
+                timers = [
+                    threading.Timer(cut_at, proxy.cut),
+                    threading.Timer(cut_at + outage_s, proxy.restore),
+                ]
+                for timer in timers:
+                    timer.start()
+                _say(f"fault: {clients} clients writing; the database away {outage_s:g} s")
+                writes, logs = run_async(
+                    write_test(server.port, seeded, seconds=seconds, server_pid=server.pid)
+                )
+                for timer in timers:
+                    timer.join()
+        finally:
+            proxy.close()
+        integrity = verify_judgments(url, logs)
+    statuses = {int(k): v for k, v in writes["statuses"].items()}
+    result = {
+        "outage_s": outage_s,
+        "writes_per_s": writes["writes_per_s"],
+        "p99_ms": writes["p99_ms"],
+        "server_errors": sum(v for k, v in statuses.items() if k >= 500 and k != 503),
+        "unavailable_503": statuses.get(503, 0),
+        "resets": statuses.get(0, 0),
+        "lost": integrity["lost"],
+        "duplicated": integrity["duplicated"],
+        "statuses": writes["statuses"],
+    }
+    result["meets_targets"] = (
+        result["server_errors"] == 0 and result["resets"] == 0 and (result["lost"] == 0)
+    )
+    return result
+
+
+def format_fault(fault: dict[str, Any]) -> str:
+    return (
+        f"fault (PostgreSQL away {fault['outage_s']:g} s mid-write): {fault['writes_per_s']} "
+        f"writes/s, p99 {_fmt(fault['p99_ms'])} ms, 5xx {fault['server_errors']} (target 0), "
+        f"503 {fault['unavailable_503']}, resets {fault['resets']}, lost {fault['lost']}: "
+        + ("met" if fault["meets_targets"] else "missed")
+    )
 
 
 def meets_targets(result: dict[str, Any]) -> dict[str, bool]:
@@ -352,7 +425,16 @@ def run_api_bench(
                 api_workers=processes,
                 storm_s=storm_s,
             )
-    if not postgres_url:
+    fault = None
+    if postgres_url:
+        fault = bench_fault(
+            postgres_url,
+            clients=clients,
+            seconds=seconds,
+            defects=defects,
+            outage_s=min(OUTAGE_S, seconds / 3),
+        )
+    else:
         _say("PostgreSQL skipped: pass --postgres-url or set VISTA_TEST_DATABASE_URL")
     report = write_document(
         out,
@@ -360,8 +442,11 @@ def run_api_bench(
         targets={"postgresql": TARGETS, "sqlite": SQLITE_TARGETS},
         parameters=parameters,
         backends=backends,
+        fault=fault,
         duration_s=round(time.perf_counter() - started, 3),
     )
     print(format_table(report))
+    if fault is not None:
+        print(format_fault(fault))
     print(f"wrote {out}")
     return report
