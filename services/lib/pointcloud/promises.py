@@ -55,8 +55,8 @@ class ReaderLimits:
 
     max_points: int = MAX_POINTS_DEFAULT
     memory_mb: int = 8192
-    """The reader's address space (RLIMIT_AS): 50 million points with colour, read and
-    converted, take about 6 GB."""
+    """The reader's address space beyond its loaded libraries (RLIMIT_AS): 50 million
+    points with colour, read and converted, take about 6 GB."""
     cpu_s: int = 300
     """CPU seconds (RLIMIT_CPU): a 50-million-point LAZ decodes in about a minute."""
     at_once: int = 2

@@ -3,7 +3,9 @@
 The format libraries run in a fresh interpreter (``python -m
 services.lib.pointcloud.reader``), so one that crashes on a damaged file (lazrs aborts on
 some) or loops takes only the child. The child is held to ``ReaderLimits``: its address
-space (RLIMIT_AS: an allocation beyond it fails as MemoryError, reported as such), its CPU
+space beyond what its libraries hold once loaded (RLIMIT_AS set to that plus the limit, so
+the limit means the same on hosts whose libraries reserve more or less: an allocation beyond
+it fails as MemoryError, reported as such), its CPU
 seconds (RLIMIT_CPU: SIGXCPU ends it), and at most ``at_once`` of them run on a host (a
 lock file per slot; an upload beyond them is answered 429). It dies with the thread that
 started it (PR_SET_PDEATHSIG: a killed server leaves no reader behind), is killed with its
@@ -215,7 +217,7 @@ def _child(path: Path, out: Path, units: str | None, parent_pid: int) -> dict:
 
     die_with_parent(parent_pid)
     limits = ReaderLimits.from_env()
-    memory = limits.memory_mb << 20
+    memory = _address_space_bytes() + (limits.memory_mb << 20)
     resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
     resource.setrlimit(resource.RLIMIT_CPU, (limits.cpu_s, limits.cpu_s + 5))
     try:
@@ -231,10 +233,19 @@ def _child(path: Path, out: Path, units: str | None, parent_pid: int) -> dict:
     return {"meta": converted.meta()}
 
 
+def _address_space_bytes() -> int:
+    """This process's address space now (VmSize), bytes."""
+    return int(_status_kb("VmSize") * 1024)
+
+
+def _status_kb(field: str) -> float:
+    status = Path("/proc/self/status").read_text().split(f"{field}:")
+    return int(status[1].split()[0]) if len(status) > 1 else float("nan")
+
+
 def _peak_mb() -> float:
     """This process's largest resident set (VmHWM), MiB."""
-    status = Path("/proc/self/status").read_text().split("VmHWM:")
-    return int(status[1].split()[0]) / 1024 if len(status) > 1 else float("nan")
+    return _status_kb("VmHWM") / 1024
 
 
 if __name__ == "__main__":
