@@ -86,3 +86,41 @@ def measure_uploaded(http, inspection: int, cloud: Path) -> dict:
         f"/api/v1/inspections/{inspection}/runs",
         json={"steps": [{"name": "measure", "kind": "defects.measure", "inputs": [artifact]}]},
     ).json()
+
+
+def record_measurement(
+    runtime, inspection_id: int, findings: list, *, bounds_mm: list | None = None
+) -> tuple[int, int]:
+    """A succeeded defects.measure job of a new run that found ``findings`` (NewDefects)
+    in a cloud within ``bounds_mm``, stored as the engine stores a job's outputs (the
+    findings, then the lineage step); (run id, job id)."""
+    from supervisor.defects.lineage import supersede
+    from supervisor.defects.service import record_defect
+
+    with runtime.db.write() as session:
+        run = Run(inspection_id=inspection_id, name="measure")
+        session.add(run)
+        session.flush()
+        job = Job(
+            run_id=run.id,
+            inspection_id=inspection_id,
+            step="measure",
+            position=0,
+            kind="defects.measure",
+            queue="defects",
+            status="succeeded",
+            result={"cloud_bounds_mm": bounds_mm} if bounds_mm is not None else {},
+        )
+        session.add(job)
+        session.flush()
+        for finding in findings:
+            record_defect(
+                session,
+                finding,
+                inspection_id=inspection_id,
+                source="job",
+                run_id=run.id,
+                job_id=job.id,
+            )
+        supersede(session, job_id=job.id)
+        return run.id, job.id

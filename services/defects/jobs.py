@@ -3,6 +3,8 @@ the profile plot and the defects out."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from contract.context import JobContext, NewDefect, input_error, one_input
 from contract.errors import JobInputError
 from contract.tolerances import limits_of
@@ -103,7 +105,15 @@ def measure_job(ctx: JobContext) -> dict:
         "uncertain": len(result.uncertain),
         "defects_by_type": by_type,
         "seconds": round(sum(result.seconds.values()), 3),
+        "cloud_bounds_mm": _bounds_mm(points.points),
     }
+
+
+def _bounds_mm(points: np.ndarray) -> list[list[float]]:
+    """The cloud's axis-aligned box, [min, max] in mm: the area this measurement covers
+    (an earlier finding inside it that this one did not find again is no longer current)."""
+    finite = points[np.isfinite(points).all(axis=1)]
+    return [np.round(finite.min(axis=0), 2).tolist(), np.round(finite.max(axis=0), 2).tolist()]
 
 
 def _seam_name(seam: SeamResult) -> str:

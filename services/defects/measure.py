@@ -887,10 +887,15 @@ def _seam_findings(
 
 
 def _along_seam(finding: Finding, seam: SeamResult) -> Finding:
-    """The finding with where it lies along its seam: mm from the seam's start."""
+    """The finding with where it lies along its seam (mm from the seam's start) and the
+    seam's ends (mm): what a later measurement's finding is matched by."""
     direction = seam.end - seam.start
     along_mm = float(np.dot(finding.location - seam.start, direction) / np.linalg.norm(direction))
-    return replace(finding, measurements={**finding.measurements, "along_mm": round(along_mm, 1)})
+    seam_mm = [np.round(seam.start, 2).tolist(), np.round(seam.end, 2).tolist()]
+    return replace(
+        finding,
+        measurements={**finding.measurements, "along_mm": round(along_mm, 1), "seam_mm": seam_mm},
+    )
 
 
 def _surface_finding(

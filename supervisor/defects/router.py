@@ -8,6 +8,7 @@ from sqlalchemy.orm import Session
 from supervisor.defects import service
 from supervisor.defects.schemas import (
     DefectCreate,
+    DefectHistoryOut,
     DefectOut,
     DefectStatus,
     DefectType,
@@ -36,15 +37,26 @@ def list_defects(
     severity: Severity | None = Query(
         None, description="`info` = measurements within tolerance (e.g. seams), kept for review."
     ),
+    history: bool = Query(
+        False,
+        description="Also findings a later measurement ended (superseded, or not found "
+        "again); without it only current ones are listed, unless `run` is given (a run's "
+        "findings are all listed, ended or not).",
+    ),
     cursor: str | None = None,
     limit: Limit = DEFAULT_LIMIT,
     session: Session = SESSION,
     _: CurrentUser = Depends(readers),
 ) -> Page[DefectOut]:
-    """Defects in id order, each with its reviewers' consensus; follow ``next_cursor``."""
+    """Defects in id order, each with its reviewers' consensus; follow ``next_cursor``.
+    Each physical defect is listed once: a finding measured again is its newest
+    measurement's (`GET /defects/{id}/history` has the line)."""
+    query = select(Defect).where(live(Defect.inspection_id))
+    if not history and run is None:
+        query = query.where(Defect.ended.is_(None))
     return paginate(
         session,
-        select(Defect).where(live(Defect.inspection_id)),
+        query,
         equal={
             Defect.inspection_id: inspection,
             Defect.run_id: run,
@@ -85,6 +97,16 @@ def get_defect(
     defect_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> DefectOut:
     return service.defects_out(session, [service.get(session, defect_id=defect_id)])[0]
+
+
+@router.get("/defects/{defect_id}/history", response_model=DefectHistoryOut)
+def defect_history(
+    defect_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
+) -> DefectHistoryOut:
+    """The physical defect's line across measurements, oldest first: each run's finding,
+    how it ended (superseded, not found again), and every judgment revision made along
+    it with the run it was judged on."""
+    return service.history(session, defect_id=defect_id)
 
 
 @router.patch("/defects/{defect_id}", response_model=DefectOut)

@@ -7,7 +7,7 @@ from pydantic import BaseModel, ConfigDict, Field, computed_field
 
 from contract.tolerances import ToleranceState, stored_state
 from contract.vocabulary import DefectType, Severity
-from supervisor.models.defects import DefectStatus, Verdict
+from supervisor.models.defects import DefectStatus, Ended, Verdict
 from supervisor.requests import MAX_MM, Millimetres, RequestId, RequestModel
 
 Vector3 = Annotated[tuple[Millimetres, Millimetres, Millimetres], Field(strict=False)]
@@ -73,6 +73,24 @@ class DefectOut(BaseModel):
     source: str
     status_by: int | None = Field(None, description="Who last set the status.")
     status_reason: str = Field("", description="Why they did.")
+    lineage_id: int | None = Field(
+        None,
+        description="The first finding of its line: every measurement of one physical "
+        "defect shares it (see `GET /defects/{id}/history`).",
+    )
+    supersedes_id: int | None = Field(
+        None, description="The earlier measurement's finding this one continues."
+    )
+    superseded_by_id: int | None = Field(
+        None, description="The later measurement's finding that continues this one."
+    )
+    ended: Ended | None = Field(
+        None,
+        description="null while current; `superseded` (a later measurement found it again: "
+        "see `superseded_by_id`) or `not found again` (a later measurement of its area did "
+        "not find it).",
+    )
+    ended_run_id: int | None = Field(None, description="The run that ended it.")
     created_at: datetime
     consensus: Consensus | None = None
 
@@ -84,3 +102,35 @@ class DefectOut(BaseModel):
     @property
     def tolerance_state(self) -> ToleranceState:
         return stored_state(self.severity, self.measurements)
+
+
+class LineageStep(BaseModel):
+    """One measurement's finding in a physical defect's line, oldest first."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    run_id: int | None
+    run_name: str | None = None
+    job_id: int | None
+    type: DefectType
+    status: DefectStatus
+    severity: Severity
+    value_mm: float | None
+    measurements: dict
+    created_at: datetime
+    ended: Ended | None
+    ended_run_id: int | None
+
+
+class DefectHistoryOut(BaseModel):
+    defect_id: int
+    lineage_id: int
+    current_id: int | None = Field(
+        description="The line's current finding (null: its last measurement did not find it again)."
+    )
+    steps: list[LineageStep]
+    judgments: list[dict] = Field(
+        description="Every revision of every judgment made along the line, oldest first: "
+        "user, verdict, new type, comment, revision, the run it was judged on."
+    )

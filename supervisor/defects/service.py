@@ -2,16 +2,16 @@ from __future__ import annotations
 
 import math
 
-from sqlalchemy import insert, select
+from sqlalchemy import insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from contract.context import NewDefect
 from supervisor.audit.service import Actor, audit
 from supervisor.changes import record_change, record_update
-from supervisor.defects.schemas import DefectCreate, DefectOut
+from supervisor.defects.schemas import DefectCreate, DefectHistoryOut, DefectOut, LineageStep
 from supervisor.inspections.service import ensure_live
 from supervisor.judgments.consensus import consensus_for
-from supervisor.models import Defect, Inspection
+from supervisor.models import Defect, Inspection, JudgmentRevision, Run, User
 from supervisor.problems import Problem, not_found
 
 READING_KEYS = ("value", "unit", "tolerance")
@@ -78,6 +78,7 @@ def record_defect(
         )
         .returning(Defect.id)
     ).scalar_one()
+    session.execute(update(Defect).where(Defect.id == defect_id).values(lineage_id=defect_id))
     record_change(
         session,
         entity="defect",
@@ -160,3 +161,57 @@ def set_status(
     )
     session.flush()
     return defect
+
+
+def history(session: Session, *, defect_id: int) -> DefectHistoryOut:
+    """The line of findings ``defect_id`` belongs to, with every judgment revision."""
+    defect = get(session, defect_id=defect_id)
+    lineage = defect.lineage_id or defect.id
+    steps = session.execute(
+        select(Defect, Run.name)
+        .outerjoin(Run, Run.id == Defect.run_id)
+        .where(
+            or_(Defect.lineage_id == lineage, Defect.id == lineage),
+            Defect.inspection_id == defect.inspection_id,
+        )
+        .order_by(Defect.id)
+    ).all()
+    ids = [d.id for d, _ in steps]
+    revisions = session.execute(
+        select(JudgmentRevision, User.username, Defect.run_id)
+        .join(User, User.id == JudgmentRevision.user_id)
+        .join(Defect, Defect.id == JudgmentRevision.defect_id)
+        .where(JudgmentRevision.defect_id.in_(ids))
+        .order_by(JudgmentRevision.created_at, JudgmentRevision.id)
+    ).all()
+    seen: set[tuple] = set()  # a carried revision is the same revision: listed once
+    judgments = []
+    for revision, username, run_id in revisions:
+        judged_on = revision.judged_on_run_id or run_id
+        key = (revision.user_id, revision.revision, judged_on, revision.created_at)
+        if key in seen:
+            continue
+        seen.add(key)
+        judgments.append(
+            {
+                "user_id": revision.user_id,
+                "username": username,
+                "defect_id": revision.defect_id if revision.judged_on_run_id is None else None,
+                "judged_on_run_id": judged_on,
+                "revision": revision.revision,
+                "verdict": revision.verdict,
+                "new_type": revision.new_type,
+                "comment": revision.comment,
+                "created_at": revision.created_at.isoformat(),
+            }
+        )
+    current = [d.id for d, _ in steps if d.ended is None]
+    return DefectHistoryOut(
+        defect_id=defect_id,
+        lineage_id=lineage,
+        current_id=current[-1] if current else None,
+        steps=[
+            LineageStep.model_validate(d).model_copy(update={"run_name": name}) for d, name in steps
+        ],
+        judgments=judgments,
+    )

@@ -25,6 +25,7 @@ from contract.context import InputArtifact
 from contract.errors import JobCancelled, JobInputError, JobLost, JobTimeLimit
 from supervisor.artifacts.service import record_artifact
 from supervisor.changes import record_update
+from supervisor.defects.lineage import supersede
 from supervisor.defects.service import record_defect
 from supervisor.engine.context import JobClaim, StopSignal, WorkerContext
 from supervisor.engine.dispatch import Dispatch, dispatch
@@ -233,6 +234,7 @@ def _store_outputs(session: Session, claim: JobClaim, ctx: WorkerContext) -> Non
             run_id=claim.run_id,
             job_id=claim.id,
         )
+    supersede(session, job_id=claim.id)
 
 
 def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str | None) -> str:

@@ -186,7 +186,7 @@ def feedback(session: Session, *, inspection_id: int | None, min_reviews: int) -
         Defect.value_mm,
         Defect.tolerance_mm,
         Defect.measurements,
-    ).where(Defect.source == "job", live(Defect.inspection_id))
+    ).where(Defect.source == "job", Defect.ended.is_(None), live(Defect.inspection_id))
     if inspection_id is not None:
         query = query.where(Defect.inspection_id == inspection_id)
     defects = session.execute(query).all()

@@ -43,6 +43,9 @@ class JudgmentRevisionOut(BaseModel):
     new_type: DefectType | None
     comment: str
     created_at: datetime
+    judged_on_run_id: int | None = Field(
+        None, description="The earlier run whose finding this was judged on (null: this one)."
+    )
 
 
 class JudgmentOut(BaseModel):
@@ -56,6 +59,11 @@ class JudgmentOut(BaseModel):
     updated_at: datetime
     client_time: datetime | None = Field(
         None, description="When it was made by the judging client's clock (last one wins)."
+    )
+    judged_on_run_id: int | None = Field(
+        None,
+        description="Judged on run N's finding, an earlier measurement of this one (carried "
+        "over when it was measured again); null: judged on this finding.",
     )
     history: list[JudgmentRevisionOut] | None = None
 

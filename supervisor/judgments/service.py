@@ -57,6 +57,7 @@ def judgment_out(judgment: Row | Judgment, username: str) -> JudgmentOut:
         revision=judgment.revision,
         updated_at=judgment.updated_at,
         client_time=judgment.client_time,
+        judged_on_run_id=judgment.judged_on_run_id,
     )
 
 

@@ -58,6 +58,7 @@ _COMMENT = bindparam("comment", type_=_judgments.c.comment.type)
 _CLIENT_TIME = bindparam("client_time", type_=_judgments.c.client_time.type)
 _NOW = bindparam("now", type_=_judgments.c.updated_at.type)
 _NEWER_ONLY = bindparam("newer_only", type_=_judgments.c.revision.type)
+_JUDGED_ON = bindparam("judged_on_run_id", type_=_judgments.c.judged_on_run_id.type)
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,9 @@ class JudgmentWrite:
     now: datetime
     newer_only: bool = False
     """Keep a stored judgment made after ``client_time`` (the sync's rule; a PUT always wins)."""
+    judged_on_run_id: int | None = None
+    """The run of the earlier finding the user judged, when the judgment was sent for a
+    finding a later measurement has since superseded (None: judged on this one)."""
 
     @classmethod
     def of(
@@ -85,6 +89,7 @@ class JudgmentWrite:
         client_time: datetime,
         now: datetime,
         newer_only: bool = False,
+        judged_on_run_id: int | None = None,
     ) -> JudgmentWrite:
         return cls(
             defect_id=defect_id,
@@ -95,6 +100,7 @@ class JudgmentWrite:
             client_time=client_time,
             now=now,
             newer_only=newer_only,
+            judged_on_run_id=judged_on_run_id,
         )
 
     def params(self) -> dict:
@@ -107,6 +113,7 @@ class JudgmentWrite:
             "client_time": self.client_time,
             "now": self.now,
             "newer_only": int(self.newer_only),
+            "judged_on_run_id": self.judged_on_run_id,
         }
 
 
@@ -149,11 +156,19 @@ def _upsert(dialect_insert: type[postgresql.Insert] | type[sqlite.Insert]) -> In
     """Insert the judgment, or update the user's one when something in it changed (and,
     with ``newer_only``, when it was made after the stored one); returns the row written."""
     source = select(
-        _defects.c.id, _USER_ID, _VERDICT, _NEW_TYPE, _COMMENT, literal(1), _NOW, _CLIENT_TIME
+        _defects.c.id,
+        _USER_ID,
+        _VERDICT,
+        _NEW_TYPE,
+        _COMMENT,
+        literal(1),
+        _NOW,
+        _CLIENT_TIME,
+        _JUDGED_ON,
     ).where(_the_defect(), not_(same_type(_defects.c.type)))
     statement = dialect_insert(_judgments).from_select(
         ["defect_id", "user_id", "verdict", "new_type", "comment", "revision", "updated_at"]
-        + ["client_time"],
+        + ["client_time", "judged_on_run_id"],
         source,
     )
     stored, incoming = _judgments.c, statement.excluded
@@ -166,6 +181,7 @@ def _upsert(dialect_insert: type[postgresql.Insert] | type[sqlite.Insert]) -> In
             "revision": stored.revision + 1,
             "updated_at": incoming.updated_at,
             "client_time": incoming.client_time,
+            "judged_on_run_id": incoming.judged_on_run_id,
         },
         where=and_(
             or_(
@@ -187,10 +203,10 @@ def _add_revision(written: FromClause) -> Insert:
     c = written.c
     return insert(_revisions).from_select(
         ["defect_id", "user_id", "revision", "verdict", "new_type", "comment", "client_time"]
-        + ["created_at"],
+        + ["judged_on_run_id", "created_at"],
         select(
             c.defect_id, c.user_id, c.revision, c.verdict, c.new_type, c.comment, c.client_time
-        ).add_columns(c.updated_at),
+        ).add_columns(c.judged_on_run_id, c.updated_at),
     )
 
 

@@ -13,8 +13,12 @@ from supervisor.db import Base
 from supervisor.models._types import JSONType, UTCDateTime, created_at_column, utcnow
 
 DefectStatus = Literal["open", "resolved", "dismissed"]
+Ended = Literal["superseded", "not found again"]
+"""Why a job's finding is no longer current: a later measurement of its area found it
+again (its successor carries its judgments) or did not find it."""
 Verdict = Literal["confirmed", "rejected", "reclassified", "uncertain"]
 DEFECT_STATUSES: tuple[DefectStatus, ...] = get_args(DefectStatus)
+ENDINGS: tuple[Ended, ...] = get_args(Ended)
 VERDICTS: tuple[Verdict, ...] = get_args(Verdict)
 
 
@@ -25,6 +29,7 @@ class Defect(Base):
         CheckConstraint(f"status IN {DEFECT_STATUSES}", name="status"),
         CheckConstraint(f"severity IN {SEVERITIES}", name="severity"),
         CheckConstraint("confidence >= 0 AND confidence <= 1", name="confidence"),
+        CheckConstraint(f"ended IN {ENDINGS}", name="ended"),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -50,6 +55,20 @@ class Defect(Base):
     """Who last set the status (resolved or dismissed it, or reopened it)."""
     status_reason: Mapped[str] = mapped_column(Text, default="")
     """Why, in their words (required to dismiss)."""
+    lineage_id: Mapped[int | None] = mapped_column(Integer, index=True)
+    """The first finding of its line: every measurement of one physical defect shares it
+    (None until set, right after the row is made: its own id)."""
+    supersedes_id: Mapped[int | None] = mapped_column(
+        ForeignKey("defects.id", ondelete="SET NULL")
+    )
+    """The previous measurement's finding this one continues."""
+    superseded_by_id: Mapped[int | None] = mapped_column(
+        ForeignKey("defects.id", ondelete="SET NULL")
+    )
+    ended: Mapped[str | None] = mapped_column(String(16), index=True)
+    """None while current; else why not (``Ended``)."""
+    ended_run_id: Mapped[int | None] = mapped_column(ForeignKey("runs.id", ondelete="SET NULL"))
+    """The run whose measurement superseded it or did not find it again."""
     created_at: Mapped[datetime] = created_at_column()
 
 
@@ -73,6 +92,10 @@ class Judgment(Base):
     client_time: Mapped[datetime | None] = mapped_column(UTCDateTime())
     """When the judging client made this version: a headset's clock for offline edits, the
     server's for edits over the API. A user's newest version by this time wins."""
+    judged_on_run_id: Mapped[int | None] = mapped_column(Integer)
+    """The run whose finding the user judged, where that is an earlier measurement of this
+    one (the judgment was carried over, or sent for a finding since superseded); None:
+    judged on this finding itself."""
 
 
 class JudgmentRevision(Base):
@@ -89,6 +112,7 @@ class JudgmentRevision(Base):
     new_type: Mapped[str | None] = mapped_column(String(16))
     comment: Mapped[str] = mapped_column(Text, default="")
     client_time: Mapped[datetime | None] = mapped_column(UTCDateTime())
+    judged_on_run_id: Mapped[int | None] = mapped_column(Integer)
     created_at: Mapped[datetime] = created_at_column()
 
 

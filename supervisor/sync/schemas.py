@@ -40,6 +40,18 @@ class SyncDefect(BaseModel):
     source: str
     measurements: dict
     created_at: datetime
+    lineage_id: int | None = None
+    supersedes_id: int | None = None
+    superseded_by_id: int | None = Field(
+        None, description="Set when a later measurement found it again: that finding."
+    )
+    ended: Literal["superseded", "not found again"] | None = Field(
+        None,
+        description="null while current. An ended finding is history: a client hides it "
+        "(its judgments travel on with its successor); a verdict sent for it lands on its "
+        "successor, or is refused when it was not found again.",
+    )
+    ended_run_id: int | None = None
 
 
 class SyncConsensus(Consensus):
@@ -132,6 +144,11 @@ class ItemResult(BaseModel):
         "defect is gone, in another inspection, or the judgment is not allowed)."
     )
     replayed: bool = Field(False, description="This client_id was sent before: first answer.")
+    landed_on: int | None = Field(
+        None,
+        description="The finding your judgment landed on, when the one you sent it for was "
+        "measured again since (its successor; `detail` says so). null: the one you sent.",
+    )
     detail: str | None = None
     judgment: JudgmentOut | None = Field(None, description="Your judgment of the defect now.")
 

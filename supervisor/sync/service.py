@@ -141,6 +141,11 @@ _DEFECT_COLUMNS = (
     Defect.source,
     Defect.measurements,
     Defect.created_at,
+    Defect.lineage_id,
+    Defect.supersedes_id,
+    Defect.superseded_by_id,
+    Defect.ended,
+    Defect.ended_run_id,
 )
 _JUDGMENT_COLUMNS = (
     Judgment.defect_id,
@@ -152,6 +157,7 @@ _JUDGMENT_COLUMNS = (
     Judgment.revision,
     Judgment.updated_at,
     Judgment.client_time,
+    Judgment.judged_on_run_id,
 )
 
 
@@ -394,45 +400,108 @@ def _apply(
             {"ids": client_ids},
         )
     }
-    ids = list({item.defect_id for item in items})
+    landing = _landings(session, list({item.defect_id for item in items}))
+    ids = list({landing.get(item.defect_id, Landing(item.defect_id)).defect_id for item in items})
     current = {j.defect_id: j for j in session.execute(_MINE, {"user_id": user_id, "ids": ids})}
     homes = _homes(session, ids)
     results = []
-    for item in items:
-        digest = _digest(item)
-        result = {"client_id": item.client_id, "defect_id": item.defect_id, "replayed": False}
-        receipt = receipts.get(item.client_id)
+    for sent in items:
+        digest = _digest(sent)
+        lands = landing.get(sent.defect_id, Landing(sent.defect_id))
+        item = sent.model_copy(update={"defect_id": lands.defect_id})
+        result = {
+            "client_id": sent.client_id,
+            "defect_id": sent.defect_id,
+            "replayed": False,
+            "landed_on": None,
+        }
+        receipt = receipts.get(sent.client_id)
         status, detail = None, None
         if receipt is not None:
-            if receipt.request_sha256 != digest or receipt.defect_id != item.defect_id:
+            if receipt.request_sha256 != digest or receipt.defect_id != sent.defect_id:
                 status = "rejected"
-                detail = f"client_id {item.client_id} was already used for another judgment."
+                detail = f"client_id {sent.client_id} was already used for another judgment."
             else:
                 status, result["replayed"] = receipt.status, True
         else:
-            refusal = _misplaced(item, homes.get(item.defect_id))
+            refusal = lands.refusal or _misplaced(item, homes.get(item.defect_id))
             if refusal is not None:
                 status, detail = "rejected", refusal
             else:
-                status, detail = _apply_one(session, item, current, user_id, now)
+                status, detail = _apply_one(session, item, current, user_id, now, lands)
             if status != "rejected":
                 receipt = SyncReceipt(
                     user_id=user_id,
-                    client_id=item.client_id,
-                    defect_id=item.defect_id,
+                    client_id=sent.client_id,
+                    defect_id=sent.defect_id,
                     request_sha256=digest,
                     status=status,
                     revision=current[item.defect_id].revision,
                 )
                 session.add(receipt)
-                receipts[item.client_id] = receipt
+                receipts[sent.client_id] = receipt
         judgment = current.get(item.defect_id) if status != "rejected" else None
+        if judgment is not None and item.defect_id != sent.defect_id:
+            result["landed_on"] = item.defect_id
+            detail = detail or lands.note
         result["status"], result["detail"] = status, detail
         result["judgment"] = _judgment_doc(judgment, username) if judgment is not None else None
         results.append(result)
     session.flush()
-    touched = sorted({r["defect_id"] for r in results if r["status"] == "applied"})
+    touched = sorted(
+        {r["landed_on"] or r["defect_id"] for r in results if r["status"] == "applied"}
+    )
     return results, consensus_docs(session, touched)
+
+
+@dataclass(frozen=True)
+class Landing:
+    """Where a verdict sent for a finding lands: the finding, or the current successor of
+    one a later measurement superseded (judged on the run of the one sent for)."""
+
+    defect_id: int
+    judged_on_run_id: int | None = None
+    refusal: str | None = None
+    note: str | None = None
+
+
+def _landings(session: Session, defect_ids: list[int]) -> dict[int, Landing]:
+    """The landing of each finding sent for that a later measurement ended (others land
+    on themselves)."""
+    rows = {}
+    wanted = set(defect_ids)
+    while wanted:  # follow each line to its end; lines are as long as re-measurements
+        found = session.execute(
+            select(
+                Defect.id, Defect.run_id, Defect.superseded_by_id, Defect.ended, Defect.ended_run_id
+            ).where(Defect.id.in_(bindparam("ids", expanding=True))),
+            {"ids": sorted(wanted)},
+        ).all()
+        rows.update({r.id: r for r in found})
+        wanted = {r.superseded_by_id for r in found if r.superseded_by_id} - set(rows)
+    landings = {}
+    for sent in defect_ids:
+        first = rows.get(sent)
+        if first is None or first.ended is None:
+            continue
+        last = first
+        while last.ended == "superseded" and last.superseded_by_id in rows:
+            last = rows[last.superseded_by_id]
+        if last.ended == "not found again":
+            landings[sent] = Landing(
+                sent,
+                refusal=f"Finding {sent} was not found again by the measurement of run "
+                f"{last.ended_run_id}: your judgment is set aside (see the finding's history).",
+            )
+        else:
+            landings[sent] = Landing(
+                last.id,
+                judged_on_run_id=first.run_id,
+                note=f"Finding {sent} was measured again by run {first.ended_run_id}: your "
+                f"judgment landed on its successor, finding {last.id}, marked as judged on "
+                f"run {first.run_id}.",
+            )
+    return landings
 
 
 def _homes(session: Session, defect_ids: list[int]) -> dict[int, tuple[int, bool]]:
@@ -485,6 +554,7 @@ def _apply_one(
     current: dict[int, Row],
     user_id: int,
     now: datetime,
+    lands: Landing,
 ) -> tuple[str, str | None]:
     ahead_s = (item.client_time - now).total_seconds()
     if ahead_s > MAX_CLOCK_AHEAD_S:
@@ -503,6 +573,7 @@ def _apply_one(
                 client_time=item.client_time,
                 now=now,
                 newer_only=True,
+                judged_on_run_id=lands.judged_on_run_id,
             ),
         )
         if written.defect_type is None:

@@ -190,7 +190,8 @@ class VistaClient:
     # -- defects, judgments, feedback ---------------------------------------------------
 
     def defects(self, inspection_id: int | None = None, **filters: Any) -> Iterator[dict]:
-        """Defects in id order; filters: ``run``, ``type``, ``status``, ``severity``."""
+        """Current defects in id order; filters: ``run``, ``type``, ``status``,
+        ``severity``, ``history=True`` (also findings a later measurement ended)."""
         return self._pages("/defects", {"inspection": inspection_id, **filters, "limit": 500})
 
     def defect(self, defect_id: int) -> dict:
@@ -205,6 +206,16 @@ class VistaClient:
         if new_type is not None:
             body["new_type"] = new_type
         return self._json("PUT", f"/defects/{defect_id}/judgments/me", json=body)
+
+    def set_status(self, defect_id: int, status: str, *, reason: str = "") -> dict:
+        """Resolve, dismiss (with a ``reason``) or reopen a defect."""
+        return self._json(
+            "PATCH", f"/defects/{defect_id}", json={"status": status, "reason": reason}
+        )
+
+    def defect_history(self, defect_id: int) -> dict:
+        """The defect's line across measurements, with every judgment made along it."""
+        return self._json("GET", f"/defects/{defect_id}/history")
 
     def judgments(self, defect_id: int) -> dict:
         return self._json("GET", f"/defects/{defect_id}/judgments")

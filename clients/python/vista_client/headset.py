@@ -50,6 +50,9 @@ class SyncReport:
     pages: int = 0
     defects: int = 0
     judgments: int = 0
+    ended: int = 0
+    """Findings the headset showed that a later measurement ended (superseded or not found
+    again): they leave the shown list."""
     scene: str = "unchanged"
     """The scene since the sync before: ``first`` (no sync before), ``changed`` or ``unchanged``."""
 
@@ -85,6 +88,11 @@ class Headset:
         self.cursor: str | None = None
         self.inspection: dict | None = None
         self.defects: dict[int, dict] = {}
+        """The current findings: what the headset shows and judges."""
+        self.ended: dict[int, dict] = {}
+        """Findings a later measurement ended (superseded: see ``superseded_by_id``; or not
+        found again): history, not shown. A verdict queued for one still goes out and lands
+        on its successor, or comes back refused with the reason."""
         self.judgments: dict[tuple[int, int], dict] = {}
         self.consensus: dict[int, dict] = {}
         self.scene_etag: str | None = None
@@ -127,7 +135,7 @@ class Headset:
             if page["inspection"] is not None:
                 self.inspection = page["inspection"]
             for defect in page["defects"]:
-                self.defects[defect["id"]] = defect
+                self._keep_defect(defect, report)
             for judgment in page["judgments"]:
                 self._keep_judgment(judgment)
             for consensus in page["consensus"]:
@@ -145,6 +153,25 @@ class Headset:
             report.scene = "changed"
         return report
 
+    def _keep_defect(self, defect: dict, report: SyncReport) -> None:
+        if defect.get("ended"):
+            if self.defects.pop(defect["id"], None) is not None:
+                report.ended += 1
+            self.ended[defect["id"]] = defect
+        else:
+            self.defects[defect["id"]] = defect
+
+    def successor_of(self, defect_id: int) -> int | None:
+        """The current finding that continues ``defect_id`` (itself while current; None
+        when a later measurement did not find it again, or the copy does not know)."""
+        seen = set()
+        while defect_id in self.ended and defect_id not in seen:
+            seen.add(defect_id)
+            defect_id = self.ended[defect_id].get("superseded_by_id")
+            if defect_id is None:
+                return None
+        return defect_id if defect_id in self.defects else None
+
     def _keep_judgment(self, judgment: dict) -> None:
         self.judgments[(judgment["defect_id"], judgment["user_id"])] = judgment
 
@@ -152,7 +179,11 @@ class Headset:
         """A user's judgment of a defect as the headset shows it: this user's latest queued
         edit while it waits in the outbox, else the server's copy."""
         if self.user is not None and user_id == self.user["id"]:
-            queued = [item for item in self.outbox if item["defect_id"] == defect_id]
+            queued = [
+                item
+                for item in self.outbox
+                if defect_id in (item["defect_id"], self.successor_of(item["defect_id"]))
+            ]
             if queued:
                 item = queued[-1]
                 return {
@@ -291,6 +322,7 @@ class Headset:
             "cursor": self.cursor,
             "inspection": self.inspection,
             "defects": list(self.defects.values()),
+            "ended": list(self.ended.values()),
             "judgments": list(self.judgments.values()),
             "consensus": list(self.consensus.values()),
             "scene_etag": self.scene_etag,
@@ -320,6 +352,7 @@ class Headset:
         headset.cursor = state["cursor"]
         headset.inspection = state["inspection"]
         headset.defects = {d["id"]: d for d in state["defects"]}
+        headset.ended = {d["id"]: d for d in state.get("ended", [])}
         headset.judgments = {(j["defect_id"], j["user_id"]): j for j in state["judgments"]}
         headset.consensus = {c["defect_id"]: c for c in state["consensus"]}
         headset.scene_etag = state["scene_etag"]
@@ -429,6 +462,12 @@ def _run(headset: Headset, args: argparse.Namespace) -> int:
             print(
                 f"synced {pulled.defects} defects, {pulled.judgments} judgments "
                 f"in {pulled.pages} page(s); scene {scene[pulled.scene]}"
+                + (
+                    f"; {pulled.ended} finding(s) measured again or not found again since "
+                    "(their judgments travel on with the newer measurement)"
+                    if pulled.ended
+                    else ""
+                )
             )
         except HeadsetOffline as exc:
             online = False
