@@ -48,7 +48,9 @@ class Settings(BaseSettings):
         _READER.max_points, ge=1, description="Most points a cloud upload's header may promise."
     )
     reader_memory_mb: int = Field(
-        _READER.memory_mb, ge=256, description="Address space a cloud reader process may take beyond its loaded libraries, MiB."
+        _READER.memory_mb,
+        ge=256,
+        description="Address space a cloud reader process may take beyond its loaded libraries, MiB.",
     )
     reader_cpu_s: int = Field(_READER.cpu_s, ge=1, description="CPU seconds of a cloud reader.")
     readers_at_once: int = Field(

@@ -58,9 +58,7 @@ class Defect(Base):
     lineage_id: Mapped[int | None] = mapped_column(Integer, index=True)
     """The first finding of its line: every measurement of one physical defect shares it
     (None until set, right after the row is made: its own id)."""
-    supersedes_id: Mapped[int | None] = mapped_column(
-        ForeignKey("defects.id", ondelete="SET NULL")
-    )
+    supersedes_id: Mapped[int | None] = mapped_column(ForeignKey("defects.id", ondelete="SET NULL"))
     """The previous measurement's finding this one continues."""
     superseded_by_id: Mapped[int | None] = mapped_column(
         ForeignKey("defects.id", ondelete="SET NULL")
