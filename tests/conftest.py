@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import socket
+import tempfile
 import threading
 import time
 import uuid
@@ -37,6 +38,11 @@ NO_BROKER = "Redis/RabbitMQ not configured: set VISTA_TEST_BROKER_URL (.ci/run d
 def pytest_configure(config: pytest.Config) -> None:
     if os.environ.get("VISTA_TEST_REQUIRE_SERVERS") == "1" and not (PG_URL and BROKER_URL):
         raise pytest.UsageError("VISTA_TEST_REQUIRE_SERVERS=1 needs both test server URLs")
+    # Each test process counts its own cloud readers: a fuzz test's conversions on one
+    # worker must not make another worker's upload wait for a slot (429).
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    slots = Path(tempfile.gettempdir()) / f"vista-test-readers-{os.getpid()}-{worker}"
+    os.environ["VISTA_READER_SLOTS_DIR"] = str(slots)
 
 
 @pytest.hookimpl(hookwrapper=True)

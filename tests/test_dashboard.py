@@ -15,7 +15,7 @@ from PIL import Image
 from supervisor.bench.browser import launch_chromium
 from supervisor.demo import DEMO_USER, run_demo
 from supervisor.engine.runtime import Runtime
-from tests.conftest import LiveServer, add_user, auth, make_settings
+from tests.conftest import LiveServer, add_user, auth, make_settings, wait_for
 from tests.seeding import measure_uploaded
 
 
@@ -272,3 +272,80 @@ def test_api_docs_work_offline(start_server, tmp_path, sqlite_url):
     # Redoc's bundle asks a CDN for its own small logo (Redocly/redoc#2108) and shows the
     # page without it; nothing else leaves the machine.
     assert set(elsewhere) <= {"https://cdn.redoc.ly/redoc/logo-mini.svg"}
+
+
+def test_measuring_again_keeps_the_judgments_in_the_browser(demo_server, tmp_path):
+    """The demo's stitched cloud measured again: the list shows each finding once (the new
+    run's), the one Olga rejected keeps her verdict, marked as judged on the first run, the
+    'rejected' filter finds it, and its detail shows its history across the two runs."""
+    server, demo, other_token = demo_server
+    inspection = demo["inspection"]["id"]
+    demo_run = demo["run"]["id"]
+    http = httpx.Client(base_url=server.url, headers=auth(other_token), timeout=30)
+    judged = next(  # one the other tests leave alone
+        d
+        for d in reversed(demo["defects"])
+        if d["severity"] != "info"
+        and not http.get(f"/api/v1/defects/{d['id']}/judgments").json()["judgments"]
+    )
+    http.put(
+        f"/api/v1/defects/{judged['id']}/judgments/me",
+        json={"verdict": "rejected", "comment": "a reflection"},
+    ).raise_for_status()
+    stitched = next(
+        a
+        for a in http.get(
+            f"/api/v1/inspections/{inspection}/artifacts", params={"limit": 100}
+        ).json()["items"]
+        if a["kind"] == "cloud" and a["job_id"] is not None
+    )
+    again = http.post(
+        f"/api/v1/inspections/{inspection}/runs",
+        json={
+            "name": "measure again",
+            "steps": [{"name": "measure", "kind": "defects.measure", "inputs": [stitched["id"]]}],
+        },
+    ).json()
+    wait_for(
+        lambda: http.get(f"/api/v1/runs/{again['id']}").json()["status"] == "succeeded",
+        timeout=240,
+        what="the second measurement",
+    )
+    current = http.get("/api/v1/defects", params={"inspection": inspection, "limit": 500}).json()[
+        "items"
+    ]
+    successor = next(d for d in current if d["supersedes_id"] == judged["id"])
+    found_again = [d for d in current if d["run_id"] == again["id"]]
+
+    with launch_chromium() as browser:
+        for width, height in ((1440, 900), (1024, 768)):
+            page = browser.new_page(viewport={"width": width, "height": height})
+            errors: list[str] = []
+            page.on("pageerror", lambda error, errors=errors: errors.append(str(error)))
+            page.goto(server.url + "/")
+            page.fill("input[name=username]", DEMO_USER)
+            page.fill("input[name=password]", demo["password"])
+            page.click("#sign-in-form button")
+            page.goto(f"{server.url}/#/inspections/{inspection}")
+            page.wait_for_selector("#defect-list .row")
+            page.select_option("#scene-run", str(again["id"]))
+            page.wait_for_selector(f"#defect-count:has-text('run {again['id']}')")
+            assert page.locator("#defect-list .row").count() == len(found_again)
+            page.select_option("#filter-consensus", "rejected")
+            rows = page.eval_on_selector_all(
+                "#defect-list .row", "rows => rows.map(r => r.dataset.id)"
+            )
+            rejected = [d for d in found_again if d["consensus"]["majority"] == "rejected"]
+            assert sorted(rows) == sorted(str(d["id"]) for d in rejected)
+            assert str(successor["id"]) in rows
+            page.click(f"#defect-list .row[data-id='{successor['id']}']")
+            page.wait_for_selector("#judgments li[data-user='olga'] .judged-on")
+            assert f"judged on run {demo_run}" in page.text_content("#judgments")
+            page.wait_for_selector("#lineage-steps li >> nth=1")
+            steps = page.locator("#lineage-steps li").all_text_contents()
+            assert f"run {demo_run}" in steps[0] and "measured again" in steps[0]
+            assert "olga: rejected" in steps[0] and "current" in steps[1]
+            page.screenshot(path=str(tmp_path / f"lineage-{width}.png"))
+            page.close()
+            assert errors == []
+    http.close()

@@ -52,6 +52,7 @@ export const api = {
   sync: (id, since) => request("GET", "/sync", { params: { inspection: id, since } }),
   judge: (defectId, body) => request("PUT", `/defects/${defectId}/judgments/me`, { body }),
   judgments: (defectId) => request("GET", `/defects/${defectId}/judgments`),
+  defectHistory: (defectId) => request("GET", `/defects/${defectId}/history`),
   feedback: (id) => request("GET", "/feedback", { params: { inspection: id } }),
   jobView: (jobId) => request("GET", `/jobs/${jobId}/view`),
   jobScene: async (jobId, points) => (await request("GET", `/jobs/${jobId}/scene.glb`, { raw: true, params: { points } })).arrayBuffer(),

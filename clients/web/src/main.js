@@ -26,7 +26,8 @@ const $ = (selector) => document.querySelector(selector);
 const state = {
   me: null,
   inspection: null,
-  defects: new Map(),
+  defects: new Map(), // the current findings: each physical defect once
+  ended: new Map(), // findings a later measurement superseded or did not find again
   judgments: new Map(), // defect id → Map(user id → judgment)
   consensus: new Map(),
   cursor: null,
@@ -208,6 +209,7 @@ function resetInspection() {
   state.jobStreams.abort();
   state.jobStreams = new AbortController();
   state.defects.clear();
+  state.ended.clear();
   state.judgments.clear();
   state.consensus.clear();
   state.cursor = null;
@@ -227,7 +229,13 @@ function resetInspection() {
 
 function fold(page) {
   if (page.inspection) state.inspection = page.inspection;
-  for (const defect of page.defects) state.defects.set(defect.id, defect);
+  for (const defect of page.defects) {
+    if (defect.ended) { // measured again (its judgments travel on) or not found again
+      state.defects.delete(defect.id);
+      state.ended.set(defect.id, defect);
+      if (state.selected === defect.id && defect.superseded_by_id) state.selected = defect.superseded_by_id;
+    } else state.defects.set(defect.id, defect);
+  }
   for (const judgment of page.judgments) {
     if (!state.judgments.has(judgment.defect_id)) state.judgments.set(judgment.defect_id, new Map());
     const byUser = state.judgments.get(judgment.defect_id);
@@ -366,7 +374,7 @@ function visibleDefects() {
   const severity = $("#filter-severity").value;
   const wanted = $("#filter-consensus").value;
   const run = shownRun();
-  const rows = [...state.defects.values()].filter((d) => {
+  const rows = shownPool(run).filter((d) => {
     const consensus = state.consensus.get(d.id);
     if (!ofShownRun(d, run)) return false; // another run's scene
     if (type && d.type !== type) return false;
@@ -394,6 +402,19 @@ function visibleDefects() {
   return rows;
 }
 
+// The findings a run's scene shows: the current ones, and for an earlier run picked, its
+// own findings that a later measurement ended (history: what it found then).
+function shownPool(run) {
+  const current = [...state.defects.values()];
+  if (run === null || run === state.sceneRuns[0]?.run_id) return current;
+  return [...current, ...[...state.ended.values()].filter((d) => d.run_id === run)];
+}
+
+function endedText(defect) {
+  if (defect.ended === "superseded") return `measured again by run ${defect.ended_run_id}: #${defect.superseded_by_id}`;
+  return `not found again by run ${defect.ended_run_id}`;
+}
+
 function rowFor(defect) {
   const { value, unit } = valueOf(defect);
   const text = `#${defect.id} ${defect.type} ${number(value)} ${unit}`;
@@ -410,7 +431,7 @@ function rowFor(defect) {
     stateOf(defect) === "uncertain"
       ? el("span", { class: "severity severity-uncertain", title: defect.measurements?.advice || "" }, "uncertain")
       : el("span", { class: `severity severity-${defect.severity}` }, defect.severity === "info" ? "within" : defect.severity),
-    el("span", { class: "verdict" }, consensusText(state.consensus.get(defect.id))),
+    el("span", { class: "verdict" }, defect.ended ? endedText(defect) : consensusText(state.consensus.get(defect.id))),
   );
 }
 
@@ -419,7 +440,10 @@ function renderList() {
   $("#defect-list").replaceChildren(...rows.map(rowFor));
   const run = shownRun();
   const ofRun = run === null ? "" : ` · run ${run}'s and those added by hand`;
-  $("#defect-count").textContent = `${rows.length} of ${state.defects.size} defects${ofRun}`;
+  const current = rows.filter((d) => !d.ended).length;
+  const history = rows.length - current;
+  const earlier = history ? ` (+ ${history} it found that later runs ended)` : "";
+  $("#defect-count").textContent = `${current} of ${state.defects.size} findings${earlier}${ofRun}`;
   $("#defects-empty").hidden = state.defects.size > 0;
   renderLegend();
 }
@@ -427,7 +451,7 @@ function renderList() {
 // The scene's legend: the colour of every type on show, and of the lines.
 function renderLegend() {
   const run = shownRun();
-  const shown = [...state.defects.values()].filter((d) => ofShownRun(d, run));
+  const shown = shownPool(run).filter((d) => ofShownRun(d, run));
   const types = TYPES.filter((t) => shown.some((d) => d.type === t));
   const entry = (colour, text, shape) => el("li", {}, el("span", { class: `swatch ${shape}`, style: `--swatch:${colour}` }), text);
   $("#legend").replaceChildren(
@@ -438,9 +462,13 @@ function renderLegend() {
 
 // ---- selection, detail and judging ------------------------------------------------------
 
+function findingOf(defectId) {
+  return state.defects.get(defectId) || state.ended.get(defectId);
+}
+
 function select(defectId, fly) {
-  if (!state.defects.has(defectId)) return;
-  const run = state.defects.get(defectId).run_id;
+  if (!findingOf(defectId)) return;
+  const run = findingOf(defectId).run_id;
   if (run !== null && run !== shownRun() && state.sceneRuns.some((r) => r.run_id === run)) {
     pickSceneRun(run); // a finding is shown on the cloud its run measured
   }
@@ -464,7 +492,7 @@ function deselect() {
 }
 
 function seamOf(defectId) {
-  const seam = state.defects.get(defectId)?.measurements?.seam;
+  const seam = findingOf(defectId)?.measurements?.seam;
   return known(seam) ? seam : null;
 }
 
@@ -473,7 +501,7 @@ function seamOf(defectId) {
 function resetJudgeForm(defectId) {
   const mine = state.judgments.get(defectId)?.get(state.me?.id);
   $("#comment").value = mine?.comment || "";
-  $("#new-type").value = mine?.new_type || state.defects.get(defectId).type;
+  $("#new-type").value = mine?.new_type || findingOf(defectId).type;
   $("#judge-error").textContent = "";
 }
 
@@ -491,11 +519,11 @@ function placeOf(measurements) {
 }
 
 function renderDetail() {
-  const defect = state.defects.get(state.selected);
+  const defect = findingOf(state.selected);
   if (!defect) return;
   const { value, unit } = valueOf(defect);
   $("#detail").hidden = false;
-  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${STATE_TEXT[stateOf(defect)] || defect.severity}, ${defect.status}`;
+  $("#detail-title").textContent = `#${defect.id} ${defect.type} — ${STATE_TEXT[stateOf(defect)] || defect.severity}, ${defect.ended ? endedText(defect) : defect.status}`;
   const relation = relationText(defect);
   const facts = [
     ["value", `${number(value)} ${unit}${signOf(defect)}${relation ? ` — ${relation}` : ""}`], ["limits", limitsOf(defect)],
@@ -529,14 +557,33 @@ function renderDetail() {
     el("b", {}, j.username), ` ${verdictText(j)}`,
     j.comment ? el("span", { class: "muted" }, ` — ${j.comment}`) : null,
     el("span", { class: "muted" }, ` (rev ${j.revision}, ${new Date(j.updated_at).toLocaleString()})`),
+    j.judged_on_run_id ? el("span", { class: "judged-on" }, ` judged on run ${j.judged_on_run_id}`) : null,
     history(j),
   )));
   const mine = state.judgments.get(defect.id)?.get(state.me?.id);
   for (const button of document.querySelectorAll(".verdicts button")) {
     button.classList.toggle("active", mine?.verdict === button.dataset.verdict);
   }
-  const canJudge = canEdit(state.me);
+  const canJudge = canEdit(state.me) && !defect.ended; // an ended finding is history
   for (const button of document.querySelectorAll(".verdicts button")) button.disabled = !canJudge;
+  renderLineage(defect);
+}
+
+// A finding measured more than once: each run's finding in its line, and how it ended.
+async function renderLineage(defect) {
+  const measuredAgain = defect.supersedes_id || defect.ended;
+  $("#lineage").hidden = !measuredAgain;
+  if (!measuredAgain) return;
+  const line = await guarded(() => api.defectHistory(defect.id));
+  if (!line || state.selected !== defect.id) return;
+  const judgedOn = (run) => line.judgments.filter((j) => j.judged_on_run_id === run);
+  $("#lineage-steps").replaceChildren(...line.steps.map((step) => el(
+    "li", { dataset: { id: step.id } },
+    el("b", {}, `run ${step.run_id}${step.run_name ? ` (${step.run_name})` : ""}`),
+    ` #${step.id} ${step.type} ${number(step.measurements?.value ?? step.value_mm)} ${unitText(step.measurements?.unit)} · ${step.severity}, ${step.status}`,
+    el("span", { class: "muted" }, step.ended ? ` — ${endedText({ ...step, superseded_by_id: line.steps.find((s) => s.run_id === step.ended_run_id)?.id ?? "?" })}` : " — current"),
+    ...judgedOn(step.run_id).map((j) => el("div", { class: "muted" }, `${j.username}: ${j.verdict}${j.new_type ? ` → ${j.new_type}` : ""}${j.comment ? ` — ${j.comment}` : ""} (rev ${j.revision})`)),
+  )));
 }
 
 // One click measures the finding's cloud again, as its run did, by today's tolerances.

@@ -72,9 +72,11 @@ class ReadersBusy(RuntimeError):
 
 
 def slot_dir() -> Path:
-    """The lock files that count this host's readers (per user)."""
-    folder = Path(tempfile.gettempdir()) / f"vista-readers-{os.getuid()}"
-    folder.mkdir(mode=0o700, exist_ok=True)
+    """The lock files that count this host's readers: ``VISTA_READER_SLOTS_DIR``, else one
+    folder per user in the temporary directory (every vista process of the user shares it)."""
+    given = os.environ.get("VISTA_READER_SLOTS_DIR")
+    folder = Path(given) if given else Path(tempfile.gettempdir()) / f"vista-readers-{os.getuid()}"
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
     return folder
 
 
