@@ -145,3 +145,81 @@ def test_protocol_core_against_a_live_supervisor(smoke_exe, start_server, sqlite
         assert [h["revision"] for h in mine["history"]] == [1]  # retries changed nothing
         assert state["consensus"]["total"] == 1
     assert judgments(ids[3])["judgments"] == judgments(ids[6])["judgments"] == []
+
+
+def test_a_verdict_queued_across_a_re_measure_lands_on_the_successor(
+    start_server, sqlite_url, tmp_path
+):
+    """LineageSmoke.cs: the headset judges a dent offline; the part is measured again
+    meanwhile (the dent found 1 mm away, the scratch not at all); after the sync the dent's
+    first finding has left the list, its successor shows the queued verdict, the push lands
+    it there marked as judged on the first run, and a restart keeps the history apart."""
+    from contract.context import NewDefect
+    from tests.seeding import record_measurement
+
+    mcs, mono = shutil.which("mcs"), shutil.which("mono")
+    if not (mcs and mono):
+        pytest.fail(NO_MONO)
+    exe = tmp_path / "lineage.exe"
+    sources = [str(p) for p in sorted(CORE.glob("*.cs"))] + [
+        str(UNITY / "Tests" / "LineageSmoke.cs")
+    ]
+    built = subprocess.run(
+        [mcs, "-target:exe", f"-out:{exe}", "-r:System.Net.Http.dll", "-warnaserror", *sources],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert built.returncode == 0, f"mcs failed:\n{built.stdout}{built.stderr}"
+
+    def finding(kind: str, x_mm: float) -> NewDefect:
+        return NewDefect(kind, (x_mm, 0.0, 0.0), (0.0, 0.0, 1.0), 0.4, 0.2, 6.0, "major", 0.9)
+
+    bounds = [[-50.0, -50.0, -5.0], [150.0, 50.0, 5.0]]
+    settings = make_settings(tmp_path, sqlite_url)
+    runtime = Runtime.create(settings)
+    try:
+        token = add_user(runtime, "ines", "inspector", "pw")
+        server = start_server(settings, run_engine=False)
+        inspection = httpx.post(
+            f"{server.url}/api/v1/inspections",
+            json={"title": "wing panel", "area": "component"},
+            headers=auth(token),
+            timeout=10,
+        ).json()["id"]
+        first_run, _ = record_measurement(
+            runtime, inspection, [finding("dent", 0.0), finding("scratch", 80.0)], bounds_mm=bounds
+        )
+        dent = httpx.get(
+            f"{server.url}/api/v1/defects",
+            params={"inspection": inspection, "type": "dent"},
+            headers=auth(token),
+            timeout=10,
+        ).json()["items"][0]["id"]
+        smoke = subprocess.Popen(
+            ["mono", str(exe), server.url, "ines", "pw", str(inspection), str(dent)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            encoding="utf-8",
+        )
+        try:
+            assert smoke.stdout.readline().strip() == "queued", smoke.stderr.read()
+            record_measurement(runtime, inspection, [finding("dent", 1.0)], bounds_mm=bounds)
+            out, err = smoke.communicate("measured\n", timeout=60)
+        finally:
+            smoke.kill()
+    finally:
+        runtime.db.dispose()
+    assert smoke.returncode == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert (summary["before"], summary["after"], summary["ended"]) == (2, 1, 2)
+    assert summary["judged_still_listed"] is False and summary["successor"] != dent
+    assert summary["shown_on_successor"] == "rejected"
+    [pushed] = summary["pushed"]
+    assert (pushed["defect_id"], pushed["status"]) == (dent, "applied")
+    assert pushed["landed_on"] == summary["successor"]
+    assert "landed on its successor" in pushed["detail"]
+    assert summary["stored_verdict"] == "rejected" and summary["stored_revision"] == 1
+    assert summary["judged_on_run"] == first_run
+    assert (summary["restored_current"], summary["restored_ended"]) == (1, 2)

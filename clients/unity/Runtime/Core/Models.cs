@@ -115,6 +115,18 @@ namespace Vista.Client
         public Dictionary<string, object> Measurements;
         /// <summary>When it was found.</summary>
         public string CreatedAt;
+        /// <summary>Null while current; "superseded" (a later measurement found it again:
+        /// <see cref="SupersededById"/>) or "not found again". An ended finding is history:
+        /// <see cref="SyncClient"/> keeps it out of <see cref="SyncClient.Defects"/>.</summary>
+        public string Ended;
+        /// <summary>The later measurement's finding that continues this one, or null.</summary>
+        public long? SupersededById;
+        /// <summary>The earlier measurement's finding this one continues, or null.</summary>
+        public long? SupersedesId;
+        /// <summary>The first finding of its line: every measurement of one physical defect shares it.</summary>
+        public long? LineageId;
+        /// <summary>The run that ended it, or null.</summary>
+        public long? EndedRunId;
 
         /// <summary>Reads a defect of the sync.</summary>
         public static Defect FromJson(IDictionary<string, object> json)
@@ -138,6 +150,11 @@ namespace Vista.Client
                 Source = json.GetString("source"),
                 Measurements = json.GetObject("measurements") ?? new Dictionary<string, object>(),
                 CreatedAt = json.GetString("created_at"),
+                Ended = json.GetString("ended"),
+                SupersededById = json.GetNullableInt64("superseded_by_id"),
+                SupersedesId = json.GetNullableInt64("supersedes_id"),
+                LineageId = json.GetNullableInt64("lineage_id"),
+                EndedRunId = json.GetNullableInt64("ended_run_id"),
             };
         }
 
@@ -151,7 +168,8 @@ namespace Vista.Client
                 { "value", Value }, { "unit", Unit }, { "tolerance", Tolerance },
                 { "location_mm", LocationMm }, { "normal", Normal }, { "extent_mm", ExtentMm },
                 { "confidence", Confidence }, { "source", Source }, { "measurements", Measurements },
-                { "created_at", CreatedAt },
+                { "created_at", CreatedAt }, { "ended", Ended }, { "superseded_by_id", SupersededById },
+                { "supersedes_id", SupersedesId }, { "lineage_id", LineageId }, { "ended_run_id", EndedRunId },
             };
         }
     }
@@ -177,6 +195,9 @@ namespace Vista.Client
         public string UpdatedAt;
         /// <summary>When the user made it, by the device's clock.</summary>
         public string ClientTime;
+        /// <summary>The earlier run whose finding it was judged on (carried over when the
+        /// finding was measured again), or null: judged on this finding.</summary>
+        public long? JudgedOnRunId;
 
         /// <summary>Reads a judgment of the sync.</summary>
         public static Judgment FromJson(IDictionary<string, object> json)
@@ -192,6 +213,7 @@ namespace Vista.Client
                 Revision = checked((int)json.GetInt64("revision")),
                 UpdatedAt = json.GetString("updated_at"),
                 ClientTime = json.GetString("client_time"),
+                JudgedOnRunId = json.GetNullableInt64("judged_on_run_id"),
             };
         }
 
@@ -203,6 +225,7 @@ namespace Vista.Client
                 { "defect_id", DefectId }, { "user_id", UserId }, { "username", Username },
                 { "verdict", Verdict }, { "new_type", NewType }, { "comment", Comment },
                 { "revision", Revision }, { "updated_at", UpdatedAt }, { "client_time", ClientTime },
+                { "judged_on_run_id", JudgedOnRunId },
             };
         }
     }
@@ -626,6 +649,9 @@ namespace Vista.Client
         public string Detail;
         /// <summary>Your judgment of the defect on the server now, or null.</summary>
         public Judgment Judgment;
+        /// <summary>The finding the judgment landed on when the one it was sent for had been
+        /// measured again since (its successor; <see cref="Detail"/> says so), or null.</summary>
+        public long? LandedOn;
 
         /// <summary>Reads one result of a push.</summary>
         public static ItemResult FromJson(IDictionary<string, object> json)
@@ -639,6 +665,7 @@ namespace Vista.Client
                 Replayed = json.GetBoolean("replayed", false),
                 Detail = json.GetString("detail"),
                 Judgment = judgment == null ? null : Judgment.FromJson(judgment),
+                LandedOn = json.GetNullableInt64("landed_on"),
             };
         }
     }

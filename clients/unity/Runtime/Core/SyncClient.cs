@@ -31,6 +31,7 @@ namespace Vista.Client
 
         readonly VistaApi api;
         readonly Dictionary<long, Defect> defects = new Dictionary<long, Defect>();
+        readonly Dictionary<long, Defect> ended = new Dictionary<long, Defect>();
         readonly Dictionary<long, Dictionary<long, Judgment>> judgments = new Dictionary<long, Dictionary<long, Judgment>>();
         readonly Dictionary<long, Consensus> consensus = new Dictionary<long, Consensus>();
         readonly List<OfflineJudgment> outbox = new List<OfflineJudgment>();
@@ -103,10 +104,37 @@ namespace Vista.Client
             }
         }
 
-        /// <summary>The defects, by id.</summary>
+        /// <summary>The current defects, by id: each physical defect once.</summary>
         public IReadOnlyDictionary<long, Defect> Defects
         {
             get { return defects; }
+        }
+
+        /// <summary>Findings a later measurement ended (superseded, or not found again), by
+        /// id: history, not shown. A verdict queued for one still goes out; the server lands
+        /// it on the successor (<see cref="ItemResult.LandedOn"/>) or refuses it with the reason.</summary>
+        public IReadOnlyDictionary<long, Defect> Ended
+        {
+            get { return ended; }
+        }
+
+        /// <summary>The current finding that continues <paramref name="defectId"/> (itself
+        /// while current); null when a later measurement did not find it again, or the copy
+        /// does not know it.</summary>
+        public long? SuccessorOf(long defectId)
+        {
+            var seen = new HashSet<long>();
+            long id = defectId;
+            Defect gone;
+            while (ended.TryGetValue(id, out gone) && seen.Add(id))
+            {
+                if (gone.SupersededById == null)
+                {
+                    return null;
+                }
+                id = gone.SupersededById.Value;
+            }
+            return defects.ContainsKey(id) ? id : (long?)null;
         }
 
         /// <summary>Judgments made here that the server has not answered yet, oldest first.</summary>
@@ -136,7 +164,7 @@ namespace Vista.Client
         {
             if (User != null && userId == User.Id)
             {
-                OfflineJudgment pending = outbox.LastOrDefault(item => item.DefectId == defectId);
+                OfflineJudgment pending = outbox.LastOrDefault(item => IsFor(item, defectId));
                 if (pending != null)
                 {
                     Judgment local = pending.ToLocalJudgment(User);
@@ -157,7 +185,7 @@ namespace Vista.Client
             {
                 users.UnionWith(byUser.Keys);
             }
-            if (User != null && outbox.Any(item => item.DefectId == defectId))
+            if (User != null && outbox.Any(item => IsFor(item, defectId)))
             {
                 users.Add(User.Id);
             }
@@ -168,7 +196,7 @@ namespace Vista.Client
         /// while judgments of it wait in the outbox; null when nobody judged it.</summary>
         public Consensus ConsensusOf(long defectId)
         {
-            if (outbox.Any(item => item.DefectId == defectId))
+            if (outbox.Any(item => IsFor(item, defectId)))
             {
                 return Consensus.Tally(defectId, JudgmentsOf(defectId));
             }
@@ -212,7 +240,7 @@ namespace Vista.Client
             }
             foreach (Defect defect in page.Defects)
             {
-                defects[defect.Id] = defect;
+                Keep(defect);
             }
             foreach (Judgment judgment in page.Judgments)
             {
@@ -225,6 +253,26 @@ namespace Vista.Client
             SceneEtag = page.SceneEtag;
             Warnings = page.Warnings;
             Cursor = page.NextCursor;
+        }
+
+        /// <summary>A queued judgment shows on the finding it was made for, or on the one
+        /// that has continued it since (the server lands it there).</summary>
+        bool IsFor(OfflineJudgment item, long defectId)
+        {
+            return item.DefectId == defectId || SuccessorOf(item.DefectId) == defectId;
+        }
+
+        void Keep(Defect defect)
+        {
+            if (defect.Ended != null)
+            {
+                defects.Remove(defect.Id);
+                ended[defect.Id] = defect;
+            }
+            else
+            {
+                defects[defect.Id] = defect;
+            }
         }
 
         /// <summary>Judges a defect here and now: queues the judgment in the outbox (a new
@@ -359,7 +407,7 @@ namespace Vista.Client
                 { "downloaded_scene_etag", DownloadedSceneEtag },
                 { "user", User == null ? null : User.ToJson() },
                 { "inspection", Inspection == null ? null : Inspection.ToJson() },
-                { "defects", defects.Values.OrderBy(d => d.Id).Select(d => d.ToJson()).ToList() },
+                { "defects", defects.Values.Concat(ended.Values).OrderBy(d => d.Id).Select(d => d.ToJson()).ToList() },
                 { "judgments", judgments.Values.SelectMany(byUser => byUser.Values).Select(j => j.ToJson()).ToList() },
                 { "consensus", consensus.Values.Select(c => c.ToJson()).ToList() },
                 { "outbox", outbox.Select(item => item.ToJson()).ToList() },
@@ -401,6 +449,7 @@ namespace Vista.Client
             Dictionary<string, object> user = state.GetObject("user");
             Dictionary<string, object> inspection = state.GetObject("inspection");
             defects.Clear();
+            ended.Clear();
             judgments.Clear();
             consensus.Clear();
             outbox.Clear();
@@ -412,8 +461,7 @@ namespace Vista.Client
             Inspection = inspection == null ? null : Inspection.FromJson(inspection);
             foreach (Dictionary<string, object> defect in state.GetObjects("defects"))
             {
-                Defect item = Defect.FromJson(defect);
-                defects[item.Id] = item;
+                Keep(Defect.FromJson(defect));
             }
             foreach (Dictionary<string, object> judgment in state.GetObjects("judgments"))
             {
