@@ -105,6 +105,29 @@ def limits_of(tolerances: Tolerances) -> Limits:
     return replace(Limits(), **given)
 
 
+def merge_tolerances(stored: dict, changes: dict | None) -> dict:
+    """``stored`` (a tolerances document) with ``changes`` made to it: a limit not named
+    keeps its value, a limit given takes it, a limit (or a section) given as None goes back
+    to its default; ``changes`` None: every limit back to its default. Not validated: the
+    caller checks the result (a gap's range may only be ordered once merged)."""
+    if changes is None:
+        return {}
+    merged = {section: dict(values) for section, values in stored.items() if values}
+    for section, given in changes.items():
+        if given is None:
+            merged.pop(section, None)
+            continue
+        values = merged.setdefault(section, {})
+        for key, value in given.items():
+            if value is None:
+                values.pop(key, None)
+            else:
+                values[key] = value
+        if not values:
+            del merged[section]
+    return merged
+
+
 def tolerances_of(limits: Limits) -> Tolerances:
     """The document that gives every one of ``limits``."""
     document: dict = {}

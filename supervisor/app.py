@@ -36,6 +36,7 @@ from supervisor.problems import install_problem_handlers
 from supervisor.requests import JsonGuardRoute
 from supervisor.settings import Settings, get_settings, secure_data_dir
 from supervisor.sync.router import router as sync_router
+from supervisor.tolerance_sets.router import router as tolerance_sets_router
 from supervisor.users.router import router as users_router
 
 log = logging.getLogger("vista")
@@ -124,6 +125,7 @@ def create_app(
         defects_router,
         exports_router,
         feedback_router,
+        tolerance_sets_router,
         audit_router,
     ):
         api.include_router(router)

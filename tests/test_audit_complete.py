@@ -92,6 +92,15 @@ def test_every_mutating_route_leaves_an_audit_row(client, tokens, runtime):
         client.post(f"/api/v1/users/{user_id}/tokens", json={"name": "t"}, headers=admin)
         return client.get("/api/v1/tokens", headers=admin).json()["items"][-1]["id"]
 
+    def tolerance_set() -> int:
+        made = client.post(
+            "/api/v1/tolerance-sets",
+            json={"name": f"set {uuid.uuid4().hex[:8]}", "tolerances": {"step_mm": {"max": 1.0}}},
+            headers=ines,
+        )
+        return made.json()["id"]
+
+    made_sets = iter([tolerance_set() for _ in range(3)])  # made before the walk counts
     user_id = user()
     now = datetime.now(UTC).isoformat()
     calls: dict[tuple[str, str], Callable[[], object]] = {
@@ -151,6 +160,20 @@ def test_every_mutating_route_leaves_an_audit_row(client, tokens, runtime):
             headers=ines,
         ),
         ("DELETE", "/api/v1/inspections/{inspection_id}"): trashed,
+        ("POST", "/api/v1/tolerance-sets"): tolerance_set,
+        ("PATCH", "/api/v1/tolerance-sets/{set_id}"): lambda: client.patch(
+            f"/api/v1/tolerance-sets/{next(made_sets)}",
+            json={"tolerances": {"step_mm": {"max": 0.7}}},
+            headers=ines,
+        ),
+        ("DELETE", "/api/v1/tolerance-sets/{set_id}"): lambda: client.delete(
+            f"/api/v1/tolerance-sets/{next(made_sets)}", headers=ines
+        ),
+        ("POST", "/api/v1/inspections/{inspection_id}/tolerance-set"): lambda: client.post(
+            f"/api/v1/inspections/{inspection()}/tolerance-set",
+            json={"set_id": next(made_sets)},
+            headers=ines,
+        ),
         ("POST", "/api/v1/trash/inspections/{inspection_id}/restore"): lambda: client.post(
             f"/api/v1/trash/inspections/{trashed()}/restore", headers=admin
         ),

@@ -262,3 +262,79 @@ def test_unmeasured_seams_and_uncertain_findings_show_as_such(
     http.close()
     assert errors == [], errors
     runtime.db.dispose()
+
+
+def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
+    start_server, tmp_path, sqlite_url, browser
+):
+    """The Tolerances tab: a form drawn from the schema with the defaults shown; changing
+    the gap's maximum keeps the surface limits; emptying a limit restores its default; a
+    named set is applied, its name and version shown; another inspector reads, not edits."""
+    settings = make_settings(tmp_path, sqlite_url)
+    server = start_server(settings, run_engine=False)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    ivan = add_user(runtime, "ivan", "inspector", "ivan-pw")
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
+    surface = {"dent_depth_mm": 0.5, "scratch_depth_mm": 0.3}
+    inspection = http.post(
+        "/api/v1/inspections",
+        json={"title": "lining", "area": "cabin", "tolerances": {"surface": surface}},
+    ).json()["id"]
+    lining = httpx.post(
+        f"{server.url}/api/v1/tolerance-sets",
+        json={"name": "A320 lining", "tolerances": {"step_mm": {"max": 0.8}}},
+        headers=auth(ivan),
+        timeout=10,
+    ).json()
+
+    for width, height in ((1440, 900), (1024, 768)):
+        page = browser.new_page(viewport={"width": width, "height": height})
+        errors: list[str] = []
+        page.on("pageerror", lambda error, errors=errors: errors.append(str(error)))
+        _sign_in(page, server.url)
+        page.goto(f"{server.url}/#/inspections/{inspection}")
+        page.click("[role=tab][data-tab=tolerances]")
+        gap_max = "#tolerance-fields input[name='gap_mm.max']"
+        page.wait_for_selector(gap_max)
+        assert page.get_attribute(gap_max, "placeholder") == "default 3"
+        assert page.input_value("#tolerance-fields input[name='surface.dent_depth_mm']") == "0.5"
+        page.screenshot(path=str(tmp_path / f"tolerances-{width}.png"))
+        page.close()
+        assert errors == [], errors
+
+    page = browser.new_page(viewport={"width": 1440, "height": 900})
+    _sign_in(page, server.url)
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.click("[role=tab][data-tab=tolerances]")
+    page.fill("#tolerance-fields input[name='gap_mm.max']", "2.5")
+    page.click("#tolerance-save")
+    page.wait_for_selector("#tolerance-status:has-text('Saved')")
+    limits = http.get(f"/api/v1/inspections/{inspection}").json()["limits"]
+    assert limits["gap_max_mm"] == 2.5 and limits["dent_depth_mm"] == 0.5  # kept
+    page.fill("#tolerance-fields input[name='surface.dent_depth_mm']", "")
+    page.click("#tolerance-save")
+    page.wait_for_selector("#tolerance-status:has-text('Saved')")
+    limits = http.get(f"/api/v1/inspections/{inspection}").json()["limits"]
+    assert limits["dent_depth_mm"] == 0.2 and limits["scratch_depth_mm"] == 0.3
+    page.select_option("#tolerance-sets", str(lining["id"]))
+    page.click("#apply-set")
+    page.wait_for_selector("#tolerance-applied:has-text('A320 lining')")
+    assert "version 1" in page.text_content("#tolerance-applied")
+    applied = http.get(f"/api/v1/inspections/{inspection}").json()
+    assert applied["limits"]["step_max_mm"] == 0.8
+    assert applied["tolerance_set"]["name"] == "A320 lining"
+
+    # Another inspector reads the limits but cannot change them.
+    page.click("#sign-out")
+    page.fill("input[name=username]", "ivan")
+    page.fill("input[name=password]", "ivan-pw")
+    page.click("#sign-in-form button")
+    page.wait_for_selector("#view-inspections:not([hidden])")
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.click("[role=tab][data-tab=tolerances]")
+    page.wait_for_selector("#tolerance-owner:not([hidden])")
+    assert page.is_disabled("#tolerance-fields input[name='gap_mm.max']")
+    assert page.is_disabled("#tolerance-save")
+    http.close()
+    runtime.db.dispose()

@@ -442,10 +442,19 @@ def test_the_readme_permission_table_is_what_the_api_does(client, tokens):
                 "/api/v1/inspections", json={"title": "p", "area": "cabin"}, headers=h
             )
         ),
-        "change an inspection's tolerances, close or reopen it": lambda h: client.patch(
-            f"/api/v1/inspections/{inspection}",
-            json={"tolerances": {"gap_mm": {"min": 0.5, "max": 2.0 + next(wider)}}},
-            headers=h,
+        "change an inspection's tolerances (by hand or from a set), close or reopen it": lambda h: (
+            client.patch(
+                f"/api/v1/inspections/{inspection}",
+                json={"tolerances": {"gap_mm": {"min": 0.5, "max": 2.0 + next(wider)}}},
+                headers=h,
+            )
+        ),
+        "make a tolerance set (`POST /tolerance-sets`); change or delete one you made": (
+            lambda h: client.post(
+                "/api/v1/tolerance-sets",
+                json={"name": f"set {next(wider)}", "tolerances": {}},
+                headers=h,
+            )
         ),
         "restore or purge the trash, manage users, any token": lambda h: client.get(
             "/api/v1/users", headers=h

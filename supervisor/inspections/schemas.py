@@ -6,7 +6,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, computed_field, field_validator
 
-from contract.tolerances import Tolerances, limits_of
+from contract.tolerances import TOLERANCE_MAX_MM, Tolerances, limits_of
 from supervisor.models.inspections import Area, InspectionStatus
 from supervisor.requests import Millimetres, RequestModel, omittable
 
@@ -26,6 +26,39 @@ StrictTolerances = Annotated[
         "`gap_mm.min` must be below `gap_mm.max` (defaults 0.5 and 3.0 for a side not given)."
     ),
 ]
+
+
+class RangePatch(RequestModel):
+    """A gap's range, changed: a side not named keeps its value, null restores its default."""
+
+    min: float | None = Field(None, ge=0, le=TOLERANCE_MAX_MM)
+    max: float | None = Field(None, gt=0, le=TOLERANCE_MAX_MM)
+
+
+class LimitPatch(RequestModel):
+    max: float | None = Field(None, gt=0, le=TOLERANCE_MAX_MM)
+
+
+class SurfacePatch(RequestModel):
+    dent_depth_mm: float | None = Field(None, gt=0, le=TOLERANCE_MAX_MM)
+    scratch_depth_mm: float | None = Field(None, gt=0, le=TOLERANCE_MAX_MM)
+    color_delta_e: float | None = Field(None, gt=0, le=100)
+
+
+class TolerancesPatch(RequestModel):
+    """Changes to an inspection's tolerances: a limit (or section) not named keeps its
+    value, one given takes it, one given as null goes back to its default. The merged
+    limits must hold together (422): a gap's `min` below its `max`."""
+
+    gap_mm: RangePatch | None = None
+    step_mm: LimitPatch | None = None
+    parallelism_mm: LimitPatch | None = None
+    mismatch_mm: LimitPatch | None = None
+    surface: SurfacePatch | None = None
+
+    def changes(self) -> dict:
+        """What was sent: sections and limits named, null where a default is restored."""
+        return self.model_dump(mode="json", exclude_unset=True)
 
 
 class ImageMarker(RequestModel):
@@ -76,16 +109,24 @@ class InspectionCreate(RequestModel):
 
 
 class InspectionUpdate(RequestModel):
-    """Only the fields given change. `aircraft` and `serial` may be null (empty), and
-    `tolerances` (no limits of its own: the defaults hold); the others may not."""
+    """Only the fields given change. `aircraft` and `serial` may be null (empty). Within
+    `tolerances` only the limits named change (null: that limit's default); `tolerances`
+    null restores every default. The others may not be null."""
 
     title: str = omittable(min_length=1, max_length=200)
     aircraft: str | None = Field(None, max_length=100)
     serial: str | None = Field(None, max_length=100)
     area: Area = omittable()
-    tolerances: StrictTolerances | None = None
+    tolerances: TolerancesPatch | None = None
     markers: list[ImageMarker] = omittable(max_length=16)
     status: InspectionStatus = omittable()
+
+
+class AppliedSet(BaseModel):
+    id: int
+    name: str
+    version: int
+    edited: bool = False
 
 
 class InspectionOut(BaseModel):
@@ -97,6 +138,11 @@ class InspectionOut(BaseModel):
     serial: str
     area: Area
     tolerances: Tolerances
+    tolerance_set: AppliedSet | None = Field(
+        None,
+        description="The named tolerance set last applied (its name and version then; "
+        "`edited`: a limit was changed by hand since).",
+    )
     markers: list[ImageMarker]
     status: InspectionStatus
     created_by: int | None

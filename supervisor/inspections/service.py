@@ -1,8 +1,10 @@
 from __future__ import annotations
 
+from pydantic import ValidationError
 from sqlalchemy import ColumnElement, exists, select
 from sqlalchemy.orm import Session
 
+from contract.tolerances import Tolerances, merge_tolerances
 from supervisor.audit.service import Actor, audit, changed_fields
 from supervisor.changes import add_created, record_change, record_update
 from supervisor.defects.rejudge import rejudge_findings
@@ -14,7 +16,7 @@ from supervisor.problems import Problem, not_found
 
 OWNER_ONLY_FIELDS = ("tolerances",)
 """Fields only the owner or an admin may change (closing and reopening too: see
-``_check_owner``)."""
+``check_owner``)."""
 
 
 def get(session: Session, *, inspection_id: int) -> Inspection:
@@ -37,7 +39,20 @@ def live(inspection_id: ColumnElement[int]) -> ColumnElement[bool]:
     return inspection_id.not_in(select(Inspection.id).where(Inspection.deleted_at.is_not(None)))
 
 
-def _check_owner(inspection: Inspection, actor: Actor, role: str, action: str) -> None:
+def valid_tolerances(document: dict) -> dict:
+    """``document`` as stored, once it holds together as tolerances (422 naming the limit
+    that does not)."""
+    try:
+        return Tolerances.model_validate(document, strict=True).model_dump(
+            mode="json", exclude_none=True
+        )
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(["tolerances", *(str(p) for p in first["loc"])])
+        raise Problem(422, f"{where}: {first['msg']}.") from exc
+
+
+def check_owner(inspection: Inspection, actor: Actor, role: str, action: str) -> None:
     if role != "admin" and inspection.created_by != actor.id:
         raise Problem(
             403,
@@ -88,19 +103,20 @@ def update(
     inspection = get(session, inspection_id=inspection_id)
     changes = data.model_dump(exclude_unset=True)  # null only where the schema allows it
     if "tolerances" in changes:
-        changes["tolerances"] = (
-            data.tolerances.model_dump(mode="json", exclude_none=True) if data.tolerances else {}
-        )
+        sent = data.tolerances.changes() if data.tolerances is not None else None
+        changes["tolerances"] = valid_tolerances(merge_tolerances(inspection.tolerances, sent))
     if "markers" in changes:
         changes["markers"] = [m.model_dump(mode="json") for m in data.markers]
     changes = {field: "" if value is None else value for field, value in changes.items()}
     before, after = changed_fields(_state(inspection), changes)
     if any(field in after for field in OWNER_ONLY_FIELDS):
-        _check_owner(inspection, actor, role, "change its tolerances")
+        check_owner(inspection, actor, role, "change its tolerances")
     if "closed" in (before.get("status"), after.get("status")):
-        _check_owner(inspection, actor, role, "close or reopen it")
+        check_owner(inspection, actor, role, "close or reopen it")
     for field, value in after.items():
         setattr(inspection, field, value)
+    if "tolerances" in after and inspection.tolerance_set:  # no longer the set as applied
+        inspection.tolerance_set = {**inspection.tolerance_set, "edited": True}
     session.flush()
     if after:
         record_update(session, "inspection", inspection, user_id=actor.id)
@@ -123,7 +139,7 @@ def delete(session: Session, *, inspection_id: int, actor: Actor, role: str) -> 
     """Move the inspection to the trash (its owner or an admin): hidden everywhere, its
     rows and files kept until an admin purges it."""
     inspection = get(session, inspection_id=inspection_id)
-    _check_owner(inspection, actor, role, "delete it")
+    check_owner(inspection, actor, role, "delete it")
     busy = session.scalar(
         select(
             exists().where(

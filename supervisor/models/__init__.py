@@ -3,7 +3,7 @@
 from supervisor.db import Base
 from supervisor.models.changes import AuditEvent, Change, IdempotencyRecord
 from supervisor.models.defects import Defect, Judgment, JudgmentRevision, SyncReceipt
-from supervisor.models.inspections import Artifact, Inspection
+from supervisor.models.inspections import Artifact, Inspection, ToleranceSet
 from supervisor.models.jobs import Job, JobDependency, JobLogLine, Run
 from supervisor.models.users import ApiToken, User
 
@@ -28,6 +28,7 @@ __all__ = [
     "Judgment",
     "JudgmentRevision",
     "Run",
+    "ToleranceSet",
     "SyncReceipt",
     "User",
 ]

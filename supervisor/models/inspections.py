@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal, get_args
 
-from sqlalchemy import BigInteger, CheckConstraint, ForeignKey, String
+from sqlalchemy import BigInteger, CheckConstraint, ForeignKey, Integer, String
 from sqlalchemy.orm import Mapped, mapped_column
 
 from supervisor.db import Base
@@ -30,6 +30,9 @@ class Inspection(Base):
     serial: Mapped[str] = mapped_column(String(100), default="")
     area: Mapped[str] = mapped_column(String(16))
     tolerances: Mapped[dict] = mapped_column(JSONType, default=dict)
+    tolerance_set: Mapped[dict | None] = mapped_column(JSONType)
+    """The named tolerance set last applied: its id, name and version then, and whether a
+    limit was edited by hand since."""
     markers: Mapped[list] = mapped_column(JSONType, default=list)
     """Image markers at known poses (cargo, cabin) that align a headset with the scene."""
     status: Mapped[str] = mapped_column(String(16), default="planned")
@@ -62,3 +65,18 @@ class Artifact(Base):
     )
     created_by: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = created_at_column()
+
+
+class ToleranceSet(Base):
+    """Named acceptance limits reusable across inspections; ``version`` counts its edits."""
+
+    __tablename__ = "tolerance_sets"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(100), unique=True)
+    description: Mapped[str] = mapped_column(String(2000), default="")
+    tolerances: Mapped[dict] = mapped_column(JSONType, default=dict)
+    version: Mapped[int] = mapped_column(Integer, default=1)
+    created_by: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = created_at_column()
+    updated_at: Mapped[datetime] = mapped_column(UTCDateTime(), default=utcnow, onupdate=utcnow)

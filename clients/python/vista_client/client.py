@@ -136,6 +136,20 @@ class VistaClient:
     def update_inspection(self, inspection_id: int, **fields: Any) -> dict:
         return self._json("PATCH", f"/inspections/{inspection_id}", json=fields)
 
+    def tolerance_sets(self) -> Iterator[dict]:
+        return self._pages("/tolerance-sets")
+
+    def create_tolerance_set(self, name: str, tolerances: dict, description: str = "") -> dict:
+        """Name a set of limits to apply to inspections."""
+        body = {"name": name, "tolerances": tolerances, "description": description}
+        return self._json("POST", "/tolerance-sets", json=body)
+
+    def apply_tolerance_set(self, inspection_id: int, set_id: int) -> dict:
+        """Give the inspection the set's limits; returns the inspection."""
+        return self._json(
+            "POST", f"/inspections/{inspection_id}/tolerance-set", json={"set_id": set_id}
+        )
+
     def upload(self, inspection_id: int, path: Path, *, kind: str, name: str | None = None) -> dict:
         """Upload a file as an artifact (PLY clouds are checked by the server)."""
         path = Path(path)

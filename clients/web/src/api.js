@@ -68,6 +68,11 @@ export const api = {
     setTimeout(() => URL.revokeObjectURL(url), 10_000);
   },
   createInspection: (body) => request("POST", "/inspections", { body }),
+  updateInspection: (id, body) => request("PATCH", `/inspections/${id}`, { body }),
+  toleranceSchema: () => request("GET", "/tolerances/schema"),
+  toleranceSets: () => request("GET", "/tolerance-sets", { params: { limit: 500 } }),
+  createToleranceSet: (body) => request("POST", "/tolerance-sets", { body }),
+  applyToleranceSet: (id, setId) => request("POST", `/inspections/${id}/tolerance-set`, { body: { set_id: setId } }),
   artifactKinds: () => request("GET", "/artifact-kinds"),
   artifacts: (id) => request("GET", `/inspections/${id}/artifacts`, { params: { limit: 500 } }),
   jobKinds: () => request("GET", "/job-kinds"),

@@ -5,6 +5,7 @@ import { el, statusNode } from "./dom.js";
 import { canEdit, Files, FINISHED, jobButtons, RunForm, setUpNewInspection } from "./manage.js";
 import { showJob } from "./runpage.js";
 import { SceneView } from "./scene.js";
+import { ToleranceForm } from "./tolerances.js";
 
 const TYPES = ["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"];
 // One distinct colour per type: the scene's rings use the same (supervisor/exports/scene.py).
@@ -295,6 +296,7 @@ async function showInspection(id, defectId) {
     loadSceneRuns(id);
     loadTimeline();
     loadFeedback();
+    toleranceForm.open(state.inspection, state.me).catch((error) => { $("#tolerance-error").textContent = error.message; });
     if (canEdit(state.me)) runForm.open(id).catch((error) => { $("#run-error").textContent = error.message; });
     else files.open(id).catch(() => {});
     state.poll = setInterval(live, LIVE_POLL_MS);
@@ -787,6 +789,15 @@ async function showJobPage(inspectionId, jobId, points) {
     root.replaceChildren(el("p", { class: "error", role: "alert" }, `job ${jobId}: ${error.message}`));
   }
 }
+
+// ---- tolerances --------------------------------------------------------------------------
+
+const toleranceForm = new ToleranceForm((inspection) => {
+  state.inspection = inspection;
+  renderList(); // the limits column reads the inspection's
+  if (state.selected) renderDetail();
+  toleranceForm.open(inspection, state.me);
+});
 
 // ---- feedback ---------------------------------------------------------------------------
 
