@@ -46,6 +46,7 @@ TARGETS = {
     "sync_s": 1.0,
     "sync_mb": 5.0,
     "paint_s": 2.0,
+    "judgment_kb": 10.0,
 }
 
 
@@ -259,6 +260,7 @@ def _sync_part(base: str, token: str, inspection: int) -> dict:
                 return total
 
     peer_s, _ = _median_time(paged, 3)
+    headset = _headset_bytes(base, token, inspection, document)
     say(f"sync of {len(document['defects'])} defects: {seconds:.3f} s, {len(plain.content)} B")
     return {
         "defects": len(document["defects"]),
@@ -274,6 +276,54 @@ def _sync_part(base: str, token: str, inspection: int) -> dict:
             "consensus": len(one["consensus"]),
         },
         "peer_paged_defects": {"seconds": round(peer_s, 3), "bytes": paged()},
+        "headset": headset,
+    }
+
+
+def _headset_bytes(base: str, token: str, inspection: int, synced: dict) -> dict:
+    """What a headset downloads for a judgment someone else made: its next sync page and
+    the scene's conditional GET (304 while the geometry is the same) — beside a fresh full
+    sync with the scene. A device user syncs; the admin judges."""
+    admin = {"Authorization": f"Bearer {token}", "Accept-Encoding": "identity"}
+    made = httpx.post(
+        f"{base}/api/v1/users",
+        json={"username": "bench-headset", "role": "device"},
+        headers=admin,
+        timeout=30,
+    )
+    made.raise_for_status()
+    device_token = httpx.post(
+        f"{base}/api/v1/users/{made.json()['id']}/tokens",
+        json={"name": "bench headset", "kind": "device"},
+        headers=admin,
+        timeout=30,
+    ).json()["token"]
+    device = {"Authorization": f"Bearer {device_token}", "Accept-Encoding": "identity"}
+    sync_url, scene_url = f"{base}/api/v1/sync", f"{base}/api/v1/inspections/{inspection}/scene.glb"
+    full = httpx.get(sync_url, params={"inspection": inspection}, headers=device, timeout=60)
+    scene = httpx.get(scene_url, headers=device, timeout=120)
+    cursor, etag = full.json()["next_cursor"], scene.headers["etag"]
+    per_judgment = []
+    for defect in synced["defects"][:: max(1, len(synced["defects"]) // 5)][:5]:
+        httpx.put(
+            f"{base}/api/v1/defects/{defect['id']}/judgments/me",
+            json={"verdict": "rejected", "comment": "bench: someone else"},
+            headers=admin,
+            timeout=30,
+        ).raise_for_status()
+        page = httpx.get(
+            sync_url, params={"inspection": inspection, "since": cursor}, headers=device, timeout=60
+        )
+        again = httpx.get(scene_url, headers={**device, "If-None-Match": etag}, timeout=120)
+        cursor = page.json()["next_cursor"]
+        etag = again.headers.get("etag", etag)
+        per_judgment.append(len(page.content) + len(again.content))
+    say(f"headset: {max(per_judgment)} B per judgment by someone else (worst of 5)")
+    return {
+        "full_sync_bytes": len(full.content),
+        "scene_bytes": len(scene.content),
+        "per_judgment_bytes": per_judgment,
+        "per_judgment_max_bytes": max(per_judgment),
     }
 
 
@@ -406,6 +456,9 @@ def run_clients_bench(
         == (0, 1, 1),
         f"first meaningful paint < {TARGETS['paint_s']} s": paint["first_meaningful_paint_s"]
         < TARGETS["paint_s"],
+        f"a headset's download per judgment by someone else ≤ {TARGETS['judgment_kb']} KB": (
+            sync["headset"]["per_judgment_max_bytes"] <= TARGETS["judgment_kb"] * 1000
+        ),
     }
     verdict |= perception_verdict(perception)
     _print(scene, sync, paint, points)
@@ -448,6 +501,13 @@ def _print(scene: dict, sync: dict, paint: dict, points: int) -> None:
         f"{peer_sync['bytes'] / 1e6:.2f} |"
     )
     inc = sync["incremental"]
+    headset = sync["headset"]
+    print(
+        f"\na headset's download per judgment someone else made (its sync page + the "
+        f"scene's If-None-Match): {headset['per_judgment_max_bytes']} B at most over 5 "
+        f"(target ≤ {TARGETS['judgment_kb']:.0f} KB) — a fresh full sync: "
+        f"{headset['full_sync_bytes']} B + scene {headset['scene_bytes']} B"
+    )
     print(
         f"\nincremental after one judgment: {inc['seconds'] * 1000:.1f} ms, {inc['defects']} "
         f"defects, {inc['judgments']} judgment, {inc['consensus']} consensus"

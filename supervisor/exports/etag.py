@@ -1,23 +1,33 @@
-"""The scene's version: it changes exactly when something the scene shows changes."""
+"""The scene's version: it changes exactly when the scene's geometry changes — a cloud or
+a result file (artifacts), a finding's marker made (a measurement, one added by hand), the
+inspection made or its image markers moved. Judgments, statuses, comments, severities
+travel in the sync's defect data, not in the scene, so a judgment costs a headset a sync
+page, not a scene download."""
 
 from __future__ import annotations
 
-from sqlalchemy import func, select
+from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from supervisor.models import Change
 
-SCENE_FORMAT = 3
+SCENE_FORMAT = 4
 """Bumped whenever the export itself changes, so caches do not serve the old layout."""
 
 
+GEOMETRY = or_(
+    Change.entity == "artifact",
+    and_(Change.entity == "defect", Change.op == "create"),
+    and_(Change.entity == "inspection", Change.op.in_(("create", "geometry"))),
+)
+"""The change-log rows that change what a scene draws."""
+
+
 def scene_version(session: Session, *, inspection_id: int) -> int:
-    """The last change-log position of anything the scene shows (jobs' progress is not)."""
+    """The last change-log position of the scene's geometry (see the module docstring)."""
     return (
         session.scalar(
-            select(func.max(Change.seq)).where(
-                Change.inspection_id == inspection_id, Change.entity != "job"
-            )
+            select(func.max(Change.seq)).where(Change.inspection_id == inspection_id, GEOMETRY)
         )
         or 0
     )

@@ -32,7 +32,6 @@ from sqlalchemy.orm import Session
 
 from contract.kinds import Presenter
 from contract.scene import LineGroup
-from contract.tolerances import stored_state
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 from supervisor.defects.service import reading
 from supervisor.engine.registry import all_kinds, get_kind, load_kinds
@@ -49,7 +48,6 @@ from supervisor.exports.gltf import (
     write_glb,
 )
 from supervisor.jobs.service import input_artifacts
-from supervisor.judgments.consensus import consensus_docs
 from supervisor.models import Artifact, Defect, Inspection, Job, Run
 from supervisor.problems import Problem
 from supervisor.storage import Storage
@@ -161,7 +159,6 @@ class SceneSource:
     inspection_id: int
     markers: list[dict]
     defects: list[dict]
-    consensus: dict[int, dict]
     cloud_path: Path | None
     cloud_artifact_id: int | None
     meshes: list[tuple[int, Path]]
@@ -187,8 +184,6 @@ def gather(
             select(
                 Defect.id,
                 Defect.type,
-                Defect.status,
-                Defect.severity,
                 Defect.value_mm,
                 Defect.tolerance_mm,
                 Defect.measurements,
@@ -201,7 +196,6 @@ def gather(
             .order_by(Defect.id)
         )
     ]
-    consensus = {c["defect_id"]: c for c in consensus_docs(session, [d["id"] for d in defects])}
     run_jobs = select(Job.id).where(Job.run_id == (run.run_id if run else -1))
     meshes = session.execute(
         select(Artifact.id, Artifact.storage_uri)
@@ -246,7 +240,6 @@ def gather(
         inspection_id=inspection.id,
         markers=list(inspection.markers or []),
         defects=defects,
-        consensus=consensus,
         cloud_path=storage.path(cloud.storage_uri) if cloud else None,
         cloud_artifact_id=cloud.id if cloud else None,
         meshes=[(a.id, storage.path(a.storage_uri)) for a in meshes],
@@ -274,25 +267,22 @@ def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray
     return rgba
 
 
-def _defect_extras(defect: dict, consensus: dict | None) -> dict:
+def _defect_extras(defect: dict) -> dict:
+    """A finding's marker data: what it is and where, as measured. Its status, severity,
+    limit and reviewers' verdicts are not here: they change without the geometry and come
+    with the sync's defect data (the scene's ETag follows its geometry only)."""
     measurements = defect["measurements"] or {}
+    read = reading(defect["value_mm"], defect["tolerance_mm"], measurements)
     return {
         "defect_id": defect["id"],
         "type": defect["type"],
-        **reading(defect["value_mm"], defect["tolerance_mm"], defect["measurements"]),
-        "status": defect["status"],
-        "severity": defect["severity"],
-        "tolerance_state": stored_state(defect["severity"], measurements),
-        **{k: measurements[k] for k in ("sigma_mm", "advice") if k in measurements},
+        "value": read["value"],
+        "unit": read["unit"],
+        **{k: measurements[k] for k in ("sigma_mm",) if k in measurements},
         "confidence": defect["confidence"],
         "location_mm": defect["location_mm"],
         "normal": defect["normal"],
         "extent_mm": defect["extent_mm"],
-        "consensus": (
-            {k: consensus[k] for k in ("majority", "agreement", "total", "needs_review", "counts")}
-            if consensus
-            else None
-        ),
     }
 
 
@@ -416,7 +406,7 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
                     translation=[float(c) for c in at],
                     rotation=rotation_from_y(normal),
                     scale=[radius_m] * 3,
-                    extras=_defect_extras(defect, source.consensus.get(defect["id"])),
+                    extras=_defect_extras(defect),
                 )
             )
     anchors = Node("anchors", children=[])

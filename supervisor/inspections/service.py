@@ -119,7 +119,14 @@ def update(
         inspection.tolerance_set = {**inspection.tolerance_set, "edited": True}
     session.flush()
     if after:
-        record_update(session, "inspection", inspection, user_id=actor.id)
+        record_change(  # moved markers change the scene's geometry (its ETag), the rest not
+            session,
+            entity="inspection",
+            entity_id=inspection.id,
+            op="geometry" if "markers" in after else "update",
+            inspection_id=inspection.id,
+            user_id=actor.id,
+        )
         if "tolerances" in after:  # the findings follow, in this transaction
             after["rejudged_findings"] = rejudge_findings(session, inspection, user_id=actor.id)
         audit(

@@ -38,8 +38,8 @@ namespace Vista.Client
         /// <summary><c>asset.extras</c>: units, up axis, <c>scene_etag</c>, <c>inspection_id</c>, …</summary>
         public Dictionary<string, object> AssetExtras { get; private set; }
 
-        /// <summary>The <c>extras</c> of each defect node, by defect id (type, value, tolerance,
-        /// status, consensus, …).</summary>
+        /// <summary>The <c>extras</c> of each defect node, by defect id (type, value, unit,
+        /// σ, location, extent; the status, severity and consensus come with the sync).</summary>
         public IReadOnlyDictionary<long, Dictionary<string, object>> DefectExtras
         {
             get { return defectExtras; }
