@@ -57,7 +57,10 @@ class Removed:
 
 
 def safe_name(name: str) -> str:
-    cleaned = re.sub(r"[^A-Za-z0-9._-]+", "_", os.path.basename(name)).strip("._")
+    """A file name kept as it was but for characters other than letters, digits, ``._-``,
+    spaces and parentheses (``wing (2).ply`` stays)."""
+    cleaned = re.sub(r"[^A-Za-z0-9._() -]+", "_", os.path.basename(name))
+    cleaned = re.sub(r" {2,}", " ", cleaned).strip("._ ")
     return cleaned[:120] or "artifact"
 
 

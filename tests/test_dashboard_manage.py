@@ -338,3 +338,68 @@ def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
     assert page.is_disabled("#tolerance-save")
     http.close()
     runtime.db.dispose()
+
+
+def test_files_are_told_apart_and_a_picker_selects_all_of_a_kind(
+    start_server, tmp_path, sqlite_url, browser
+):
+    """Two uploads named wing.ply are kept as wing.ply and wing (2).ply; the Files tab
+    shows each file's kind, size, when, who, and a download; the stitch form's scan picker
+    lists every scan on its own line and selects them all in one click."""
+    from services.lib.pointcloud.ply import write_ply
+    from tests.plyfiles import plane_grid
+
+    settings = make_settings(tmp_path, sqlite_url)
+    server = start_server(settings, run_engine=False)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
+    inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
+    cloud = tmp_path / "wing.ply"
+    write_ply(cloud, plane_grid(20, 20, spacing_mm=1.0))
+
+    def upload(kind: str, name: str) -> dict:
+        answer = http.post(
+            f"/api/v1/inspections/{inspection}/artifacts",
+            params={"kind": kind, "name": name},
+            content=cloud.read_bytes(),
+            headers={"content-type": "application/x-ply"},
+        )
+        assert answer.status_code == 201, answer.text
+        return answer.json()
+
+    first, second = upload("cloud", "wing.ply"), upload("cloud", "wing.ply")
+    assert (first["name"], second["name"]) == ("wing.ply", "wing (2).ply")
+    assert second["created_by_name"] == "ines" and second["run_id"] is None
+    scans = [upload("scan", f"scan_{i:03d}.ply")["id"] for i in range(4)]
+
+    page = browser.new_page(viewport={"width": 1024, "height": 768})
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    _sign_in(page, server.url)
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.click("[role=tab][data-tab=files]")
+    row = f"#artifact-table tr[data-id='{second['id']}']"
+    page.wait_for_selector(row)
+    cells = page.locator(f"{row} td").all_text_contents()
+    assert cells[0] == "wing (2).ply" and cells[1] == "cloud" and "uploaded by ines" in cells[4]
+    with page.expect_download() as download:
+        page.click(f"{row} button[data-download]")
+    assert download.value.suggested_filename == "wing (2).ply"
+
+    page.click("[role=tab][data-tab=timeline]")
+    page.click("#run-box summary")
+    page.select_option("#run-kind", "stitching.stitch")
+    picker = "#run-inputs fieldset:has(.pick-all)"
+    page.wait_for_selector(picker)
+    assert page.locator(f"{picker} label.pick").count() == 4
+    assert "scan_000.ply · scan ·" in page.text_content(f"{picker} label.pick >> nth=0")
+    page.click(f"{picker} .pick-all")
+    checked = page.eval_on_selector_all(
+        f"{picker} input[type=checkbox]:checked", "boxes => boxes.map(b => Number(b.value))"
+    )
+    assert sorted(checked) == scans
+    page.screenshot(path=str(tmp_path / "picker-1024.png"))
+    http.close()
+    assert errors == [], errors
+    runtime.db.dispose()

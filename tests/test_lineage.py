@@ -170,6 +170,14 @@ def test_measuring_again_carries_judgments_and_counts_each_defect_once(
     )
     assert counted == len(_by_type(current, "dent"))
 
+    # The sync sends a finding's lineage with it once it has one, all of it.
+    from supervisor.sync.schemas import SyncDefect
+
+    page = web.sync(inspection)
+    carried = next(d for d in page["defects"] if d["id"] == successor["id"])
+    SyncDefect.model_validate(carried)
+    assert set(carried) == set(SyncDefect.model_fields) and carried["lineage_id"] == confirmed["id"]
+
     # The headset: the first run's findings leave its list, the queued verdicts land on
     # the successor or come back refused with the reason.
     headset.go_online()

@@ -29,7 +29,6 @@ from supervisor.engine.registry import artifact_kinds
 from supervisor.engine.runtime import Runtime
 from supervisor.ids import IdPath
 from supervisor.inspections.service import get as get_inspection
-from supervisor.models import Artifact
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page
 from supervisor.problems import Problem
 from supervisor.requests import JsonGuardRoute
@@ -115,8 +114,10 @@ async def upload_artifact(
     whatever Content-Type was declared (422 otherwise): a PLY — recognised by its magic
     line — for header, element sizes and finite coordinates; a point cloud a scanner or
     CloudCompare wrote (ASCII or big-endian PLY, PCD, LAS/LAZ, E57, XYZ/ASC, PTS —
-    recognised by its content) converted to vista's PLY in mm, kept as `NAME.ply` with
-    its source's format and unit in `meta.source`; JSON parsed; PNG, JPEG and GLB by
+    recognised by its content) converted to vista's PLY in mm, kept under its own name
+    with `.ply` (`wing.e57` → `wing.ply`) with its source's format and unit in
+    `meta.source`; a name the inspection's uploads hold already gets a number
+    (`wing (2).ply`); JSON parsed; PNG, JPEG and GLB by
     signature; archives, models and trajectories read as their kind says. The media type
     kept is the content's. Anything refused leaves nothing behind."""
     media_type = _media_type(request)
@@ -185,8 +186,9 @@ def get_artifact(
     artifact_id: IdPath,
     session: Session = SESSION,
     _: CurrentUser = Depends(readers),
-) -> Artifact:
-    return service.get(session, inspection_id=inspection_id, artifact_id=artifact_id)
+) -> ArtifactOut:
+    found = service.get(session, inspection_id=inspection_id, artifact_id=artifact_id)
+    return service.artifacts_out(session, [found])[0]
 
 
 @router.get(

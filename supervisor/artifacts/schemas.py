@@ -39,5 +39,10 @@ class ArtifactOut(BaseModel):
     sha256: str
     meta: dict
     job_id: int | None
+    run_id: int | None = Field(
+        None, description="The run of the job that made it (null: uploaded)."
+    )
+    step: str | None = Field(None, description="That job's step in its run.")
     created_by: int | None
+    created_by_name: str | None = Field(None, description="Who uploaded it.")
     created_at: datetime

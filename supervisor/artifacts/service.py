@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import PurePath
 
 from fastapi import Request, Response
 from sqlalchemy import insert, select
@@ -16,7 +17,7 @@ from supervisor.engine.runtime import Runtime
 from supervisor.idempotency import create_once
 from supervisor.inspections.service import ensure_live
 from supervisor.inspections.service import get as get_inspection
-from supervisor.models import Artifact, Inspection, Job
+from supervisor.models import Artifact, Inspection, Job, User
 from supervisor.models.jobs import UNFINISHED
 from supervisor.pagination import Page, paginate
 from supervisor.problems import Problem, not_found
@@ -70,6 +71,49 @@ def delete(
         before={"name": artifact.name, "kind": artifact.kind, "sha256": artifact.sha256},
     )
     return uri
+
+
+COMPOUND_SUFFIXES = (".tar.gz", ".tar.bz2", ".tar.xz")
+
+
+def unique_name(session: Session, inspection_id: int, name: str) -> str:
+    """``name`` as kept (``safe_name``), or, when the inspection holds an upload of that
+    name already, the first free ``stem (n).ext`` (``wing.ply``, ``wing (2).ply``, …)."""
+    name = safe_name(name)
+    taken = set(
+        session.scalars(
+            select(Artifact.name).where(
+                Artifact.inspection_id == inspection_id, Artifact.job_id.is_(None)
+            )
+        )
+    )
+    if name not in taken:
+        return name
+    suffix = next((s for s in COMPOUND_SUFFIXES if name.endswith(s)), PurePath(name).suffix)
+    stem = name[: len(name) - len(suffix)] if suffix else name
+    number = 2
+    while f"{stem} ({number}){suffix}" in taken:
+        number += 1
+    return f"{stem} ({number}){suffix}"
+
+
+def artifacts_out(session: Session, artifacts: list[Artifact]) -> list[ArtifactOut]:
+    """Each artifact with the run and step of the job that made it and its uploader's name."""
+    job_ids = {a.job_id for a in artifacts if a.job_id is not None}
+    user_ids = {a.created_by for a in artifacts if a.created_by is not None}
+    jobs = {
+        j.id: j
+        for j in session.execute(select(Job.id, Job.run_id, Job.step).where(Job.id.in_(job_ids)))
+    }
+    names = dict(session.execute(select(User.id, User.username).where(User.id.in_(user_ids))).all())
+    out = []
+    for artifact in artifacts:
+        item = ArtifactOut.model_validate(artifact)
+        job = jobs.get(artifact.job_id)
+        item.run_id, item.step = (job.run_id, job.step) if job is not None else (None, None)
+        item.created_by_name = names.get(artifact.created_by)
+        out.append(item)
+    return out
 
 
 def record_artifact(
@@ -136,15 +180,16 @@ def store(request: Request, runtime: Runtime, actor: Actor, upload: Upload) -> R
 
     def create() -> tuple[dict, str]:
         get_inspection(session, inspection_id=upload.inspection_id)
+        name = unique_name(session, upload.inspection_id, upload.name)
         uri = runtime.storage.commit(
-            upload.received.uri, inspection_id=upload.inspection_id, name=upload.name
+            upload.received.uri, inspection_id=upload.inspection_id, name=name
         )
         final_uri.append(uri)
         artifact_id = record_artifact(
             session,
             inspection_id=upload.inspection_id,
             kind=upload.kind,
-            name=upload.name,
+            name=name,
             media_type=upload.media_type,
             stored=replace(upload.received, uri=uri),
             meta=upload.meta,
@@ -158,14 +203,14 @@ def store(request: Request, runtime: Runtime, actor: Actor, upload: Upload) -> R
             entity_id=artifact_id,
             inspection_id=upload.inspection_id,
             after={
-                "name": upload.name,
+                "name": name,
                 "kind": upload.kind,
                 "size_bytes": upload.received.size_bytes,
                 "sha256": upload.received.sha256,
             },
         )
         artifact = session.get(Artifact, artifact_id)
-        body = ArtifactOut.model_validate(artifact).model_dump(mode="json")
+        body = artifacts_out(session, [artifact])[0].model_dump(mode="json")
         return body, f"/api/v1/inspections/{upload.inspection_id}/artifacts/{artifact_id}"
 
     digest = f"{upload.kind}\n{upload.name}\n{upload.media_type}\n{upload.received.sha256}"
@@ -197,4 +242,5 @@ def page(
         cursor=cursor,
         limit=limit,
         item=ArtifactOut,
+        out=lambda rows: artifacts_out(session, rows),
     )

@@ -20,7 +20,10 @@ ItemStatus = Literal["applied", "unchanged", "stale", "rejected"]
 
 class SyncDefect(BaseModel):
     """A defect as a client keeps it: its value and tolerance in ``unit`` (``mm``, or
-    ``delta_e`` for a colour patch), the other measurement details in ``measurements``."""
+    ``delta_e`` for a colour patch), the other measurement details in ``measurements``.
+    The lineage fields (``lineage_id`` … ``ended_run_id``) come only with a finding that a
+    later measurement ended or that continues an earlier one; absent, they are null (its
+    lineage is its own id)."""
 
     id: int
     run_id: int | None

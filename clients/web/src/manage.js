@@ -63,7 +63,10 @@ export class Files {
     this.items = page.items;
     $("#artifact-table tbody").replaceChildren(...page.items.map((a) => el(
       "tr", { dataset: { id: a.id } },
-      el("td", {}, a.name), el("td", {}, a.kind), el("td", {}, sizeText(a.size_bytes)),
+      el("td", {}, el("button", { class: "link", title: "download", dataset: { download: a.id }, onclick: () => api.download(id, a) }, a.name)),
+      el("td", {}, a.kind), el("td", {}, sizeText(a.size_bytes)),
+      el("td", {}, whenText(a.created_at)),
+      el("td", {}, madeBy(a, id)),
       el("td", {}, sourceText(a)),
     )));
     $("#files-empty").hidden = page.items.length > 0;
@@ -100,6 +103,22 @@ export class Files {
     await this.reload();
     this.onUploaded();
   }
+}
+
+function whenText(iso) {
+  return new Date(iso).toLocaleString([], { dateStyle: "short", timeStyle: "short" });
+}
+
+// Who uploaded a file, or the run and step whose job made it (a link to the job's page).
+function madeBy(artifact, inspectionId) {
+  if (artifact.job_id === null) return `uploaded by ${artifact.created_by_name || "someone removed"}`;
+  return el("a", { href: `#/inspections/${inspectionId}/jobs/${artifact.job_id}` }, `run ${artifact.run_id}, step ${artifact.step}`);
+}
+
+// A file as a picker lists it: name, kind, size, when, and where it came from.
+function fileLabel(artifact) {
+  const from = artifact.job_id === null ? "uploaded" : `run ${artifact.run_id} ${artifact.step}`;
+  return `${artifact.name} · ${artifact.kind} · ${sizeText(artifact.size_bytes)} · ${whenText(artifact.created_at)} · ${from} (#${artifact.id})`;
 }
 
 function sourceText(artifact) {
@@ -191,12 +210,29 @@ function inputPicker(spec, index, artifacts) {
   if (spec.max === 1) {
     const select = el("select", { "data-input": String(index), "aria-label": spec.what },
       ...(spec.min ? [] : [el("option", { value: "" }, "none")]),
-      ...fits.slice().reverse().map((a) => el("option", { value: String(a.id) }, `${a.name} (#${a.id}, ${a.kind})`)));
+      ...fits.slice().reverse().map((a) => el("option", { value: String(a.id) }, fileLabel(a))));
     return el("fieldset", { class: "run-input" }, legend, select);
   }
-  return el("fieldset", { class: "run-input" }, legend, ...fits.map((a) => el(
-    "label", {}, el("input", { type: "checkbox", value: String(a.id), "data-input": String(index) }), ` ${a.name} (#${a.id})`,
-  )));
+  // Several: a list filtered by kind, each file on its own line, and "all of a kind".
+  const kinds = [...new Set(fits.map((a) => a.kind))];
+  const rows = fits.map((a) => el(
+    "label", { class: "pick", title: fileLabel(a), dataset: { kind: a.kind } },
+    el("input", { type: "checkbox", value: String(a.id), "data-input": String(index) }), ` ${fileLabel(a)}`,
+  ));
+  const shown = () => rows.filter((r) => !r.hidden);
+  const filter = el("select", {
+    "aria-label": `${spec.what}: kind shown`, class: "pick-kind",
+    onchange: () => { for (const row of rows) row.hidden = Boolean(filter.value) && row.dataset.kind !== filter.value; },
+  }, el("option", { value: "" }, "every kind"), ...kinds.map((k) => el("option", { value: k }, k)));
+  const all = el("button", {
+    type: "button", class: "pick-all",
+    onclick: () => { for (const row of shown()) row.querySelector("input").checked = true; },
+  }, "select all shown");
+  const clear = el("button", {
+    type: "button", class: "pick-none",
+    onclick: () => { for (const row of shown()) row.querySelector("input").checked = false; },
+  }, "clear");
+  return el("fieldset", { class: "run-input" }, legend, el("div", { class: "pick-tools" }, filter, all, clear), el("div", { class: "pick-list" }, ...rows));
 }
 
 // A property's own schema: an optional value's non-null branch, a reference resolved.
