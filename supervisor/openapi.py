@@ -64,6 +64,23 @@ ERRORS: dict[str, dict[int, str]] = {
         "its owner (`created_by`) or an admin.",
         422: "A rule the schema cannot state: see the description.",
     },
+    "POST /api/v1/defects/{defect_id}/notes": {403: EDITORS},
+    "POST /api/v1/tolerance-sets": {
+        403: EDITORS,
+        409: "A tolerance set of that name exists.",
+        422: "A rule the schema cannot state: a gap range's min below its max.",
+    },
+    "PATCH /api/v1/tolerance-sets/{set_id}": {
+        403: f"{EDITORS} Only the set's maker or an admin may change it.",
+        409: "Another tolerance set has that name.",
+        422: "A rule the schema cannot state: the merged gap range's min below its max.",
+    },
+    "DELETE /api/v1/tolerance-sets/{set_id}": {
+        403: f"{EDITORS} Only the set's maker or an admin may delete it."
+    },
+    "POST /api/v1/inspections/{inspection_id}/tolerance-set": {
+        403: f"{EDITORS} Only the inspection's owner or an admin may change its tolerances.",
+    },
     "DELETE /api/v1/inspections/{inspection_id}": {
         403: f"{EDITORS} Only the inspection's owner or an admin may delete it.",
         409: "The inspection has queued or running jobs: cancel them first.",
@@ -134,6 +151,7 @@ IDEMPOTENT = (
     "POST /api/v1/inspections/{inspection_id}/artifacts",
     "POST /api/v1/inspections/{inspection_id}/runs",
     "POST /api/v1/defects",
+    "POST /api/v1/tolerance-sets",
 )
 """The creating POSTs that honour ``Idempotency-Key`` (``supervisor.idempotency``)."""
 

@@ -58,6 +58,9 @@ def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
         ("POST", "/api/v1/tokens/revoke"): {"device": "no-such-headset"},
         ("POST", "/api/v1/inspections"): inspection,
         ("PATCH", "/api/v1/inspections/{inspection_id}"): inspection,
+        ("POST", "/api/v1/tolerance-sets"): {"name": "n", "tolerances": TOLERANCES},
+        ("PATCH", "/api/v1/tolerance-sets/{set_id}"): {"tolerances": TOLERANCES},
+        ("POST", "/api/v1/inspections/{inspection_id}/tolerance-set"): {"set_id": ids["set_id"]},
         ("POST", "/api/v1/inspections/{inspection_id}/runs"): {
             "steps": [{"name": "m", "kind": "measure", "inputs": [ids["artifact_id"]]}]  # alias
         },
@@ -72,6 +75,7 @@ def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
             "confidence": 0.9,
         },
         ("PATCH", "/api/v1/defects/{defect_id}"): {"status": "open"},
+        ("POST", "/api/v1/defects/{defect_id}/notes"): {"text": "a note"},
         ("PUT", "/api/v1/defects/{defect_id}/judgments/me"): {"verdict": "confirmed"},
         ("POST", "/api/v1/sync/judgments"): {
             "items": [
@@ -172,7 +176,11 @@ def seeded(client, tokens, tmp_path):
         headers=headers,
     ).json()
     me = client.get("/api/v1/me", headers=headers).json()
+    tolerance_set = client.post(
+        "/api/v1/tolerance-sets", json={"name": "numbers", "tolerances": {}}, headers=headers
+    ).json()
     return {
+        "set_id": tolerance_set["id"],
         "inspection_id": inspection["id"],
         "artifact_id": artifacts["cloud"],
         "artifacts": artifacts,

@@ -196,6 +196,9 @@ def test_every_mutating_route_leaves_an_audit_row(client, tokens, runtime):
             json={"inspection_id": inspection(), "type": "dent", "location_mm": [0, 0, 0]},
             headers=ines,
         ),
+        ("POST", "/api/v1/defects/{defect_id}/notes"): lambda: client.post(
+            f"/api/v1/defects/{defect()}/notes", json={"text": "seen from the ladder"}, headers=ines
+        ),
         ("PATCH", "/api/v1/defects/{defect_id}"): lambda: client.patch(
             f"/api/v1/defects/{defect()}",
             json={"status": "dismissed", "reason": "glare"},

@@ -11,7 +11,7 @@ import pytest
 
 from supervisor.bench.browser import launch_chromium
 from supervisor.engine.runtime import Runtime
-from tests.conftest import add_user, auth, make_settings
+from tests.conftest import add_user, auth, make_settings, wait_for
 from tests.edgeclouds import seam_cloud
 from tests.seeding import measure_uploaded
 
@@ -59,7 +59,7 @@ def test_create_upload_measure_and_judge_from_the_browser(
     page.click("#new-inspection summary")
     page.fill("#new-inspection-form input[name=title]", "wing seam")
     page.fill("#new-inspection-form input[name=aircraft]", "A320 MSN 1234")
-    page.select_option("#new-inspection-area", "component")
+    page.fill("#new-inspection-area", "wing, left outer flap")  # free text
     page.click("#new-inspection-form button")
     page.wait_for_selector("#view-inspection:not([hidden])")
     inspection = int(page.evaluate("location.hash").split("/")[2])
@@ -319,6 +319,14 @@ def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
     assert limits["dent_depth_mm"] == 0.2 and limits["scratch_depth_mm"] == 0.3
     page.select_option("#tolerance-sets", str(lining["id"]))
     page.click("#apply-set")
+    wait_for(
+        lambda: (
+            page.text_content("#tolerance-status").startswith("Applied")
+            or page.text_content("#tolerance-error")
+        ),
+        what="the set applied",
+    )
+    assert page.text_content("#tolerance-error") == ""
     page.wait_for_selector("#tolerance-applied:has-text('A320 lining')")
     assert "version 1" in page.text_content("#tolerance-applied")
     applied = http.get(f"/api/v1/inspections/{inspection}").json()
@@ -400,6 +408,68 @@ def test_files_are_told_apart_and_a_picker_selects_all_of_a_kind(
     )
     assert sorted(checked) == scans
     page.screenshot(path=str(tmp_path / "picker-1024.png"))
+    http.close()
+    assert errors == [], errors
+    runtime.db.dispose()
+
+
+def test_a_finding_added_by_clicking_the_scene_and_annotated(
+    start_server, tmp_path, sqlite_url, browser
+):
+    """Add a finding: a click on the cloud places it, the form says what it is; it is
+    listed and selected, its note shown; another note is added from its detail."""
+    from services.lib.pointcloud.ply import write_ply
+    from tests.plyfiles import plane_grid
+
+    settings = make_settings(tmp_path, sqlite_url)
+    server = start_server(settings, run_engine=False)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
+    inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "wing"}).json()["id"]
+    cloud = tmp_path / "panel.ply"
+    write_ply(cloud, plane_grid(200, 200, spacing_mm=0.5))
+    http.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "cloud", "name": "panel.ply"},
+        content=cloud.read_bytes(),
+        headers={"content-type": "application/x-ply"},
+    ).raise_for_status()
+
+    page = browser.new_page(viewport={"width": 1440, "height": 900})
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    _sign_in(page, server.url)
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.wait_for_selector("#scene[data-drawn=true]")
+    page.click("#add-finding")
+    box = page.locator("#scene").bounding_box()
+    page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.wait_for_selector("#new-finding:not([hidden])")
+    assert "mm (base frame)" in page.text_content("#new-finding-where")
+    page.select_option("#new-finding-type", "dent")
+    page.select_option("#new-finding-severity", "major")
+    page.fill("#new-finding-value", "0.35")
+    page.fill("#new-finding-note", "felt it by hand")
+    page.click("#new-finding button[type=submit]")
+    page.wait_for_selector("#detail:not([hidden]) #notes li")
+    assert "felt it by hand" in page.text_content("#notes")
+    page.wait_for_selector("#scene-status:has-text('1 markers')")  # the scene drew it
+    [made] = http.get("/api/v1/defects", params={"inspection": inspection}).json()["items"]
+    assert (made["type"], made["severity"], made["value_mm"], made["source"]) == (
+        "dent",
+        "major",
+        0.35,
+        "manual",
+    )
+    x, y, z = made["location_mm"]
+    assert abs(z) < 1.0 and 0 <= x <= 100 and 0 <= y <= 100  # a point of the plate
+    page.fill("#note-text", "looked again: 0.4 mm")
+    page.click("#note-form button")
+    page.wait_for_selector("#notes li >> nth=1")
+    notes = http.get(f"/api/v1/defects/{made['id']}").json()["notes"]
+    assert [n["text"] for n in notes] == ["felt it by hand", "looked again: 0.4 mm"]
+    page.screenshot(path=str(tmp_path / "by-hand-1440.png"))
     http.close()
     assert errors == [], errors
     runtime.db.dispose()

@@ -75,8 +75,9 @@ positive_data_acceptance.expected-statuses = [
 checks.positive_data_acceptance.enabled = false
 
 # Schema-valid requests these operations refuse (422), by rules no JSON Schema states:
-# - a creating POST's Idempotency-Key used before with another body (all five);
-# - inspections: a gap range's min below its max, a marker's transform rigid;
+# - a creating POST's Idempotency-Key used before with another body (all six);
+# - inspections and tolerance sets: a gap range's min below its max (once merged with the
+#   limits stored), a marker's transform rigid;
 # - artifacts: the content being what `kind` needs; runs: the job kinds registered, their
 #   params, the artifacts an inspection holds; defects: an inspection that exists;
 # - what is stored: a user's role (no password for a device), a defect's status
@@ -86,6 +87,8 @@ include-name = [
     "POST /api/v1/users",
     "POST /api/v1/inspections",
     "PATCH /api/v1/inspections/{{inspection_id}}",
+    "POST /api/v1/tolerance-sets",
+    "PATCH /api/v1/tolerance-sets/{{set_id}}",
     "POST /api/v1/inspections/{{inspection_id}}/artifacts",
     "POST /api/v1/inspections/{{inspection_id}}/runs",
     "POST /api/v1/defects",

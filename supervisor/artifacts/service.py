@@ -76,14 +76,18 @@ def delete(
 COMPOUND_SUFFIXES = (".tar.gz", ".tar.bz2", ".tar.xz")
 
 
-def unique_name(session: Session, inspection_id: int, name: str) -> str:
+def unique_name(session: Session, inspection_id: int, kind: str, name: str) -> str:
     """``name`` as kept (``safe_name``), or, when the inspection holds an upload of that
-    name already, the first free ``stem (n).ext`` (``wing.ply``, ``wing (2).ply``, …)."""
+    kind and name already, the first free ``stem (n).ext`` (``wing.ply``, ``wing (2).ply``,
+    …). Files of different kinds may share a name: a depth map is matched to its image by
+    it."""
     name = safe_name(name)
     taken = set(
         session.scalars(
             select(Artifact.name).where(
-                Artifact.inspection_id == inspection_id, Artifact.job_id.is_(None)
+                Artifact.inspection_id == inspection_id,
+                Artifact.kind == kind,
+                Artifact.job_id.is_(None),
             )
         )
     )
@@ -180,7 +184,7 @@ def store(request: Request, runtime: Runtime, actor: Actor, upload: Upload) -> R
 
     def create() -> tuple[dict, str]:
         get_inspection(session, inspection_id=upload.inspection_id)
-        name = unique_name(session, upload.inspection_id, upload.name)
+        name = unique_name(session, upload.inspection_id, upload.kind, upload.name)
         uri = runtime.storage.commit(
             upload.received.uri, inspection_id=upload.inspection_id, name=name
         )

@@ -13,6 +13,7 @@ from supervisor.defects.schemas import (
     DefectStatus,
     DefectType,
     DefectUpdate,
+    NoteIn,
     Severity,
 )
 from supervisor.deps import EDIT_ROLES, READ_ROLES, SESSION, CurrentUser, require
@@ -97,6 +98,19 @@ def get_defect(
     defect_id: IdPath, session: Session = SESSION, _: CurrentUser = Depends(readers)
 ) -> DefectOut:
     return service.defects_out(session, [service.get(session, defect_id=defect_id)])[0]
+
+
+@router.post("/defects/{defect_id}/notes", response_model=DefectOut)
+def annotate_defect(
+    defect_id: IdPath,
+    body: NoteIn,
+    session: Session = SESSION,
+    user: CurrentUser = Depends(editors),
+) -> DefectOut:
+    """Add a note to a finding (inspectors and admins): who, what and when are kept with
+    it (`notes`), sent to the headsets with the sync, and in the audit log."""
+    defect = service.annotate(session, defect_id=defect_id, text=body.text, actor=user)
+    return service.defects_out(session, [defect])[0]
 
 
 @router.get("/defects/{defect_id}/history", response_model=DefectHistoryOut)

@@ -41,6 +41,13 @@ class DefectCreate(RequestModel):
     extent_mm: float = Field(0.0, ge=0, le=MAX_MM)
     severity: Severity = "minor"
     confidence: float = Field(1.0, ge=0, le=1)
+    note: str = Field(
+        "", max_length=2000, description="What you saw, kept as the finding's first note."
+    )
+
+
+class NoteIn(RequestModel):
+    text: str = Field(min_length=1, max_length=2000, pattern=r"\S", description="The note.")
 
 
 class DefectUpdate(RequestModel):
@@ -91,6 +98,10 @@ class DefectOut(BaseModel):
         "not find it).",
     )
     ended_run_id: int | None = Field(None, description="The run that ended it.")
+    notes: list[dict] = Field(
+        default_factory=list,
+        description="What people noted about it, oldest first: user_id, username, text, at.",
+    )
     created_at: datetime
     consensus: Consensus | None = None
 

@@ -12,6 +12,7 @@ from supervisor.defects.schemas import DefectCreate, DefectHistoryOut, DefectOut
 from supervisor.inspections.service import ensure_live
 from supervisor.judgments.consensus import consensus_for
 from supervisor.models import Defect, Inspection, JudgmentRevision, Run, User
+from supervisor.models._types import utcnow
 from supervisor.problems import Problem, not_found
 
 READING_KEYS = ("value", "unit", "tolerance")
@@ -112,6 +113,8 @@ def create(session: Session, *, data: DefectCreate, actor: Actor) -> Defect:
         session, finding, inspection_id=data.inspection_id, source="manual", user_id=actor.id
     )
     defect = session.get(Defect, defect_id)
+    if data.note.strip():
+        defect.notes = [_note(actor, data.note)]
     audit(
         session,
         actor,
@@ -119,8 +122,42 @@ def create(session: Session, *, data: DefectCreate, actor: Actor) -> Defect:
         entity="defect",
         entity_id=defect.id,
         inspection_id=defect.inspection_id,
-        after={"type": defect.type, "severity": defect.severity, "status": "open"},
+        after={
+            "type": defect.type,
+            "severity": defect.severity,
+            "status": "open",
+            **({"note": data.note.strip()} if data.note.strip() else {}),
+        },
     )
+    return defect
+
+
+def _note(actor: Actor, text: str) -> dict:
+    return {
+        "user_id": actor.id,
+        "username": actor.username,
+        "text": text.strip(),
+        "at": utcnow().isoformat(timespec="seconds"),
+    }
+
+
+def annotate(session: Session, *, defect_id: int, text: str, actor: Actor) -> Defect:
+    """Add a note to a finding (any: measured or reported by hand): kept with it, synced to
+    the headsets, audited."""
+    defect = get(session, defect_id=defect_id)
+    note = _note(actor, text)
+    defect.notes = [*(defect.notes or []), note]
+    record_update(session, "defect", defect, user_id=actor.id)
+    audit(
+        session,
+        actor,
+        "annotate",
+        entity="defect",
+        entity_id=defect_id,
+        inspection_id=defect.inspection_id,
+        after={"note": note["text"]},
+    )
+    session.flush()
     return defect
 
 

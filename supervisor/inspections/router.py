@@ -2,7 +2,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
 from fastapi.responses import JSONResponse
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from supervisor.db import after_commit
@@ -26,6 +26,7 @@ from supervisor.inspections.schemas import (
     TrashedInspectionOut,
 )
 from supervisor.models import Inspection
+from supervisor.models.inspections import AREA_SUGGESTIONS
 from supervisor.pagination import DEFAULT_LIMIT, Limit, Page, paginate
 from supervisor.requests import JsonGuardRoute
 
@@ -55,6 +56,20 @@ def create_inspection(
     return create_once(
         request, session, user_id=user.id, body_digest=digest_model(body), create=create
     )
+
+
+@router.get("/areas", response_model=list[str])
+def areas(session: Session = SESSION, _: CurrentUser = Depends(readers)) -> list[str]:
+    """What inspections' areas are called: those in use (most used first), then the usual
+    ones — suggestions for a new inspection's free-text `area`."""
+    used = session.execute(
+        select(Inspection.area, func.count())
+        .where(Inspection.deleted_at.is_(None))
+        .group_by(Inspection.area)
+        .order_by(func.count().desc(), Inspection.area)
+    ).all()
+    names = [area for area, _ in used]
+    return names + [a for a in AREA_SUGGESTIONS if a not in names]
 
 
 @router.get("/inspections", response_model=Page[InspectionOut])

@@ -7,10 +7,20 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, computed_field, field_validator
 
 from contract.tolerances import TOLERANCE_MAX_MM, Tolerances, limits_of
-from supervisor.models.inspections import Area, InspectionStatus
+from supervisor.models.inspections import InspectionStatus
 from supervisor.requests import Millimetres, RequestModel, omittable
 
 MatrixRow = Annotated[list[Millimetres], Field(min_length=4, max_length=4)]
+Area = Annotated[
+    str,
+    Field(
+        min_length=1,
+        max_length=64,
+        pattern=r"\S",
+        description="What is inspected, in your words: `cabin`, `cargo`, `wing flap 3`, "
+        "`street drive 0048` (`GET /areas` suggests those in use).",
+    ),
+]
 
 
 def _strictly(value: Any) -> Any:

@@ -67,6 +67,8 @@ class Defect(Base):
     """None while current; else why not (``Ended``)."""
     ended_run_id: Mapped[int | None] = mapped_column(ForeignKey("runs.id", ondelete="SET NULL"))
     """The run whose measurement superseded it or did not find it again."""
+    notes: Mapped[list] = mapped_column(JSONType, default=list)
+    """What people noted about it, oldest first: ``{user_id, username, text, at}``."""
     created_at: Mapped[datetime] = created_at_column()
 
 

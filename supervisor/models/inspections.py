@@ -11,24 +11,22 @@ from sqlalchemy.orm import Mapped, mapped_column
 from supervisor.db import Base
 from supervisor.models._types import JSONType, UTCDateTime, created_at_column, utcnow
 
-Area = Literal["cargo", "cabin", "component"]
+AREA_SUGGESTIONS = ("cabin", "cargo", "component", "wing", "fuselage", "vehicle", "street drive")
+"""What a new inspection's area is often called: suggestions, not a list to pick from."""
 InspectionStatus = Literal["planned", "scanning", "processing", "review", "closed"]
-AREAS: tuple[Area, ...] = get_args(Area)
 INSPECTION_STATUSES: tuple[InspectionStatus, ...] = get_args(InspectionStatus)
 
 
 class Inspection(Base):
     __tablename__ = "inspections"
-    __table_args__ = (
-        CheckConstraint(f"area IN {AREAS}", name="area"),
-        CheckConstraint(f"status IN {INSPECTION_STATUSES}", name="status"),
-    )
+    __table_args__ = (CheckConstraint(f"status IN {INSPECTION_STATUSES}", name="status"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     title: Mapped[str] = mapped_column(String(200))
     aircraft: Mapped[str] = mapped_column(String(100), default="")
     serial: Mapped[str] = mapped_column(String(100), default="")
-    area: Mapped[str] = mapped_column(String(16))
+    area: Mapped[str] = mapped_column(String(64))
+    """Free text: what is inspected (a cabin, a wing's flap, a street drive)."""
     tolerances: Mapped[dict] = mapped_column(JSONType, default=dict)
     tolerance_set: Mapped[dict | None] = mapped_column(JSONType)
     """The named tolerance set last applied: its id, name and version then, and whether a

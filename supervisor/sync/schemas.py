@@ -55,6 +55,11 @@ class SyncDefect(BaseModel):
         "successor, or is refused when it was not found again.",
     )
     ended_run_id: int | None = None
+    notes: list[dict] = Field(
+        default_factory=list,
+        description="What people noted about it (user_id, username, text, at), oldest "
+        "first; absent when there is none.",
+    )
 
 
 class SyncConsensus(Consensus):

@@ -146,6 +146,7 @@ _DEFECT_COLUMNS = (
     Defect.superseded_by_id,
     Defect.ended,
     Defect.ended_run_id,
+    Defect.notes,
 )
 LINEAGE_KEYS = ("lineage_id", "supersedes_id", "superseded_by_id", "ended", "ended_run_id")
 """Sent only for a finding in a line across measurements: absent, each is null (and the
@@ -171,6 +172,8 @@ def _defect_doc(row) -> dict:  # noqa: ANN001 - a result row
     if doc["supersedes_id"] is None and doc["ended"] is None:  # measured once (most)
         for key in LINEAGE_KEYS:
             del doc[key]
+    if not doc["notes"]:  # most have none
+        del doc["notes"]
     measurements = doc.pop("measurements") or {}
     read = reading(doc.pop("value_mm"), doc.pop("tolerance_mm"), measurements)
     return {

@@ -221,6 +221,17 @@ class VistaClient:
             body["new_type"] = new_type
         return self._json("PUT", f"/defects/{defect_id}/judgments/me", json=body)
 
+    def report_defect(
+        self, inspection_id: int, type: str, location_mm: list[float], **fields: Any
+    ) -> dict:
+        """Report a finding by hand: ``severity``, ``value_mm``, ``normal``, ``note``, …"""
+        body = {"inspection_id": inspection_id, "type": type, "location_mm": location_mm}
+        return self._json("POST", "/defects", json={**body, **fields})
+
+    def annotate(self, defect_id: int, text: str) -> dict:
+        """Add a note to a finding; returns the finding."""
+        return self._json("POST", f"/defects/{defect_id}/notes", json={"text": text})
+
     def set_status(self, defect_id: int, status: str, *, reason: str = "") -> dict:
         """Resolve, dismiss (with a ``reason``) or reopen a defect."""
         return self._json(

@@ -53,6 +53,8 @@ export const api = {
   judge: (defectId, body) => request("PUT", `/defects/${defectId}/judgments/me`, { body }),
   judgments: (defectId) => request("GET", `/defects/${defectId}/judgments`),
   defectHistory: (defectId) => request("GET", `/defects/${defectId}/history`),
+  reportDefect: (body) => request("POST", "/defects", { body }),
+  annotate: (defectId, text) => request("POST", `/defects/${defectId}/notes`, { body: { text } }),
   feedback: (id) => request("GET", "/feedback", { params: { inspection: id } }),
   jobView: (jobId) => request("GET", `/jobs/${jobId}/view`),
   jobScene: async (jobId, points) => (await request("GET", `/jobs/${jobId}/scene.glb`, { raw: true, params: { points } })).arrayBuffer(),
@@ -68,6 +70,7 @@ export const api = {
     setTimeout(() => URL.revokeObjectURL(url), 10_000);
   },
   createInspection: (body) => request("POST", "/inspections", { body }),
+  areas: () => request("GET", "/areas"),
   updateInspection: (id, body) => request("PATCH", `/inspections/${id}`, { body }),
   toleranceSchema: () => request("GET", "/tolerances/schema"),
   toleranceSets: () => request("GET", "/tolerance-sets", { params: { limit: 500 } }),

@@ -40,6 +40,7 @@ const state = {
   sceneFacts: { markers: 0, panels: 0, seams: 0 }, // what the scene on show holds
   sceneRuns: [], // the measured runs, newest first: each has a scene of its own
   warnings: [], // the sync's: succeeded jobs that could not do all they were asked
+  jobScenes: [], // the sync's: finished jobs with a 3D view of their own (perception runs)
   scenePick: null, // the run picked (null: the newest measured run)
   sceneEtag: null, // the scene's version in the last sync page: a new one reloads it
   stopJob: null, // ends the live updates of the job page on show
@@ -218,6 +219,7 @@ function resetInspection() {
   state.sceneFacts = { markers: 0, panels: 0, seams: 0 };
   state.sceneRuns = [];
   state.warnings = [];
+  state.jobScenes = [];
   state.scenePick = null;
   state.sceneEtag = null;
   $("#detail").hidden = true;
@@ -246,6 +248,7 @@ function fold(page) {
   }
   for (const consensus of page.consensus) state.consensus.set(consensus.defect_id, consensus);
   state.warnings = page.warnings || [];
+  state.jobScenes = page.job_scenes || [];
   state.cursor = page.next_cursor;
   return page;
 }
@@ -338,10 +341,11 @@ async function live() {
       state.sceneEtag = page.scene_etag;
       const newest = state.sceneRuns[0]?.job_id;
       await loadSceneRuns(state.inspection.id);
-      // a new measurement, or a first cloud, is drawn at once (a judgment is not redrawn)
+      // the ETag follows the geometry only (a measurement, a cloud, a finding added by
+      // hand, markers moved; not a judgment): the scene on show is drawn again
       const measured = state.sceneRuns[0]?.job_id !== newest;
-      if (state.scenePick === null && (measured || !state.sceneFacts.points)) {
-        loadScene(state.inspection.id, api.scene(state.inspection.id, PREVIEW_POINTS));
+      if (state.scenePick === null || measured) {
+        loadScene(state.inspection.id, api.scene(state.inspection.id, PREVIEW_POINTS, state.scenePick ?? undefined));
       }
     }
   } catch { /* offline for a moment: the next poll catches up */ }
@@ -352,6 +356,7 @@ async function live() {
 for (const type of TYPES) {
   $("#filter-type").append(el("option", { value: type }, type));
   $("#new-type").append(el("option", { value: type }, type));
+  $("#new-finding-type").append(el("option", { value: type }, type));
 }
 for (const id of ["#filter-type", "#filter-status", "#filter-severity", "#filter-consensus"]) {
   $(id).addEventListener("change", renderList);
@@ -446,8 +451,16 @@ function renderList() {
   const history = rows.length - current;
   const earlier = history ? ` (+ ${history} it found that later runs ended)` : "";
   $("#defect-count").textContent = `${current} of ${state.defects.size} findings${earlier}${ofRun}`;
-  $("#defects-empty").hidden = state.defects.size > 0;
+  const perception = perceptionOnly();
+  $("#defects-empty").hidden = state.defects.size > 0 || perception;
+  $("#perception-note").hidden = !perception;
   renderLegend();
+}
+
+// An inspection of perception runs only (depth, odometry, tracking): no part measured, no
+// finding; the page does not ask for a measurement.
+function perceptionOnly() {
+  return state.defects.size === 0 && state.sceneRuns.length === 0 && state.jobScenes.length > 0;
 }
 
 // The scene's legend: the colour of every type on show, and of the lines.
@@ -503,7 +516,10 @@ function seamOf(defectId) {
 function resetJudgeForm(defectId) {
   const mine = state.judgments.get(defectId)?.get(state.me?.id);
   $("#comment").value = mine?.comment || "";
-  $("#new-type").value = mine?.new_type || findingOf(defectId).type;
+  // "Reclassify as" offers the other types: the finding's own is no reclassification
+  const own = findingOf(defectId).type;
+  for (const option of $("#new-type").options) option.disabled = option.value === own;
+  $("#new-type").value = mine?.new_type || TYPES.find((t) => t !== own);
   $("#judge-error").textContent = "";
 }
 
@@ -568,6 +584,7 @@ function renderDetail() {
   }
   const canJudge = canEdit(state.me) && !defect.ended; // an ended finding is history
   for (const button of document.querySelectorAll(".verdicts button")) button.disabled = !canJudge;
+  renderNotes(defect);
   renderLineage(defect);
 }
 
@@ -641,6 +658,75 @@ for (const button of document.querySelectorAll(".verdicts button")) {
   });
 }
 
+// ---- findings by hand and notes -------------------------------------------------------------
+
+// "Add a finding": the next click on the part places it (a point of the cloud), then the
+// form asks what it is.
+function setPlacing(on) {
+  const button = $("#add-finding");
+  button.setAttribute("aria-pressed", String(on));
+  button.textContent = on ? "Click a point of the part (Esc: cancel)" : "Add a finding";
+  if (state.scene) state.scene.placing = on ? placeFinding : null;
+}
+
+function placeFinding(pointMm, normal) {
+  setPlacing(false);
+  state.newFinding = { location_mm: pointMm, normal };
+  $("#new-finding-where").textContent = `at ${pointMm.map((c) => number(c, 1)).join(", ")} mm (base frame), facing the view`;
+  $("#new-finding-error").textContent = "";
+  $("#new-finding").hidden = false;
+  $("#new-finding-type").focus();
+}
+
+$("#add-finding").addEventListener("click", () => setPlacing($("#add-finding").getAttribute("aria-pressed") !== "true"));
+document.addEventListener("keydown", (event) => { if (event.key === "Escape") setPlacing(false); });
+$("#new-finding-cancel").addEventListener("click", () => { $("#new-finding").hidden = true; });
+$("#new-finding").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const value = $("#new-finding-value").value.trim();
+  const note = $("#new-finding-note").value.trim();
+  const body = {
+    inspection_id: state.inspection.id, type: $("#new-finding-type").value, severity: $("#new-finding-severity").value,
+    ...state.newFinding, ...(value ? { value_mm: Number(value) } : {}), ...(note ? { note } : {}),
+  };
+  try {
+    const made = await guarded(() => api.reportDefect(body));
+    if (!made) return;
+    $("#new-finding").hidden = true;
+    event.target.reset();
+    await pull();
+    renderList();
+    location.hash = `#/inspections/${state.inspection.id}/defects/${made.id}`;
+  } catch (error) {
+    $("#new-finding-error").textContent = error.message;
+  }
+});
+
+function renderNotes(defect) {
+  const notes = defect.notes || [];
+  $("#notes").replaceChildren(...notes.map((n) => el(
+    "li", {}, el("b", {}, n.username || "someone removed"), ` ${n.text} `, el("span", { class: "muted" }, new Date(n.at).toLocaleString()),
+  )));
+  $("#notes-box").hidden = !notes.length && !canEdit(state.me);
+}
+
+$("#note-form").addEventListener("submit", async (event) => {
+  event.preventDefault();
+  const id = state.selected;
+  const text = $("#note-text").value.trim();
+  if (!text) return;
+  $("#note-error").textContent = "";
+  try {
+    const defect = await guarded(() => api.annotate(id, text));
+    if (!defect) return;
+    $("#note-text").value = "";
+    await pull();
+    if (id === state.selected) renderDetail();
+  } catch (error) {
+    $("#note-error").textContent = error.message;
+  }
+});
+
 // ---- scene --------------------------------------------------------------------------------
 
 async function loadScene(id, preview) {
@@ -650,7 +736,9 @@ async function loadScene(id, preview) {
   const hint = "drag to orbit, click a marker to select it";
   // The measured panels are outlined and labelled P0, P1, …: the ids findings refer to.
   const panels = (n) => (n === 1 ? "1 panel (P0)" : `${n} panels (P0…)`);
-  const shown = (scene) => `${scene.markers} markers · ${scene.panels ? panels(scene.panels) : "no measured panels"}`;
+  const shown = (scene) => (perceptionOnly() && !scene.points
+    ? "no part measured here: each perception run's 3D view is on its page (Runs tab)"
+    : `${scene.markers} markers · ${scene.panels ? panels(scene.panels) : "no measured panels"}`);
   try {
     const first = await showScene(id, preview, { frame: true, mark: "vista:scene-drawn" });
     if (!first) return;
@@ -658,7 +746,10 @@ async function loadScene(id, preview) {
     renderLegend();
     const chosen = state.defects.get(state.selected);
     if (chosen && !ofShownRun(chosen, shownRun())) deselect(); // another run's finding
-    if (!first.points) {
+    if (!first.points && perceptionOnly()) {
+      $("#scene-empty").textContent = "This inspection holds perception runs (depth, odometry, tracking): no part to draw here. Each run's page (Runs tab, click a job) shows its results in 3D.";
+      $("#scene-empty").hidden = false;
+    } else if (!first.points) {
       $("#scene-empty").textContent = "No point cloud in this inspection yet. Upload one as an artifact of kind \"cloud\", or run calibrate → stitch → measure on the scans (see the Runs tab); the measured panels, seams and defects are drawn on it.";
       $("#scene-empty").hidden = false;
     }

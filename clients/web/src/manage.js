@@ -6,6 +6,8 @@ import { api, uploadArtifact } from "./api.js";
 import { el, sizeText } from "./dom.js";
 
 const $ = (selector) => document.querySelector(selector);
+// Suggestions only: an inspection's area is free text (the API's own list, GET /areas,
+// adds the areas earlier inspections used).
 const AREAS = ["cabin", "cargo", "component"];
 const UNITS = [["", "the format's own"], ["mm", "mm"], ["cm", "cm"], ["m", "m"], ["in", "in"], ["ft", "ft"]];
 export const FINISHED = ["succeeded", "failed", "cancelled"];
@@ -15,7 +17,11 @@ export const canEdit = (me) => ["admin", "inspector"].includes(me?.role);
 // ---- a new inspection ---------------------------------------------------------------------
 
 export function setUpNewInspection() {
-  $("#new-inspection-area").replaceChildren(...AREAS.map((a) => el("option", { value: a }, a)));
+  const suggest = (areas) => $("#area-suggestions").replaceChildren(...areas.map((a) => el("option", { value: a })));
+  suggest(AREAS);
+  $("#new-inspection-area").addEventListener("focus", () => {
+    api.areas().then(suggest).catch(() => {}); // signed out: the built-in suggestions stay
+  });
   $("#new-inspection-form").addEventListener("submit", async (event) => {
     event.preventDefault();
     const form = new FormData(event.target);
@@ -267,7 +273,12 @@ function paramField(name, property, schema) {
   if (own.type === "string") {
     return label(el("input", { type: "text", placeholder: property.default ?? "", ...data }));
   }
-  // objects and lists: JSON, as the API takes them
+  // a list of numbers: the numbers as its description gives them, spaces or commas between
+  if (own.type === "array" && ["number", "integer"].includes(resolved(own.items || {}, schema).type)) {
+    const size = own.minItems === own.maxItems && own.minItems ? `${own.minItems} numbers` : "numbers";
+    return label(el("input", { type: "text", placeholder: `${size}, spaces between`, "data-numbers": "1", ...data }));
+  }
+  // objects and other lists: JSON, as the API takes them
   return label(el("textarea", { rows: "2", placeholder: property.default === undefined ? "JSON" : JSON.stringify(property.default), "data-json": "1", ...data }));
 }
 
@@ -278,6 +289,13 @@ function readParams(schema) {
     const property = schema.properties[name];
     if (node.type === "checkbox") {
       if (node.checked !== Boolean(property.default)) params[name] = node.checked;
+    } else if (node.dataset.numbers) {
+      const text = node.value.trim().replace(/^\[|\]$/g, "");
+      if (text) {
+        const numbers = text.split(/[\s,]+/).map(Number);
+        if (numbers.some((n) => !Number.isFinite(n))) throw new Error(`${name}: numbers separated by spaces (e.g. 1.5 1.6 3.9 2.1 1.7 8.4 -1.56)`);
+        params[name] = numbers;
+      }
     } else if (node.dataset.json) {
       if (node.value.trim()) {
         try { params[name] = JSON.parse(node.value); } catch { throw new Error(`${name}: not valid JSON`); }

@@ -126,7 +126,9 @@ export class SceneView {
     this.flight = null;
     this.root = null;
     this.unmeasured = []; // seam lines a measurement could not measure: why, on hover
-    canvas.addEventListener("click", (event) => this.pick(event));
+    this.clouds = [];
+    this.placing = null; // (base-frame point mm, normal) → void while a click places a finding
+    canvas.addEventListener("click", (event) => (this.placing ? this.place(event) : this.pick(event)));
     canvas.addEventListener("pointermove", (event) => this.hover(event));
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
@@ -295,6 +297,29 @@ export class SceneView {
       if (Math.hypot(x - cx, y - cy) <= radius + PICK_SLACK_PX && (!best || radius < best.radius)) best = { id, radius };
     }
     if (best) this.onPick(best.id);
+  }
+
+  // The cloud's point under a click (the nearest to the eye among those within a few pixels
+  // of the ray), in the base frame (mm), with the direction back to the eye as its normal:
+  // where a finding placed by hand lies.
+  place(event) {
+    const rect = this.canvas.getBoundingClientRect();
+    const ndc = new THREE.Vector2(((event.clientX - rect.left) / rect.width) * 2 - 1, -((event.clientY - rect.top) / rect.height) * 2 + 1);
+    const raycaster = new THREE.Raycaster();
+    raycaster.setFromCamera(ndc, this.camera);
+    const distance = this.camera.position.distanceTo(this.controls.target);
+    const halfView = Math.tan(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    raycaster.params.Points.threshold = (PICK_SLACK_PX * 2 * distance * halfView) / rect.height;
+    const hits = raycaster.intersectObjects(this.clouds.map((c) => c.node), false);
+    if (!hits.length) return;
+    const hit = hits[0]; // its `point` lies on the ray: the cloud's own point is its vertex
+    const p = new THREE.Vector3().fromBufferAttribute(hit.object.geometry.attributes.position, hit.index).applyMatrix4(hit.object.matrixWorld);
+    const back = raycaster.ray.direction.clone().negate();
+    const pointMm = [p.x * 1000, -p.z * 1000, p.y * 1000]; // glTF (m, +Y up) → base (mm, +Z up)
+    const normal = [back.x, -back.z, back.y];
+    const done = this.placing;
+    this.placing = null;
+    done(pointMm, normal);
   }
 
   toScreen(point, rect) {

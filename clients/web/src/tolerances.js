@@ -68,10 +68,12 @@ export class ToleranceForm {
 
   async loadSets() {
     const sets = (await api.toleranceSets()).items;
+    const chosen = $("#tolerance-sets").value; // a choice made meanwhile stays
     $("#tolerance-sets").replaceChildren(
       el("option", { value: "" }, sets.length ? "choose a set" : "no sets yet"),
       ...sets.map((s) => el("option", { value: String(s.id) }, `${s.name} (version ${s.version})`)),
     );
+    if (sets.some((s) => String(s.id) === chosen)) $("#tolerance-sets").value = chosen;
   }
 
   // Only what changed: a new value, or null where a limit of its own was emptied.

@@ -127,6 +127,8 @@ namespace Vista.Client
         public long? LineageId;
         /// <summary>The run that ended it, or null.</summary>
         public long? EndedRunId;
+        /// <summary>What people noted about it, oldest first (empty: none).</summary>
+        public List<DefectNote> Notes = new List<DefectNote>();
 
         /// <summary>Reads a defect of the sync.</summary>
         public static Defect FromJson(IDictionary<string, object> json)
@@ -155,6 +157,7 @@ namespace Vista.Client
                 SupersedesId = json.GetNullableInt64("supersedes_id"),
                 LineageId = json.GetNullableInt64("lineage_id"),
                 EndedRunId = json.GetNullableInt64("ended_run_id"),
+                Notes = json.GetObjects("notes").Select(DefectNote.FromJson).ToList(),
             };
         }
 
@@ -170,7 +173,31 @@ namespace Vista.Client
                 { "confidence", Confidence }, { "source", Source }, { "measurements", Measurements },
                 { "created_at", CreatedAt }, { "ended", Ended }, { "superseded_by_id", SupersededById },
                 { "supersedes_id", SupersedesId }, { "lineage_id", LineageId }, { "ended_run_id", EndedRunId },
+                { "notes", Notes.Select(n => (object)n.ToJson()).ToList() },
             };
+        }
+    }
+
+    /// <summary>A note someone added to a finding (a finding reported by hand, or any other).</summary>
+    public sealed class DefectNote
+    {
+        /// <summary>Who wrote it (null: a user since removed).</summary>
+        public string Username;
+        /// <summary>What they wrote.</summary>
+        public string Text;
+        /// <summary>When, ISO 8601.</summary>
+        public string At;
+
+        /// <summary>Reads one note of a defect.</summary>
+        public static DefectNote FromJson(IDictionary<string, object> json)
+        {
+            return new DefectNote { Username = json.GetString("username"), Text = json.GetString("text") ?? "", At = json.GetString("at") };
+        }
+
+        /// <summary>The same fields, as the API writes them.</summary>
+        public Dictionary<string, object> ToJson()
+        {
+            return new Dictionary<string, object> { { "username", Username }, { "text", Text }, { "at", At } };
         }
     }
 
