@@ -17,7 +17,11 @@ from supervisor.settings import get_settings, secure_data_dir
 from supervisor.users import cli as users_cli
 
 app = typer.Typer(
-    help="vista: 3D inspection — supervisor, job workers, benchmarks.",
+    help="vista: 3D inspection and perception — supervisor, job workers, services, "
+    "benchmarks. 'The thesis' in this help is the Ph.D. dissertation vista's methods come "
+    "from, 'Reconstruction and Analysis of 3D Models for Autonomous Vehicles and "
+    "Manufacturing Industry' (Department of Electrical and Information Engineering, 2022); "
+    "'thesis 5.1' is its section 5.1, 'Table 6.1' its table.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )

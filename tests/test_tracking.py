@@ -497,7 +497,7 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
         (["--init-box", "1 2 3"], "give seven numbers"),
         (
             ["--track-id", "0", "--init-box", " ".join(map(str, given))],
-            "either by track_id (--track-id)",
+            "either by track_id (a labelled track)",
         ),
         (["--track-id", "0", "--reset", "every:0"], "every:N (N a whole number from 1)"),
         (["--track-id", "0", "--tracker", "siamese"], "needs its encoder"),

@@ -212,3 +212,40 @@ def test_the_defaults_track_the_real_drives_cars(tmp_path: Path) -> None:
     scores = json.loads(evaluated.read_text())
     assert scores["ope"]["frames"] == 47 and all(r["unlabelled_frames"] > 0 for r in scores["runs"])
     assert scores["ope"]["success"] >= 70 and scores["ope"]["precision"] >= 85, scores["ope"]
+
+
+def _tar(folder: Path, out: Path, names: list[str]) -> Path:
+    """``names`` (files or folders) of ``folder`` as a plain tar under a top folder."""
+    import tarfile
+
+    with tarfile.open(out, "w") as tar:
+        for name in names:
+            tar.add(folder / name, arcname=f"{folder.name}/{name}")
+    return out
+
+
+def test_a_labelled_raw_drive_uploaded_as_a_lidar_archive_keeps_its_labels(tmp_path) -> None:
+    """Drive 0048 packed with its per-frame label_2/ (as the CLI reads the folder): the
+    archive's labels are linked into the same tracks the CLI finds; a drive with vista's
+    calib.json (0052's layout) is taken too."""
+    from services.tracking.lidar_archive import extract_lidar, inspect_lidar
+    from services.tracking.sequence import open_sequence
+
+    packed = _tar(REAL_LABELLED_DRIVE, tmp_path / "0048.tar", ["velodyne", "label_2", "calib.txt"])
+    found = inspect_lidar(packed)
+    cli = open_sequence(REAL_LABELLED_DRIVE)
+    assert found.frames == len(cli.frames) and found.labels == len(cli.labels)
+    assert found.tracks == len(np.unique(cli.labels.track_id[cli.labels.track_id >= 0]))
+    assert found.tracks > 0
+    extract_lidar(packed, tmp_path / "unpacked")
+    unpacked = open_sequence(tmp_path / "unpacked")
+    assert np.array_equal(unpacked.labels.track_id, cli.labels.track_id)
+
+    drive = REAL_LABELLED_DRIVE.parent / "kitti-raw-2011_09_26"
+    small = tmp_path / "0052"
+    (small / "velodyne").mkdir(parents=True)
+    for scan in sorted((drive / "velodyne").glob("*.bin"))[:2]:
+        (small / "velodyne" / scan.name).write_bytes(scan.read_bytes())
+    (small / "calib.json").write_text((drive / "calib.json").read_text())
+    with_json = inspect_lidar(_tar(small, tmp_path / "0052.tar", ["velodyne", "calib.json"]))
+    assert (with_json.frames, with_json.labels) == (2, 0)

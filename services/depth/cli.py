@@ -458,5 +458,6 @@ def bench_depth(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
+    simulate_app.command("depth")(simulate)
     app.add_typer(depth_app, name="depth")
     bench_app.command("depth")(bench_depth)

@@ -220,6 +220,11 @@ def predict_job(ctx: JobContext) -> dict:
                 camera=camera,
                 clouds=ctx.params.clouds,
                 progress=lambda f, m, n=number: ctx.progress(0.05 + 0.9 * (n + f) / len(groups), m),
+                shown=(
+                    (lambda p, a=artifact: f"{a.name} {p.name}")
+                    if drive
+                    else (lambda p: p.name.split("-", 1)[1])  # staged as <artifact id>-<name>
+                ),
             )
             for item, source in zip(done, paths, strict=True):
                 stem = (

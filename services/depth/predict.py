@@ -12,6 +12,7 @@ when asked, a point cloud.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -171,9 +172,11 @@ def predict_folder(
     camera: PinholeCamera | None = None,
     clouds: bool = False,
     progress: Progress | None = None,
+    shown: Callable[[Path], str] = lambda path: path.name,
 ) -> list[PredictedImage]:
     """Predict every image of ``images`` into ``out_dir`` (module docstring); clouds need
-    the ``camera`` (its K is scaled to each image's size)."""
+    the ``camera`` (its K is scaled to each image's size). ``shown``: an image as the
+    progress messages name it (its file name; a job gives the name the user uploaded)."""
     import cv2
 
     from services.depth.data import nominal_K
@@ -211,5 +214,8 @@ def predict_folder(
                 float(np.median(depth)),
             )
         )
-        say((k + 1) / len(images), f"{name}: {seconds * 1000:.0f} ms")
+        say(
+            (k + 1) / len(images),
+            f"image {k + 1}/{len(images)}, {shown(path)}: {seconds * 1000:.0f} ms",
+        )
     return done

@@ -188,13 +188,23 @@ def _calibration(values: dict[str, np.ndarray], path: Path | str) -> Calibration
 
 def _read_calibration_json(path: Path) -> Calibration:
     try:
-        document = json.loads(path.read_text())
+        text = path.read_text()
+    except OSError as exc:
+        raise KittiError(f"{path}: {exc}") from None
+    return parse_calibration_json(text, path)
+
+
+def parse_calibration_json(text: str, name: Path | str) -> Calibration:
+    """vista's shared ``calib.json`` (``P_rect_02``, ``R_rect_00``, ``cam0_T_velo``);
+    ``name`` for the errors."""
+    try:
+        document = json.loads(text)
         P2 = np.array(document["P_rect_02"], dtype=np.float64).reshape(3, 4)
         R0 = np.array(document["R_rect_00"], dtype=np.float64).reshape(3, 3)
         velo = np.array(document["cam0_T_velo"], dtype=np.float64).reshape(4, 4)
-    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
         raise KittiError(
-            f"{path}: not a calibration JSON with P_rect_02, R_rect_00 and cam0_T_velo ({exc})"
+            f"{name}: not a calibration JSON with P_rect_02, R_rect_00 and cam0_T_velo ({exc})"
         ) from None
     return Calibration(P2=P2, R0_rect=R0, Tr_velo_to_cam=velo)
 

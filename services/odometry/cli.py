@@ -268,5 +268,6 @@ def bench_odometry(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
+    simulate_app.command("odometry")(simulate)
     app.add_typer(odometry_app, name="odometry")
     bench_app.command("odometry")(bench_odometry)

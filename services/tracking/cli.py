@@ -451,6 +451,7 @@ def bench_tracking(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
+    simulate_app.command("tracking")(simulate)
     app.add_typer(track_app, name="tracking")
     app.add_typer(
         track_app,

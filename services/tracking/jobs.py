@@ -117,7 +117,7 @@ def track_job(ctx: JobContext) -> dict:
         "resets": sum(f["reset"] for f in frames),
         "fps": document["fps"],
     }
-    if (folder / "label_02.txt").exists():
+    if (folder / "label_02.txt").exists() or (folder / "label_2").is_dir():
         try:
             evaluation = evaluate_runs(folder, [("track.json", document)]).document()
         except ValueError as exc:

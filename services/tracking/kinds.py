@@ -77,7 +77,7 @@ class TrackParams(BaseModel):
     def _one_target(self) -> "TrackParams":
         if (self.track_id is None) == (self.init_box is None):
             raise ValueError(
-                "give the target either by track_id (--track-id) or by init_box (--init-box), "
+                "give the target either by track_id (a labelled track) or by init_box (its box), "
                 "one of them"
             )
         if self.init_box is not None and min(self.init_box[:3]) <= 0:

@@ -1,7 +1,9 @@
 """A LiDAR sequence in one file: a zip or tar (plain, gzip, bzip2 or xz) of a sequence folder
-as ``vista tracking simulate`` writes it — ``velodyne/NNNNNN.bin`` and ``calib.txt`` (a KITTI
-tracking or object calib file), and as known ``label_02.txt`` and ``poses.txt`` — under any
-one top folder of the archive.
+as the tracking CLI reads it — ``velodyne/NNNNNN.bin`` and ``calib.txt`` (a KITTI tracking or
+object calib file) or vista's ``calib.json``, and as known the labels (``label_02.txt``, or
+a labelled raw drive's per-frame ``label_2/NNNNNNNNNN.txt``, linked into tracks by exact
+type and size as ``sequence.link_object_labels`` does) and ``poses.txt`` — under any one
+top folder of the archive.
 
 Checked before anything is kept: the scans' names (digits, ``.bin``) and sizes (whole
 16-byte points, at most ``MAX_SCAN_BYTES`` each), the calibration, the labels and the poses
@@ -30,11 +32,16 @@ from services.lib.archive import (
 )
 from services.lib.formats import checked
 
-HINT = "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt poses.txt`"
+HINT = (
+    "pack a sequence folder with `tar czf seq.tar.gz -C SEQ velodyne calib.txt label_02.txt "
+    "poses.txt` (or calib.json, label_2/)"
+)
 MAX_SCAN_BYTES = 64 << 20
 MAX_TEXT_BYTES = 256 << 20
 SCAN = re.compile(r"^\d{1,10}\.bin$")
-TEXT_FILES = ("calib.txt", "label_02.txt", "poses.txt")
+LABEL_FILE = re.compile(r"^\d{1,10}\.txt$")
+TEXT_FILES = ("calib.txt", "calib.json", "label_02.txt", "poses.txt")
+CALIBRATIONS = ("calib.txt", "calib.json")
 
 
 @dataclass(frozen=True)
@@ -43,7 +50,7 @@ class LidarArchive:
     scans: dict[str, str]
     """Member name → ``velodyne/NNNNNN.bin``."""
     texts: dict[str, str]
-    """Member name → calib.txt, label_02.txt or poses.txt."""
+    """Member name → calib.txt or calib.json, label_02.txt or label_2/NNNN.txt, poses.txt."""
     frames: int
     labels: int
     """Label lines (0: none)."""
@@ -88,14 +95,23 @@ def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
             scans[member.name] = f"velodyne/{int(inside.stem):06d}.bin"
         elif len(inside.parts) == 1 and inside.name in TEXT_FILES:
             texts[member.name] = inside.name
+        elif inside.parts[:1] == ("label_2",) and len(inside.parts) == 2:
+            if not LABEL_FILE.match(inside.name):
+                raise ArchiveError(
+                    f"{member.name}: a frame's labels are named by its number (0000000042.txt)"
+                )
+            texts[member.name] = f"label_2/{int(inside.stem):010d}.txt"
     if not scans:
         raise ArchiveError("velodyne/ holds no scans (NNNNNN.bin)")
     if len(set(scans.values())) != len(scans):
         raise ArchiveError("two scans have the same frame number")
-    if "calib.txt" not in texts.values():
+    if not set(CALIBRATIONS) & set(texts.values()):
         raise ArchiveError(
-            "no calib.txt beside velodyne/ (KITTI's calibration: P2, R_rect, Tr_velo_cam)"
+            "no calib.txt (KITTI's calibration: P2, R_rect, Tr_velo_cam) nor calib.json "
+            "(P_rect_02, R_rect_00, cam0_T_velo) beside velodyne/"
         )
+    if "label_02.txt" in texts.values() and any(t.startswith("label_2/") for t in texts.values()):
+        raise ArchiveError("both label_02.txt and label_2/: give the labels one way")
     parsed = {}
     for member, text in read_in_order(form, archive, members, dict.fromkeys(texts, MAX_TEXT_BYTES)):
         try:
@@ -103,12 +119,11 @@ def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
         except UnicodeDecodeError:
             raise ArchiveError(f"{member.name} is not text") from None
     try:
-        kitti.parse_calibration(parsed["calib.txt"], "calib.txt")
-        labels = (
-            kitti.parse_labels(parsed["label_02.txt"], "label_02.txt", tracking=True)
-            if "label_02.txt" in parsed
-            else None
-        )
+        if "calib.txt" in parsed:
+            kitti.parse_calibration(parsed["calib.txt"], "calib.txt")
+        else:
+            kitti.parse_calibration_json(parsed["calib.json"], "calib.json")
+        labels = _labels(parsed)
         poses = (
             kitti.parse_poses(parsed["poses.txt"], "poses.txt") if "poses.txt" in parsed else None
         )
@@ -122,8 +137,27 @@ def _plan(form: str, members: list[Member], archive: object) -> LidarArchive:
         texts,
         frames=len(scans),
         labels=len(labels) if labels is not None else 0,
-        tracks=len(np.unique(labels.track_id)) if labels is not None else 0,
+        tracks=len(np.unique(labels.track_id[labels.track_id >= 0])) if labels is not None else 0,
         poses=poses is not None,
+    )
+
+
+def _labels(parsed: dict[str, str]) -> kitti.Labels | None:
+    """The sequence's labels: label_02.txt's, or label_2/'s frames linked into tracks."""
+    from services.tracking.sequence import link_object_labels
+
+    if "label_02.txt" in parsed:
+        return kitti.parse_labels(parsed["label_02.txt"], "label_02.txt", tracking=True)
+    frames = sorted(name for name in parsed if name.startswith("label_2/"))
+    if not frames:
+        return None
+    return link_object_labels(
+        [
+            kitti.parse_labels(parsed[name], name, tracking=False).with_frame(
+                int(PurePosixPath(name).stem)
+            )
+            for name in frames
+        ]
     )
 
 
@@ -140,6 +174,8 @@ def extract_lidar(path: Path, out_dir: Path) -> LidarArchive:
         plan = _plan(form, members, archive)
         targets = {**plan.scans, **plan.texts}
         (out_dir / "velodyne").mkdir(parents=True, exist_ok=True)
+        if any(t.startswith("label_2/") for t in plan.texts.values()):
+            (out_dir / "label_2").mkdir(exist_ok=True)
         for member in members:
             target = targets.get(member.name)
             if target is not None:

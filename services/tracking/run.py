@@ -93,11 +93,12 @@ def find_target(
     frames, or a box (KITTI camera frame) given in ``start_frame`` (default the first) up
     to ``end_frame`` (default the last)."""
     if (track_id is None) == (init_box is None):
-        raise ValueError("give the target either by --track-id (a labelled track) or by --init-box")
+        raise ValueError("give the target either by track_id (a labelled track) or by init_box")
     if track_id is not None:
         if sequence.labels is None:
             raise ValueError(
-                f"{sequence.folder}: no labels (label_02.txt), so no --track-id; give --init-box"
+                f"{sequence.folder}: no labels (label_02.txt or label_2/), so there is no track "
+                "to follow by track_id: give the car's box as init_box"
             )
         runs = [
             t

@@ -144,17 +144,21 @@ def _label_step(labels: kitti.Labels | None) -> int:
 
 
 def linked_object_labels(folder: Path) -> kitti.Labels:
-    """Object-format label files ``NNNN.txt`` of one drive's frames as tracking labels: the
-    frame from the file name, one track id per object — the rows of one type and exact
-    ``h w l`` (KITTI's annotators keep an object's size), and where two alike share a frame,
-    each linked to the nearer of the previous frame's. DontCare rows keep track id −1."""
+    """Object-format label files ``NNNN.txt`` of one drive's frames as tracking labels (see
+    ``link_object_labels``)."""
     files = sorted(p for p in Path(folder).glob("*.txt") if p.stem.isdigit())
     if not files:
         raise ValueError(f"{folder}: no label files (NNNNNNNNNN.txt, KITTI object format)")
-    parts = []
-    for path in files:
-        rows = kitti.read_object_labels(path)
-        parts.append(rows.with_frame(int(path.stem)))
+    return link_object_labels(
+        [kitti.read_object_labels(path).with_frame(int(path.stem)) for path in files]
+    )
+
+
+def link_object_labels(parts: list[kitti.Labels]) -> kitti.Labels:
+    """One drive's object-format labels, a part per frame (its frame set), as tracking
+    labels: one track id per object — the rows of one type and exact ``h w l`` (KITTI's
+    annotators keep an object's size), and where two alike share a frame, each linked to
+    the nearer of the previous frame's. DontCare rows keep track id −1."""
     labels = kitti.concatenate_labels(parts)
     track = np.full(len(labels), -1)
     objects = np.flatnonzero(np.asarray(labels.type, dtype=object) != kitti.DONT_CARE)
