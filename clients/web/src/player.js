@@ -5,9 +5,33 @@ import * as THREE from "three";
 import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
 import { el } from "./dom.js";
-import { fitCanvas } from "./scene.js";
+import { fitCanvas, roundLength } from "./scene.js";
 
 const POINT_PX = 2;
+const GRID_CELLS = 10; // the ground grid's cells across the scene's longer side
+
+// A text label drawn in the scene, `heightM` tall, always facing the viewer.
+function label(text, colour, heightM) {
+  const canvas = document.createElement("canvas");
+  const context = canvas.getContext("2d");
+  context.font = "bold 36px sans-serif";
+  canvas.width = Math.ceil(context.measureText(text).width) + 16;
+  canvas.height = 48;
+  context.font = "bold 36px sans-serif";
+  context.fillStyle = "rgba(15, 23, 34, 0.7)";
+  context.fillRect(0, 0, canvas.width, canvas.height);
+  context.fillStyle = colour;
+  context.textBaseline = "middle";
+  context.fillText(text, 8, 26);
+  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false }));
+  sprite.scale.set((heightM * canvas.width) / canvas.height, heightM, 1);
+  sprite.renderOrder = 30;
+  return sprite;
+}
+
+function hex(colour) {
+  return `#${colour.getHexString()}`;
+}
 
 export class JobPlayer {
   constructor(host) {
@@ -25,7 +49,15 @@ export class JobPlayer {
       this.slider, this.frameLabel, this.rate,
     );
     this.controlsBar.hidden = true; // until a scene with frames is loaded
-    host.append(el("div", { class: "player-box" }, this.canvas), this.controlsBar);
+    this.legend = el("ul", { class: "legend player-legend", "aria-label": "legend" });
+    this.scaleNote = el("span", { class: "muted", id: "player-scale" }, "");
+    this.picker = el("select", { id: "player-pick", "aria-label": "which one is shown", hidden: "" });
+    this.picker.addEventListener("change", () => this.pick(this.picker.value));
+    host.append(
+      el("div", { class: "player-tools" }, this.picker, this.scaleNote),
+      el("div", { class: "player-box" }, this.canvas, el("details", { class: "legend-box", open: "" }, el("summary", {}, "legend"), this.legend)),
+      this.controlsBar,
+    );
     this.renderer = new THREE.WebGLRenderer({ canvas: this.canvas, antialias: false });
     this.renderer.setPixelRatio(Math.min(devicePixelRatio, 2));
     this.scene = new THREE.Scene();
@@ -39,6 +71,7 @@ export class JobPlayer {
     this.frame = 0;
     this.playing = false;
     this.drawn = [];
+    this.pickable = [];
     new ResizeObserver(() => this.resize()).observe(this.canvas);
     this.resize();
     this.renderer.setAnimationLoop((time) => this.tick(time));
@@ -66,6 +99,10 @@ export class JobPlayer {
     }
     this.slider.max = String(Math.max(0, this.frames - 1));
     this.controlsBar.hidden = !clip;
+    this.drawFrameOfReference();
+    this.markEnds();
+    this.drawLegend();
+    this.offerPicker(clip);
     const box = new THREE.Box3().setFromObject(this.root);
     const size = box.getSize(new THREE.Vector3()).length() || 1;
     const centre = box.getCenter(new THREE.Vector3());
@@ -81,6 +118,99 @@ export class JobPlayer {
     return { frames: this.frames, nodes: this.root.children.length };
   }
 
+  // Axes with their unit at the scene's corner and a ground grid under it, its cell a round
+  // length: what a metre looks like here.
+  drawFrameOfReference() {
+    const box = new THREE.Box3().setFromObject(this.root);
+    if (box.isEmpty()) return;
+    const size = box.getSize(new THREE.Vector3());
+    const side = Math.max(size.x, size.z, 1e-3);
+    const cellM = roundLength((side * 1000) / GRID_CELLS) / 1000;
+    const cells = Math.ceil(side / cellM) + 2;
+    const grid = new THREE.GridHelper(cells * cellM, cells, 0x4b5d73, 0x2a3646);
+    const centre = box.getCenter(new THREE.Vector3());
+    grid.position.set(centre.x, box.min.y, centre.z);
+    grid.name = "grid";
+    const axisM = cellM * 2;
+    const axes = new THREE.Group();
+    axes.name = "axes";
+    const origin = new THREE.Vector3(box.min.x, box.min.y, box.max.z);
+    // the scene's frame is +Z up (glTF +Y): x, y across the ground, z up
+    for (const [name, colour, direction] of [["x", 0xff5555, [1, 0, 0]], ["y", 0x55dd55, [0, 0, -1]], ["z", 0x5599ff, [0, 1, 0]]]) {
+      const end = new THREE.Vector3(...direction).multiplyScalar(axisM).add(origin);
+      axes.add(new THREE.Line(new THREE.BufferGeometry().setFromPoints([origin, end]), new THREE.LineBasicMaterial({ color: colour, depthTest: false })));
+      const tag = label(`${name} ${axisM < 1 ? `${axisM * 1000} mm` : `${axisM} m`}`, `#${colour.toString(16).padStart(6, "0")}`, axisM * 0.25);
+      tag.position.copy(end);
+      axes.add(tag);
+    }
+    this.scene.add(grid, axes);
+    this.scaleNote.textContent = `grid: ${cellM < 1 ? `${cellM * 1000} mm` : `${cellM} m`} a cell · axes ${axisM < 1 ? `${axisM * 1000} mm` : `${axisM} m`} long`;
+    this.canvas.dataset.gridM = String(cellM);
+  }
+
+  // A path (a line strip, not a box) gets its start and end marked and named.
+  markEnds() {
+    const box = new THREE.Box3().setFromObject(this.root);
+    const tagM = Math.max(box.getSize(new THREE.Vector3()).length() / 40, 0.01);
+    const paths = [];
+    this.root.traverse((node) => {
+      if (node.isLine && !node.userData.size_m && node.geometry.attributes.position.count > 2) paths.push(node);
+    });
+    for (const path of paths) {
+      const position = path.geometry.attributes.position;
+      const first = new THREE.Vector3().fromBufferAttribute(position, 0).applyMatrix4(path.matrixWorld);
+      const last = new THREE.Vector3().fromBufferAttribute(position, position.count - 1).applyMatrix4(path.matrixWorld);
+      for (const [text, where, colour] of [[`start (${path.name})`, first, "#7CFC9A"], [`end (${path.name})`, last, "#ff8a80"]]) {
+        const tag = label(text, colour, tagM);
+        tag.position.copy(where);
+        tag.name = `${text.split(" ")[0]}-${path.name}`;
+        this.scene.add(tag);
+      }
+    }
+    this.canvas.dataset.pathEnds = String(paths.length);
+  }
+
+  // Every colour drawn, said: each named line or box material, and what the points'
+  // colours mean (the scene's own legend, from its job node's extras).
+  drawLegend() {
+    const entries = new Map();
+    this.root.traverse((node) => {
+      const material = node.material;
+      if ((node.isLine || node.isMesh) && material?.name && material.color && !entries.has(material.name)) {
+        entries.set(material.name, el("li", {}, el("span", { class: "swatch line", style: `--swatch:${hex(material.color)}` }), material.name.replaceAll("-", " ")));
+      }
+    });
+    const job = this.root.children.find((n) => n.name.startsWith("job-")) || this.root;
+    for (const item of job.userData?.legend || []) {
+      const swatch = item.gradient
+        ? el("span", { class: "swatch gradient", style: `background: linear-gradient(90deg, ${item.gradient.join(", ")})` })
+        : el("span", { class: "swatch", style: `--swatch:${item.colour}` });
+      entries.set(item.text, el("li", {}, swatch, item.text));
+    }
+    this.legend.replaceChildren(...entries.values());
+    this.legend.closest("details").hidden = entries.size === 0;
+  }
+
+  // Frames that are not a sequence (a depth run's images, each in its own camera frame):
+  // one at a time, picked by name.
+  offerPicker(clip) {
+    const clouds = [];
+    if (!clip) this.root.traverse((node) => { if (node.isPoints && node.name.startsWith("cloud-")) clouds.push(node); });
+    this.pickable = clouds.length > 1 ? clouds : [];
+    this.picker.hidden = this.pickable.length === 0;
+    if (!this.pickable.length) return;
+    this.picker.replaceChildren(...clouds.map((n) => el("option", { value: n.name }, n.userData.image || n.name.slice(6))));
+    this.pick(clouds[0].name);
+  }
+
+  pick(name) {
+    for (const node of this.pickable) node.visible = node.name === name;
+    this.picker.value = name;
+    this.canvas.dataset.shown = name;
+    this.canvas.dataset.points = String(this.pickable.find((n) => n.name === name).geometry.attributes.position.count);
+    this.dirty = true;
+  }
+
   // Frame `k`: the animation sampled half way through it (each scan is shown for its frame).
   show(k) {
     this.frame = Math.max(0, Math.min(this.frames - 1, k));
@@ -92,13 +222,14 @@ export class JobPlayer {
     let boxes = 0;
     this.root?.traverse((node) => {
       if (!node.isPoints && !node.isLine) return;
+      if (this.pickable?.includes(node)) return; // one cloud at a time: the picker's
       // a scan or a box out of its frame is scaled to nothing: leave it out of the draw
       node.visible = node.scale.x > 0;
       if (!node.visible) return;
       if (node.isPoints) shown += node.geometry.attributes.position.count;
       else if (node.userData.size_m) boxes += 1;
     });
-    this.canvas.dataset.points = String(shown);
+    if (!this.pickable?.length) this.canvas.dataset.points = String(shown);
     this.canvas.dataset.boxes = String(boxes);
     this.slider.value = String(this.frame);
     this.frameLabel.textContent = this.frames ? `frame ${this.frame + 1} / ${this.frames}` : "";
