@@ -67,6 +67,16 @@ class Plot:
 
 
 @dataclass(frozen=True)
+class ColourScale:
+    """What a layer's colours mean: a bar from ``low`` to ``high`` through ``colours``."""
+
+    colours: list[str]
+    """CSS colours, low to high."""
+    low: str
+    high: str
+
+
+@dataclass(frozen=True)
 class Picture:
     label: str
     layers: list[str]
@@ -75,6 +85,8 @@ class Picture:
     layer_names: list[str]
     artifact_ids: list[int] = field(default_factory=list)
     """Filled by the supervisor: the stored artifact of each layer (0: not stored)."""
+    layer_scales: list[ColourScale | None] = field(default_factory=list)
+    """Each layer's colour bar (None, or missing: a layer without one, such as a photo)."""
 
 
 @dataclass(frozen=True)

@@ -122,6 +122,12 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
         assert page.locator("#job-outputs .files li").count() == 4
         assert page.locator("#job-params").count() == 1  # method: vista
         assert page.locator("#job-log li").count() >= 2  # unpacking … 18 pairs
+        # its 3D view reads: axes and a grid with their lengths, the path's start and end,
+        # a legend of its colours
+        page.wait_for_selector("#player-scale:has-text('grid:')")
+        assert int(page.get_attribute("#job-scene canvas", "data-path-ends")) >= 1
+        legend = page.text_content(".player-legend")
+        assert "path" in legend and "truth" in legend
         page.screenshot(path=str(tmp_path / "odometry.png"), full_page=True)
         # a path's axes are equal: a metre is as many pixels across as up
         across, up = map(
@@ -166,6 +172,9 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
         wait_for(lambda: page.text_content("#player-frame") != "frame 12 / 12", what="playing on")
         page.click("#player-play")  # pause
         assert "drawn in the last second" in page.text_content("#player-fps")
+        legend = page.text_content(".player-legend")
+        assert "scan points by height" in legend and "the tracked car" in legend
+        assert page.locator(".player-legend .swatch.gradient").count() == 1
         page.screenshot(path=str(tmp_path / "track.png"), full_page=True)
 
         if "real-track" in jobs:  # real KITTI scans: ~120 000 points each
@@ -198,12 +207,22 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
             first.locator("input[type=range]").fill("100")
             opacities = first.locator("img").evaluate_all("(i) => i.map(x => x.style.opacity)")
             assert opacities == ["0", "1", "0"]  # slid over to the depth map
+            assert first.locator(".colour-bar").is_hidden()  # the depth map has its own bar
             first.locator("input[type=range]").fill("200")
             assert "error against ground truth" in first.text_content()
+            assert first.locator(".colour-bar").is_visible()  # the error layer's: 0 → ≥ 50 %
+            assert "≥ 50 %" in first.locator(".colour-bar").text_content()
             figures = page.text_content(".panel-figures")
             assert "AbsRel" in figures and "δ < 1.25" in figures and "images scored1" in figures
             page.wait_for_selector("#scene-note:has-text('drag to turn')")  # the clouds in 3D
             assert page.locator("#player-play").is_hidden()  # no frames to play
+            # two unrelated images: one cloud at a time, picked by its image's name
+            picker = page.locator("#player-pick")
+            assert picker.is_visible() and picker.locator("option").count() == 2
+            shown = page.get_attribute("#job-scene canvas", "data-shown")
+            picker.select_option(index=1)
+            assert page.get_attribute("#job-scene canvas", "data-shown") != shown
+            assert "each image's own colours" in page.text_content(".player-legend")
             page.screenshot(path=str(tmp_path / "depth.png"), full_page=True)
     assert errors == []
     _check_scenes(url, token, jobs, tmp_path)

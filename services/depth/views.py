@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.scene import JobScene, PointSet
-from contract.views import Figure, Figures, JobFiles, Picture, Pictures
+from contract.views import ColourScale, Figure, Figures, JobFiles, Picture, Pictures
 from services.depth.kinds import CLOUD, ERROR_MAP, PREDICT_REPORT, PREVIEW
 
 SEVEN = (
@@ -25,6 +25,10 @@ SEVEN = (
 """The depth literature's seven metrics as the page names them."""
 
 
+ERROR_SCALE = ColourScale(["#00ff00", "#ffff00", "#ff0000"], "0 %", "≥ 50 %")
+"""The error map's colours (``predict.error_map``): green at 0 through yellow to red at 50 %."""
+
+
 def predict_view(files: JobFiles) -> list:
     report = files.json(PREDICT_REPORT.file_name()) or {}
     images = report.get("images", [])
@@ -35,10 +39,13 @@ def predict_view(files: JobFiles) -> list:
         given = by_stem.get(stem)
         layers = ([given] if given else []) + [PREVIEW.file_name(stem)]
         names = (["camera image"] if given else []) + ["depth (m)"]
+        scales: list[ColourScale | None] = [None] * len(layers)  # the preview has its own bar
         if ERROR_MAP.file_name(stem) in files.outputs:
             layers.append(ERROR_MAP.file_name(stem))
-            names.append("error against ground truth (green 0 → red ≥ 50 %)")
-        pictures.append(Picture(f"{stem} ({image['width']} × {image['height']})", layers, names))
+            names.append("error against ground truth (relative to the true depth)")
+            scales.append(ERROR_SCALE)
+        label = f"{stem} ({image['width']} × {image['height']})"
+        pictures.append(Picture(label, layers, names, layer_scales=scales))
     seconds = [i["seconds"] for i in images]
     figures = [
         Figure("model", report.get("model")),
@@ -97,5 +104,14 @@ def predict_scene(files: JobFiles, max_points: int) -> JobScene:
     return JobScene(
         points=tuple(points),
         frame="the camera's (x forward, y left, z up)",
-        extras={"figures": {k: v for k, v in files.result.items() if not isinstance(v, dict)}},
+        extras={
+            "figures": {k: v for k, v in files.result.items() if not isinstance(v, dict)},
+            "legend": [
+                {
+                    "gradient": ["#303030", "#a0a0a0", "#ffffff"],
+                    "text": "points: each image's own colours at their predicted depth, in "
+                    "its camera's frame (one image at a time)",
+                }
+            ],
+        },
     )

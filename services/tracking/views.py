@@ -151,8 +151,35 @@ def _drive_scene(
         boxes=tuple(boxes),
         frame_s=FRAME_S,
         frame=LIDAR_FRAME,
-        extras={"figures": figures, "frames": frames},
+        extras={"figures": figures, "frames": frames, "legend": _legend(boxes)},
     )
+
+
+BOX_WORDS = {
+    "tracked-box": "the tracked car (the tracker's box)",
+    "true-box": "the labelled car (ground truth)",
+}
+
+
+def _legend(boxes: list[MovingBox]) -> list[dict]:
+    """What every colour of a drive's scene means: the scans' height scale, and each box
+    colour drawn (a detection's by its verdict)."""
+    legend = [
+        {
+            "gradient": [_hex(c) for c in HEIGHT_COLOURS],
+            "text": "scan points by height: 2 m below the sensor → 1 m above",
+        }
+    ]
+    said = set()
+    for box in boxes:
+        verdict = box.extras.get("verdict") or ("missed" if box.name.startswith("missed") else None)
+        text = BOX_WORDS.get(box.name) or VERDICT_WORDS.get(verdict or "", box.name)
+        if text in said:
+            continue
+        said.add(text)
+        colour = tuple(round(255 * c) for c in box.colour_rgba[:3])
+        legend.append({"colour": _hex(colour), "text": text})
+    return legend
 
 
 @contextmanager

@@ -4,14 +4,20 @@
 import * as THREE from "three";
 import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+import { Line2 } from "three/examples/jsm/lines/Line2.js";
+import { LineGeometry } from "three/examples/jsm/lines/LineGeometry.js";
+import { LineMaterial } from "three/examples/jsm/lines/LineMaterial.js";
 import { el } from "./dom.js";
 import { fitCanvas, roundLength } from "./scene.js";
 
 const POINT_PX = 2;
 const GRID_CELLS = 10; // the ground grid's cells across the scene's longer side
+const PATH_PX = 3; // a path's width on screen (a plain WebGL line is one pixel)
+const LABEL_SCREEN = 0.05; // a label's height, a fraction of the view's
 
-// A text label drawn in the scene, `heightM` tall, always facing the viewer.
-function label(text, colour, heightM) {
+// A text label drawn in the scene, always facing the viewer: `height` tall in metres, or
+// with `onScreen`, that fraction of the view whatever the distance.
+function label(text, colour, height, onScreen = false) {
   const canvas = document.createElement("canvas");
   const context = canvas.getContext("2d");
   context.font = "bold 36px sans-serif";
@@ -23,8 +29,8 @@ function label(text, colour, heightM) {
   context.fillStyle = colour;
   context.textBaseline = "middle";
   context.fillText(text, 8, 26);
-  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false }));
-  sprite.scale.set((heightM * canvas.width) / canvas.height, heightM, 1);
+  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false, sizeAttenuation: !onScreen }));
+  sprite.scale.set((height * canvas.width) / canvas.height, height, 1);
   sprite.renderOrder = 30;
   return sprite;
 }
@@ -139,7 +145,7 @@ export class JobPlayer {
     for (const [name, colour, direction] of [["x", 0xff5555, [1, 0, 0]], ["y", 0x55dd55, [0, 0, -1]], ["z", 0x5599ff, [0, 1, 0]]]) {
       const end = new THREE.Vector3(...direction).multiplyScalar(axisM).add(origin);
       axes.add(new THREE.Line(new THREE.BufferGeometry().setFromPoints([origin, end]), new THREE.LineBasicMaterial({ color: colour, depthTest: false })));
-      const tag = label(`${name} ${axisM < 1 ? `${axisM * 1000} mm` : `${axisM} m`}`, `#${colour.toString(16).padStart(6, "0")}`, axisM * 0.25);
+      const tag = label(`${name} ${axisM < 1 ? `${axisM * 1000} mm` : `${axisM} m`}`, `#${colour.toString(16).padStart(6, "0")}`, LABEL_SCREEN * 0.7, true);
       tag.position.copy(end);
       axes.add(tag);
     }
@@ -148,26 +154,38 @@ export class JobPlayer {
     this.canvas.dataset.gridM = String(cellM);
   }
 
-  // A path (a line strip, not a box) gets its start and end marked and named.
+  // A path (a line strip, not a box) is drawn PATH_PX wide, its start and end marked; the
+  // first path's ends are named (the others start and end where their dots are).
   markEnds() {
-    const box = new THREE.Box3().setFromObject(this.root);
-    const tagM = Math.max(box.getSize(new THREE.Vector3()).length() / 40, 0.01);
     const paths = [];
     this.root.traverse((node) => {
       if (node.isLine && !node.userData.size_m && node.geometry.attributes.position.count > 2) paths.push(node);
     });
-    for (const path of paths) {
+    this.fatLines = [];
+    paths.forEach((path, index) => {
       const position = path.geometry.attributes.position;
-      const first = new THREE.Vector3().fromBufferAttribute(position, 0).applyMatrix4(path.matrixWorld);
-      const last = new THREE.Vector3().fromBufferAttribute(position, position.count - 1).applyMatrix4(path.matrixWorld);
-      for (const [text, where, colour] of [[`start (${path.name})`, first, "#7CFC9A"], [`end (${path.name})`, last, "#ff8a80"]]) {
-        const tag = label(text, colour, tagM);
-        tag.position.copy(where);
-        tag.name = `${text.split(" ")[0]}-${path.name}`;
-        this.scene.add(tag);
-      }
-    }
+      const geometry = new LineGeometry();
+      geometry.setPositions(Array.from(position.array));
+      const material = new LineMaterial({ color: path.material.color, linewidth: PATH_PX });
+      const fat = new Line2(geometry, material);
+      fat.applyMatrix4(path.matrixWorld);
+      this.scene.add(fat);
+      this.fatLines.push(material);
+      const ends = [0, position.count - 1].map((i) => new THREE.Vector3().fromBufferAttribute(position, i).applyMatrix4(path.matrixWorld));
+      ends.forEach((where, end) => {
+        const dot = label("●", end ? "#ff8a80" : "#7CFC9A", LABEL_SCREEN * 0.6, true);
+        dot.position.copy(where);
+        this.scene.add(dot);
+        if (index === 0) {
+          const tag = label(end ? "end" : "start", end ? "#ff8a80" : "#7CFC9A", LABEL_SCREEN, true);
+          tag.center.set(end ? -0.15 : 1.15, 0.5); // beside the dot, not on it
+          tag.position.copy(where);
+          this.scene.add(tag);
+        }
+      });
+    });
     this.canvas.dataset.pathEnds = String(paths.length);
+    this.resize();
   }
 
   // Every colour drawn, said: each named line or box material, and what the points'
@@ -176,7 +194,8 @@ export class JobPlayer {
     const entries = new Map();
     this.root.traverse((node) => {
       const material = node.material;
-      if ((node.isLine || node.isMesh) && material?.name && material.color && !entries.has(material.name)) {
+      // boxes share "wire-box-N" materials: the scene's own legend says what they are
+      if ((node.isLine || node.isMesh) && material?.name && material.color && !material.name.startsWith("wire-box") && !entries.has(material.name)) {
         entries.set(material.name, el("li", {}, el("span", { class: "swatch line", style: `--swatch:${hex(material.color)}` }), material.name.replaceAll("-", " ")));
       }
     });
@@ -184,7 +203,7 @@ export class JobPlayer {
     for (const item of job.userData?.legend || []) {
       const swatch = item.gradient
         ? el("span", { class: "swatch gradient", style: `background: linear-gradient(90deg, ${item.gradient.join(", ")})` })
-        : el("span", { class: "swatch", style: `--swatch:${item.colour}` });
+        : el("span", { class: "swatch", style: `background:${item.colour}` });
       entries.set(item.text, el("li", {}, swatch, item.text));
     }
     this.legend.replaceChildren(...entries.values());
@@ -260,6 +279,8 @@ export class JobPlayer {
 
   resize() {
     if (fitCanvas(this.renderer, this.camera, this.canvas)) this.dirty = true;
+    const size = this.renderer.getDrawingBufferSize(new THREE.Vector2());
+    for (const material of this.fatLines || []) material.resolution.copy(size); // px widths
   }
 
   tick(time) {

@@ -136,7 +136,7 @@ function plotPanel(plot) {
 
 function picturePanel(panel, inspectionId, urls) {
   return panel.pictures.map((picture) => {
-    const layers = picture.layers.map((name, k) => ({ name: picture.layer_names[k], id: picture.artifact_ids[k] }))
+    const layers = picture.layers.map((name, k) => ({ name: picture.layer_names[k], id: picture.artifact_ids[k], scale: picture.layer_scales?.[k] || null }))
       .filter((layer) => layer.id > 0);
     const images = layers.map((layer) => el("img", { alt: `${picture.label}: ${layer.name}`, "data-layer": layer.name }));
     layers.forEach((layer, k) => {
@@ -148,15 +148,26 @@ function picturePanel(panel, inspectionId, urls) {
     });
     const stack = el("div", { class: "layers" }, ...images);
     const caption = el("span", { class: "muted" });
+    // the colour bar of the layer most in view (one whose colours mean a quantity)
+    const bar = el("span", { class: "colour-bar", hidden: "" });
     const slider = el("input", { type: "range", min: "0", max: String(Math.max(0, layers.length - 1) * 100), value: "0", "aria-label": `${picture.label}: blend the layers` });
     const blend = () => {
       const at = Number(slider.value) / 100;
       images.forEach((image, k) => { image.style.opacity = String(Math.max(0, Math.min(1, 1 - Math.abs(at - k)))); });
       caption.textContent = layers.map((layer) => layer.name).join(" ↔ ");
+      const scale = layers[Math.max(0, Math.min(layers.length - 1, Math.round(at)))]?.scale;
+      bar.hidden = !scale;
+      if (scale) {
+        bar.replaceChildren(
+          el("span", { class: "colour-bar-low" }, scale.low),
+          el("span", { class: "colour-bar-ramp", style: `background: linear-gradient(90deg, ${scale.colours.join(", ")})` }),
+          el("span", { class: "colour-bar-high" }, scale.high),
+        );
+      }
     };
     slider.addEventListener("input", blend);
     blend();
-    return el("figure", { class: "picture" }, stack, layers.length > 1 ? slider : null, el("figcaption", {}, picture.label, " ", caption));
+    return el("figure", { class: "picture" }, stack, layers.length > 1 ? slider : null, el("figcaption", {}, picture.label, " ", caption, " ", bar));
   });
 }
 

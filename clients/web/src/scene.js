@@ -38,21 +38,23 @@ function thickLine(line) {
   return thick;
 }
 
-function textSprite(text, colour, widthM) {
+// A label `heightM / 2` tall (a short one, "P3", `heightM` wide), as wide as its text.
+function textSprite(text, colour, heightM) {
   const canvas = document.createElement("canvas");
-  canvas.width = 128;
-  canvas.height = 64;
   const context = canvas.getContext("2d");
+  context.font = "bold 40px sans-serif";
+  canvas.width = Math.max(128, Math.ceil(context.measureText(text).width) + 24);
+  canvas.height = 64;
   context.fillStyle = "rgba(15, 23, 34, 0.75)";
-  context.fillRect(0, 0, 128, 64);
+  context.fillRect(0, 0, canvas.width, 64);
   context.fillStyle = colour;
   context.font = "bold 40px sans-serif";
   context.textAlign = "center";
   context.textBaseline = "middle";
-  context.fillText(text, 64, 34);
+  context.fillText(text, canvas.width / 2, 34);
   const material = new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false });
   const sprite = new THREE.Sprite(material);
-  sprite.scale.set(widthM, widthM / 2, 1);
+  sprite.scale.set((heightM * canvas.width) / 128, heightM / 2, 1);
   sprite.renderOrder = 20;
   return sprite;
 }
@@ -69,7 +71,8 @@ function baseAxes(origin, lengthM) {
       new THREE.LineBasicMaterial({ color: colour, depthTest: false }),
     );
     line.renderOrder = 20;
-    const label = textSprite(name, `#${colour.toString(16).padStart(6, "0")}`, lengthM * 0.3);
+    const mm = Math.round(lengthM * 1000);
+    const label = textSprite(`${name} ${mm >= 1000 ? `${mm / 1000} m` : `${mm} mm`}`, `#${colour.toString(16).padStart(6, "0")}`, lengthM * 0.3);
     label.position.copy(end).addScaledVector(new THREE.Vector3(...direction), lengthM * 0.15);
     group.add(line, label);
   }
