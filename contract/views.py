@@ -96,7 +96,44 @@ class Pictures:
     type: Literal["pictures"] = "pictures"
 
 
-Panel = Annotated[Figures | Plot | Pictures, Field(discriminator="type")]
+@dataclass(frozen=True)
+class Table:
+    """Rows of values under named columns (a measurement's seams), with a note below."""
+
+    title: str
+    columns: list[str]
+    rows: list[list[str | float | int | None]]
+    note: str = ""
+    type: Literal["table"] = "table"
+
+
+@dataclass(frozen=True)
+class CrossSections:
+    """Cross-sections along seams, for a page to step through: per seam (``seam``,
+    ``panels``, ``length_mm``) its ``sections``, each at ``along_mm`` with what was measured
+    there (``gap_mm``, ``gap_sigma_mm``, ``step_mm``, ``edges``, ``unmeasured``) and the
+    cloud's points across it (``u_mm`` across the seam towards its second panel, ``h_mm``
+    up)."""
+
+    title: str
+    seams: list[dict]
+    type: Literal["cross_sections"] = "cross_sections"
+
+
+@dataclass(frozen=True)
+class Thumbnails:
+    """Small views of findings from above their surface: per finding a ``label``, the
+    half-width ``reach_mm`` and its surroundings' points (``u_mm``, ``v_mm`` in its plane,
+    ``h_mm`` off it)."""
+
+    title: str
+    findings: list[dict]
+    type: Literal["thumbnails"] = "thumbnails"
+
+
+Panel = Annotated[
+    Figures | Plot | Pictures | Table | CrossSections | Thumbnails, Field(discriminator="type")
+]
 
 
 @dataclass(frozen=True)
@@ -121,7 +158,7 @@ class JobFiles:
         return None if path is None else json.loads(path.read_text())
 
 
-View = Callable[[JobFiles], list[Figures | Plot | Pictures]]
+View = Callable[[JobFiles], list[Figures | Plot | Pictures | Table | CrossSections | Thumbnails]]
 """A kind's view hook: its job's outputs to the panels of its run page."""
 
 

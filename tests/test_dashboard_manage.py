@@ -103,6 +103,23 @@ def test_create_upload_measure_and_judge_from_the_browser(
     ).json()["items"][0]
     assert run["jobs"][0]["params"]["pitch_mm"] == 4  # only what was changed was sent
 
+    # The measurement's own page: its seams in a table, a cross-section at any section
+    # along each, its 3D scene.
+    job = run["jobs"][0]["id"]
+    page.click(f"#timeline .job[data-job='{job}'] a.job-step")
+    page.wait_for_selector(".panel-table[data-title='Seams'] tbody tr")
+    assert page.locator(".panel-table[data-title='Seams'] tbody tr").count() == 1
+    assert "P0–P1" in page.text_content(".panel-table[data-title='Seams'] tbody tr")
+    page.wait_for_selector("#section-values")
+    first_at = page.text_content("#section-where")
+    assert "gap" in page.text_content("#section-values")
+    assert page.locator(".section-plot circle").count() > 20  # the cloud's points across it
+    page.locator("#section-along").fill("3")
+    assert page.text_content("#section-where") != first_at
+    page.wait_for_selector("#scene-note:has-text('drag to turn')")
+    page.screenshot(path=str(tmp_path / "measure-page-1024.png"), full_page=True)
+    page.go_back()
+
     page.click("[role=tab][data-tab=defects]")
     page.wait_for_selector("#defect-list .row", timeout=30_000)
     page.wait_for_selector("#scene-status:has-text('2 panels')", timeout=30_000)

@@ -600,3 +600,40 @@ def test_spacing_sweep_reports_coverage_and_the_gauge(tmp_path) -> None:
     assert _one_phase(row | {"edge": "square", "grid_angle_deg": 45.0})
     assert _one_phase(row | {"edge": "chamfer", "grid_angle_deg": 0.0})
     assert not _one_phase(row | {"edge": "square", "grid_angle_deg": 2.0})
+
+
+def test_the_measurement_page_shows_its_seams_sections_and_scene(flat_example, tmp_path) -> None:
+    """measure_view: the seams' table (one row a seam, its sections measured and why not),
+    each seam's cross-sections with the cloud's points across it — an empty band where
+    the gap is, points on both sides — and thumbnails of the surface findings;
+    measure_scene: the cloud within the budget with the outlines and seams."""
+    from contract.views import CrossSections, JobFiles, Table, Thumbnails
+    from services.defects.config import config_document
+    from services.defects.report import result_document
+    from services.defects.views import measure_scene, measure_view
+
+    cloud_path = flat_example / "cloud.ply"
+    config = MeasureConfig()
+    result = measure(read_ply(cloud_path), config, threads=2)
+    report = tmp_path / "defects.json"
+    report.write_text(json.dumps(result_document(result, config)))
+    files = JobFiles({"seams": 4}, {"defects.json": report}, {"cloud/cloud.ply": cloud_path})
+    panels = measure_view(files)
+    seams = next(p for p in panels if isinstance(p, Table) and p.title == "Seams")
+    assert len(seams.rows) == 4 and "gap 0.50–3.00 mm" in seams.note
+    sections = next(p for p in panels if isinstance(p, CrossSections))
+    assert len(sections.seams) == 4
+    for seam in sections.seams:
+        measured = [s for s in seam["sections"] if s["gap_mm"] is not None]
+        assert measured, seam["seam"]
+        for section in measured[:3]:
+            u = np.asarray(section["u_mm"])
+            half = section["gap_mm"] / 2
+            assert (u < -half).any() and (u > half).any()  # both panels' tops
+            assert not (np.abs(u) < half - 0.3).any()  # nothing in the gap but its walls
+    thumbs = next(p for p in panels if isinstance(p, Thumbnails))
+    assert thumbs.findings and all(len(f["u_mm"]) > 50 for f in thumbs.findings)
+    scene = measure_scene(files, 20_000)
+    assert len(scene.points[0].points_mm) == 20_000
+    assert {g.name for g in scene.lines} >= {"outlines", "seams"}
+    assert config_document(config)["gap_mm"]["max"] == 3.0  # what the note reads

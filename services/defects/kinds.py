@@ -80,6 +80,8 @@ MEASURE = JobKind(
     inputs=(Inputs(("cloud",), "the stitched point cloud", made_by=("stitching.stitch",)),),
     outputs=(RESULT, PROFILES),
     present=Presenter(RESULT, "services.defects.present:scene_lines"),
+    view="services.defects.views:measure_view",
+    scene="services.defects.views:measure_scene",
 )
 
 KINDS = (MEASURE,)

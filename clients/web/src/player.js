@@ -159,7 +159,8 @@ export class JobPlayer {
   markEnds() {
     const paths = [];
     this.root.traverse((node) => {
-      if (node.isLine && !node.userData.size_m && node.geometry.attributes.position.count > 2) paths.push(node);
+      // a path: an open strip (not a box's wire, not an outline's loop)
+      if (node.isLine && !node.isLineLoop && !node.isLineSegments && !node.userData.size_m && node.geometry.attributes.position.count > 2) paths.push(node);
     });
     this.fatLines = [];
     paths.forEach((path, index) => {

@@ -177,11 +177,108 @@ function figuresPanel(panel) {
   ))));
 }
 
+function tablePanel(panel) {
+  return [
+    el("div", { class: "table-scroll" }, el("table", { class: "grid rows-table" },
+      el("thead", {}, el("tr", {}, ...panel.columns.map((c) => el("th", {}, c)))),
+      el("tbody", {}, ...panel.rows.map((row) => el("tr", {}, ...row.map((cell) => el("td", {}, cell === null ? "–" : String(cell)))))))),
+    panel.note ? el("p", { class: "muted" }, panel.note) : null,
+  ];
+}
+
+// The median of the heights whose `u` passes `keep` (null when none does).
+function medianOf(u, h, keep) {
+  const picked = h.filter((_, i) => keep(u[i])).sort((a, b) => a - b);
+  return picked.length ? picked[Math.floor(picked.length / 2)] : null;
+}
+
+// One section across a seam: its points, the edges where the gap says they are, each
+// panel's top level, and the values measured there with their σ.
+function sectionPlot(seam, section) {
+  const { u_mm: u, h_mm: h, gap_mm: gap } = section;
+  const lines = [{ name: "points", x: u, y: h, style: "points", colour: "#6b7c93" }];
+  const low = Math.min(...h, 0) - 1; // the edges drawn a millimetre past the points
+  const high = Math.max(...h, 0) + 1;
+  if (gap !== null && gap !== undefined) {
+    const half = gap / 2;
+    const a = medianOf(u, h, (x) => x < -half - 0.5);
+    const b = medianOf(u, h, (x) => x > half + 0.5);
+    lines.push({ name: `P${seam.panels[0]}'s edge`, x: [-half, -half], y: [low, high], colour: "#e6194b" });
+    lines.push({ name: `P${seam.panels[1]}'s edge (gap ${gap.toFixed(3)} mm)`, x: [half, half], y: [low, high], colour: "#f58231" });
+    if (a !== null) lines.push({ name: `P${seam.panels[0]} top`, x: [Math.min(...u), -half], y: [a, a], colour: "#1f77b4" });
+    if (b !== null) lines.push({ name: `P${seam.panels[1]} top`, x: [half, Math.max(...u)], y: [b, b], colour: "#2ca02c" });
+  }
+  return { title: `seam ${seam.seam} at ${section.along_mm} mm`, x_label: `across the seam (mm, P${seam.panels[0]} → P${seam.panels[1]})`, y_label: "height (mm)", lines, equal_axes: true };
+}
+
+function sectionText(section) {
+  const sigma = (v) => (v === null || v === undefined ? "" : ` ± ${v.toFixed(3)}`);
+  if (section.unmeasured) return `unmeasured here: ${section.unmeasured}`;
+  const parts = [];
+  if (section.gap_mm !== null && section.gap_mm !== undefined) parts.push(`gap ${section.gap_mm.toFixed(3)}${sigma(section.gap_sigma_mm)} mm (1σ)`);
+  if (section.step_mm !== null && section.step_mm !== undefined) parts.push(`step ${section.step_mm.toFixed(3)} mm`);
+  if (section.edges?.length) parts.push(`edges: ${section.edges.join(" / ")}`);
+  return parts.join(" · ") || "nothing measured here";
+}
+
+// Each seam's cross-sections: pick the seam, slide along it; the plot is the section's.
+function crossSectionsPanel(panel) {
+  const seams = panel.seams.filter((s) => s.sections.length);
+  if (!seams.length) return [el("p", { class: "muted" }, "no section to show")];
+  const seamPick = el("select", { id: "section-seam", "aria-label": "seam" }, ...seams.map((s, k) => el("option", { value: String(k) }, `seam ${s.seam} (P${s.panels[0]}–P${s.panels[1]}, ${s.length_mm} mm)`)));
+  const slider = el("input", { type: "range", id: "section-along", min: "0", value: "0", "aria-label": "position along the seam" });
+  const where = el("span", { class: "muted", id: "section-where" });
+  const text = el("p", { id: "section-values" });
+  const holder = el("div", { class: "section-plot" });
+  const draw = () => {
+    const seam = seams[Number(seamPick.value)];
+    slider.max = String(seam.sections.length - 1);
+    const section = seam.sections[Math.min(Number(slider.value), seam.sections.length - 1)];
+    where.textContent = `${section.along_mm} mm along (section ${Number(slider.value) + 1} of ${seam.sections.length})`;
+    text.textContent = sectionText(section);
+    holder.replaceChildren(...plotPanel(sectionPlot(seam, section)));
+  };
+  seamPick.addEventListener("change", () => { slider.value = "0"; draw(); });
+  slider.addEventListener("input", draw);
+  draw();
+  return [el("div", { class: "section-tools" }, seamPick, slider, where), text, holder];
+}
+
+const THUMB_PX = 160;
+const DEPTH_RAMP = ["#3b4cc0", "#dddddd", "#b40426"]; // below the surface → on it → above
+
+function rampColour(t) { // t in 0..1 along DEPTH_RAMP
+  const [a, b, f] = t < 0.5 ? [DEPTH_RAMP[0], DEPTH_RAMP[1], t * 2] : [DEPTH_RAMP[1], DEPTH_RAMP[2], t * 2 - 1];
+  const mix = (i) => Math.round(parseInt(a.slice(i, i + 2), 16) * (1 - f) + parseInt(b.slice(i, i + 2), 16) * f);
+  return `rgb(${mix(1)}, ${mix(3)}, ${mix(5)})`;
+}
+
+// Each surface finding from above: its surroundings' points coloured by their height off
+// the surface, one scale per thumbnail (its colour bar under it).
+function thumbnailsPanel(panel) {
+  return [el("div", { class: "thumbs" }, ...panel.findings.map((f) => {
+    const most = Math.max(0.01, ...f.h_mm.map(Math.abs));
+    const px = (mm) => ((mm + f.reach_mm) / (2 * f.reach_mm)) * THUMB_PX;
+    const picture = svg("svg", { viewBox: `0 0 ${THUMB_PX} ${THUMB_PX}`, class: "thumb", role: "img", "aria-label": f.label },
+      svg("rect", { x: 0, y: 0, width: THUMB_PX, height: THUMB_PX, fill: "#0f1722" }),
+      ...f.u_mm.map((u, i) => svg("circle", { cx: px(u), cy: THUMB_PX - px(f.v_mm[i]), r: 1.6, fill: rampColour((f.h_mm[i] / most + 1) / 2) })),
+      svg("circle", { cx: THUMB_PX / 2, cy: THUMB_PX / 2, r: THUMB_PX / 4, fill: "none", stroke: "#1de9b6", "stroke-width": 1, "stroke-dasharray": "3 3" }));
+    const bar = el("span", { class: "colour-bar" },
+      el("span", {}, `−${most.toFixed(2)}`),
+      el("span", { class: "colour-bar-ramp", style: `background: linear-gradient(90deg, ${DEPTH_RAMP.join(", ")})` }),
+      el("span", {}, `+${most.toFixed(2)} mm`));
+    return el("figure", { class: "thumb-box" }, picture, el("figcaption", {}, f.label, el("br"), el("span", { class: "muted" }, `${(2 * f.reach_mm).toFixed(0)} mm across · height off the surface `), bar));
+  }))];
+}
+
 function panelNode(panel, inspectionId, urls) {
   const body = panel.type === "plot" ? plotPanel(panel)
     : panel.type === "figures" ? [figuresPanel(panel)]
       : panel.type === "pictures" ? picturePanel(panel, inspectionId, urls)
-        : [el("p", { class: "muted" }, `a ${panel.type} panel this dashboard cannot draw yet`)];
+        : panel.type === "table" ? tablePanel(panel)
+          : panel.type === "cross_sections" ? crossSectionsPanel(panel)
+            : panel.type === "thumbnails" ? thumbnailsPanel(panel)
+              : [el("p", { class: "muted" }, `a ${panel.type} panel this dashboard cannot draw yet`)];
   return el("section", { class: `card panel panel-${panel.type}`, dataset: { title: panel.title } }, el("h2", {}, panel.title), ...body);
 }
 
