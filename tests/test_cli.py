@@ -124,3 +124,10 @@ def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
         "demo", "--spacing-mm", "0.5", "--seed", "1", "--timeout", "300"
     )  # a coarser scan: quicker
     assert again.exit_code == 0 and "inspection 2 " in again.output
+
+
+def test_every_service_has_its_simulator_under_vista_simulate(cli):
+    """The README's `vista simulate <service>`: each service's simulator is there."""
+    listed = cli("simulate", "--help").output
+    for service in ("defects", "stitching", "odometry", "depth", "tracking"):
+        assert f" {service} " in listed, (service, listed)

@@ -490,3 +490,35 @@ def test_a_finding_added_by_clicking_the_scene_and_annotated(
     http.close()
     assert errors == [], errors
     runtime.db.dispose()
+
+
+def test_a_list_of_numbers_is_typed_as_its_help_says(start_server, tmp_path, sqlite_url, browser):
+    """tracking.track's init_box: seven numbers with spaces between, sent as a list; a word
+    among them is refused in the form, naming the field."""
+    settings = make_settings(tmp_path, sqlite_url)
+    server = start_server(settings, run_engine=False)
+    runtime = Runtime.create(settings)
+    add_user(runtime, "ines", "inspector", "ines-pw")
+    http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
+    inspection = http.post(
+        "/api/v1/inspections", json={"title": "drive 0048", "area": "street drive"}
+    ).json()["id"]
+    page = browser.new_page(viewport={"width": 1440, "height": 900})
+    _sign_in(page, server.url)
+    page.goto(f"{server.url}/#/inspections/{inspection}")
+    page.click("[role=tab][data-tab=timeline]")
+    page.click("#run-box summary")
+    page.select_option("#run-kind", "tracking.track")
+    page.click("#run-form details.params summary")
+    box = "#run-params [data-param=init_box]"
+    assert "7 numbers" in page.get_attribute(box, "placeholder")
+    page.fill(box, "1.5 1.6 three 0 1.7 10 0")
+    page.click("#run-form button[type=submit]")
+    page.wait_for_selector("#run-error:has-text('init_box')")
+    page.fill(box, "1.5 1.6 3.9 0 1.7 10 -1.56")
+    with page.expect_request(lambda r: r.url.endswith("/runs") and r.method == "POST") as sent:
+        page.click("#run-form button[type=submit]")
+    params = sent.value.post_data_json["steps"][0]["params"]
+    assert params["init_box"] == [1.5, 1.6, 3.9, 0, 1.7, 10, -1.56]
+    http.close()
+    runtime.db.dispose()

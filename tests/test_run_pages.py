@@ -224,6 +224,18 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
             assert page.get_attribute("#job-scene canvas", "data-shown") != shown
             assert "each image's own colours" in page.text_content(".player-legend")
             page.screenshot(path=str(tmp_path / "depth.png"), full_page=True)
+        # The inspection of perception runs only: its page asks for no measurement and
+        # counts no panels.
+        page = browser.new_page(viewport={"width": 1024, "height": 768})
+        page.on("pageerror", lambda error: errors.append(str(error)))
+        page.goto(url + "/")
+        page.evaluate(f"sessionStorage.setItem('vista.token', {token!r})")
+        page.goto(f"{url}/#/inspections/{inspection}")
+        page.wait_for_selector("#perception-note:not([hidden])")
+        assert page.locator("#defects-empty").is_hidden()
+        page.wait_for_selector("#scene-status:has-text('no part measured here')")
+        assert "measured panels" not in page.text_content("#scene-status")
+        page.screenshot(path=str(tmp_path / "perception-inspection-1024.png"))
     assert errors == []
     _check_scenes(url, token, jobs, tmp_path)
     _check_headset_reads_the_scenes(url, inspection, jobs, tmp_path)

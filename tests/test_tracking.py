@@ -604,3 +604,18 @@ def test_the_bench_sweep_scores_each_policy(drive: Path) -> None:
     # the same where it never does.
     assert rows[0]["tracker_fps"] > rows[0]["compute_fps"] > 0
     assert rows[1]["tracker_fps"] == pytest.approx(rows[1]["compute_fps"], rel=0.01)
+
+
+def test_detection_labels_do_not_overlap() -> None:
+    """Three boxes side by side and a fourth inside the first: every score label gets a
+    place of its own, inside the image."""
+    from services.tracking.detect import label_places
+
+    boxes = [(100, 50, 200, 150), (110, 52, 210, 150), (120, 54, 220, 150), (105, 60, 180, 140)]
+    sizes = [(40, 16)] * 4
+    places = label_places(boxes, sizes, (640, 200))
+    rects = [(x, y, x + w, y + h) for (x, y), (w, h) in zip(places, sizes, strict=True)]
+    for i, a in enumerate(rects):
+        assert a[0] >= 0 and a[2] <= 640 and a[1] >= 0 and a[3] <= 200
+        for b in rects[i + 1 :]:
+            assert a[2] <= b[0] or b[2] <= a[0] or a[3] <= b[1] or b[3] <= a[1], (a, b)

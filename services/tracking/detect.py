@@ -245,11 +245,38 @@ def draw_detections(
         if seen
     ]
     font, scale = cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thickness
-    for box, text, colour in shown:
-        left, top, right, bottom = (int(round(v)) for v in box)
+    corners = [tuple(int(round(v)) for v in box) for box, _, _ in shown]
+    sizes = [cv2.getTextSize(text, font, scale, 1)[0] for _, text, _ in shown]
+    places = label_places(corners, [(w + 4, h + 4) for w, h in sizes], (width, height))
+    for (left, top, right, bottom), (_, _, colour) in zip(corners, shown, strict=True):
         cv2.rectangle(out, (left, top), (right, bottom), colour, thickness)
-        (width_px, height_px), _ = cv2.getTextSize(text, font, scale, 1)
-        base = max(top, height_px + 4)  # the label sits on the box's top edge, inside the image
-        cv2.rectangle(out, (left, base - height_px - 4), (left + width_px + 4, base), colour, -1)
-        cv2.putText(out, text, (left + 2, base - 3), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    for (x, y), (width_px, height_px), (_, text, colour) in zip(places, sizes, shown, strict=True):
+        cv2.rectangle(out, (x, y), (x + width_px + 4, y + height_px + 4), colour, -1)
+        cv2.putText(out, text, (x + 2, y + height_px + 1), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    return out
+
+
+def label_places(
+    boxes: list[tuple[int, int, int, int]],
+    sizes: list[tuple[int, int]],
+    image_size: tuple[int, int],
+) -> list[tuple[int, int]]:
+    """Where each box's label goes (its top-left corner, px): on the box's top edge, else
+    just under its bottom edge, else further down the box, the first place that overlaps
+    no label placed before it and lies in the image (the last try when none is free)."""
+    width, height = image_size
+    placed: list[tuple[int, int, int, int]] = []
+    out = []
+    for (left, top, _, bottom), (w, h) in zip(boxes, sizes, strict=True):
+        x = min(max(left, 0), max(width - w, 0))
+        tries = [top - h, bottom] + [top + k * h for k in range(1, 8)]
+        for y in tries:
+            y = min(max(y, 0), max(height - h, 0))
+            free = all(
+                x + w <= a or a + c <= x or y + h <= b or b + d <= y for a, b, c, d in placed
+            )
+            if free:
+                break
+        placed.append((x, y, w, h))
+        out.append((x, y))
     return out

@@ -736,8 +736,8 @@ async function loadScene(id, preview) {
   const hint = "drag to orbit, click a marker to select it";
   // The measured panels are outlined and labelled P0, P1, …: the ids findings refer to.
   const panels = (n) => (n === 1 ? "1 panel (P0)" : `${n} panels (P0…)`);
-  const shown = (scene) => (perceptionOnly() && !scene.points
-    ? "no part measured here: each perception run's 3D view is on its page (Runs tab)"
+  const shown = (scene) => (perceptionOnly()
+    ? `no part measured here${scene.points ? " (the newest cloud is drawn)" : ""}: each perception run's 3D view is on its page (Runs tab)`
     : `${scene.markers} markers · ${scene.panels ? panels(scene.panels) : "no measured panels"}`);
   try {
     const first = await showScene(id, preview, { frame: true, mark: "vista:scene-drawn" });
