@@ -131,3 +131,15 @@ def test_every_service_has_its_simulator_under_vista_simulate(cli):
     listed = cli("simulate", "--help").output
     for service in ("defects", "stitching", "odometry", "depth", "tracking"):
         assert f" {service} " in listed, (service, listed)
+
+
+def test_the_shared_data_folder_is_a_setting(monkeypatch, tmp_path):
+    """The benches and the default models' builds find the real data where
+    VISTA_SHARED_DATA says, else beside the checkout."""
+    from services.lib.shared_data import DEFAULT_SHARED_DATA, shared_data_dir
+
+    monkeypatch.delenv("VISTA_SHARED_DATA", raising=False)
+    assert shared_data_dir() == DEFAULT_SHARED_DATA
+    assert DEFAULT_SHARED_DATA.parts[-2:] == ("shared", "data")
+    monkeypatch.setenv("VISTA_SHARED_DATA", str(tmp_path))
+    assert shared_data_dir() == tmp_path

@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from services.depth.data import Progress
+from services.lib.shared_data import SHARED_DATA
 
 PACKAGED = Path(__file__).resolve().parent / "models" / "depth.onnx"
-SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 REAL_DRIVE = SHARED_DATA / "kitti-raw-2011_09_26"
 HELD_OUT = SHARED_DATA / "kitti-object-testing-sample"
 KITTI_LICENCE = (

@@ -35,6 +35,7 @@ import numpy as np
 
 from contract.bench import print_verdict, say, write_document
 from services.lib.process import available_cores, prepare_process
+from services.lib.shared_data import SHARED_DATA
 from services.odometry.camera import FloorCamera
 from services.odometry.drive import Command
 from services.odometry.evaluate import evaluate
@@ -49,7 +50,6 @@ METHODS = ("vista", "phase", "oenet")
 UNSEEN_FLOOR = "moon"
 """scikit-image's lunar surface picture: used by no model here in training."""
 KITTI_FLOOR = "KITTI street photo"
-SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared/data"
 KITTI_FRAME = SHARED_DATA / "kitti-raw-2011_09_26/image_02/0000000000.png"
 KITTI_OTHER_DRIVES = SHARED_DATA / "kitti-object-testing-sample/image_2"
 ROAD_CROP = (200, 375, 0, 1242)

@@ -18,10 +18,10 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
+from services.lib.shared_data import SHARED_DATA
 from services.tracking.detector_training import DetectorTrainConfig, train_detector
 from services.tracking.kinds import FINE_TUNE_EPOCHS, FINE_TUNE_LEARNING_RATE
 
-SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 REAL_TRAIN = SHARED_DATA / "kitti-object-sample"
 REAL_HELD_OUT = SHARED_DATA / "kitti-raw-2011_09_26_drive_0048"
 KITTI_LICENCE = (
