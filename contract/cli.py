@@ -71,11 +71,15 @@ def echo_progress(fraction: float, message: str) -> None:
 
 
 def alias(app: typer.Typer, old: str, command: Callable[..., None], new: str) -> None:
-    """``vista <old>`` kept for a release as an alias of ``vista <new>``: listed as
-    deprecated in ``--help`` and in the README."""
-    app.command(old, deprecated=True, help=f"Alias of `vista {new}` (kept for this release).")(
-        command
-    )
+    """``vista <old>`` kept for a release as a hidden alias of ``vista <new>``: it works,
+    says it is deprecated when run, and is not listed in ``--help`` (the README lists the
+    old spellings)."""
+    app.command(
+        old,
+        hidden=True,
+        deprecated=True,
+        help=f"Alias of `vista {new}` (kept for this release).",
+    )(command)
 
 
 def params_options(
@@ -113,6 +117,7 @@ def params_options(
             return command(params=params, **given)
 
         run.__signature__ = signature.replace(parameters=[*own, *made])
+        run.fixed_params = frozenset(fixed)  # read by the grammar's test
         return run
 
     return decorate

@@ -33,6 +33,7 @@ from supervisor.judgments.router import router as judgments_router
 from supervisor.migrate import check_schema
 from supervisor.openapi import install_openapi
 from supervisor.problems import install_problem_handlers
+from supervisor.records import DomainRecords
 from supervisor.requests import JsonGuardRoute
 from supervisor.settings import Settings, get_settings, secure_data_dir
 from supervisor.sync.router import router as sync_router
@@ -65,7 +66,7 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):  # noqa: ANN202
-        rt = runtime or Runtime.create(settings)
+        rt = runtime or Runtime.create(settings, records=DomainRecords())
         check_schema(rt.db.url)
         secure_data_dir(settings)
         app.state.runtime = rt

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail, unwrap_help
+from contract.cli import alias, fail, unwrap_help
 from contract.tolerances import Tolerances, finding_line, limits_of
 from services.lib.wording import counted
 from supervisor.engine.registry import declared_hooks
@@ -25,13 +25,21 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )
-bench_app = typer.Typer(help="Benchmarks: print a table and write JSON.", no_args_is_help=True)
+# `vista bench <service>` and `vista simulate <service>`: the older spellings of
+# `vista <service> bench|simulate`, kept hidden for this release.
+bench_app = typer.Typer(help="Older spellings of `vista <service> bench`.", no_args_is_help=True)
 simulate_app = typer.Typer(
-    help="Simulators: write examples with their ground truth.", no_args_is_help=True
+    help="Older spellings of `vista <service> simulate`.", no_args_is_help=True
+)
+api_app = typer.Typer(help="The supervisor's API under load.", no_args_is_help=True)
+clients_app = typer.Typer(
+    help="What the clients get: scenes, sync, the dashboard, run pages.", no_args_is_help=True
 )
 app.add_typer(users_cli.app, name="user")
-app.add_typer(bench_app, name="bench")
-app.add_typer(simulate_app, name="simulate")
+app.add_typer(api_app, name="api")
+app.add_typer(clients_app, name="clients")
+app.add_typer(bench_app, name="bench", hidden=True, deprecated=True)
+app.add_typer(simulate_app, name="simulate", hidden=True, deprecated=True)
 
 
 @app.command()
@@ -130,7 +138,7 @@ def worker(
         sys.executable,
         "-m",
         "dramatiq",
-        "supervisor.engine.worker_app",
+        "supervisor.worker_app",
         "--processes",
         str(processes),
         "--threads",
@@ -143,7 +151,7 @@ def worker(
     os.execv(sys.executable, args)
 
 
-@bench_app.command("api")
+@api_app.command("bench")
 def bench_api(
     out: Path = typer.Option(Path("bench-results/api.json"), help="Where to write the JSON."),
     clients: int = typer.Option(32, min=1, help="Concurrent clients writing judgments."),
@@ -164,7 +172,7 @@ def bench_api(
 ) -> None:
     """Judgment writes/s and latency with concurrent clients, and defect-page latency, on
     SQLite and PostgreSQL, each against a real `vista serve` process."""
-    from supervisor.bench.api import run_api_bench
+    from benches.api import run_api_bench
 
     run_api_bench(
         out=out,
@@ -177,7 +185,7 @@ def bench_api(
     )
 
 
-@bench_app.command("clients")
+@clients_app.command("bench")
 def bench_clients(
     out: Path = typer.Option(Path("bench-results/clients.json"), help="Where to write the JSON."),
     points: int = typer.Option(2_500_000, min=10_000, help="Points of the stitched cloud."),
@@ -201,7 +209,7 @@ def bench_clients(
     against a real `vista serve` process; then every service's sample run on a `vista serve`
     with its engine: each job's glTF (seconds, MB, validator), each run page's first paint at
     1440 px (screenshots in run-pages/ beside the JSON) and a drive played with every point."""
-    from supervisor.bench.clients import run_clients_bench
+    from benches.clients import run_clients_bench
 
     run_clients_bench(
         out=out,
@@ -213,6 +221,9 @@ def bench_clients(
         only_perception=only_perception,
     )
 
+
+alias(bench_app, "api", bench_api, "api bench")
+alias(bench_app, "clients", bench_clients, "clients bench")
 
 for register in declared_hooks("CLI"):  # each service's commands, as the registry names them
     register(app, simulate_app, bench_app)

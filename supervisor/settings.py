@@ -96,7 +96,7 @@ class Settings(BaseSettings):
     sqlite_synchronous: Literal["FULL", "NORMAL"] = Field(
         "FULL",
         description="SQLite durability: FULL loses no acknowledged commit on power loss; "
-        "NORMAL is faster (see `vista bench api`) but may lose the last commits.",
+        "NORMAL is faster (see `vista api bench`) but may lose the last commits.",
     )
     scene_max_points: int = Field(
         500_000, ge=1000, le=20_000_000, description="Points of the stitched cloud in scene.glb."

@@ -26,6 +26,7 @@ from supervisor.auth.service import hash_password
 from supervisor.db import Base
 from supervisor.engine.runtime import Runtime
 from supervisor.migrate import upgrade
+from supervisor.records import DomainRecords
 from supervisor.settings import Settings
 from supervisor.users.service import create_token, create_user
 
@@ -141,7 +142,7 @@ def settings(tmp_path: Path, database_url: str) -> Settings:
 
 @pytest.fixture
 def runtime(settings: Settings) -> Iterator[Runtime]:
-    rt = Runtime.create(settings)
+    rt = Runtime.create(settings, records=DomainRecords())
     yield rt
     rt.db.dispose()
 
@@ -177,7 +178,7 @@ def runtime_factory():  # a factory of (client, tokens, runtime)
     opened: list[tuple[TestClient, Runtime]] = []
 
     def open_app(settings: Settings) -> tuple[TestClient, dict[str, str], Runtime]:
-        rt = Runtime.create(settings)
+        rt = Runtime.create(settings, records=DomainRecords())
         test_client = TestClient(create_app(settings, runtime=rt, run_engine=False))
         test_client.__enter__()
         opened.append((test_client, rt))
@@ -230,7 +231,7 @@ def start_server(tmp_path: Path) -> Iterator[Callable[..., LiveServer]]:
     started: list[tuple[LiveServer, Runtime]] = []
 
     def start(settings: Settings, *, run_engine: bool = True) -> LiveServer:
-        rt = Runtime.create(settings)
+        rt = Runtime.create(settings, records=DomainRecords())
         server = LiveServer(settings, rt, run_engine).start()
         started.append((server, rt))
         return server

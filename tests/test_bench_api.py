@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from sqlalchemy import insert
 
-from supervisor.bench.api import cpu_plan, format_table, meets_targets, run_api_bench
-from supervisor.bench.load import PAGE_REQUESTS, WriterLog, verify_judgments
-from supervisor.bench.seeding import seed_database
-from supervisor.bench.stats import percentile
+from benches.api import cpu_plan, format_table, meets_targets, run_api_bench
+from benches.load import PAGE_REQUESTS, WriterLog, verify_judgments
+from benches.seeding import seed_database
+from benches.stats import percentile
 from supervisor.db import make_engine
 from supervisor.models import Judgment, JudgmentRevision
 from supervisor.models._types import utcnow
@@ -155,7 +155,7 @@ def test_the_generator_gets_a_cpu_of_its_own_only_on_a_machine_that_can_spare_on
 
 
 def test_a_pinned_server_and_its_api_processes_run_on_their_cpus(tmp_path: Path) -> None:
-    from supervisor.bench.server import running_server
+    from benches.server import running_server
     from supervisor.migrate import upgrade
 
     url = f"sqlite:///{tmp_path / 'vista.db'}"

@@ -126,11 +126,17 @@ def test_demo_runs_the_whole_chain_and_shows_findings(cli, tmp_path):
     assert again.exit_code == 0 and "inspection 2 " in again.output
 
 
-def test_every_service_has_its_simulator_under_vista_simulate(cli):
-    """The README's `vista simulate <service>`: each service's simulator is there."""
-    listed = cli("simulate", "--help").output
+def test_every_service_has_its_simulator_and_its_bench(cli):
+    """The README's `vista <service> simulate` and `vista <service> bench`: each service
+    lists them; the older `vista simulate <service>` still runs, hidden from the list."""
     for service in ("defects", "stitching", "odometry", "depth", "tracking"):
-        assert f" {service} " in listed, (service, listed)
+        listed = cli(service, "--help").output
+        assert " simulate " in listed and " bench " in listed, (service, listed)
+    assert not any(
+        line.strip("│ ").startswith("simulate ") for line in cli("--help").output.splitlines()
+    )
+    older = cli("simulate", "defects", "--help")
+    assert older.exit_code == 0 and "--spacing-mm" in older.output
 
 
 def test_the_shared_data_folder_is_a_setting(monkeypatch, tmp_path):

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from supervisor.bench.browser import launch_chromium
+from benches.browser import launch_chromium
 from supervisor.demo import DEMO_USER, run_demo
 from supervisor.engine.runtime import Runtime
+from supervisor.records import DomainRecords
 from tests.conftest import LiveServer, add_user, auth, make_settings, wait_for
 from tests.seeding import measure_uploaded
 
@@ -29,7 +30,7 @@ def demo_server(tmp_path_factory, sqlite_template):
         tmp_path, f"sqlite:///{tmp_path / 'vista.db'}", embedded_workers=2, extra_job_kinds=[]
     )
     demo = run_demo(settings, spacing_mm=0.2, seed=0, timeout_s=300, say=lambda line: None)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     server = LiveServer(settings, runtime, run_engine=True).start()  # it measures what a test adds
     other = add_user(runtime, "olga", "inspector", "olga-pw")
     yield server, demo, other

@@ -9,8 +9,9 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from supervisor.bench.browser import launch_chromium
+from benches.browser import launch_chromium
 from supervisor.engine.runtime import Runtime
+from supervisor.records import DomainRecords
 from tests.conftest import add_user, auth, make_settings, wait_for
 from tests.edgeclouds import seam_cloud
 from tests.seeding import measure_uploaded
@@ -45,7 +46,7 @@ def test_create_upload_measure_and_judge_from_the_browser(
 ):
     settings = make_settings(tmp_path, sqlite_url, embedded_workers=1, extra_job_kinds=[])
     server = start_server(settings)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     scan = tmp_path / "wing-seam.e57"
     _seam_e57(scan)
@@ -178,7 +179,7 @@ def test_cancel_and_retry_a_job_from_its_row(start_server, tmp_path, sqlite_url,
 
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     add_user(runtime, "vic", "viewer", "vic-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
@@ -230,7 +231,7 @@ def test_unmeasured_seams_and_uncertain_findings_show_as_such(
 
     settings = make_settings(tmp_path, sqlite_url, embedded_workers=1, extra_job_kinds=[])
     server = start_server(settings)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
@@ -289,7 +290,7 @@ def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
     named set is applied, its name and version shown; another inspector reads, not edits."""
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     ivan = add_user(runtime, "ivan", "inspector", "ivan-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
@@ -376,7 +377,7 @@ def test_files_are_told_apart_and_a_picker_selects_all_of_a_kind(
 
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
@@ -440,7 +441,7 @@ def test_a_finding_added_by_clicking_the_scene_and_annotated(
 
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "wing"}).json()["id"]
@@ -497,7 +498,7 @@ def test_a_list_of_numbers_is_typed_as_its_help_says(start_server, tmp_path, sql
     among them is refused in the form, naming the field."""
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
     inspection = http.post(

@@ -15,8 +15,9 @@ def live(start_server, tmp_path, sqlite_url):
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
     from supervisor.engine.runtime import Runtime
+    from supervisor.records import DomainRecords
 
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     admin = add_user(runtime, "ada", "admin", "admin-pw")
     add_user(runtime, "ines", "inspector", "ines-pw")
     add_user(runtime, "vic", "viewer", "vic-pw")

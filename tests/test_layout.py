@@ -1,6 +1,8 @@
 """The layout's rules, checked on the source: the services and the job contract never
 reach into the supervisor, and the contract into neither side; libraries import no
-service; no module imports itself through others (no cycle, function-level imports too)."""
+service; no module imports itself through others (no cycle, function-level imports too);
+the job engine sits below the domains it serves (it reaches them through its port only)
+and the benches live outside the product's packages."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-PACKAGES = ("contract", "services", "supervisor")
+PACKAGES = ("contract", "services", "supervisor", "benches")
 LIBRARIES = "services.lib"
 """Code any service may use (archives, processes, wording, networks, point clouds); it knows
 no service."""
@@ -238,3 +240,90 @@ def test_a_planted_service_import_in_the_supervisor_is_found():
     assert supervisor_reaching_into_services(graph) == {
         "supervisor.exports.scene": ["services.defects.kinds"]
     }
+
+
+ENGINE = "supervisor.engine"
+ENGINE_BELOW = ("supervisor.models", "supervisor.storage", "supervisor.db", "supervisor.settings")
+ENGINE_BELOW += ("supervisor.changes",)
+"""What the engine stands on besides itself: the schema, files, the database, settings and
+the change log. A domain's service (artifacts, defects, jobs, inspections…) is reached
+through ``supervisor.engine.port`` only."""
+ENGINE_PUBLIC = ("registry", "runtime", "dispatch", "graph", "transient", "port")
+"""The engine's modules a domain may import; the rest (runner, context, transitions,
+maintenance, embedded, broker) are its own."""
+COMPOSITION_ROOTS = ("supervisor.app", "supervisor.worker_app")
+"""Where a process is assembled: the engine's parts and the domains' side of its port."""
+
+
+def engine_reaching_up(graph: dict[str, set[str]]) -> dict[str, list[str]]:
+    """Engine modules importing a supervisor module the engine does not stand on."""
+    found = {}
+    for name, targets in graph.items():
+        if not _within(name, ENGINE):
+            continue
+        above = sorted(
+            t
+            for t in targets
+            if _within(t, "supervisor")
+            and t != "supervisor"
+            and not _within(t, ENGINE)
+            and not any(_within(t, below) for below in ENGINE_BELOW)
+        )
+        if above:
+            found[name] = above
+    return found
+
+
+def domains_reaching_engine_internals(graph: dict[str, set[str]]) -> dict[str, list[str]]:
+    """Modules outside the engine (its composition roots aside) importing an engine module
+    that is not one of its public ones."""
+    public = {f"{ENGINE}.{m}" for m in ENGINE_PUBLIC} | {ENGINE}
+    return {
+        name: sorted(t for t in targets if _within(t, ENGINE) and t not in public)
+        for name, targets in graph.items()
+        if not _within(name, ENGINE)
+        and name not in COMPOSITION_ROOTS
+        and any(_within(t, ENGINE) and t not in public for t in targets)
+    }
+
+
+def test_the_engine_imports_no_domain():
+    graph = import_graph()
+    assert "supervisor.engine.port" in graph["supervisor.engine.runner"]
+    assert engine_reaching_up(graph) == {}
+    planted = {**graph, "supervisor.engine.runner": {"supervisor.defects.service"}}
+    assert engine_reaching_up(planted) == {
+        "supervisor.engine.runner": ["supervisor.defects.service"]
+    }
+
+
+def test_domains_use_only_the_engines_public_modules():
+    graph = import_graph()
+    assert "supervisor.engine.embedded" in graph["supervisor.app"]  # a composition root
+    assert domains_reaching_engine_internals(graph) == {}
+    planted = {**graph, "supervisor.jobs.service": {"supervisor.engine.runner"}}
+    assert domains_reaching_engine_internals(planted) == {
+        "supervisor.jobs.service": ["supervisor.engine.runner"]
+    }
+
+
+def test_the_benches_live_outside_the_product():
+    """Load generators, an HTTP client and a browser launcher are not the product: the
+    supervisor's package holds none, and the product imports the benches only inside
+    the commands that run them (``vista api bench``, ``vista clients bench``)."""
+    assert not (ROOT / "supervisor" / "bench").exists()
+    graph = import_graph()
+    assert "benches.seeding" in graph["benches.api"]
+    product = ("contract", "services", "supervisor")
+    reaching = {
+        name: sorted(t for t in targets if _within(t, "benches"))
+        for name, targets in graph.items()
+        if name.split(".")[0] in product and any(_within(t, "benches") for t in targets)
+    }
+    assert reaching == {"supervisor.cli": ["benches.api", "benches.clients"]}
+    top_level = {
+        node.module
+        for node in ast.parse((ROOT / "supervisor" / "cli.py").read_text()).body
+        if isinstance(node, ast.ImportFrom) and node.module
+    }
+    assert not any(_within(m, "benches") for m in top_level)

@@ -25,6 +25,7 @@ from supervisor.engine.maintenance import STALE_TEMP_AGE_S, MaintenanceLoop
 from supervisor.engine.runtime import Runtime
 from supervisor.migrate import upgrade
 from supervisor.models import Job
+from supervisor.records import DomainRecords
 from supervisor.storage import Storage
 from tests.conftest import LiveServer, add_user, auth, free_port, make_settings, wait_for
 from tests.jobkinds import SleepParams
@@ -238,9 +239,13 @@ def test_the_maintenance_loop_removes_a_killed_attempts_scratch_while_it_runs(
     loop = MaintenanceLoop(rt)
     loop.start()
     try:
-        killed = rt.scratch_dir / "job99-a1-killed"
-        killed.mkdir(parents=True)
-        (killed / "big.bin").write_bytes(b"x" * 1000)
+        # Filled beside the scratch folder and moved in at once: a round may run at any
+        # moment, and it must not meet a half-made folder (it would remove it mid-write).
+        staged = tmp_path / "job99-a1-killed"
+        staged.mkdir()
+        (staged / "big.bin").write_bytes(b"x" * 1000)
+        rt.scratch_dir.mkdir(parents=True, exist_ok=True)
+        killed = staged.rename(rt.scratch_dir / staged.name)
         wait_for(lambda: not killed.exists(), timeout=60, what="the killed attempt's scratch")
     finally:
         loop.stop()
@@ -249,7 +254,7 @@ def test_the_maintenance_loop_removes_a_killed_attempts_scratch_while_it_runs(
 def test_an_attempts_scratch_folder_is_private_and_named_by_its_owner(
     tmp_path: Path, sqlite_url: str
 ) -> None:
-    rt = Runtime.create(make_settings(tmp_path, sqlite_url))
+    rt = Runtime.create(make_settings(tmp_path, sqlite_url), records=DomainRecords())
     claim = JobClaim(
         id=7, kind="test.sleep", queue="test", step="s", run_id=1, inspection_id=1,
         params={}, attempt=3, max_attempts=3, inputs=(),
@@ -268,7 +273,7 @@ def test_sqlite_syncs_every_commit_unless_told_otherwise(
     tmp_path: Path, sqlite_url: str, setting: str | None, level: int
 ) -> None:
     overrides = {} if setting is None else {"sqlite_synchronous": setting}
-    rt = Runtime.create(make_settings(tmp_path, sqlite_url, **overrides))
+    rt = Runtime.create(make_settings(tmp_path, sqlite_url, **overrides), records=DomainRecords())
     with rt.db.read() as session:
         assert session.execute(text("PRAGMA synchronous")).scalar_one() == level
     rt.db.dispose()

@@ -13,7 +13,7 @@ import pytest
 from sqlalchemy import select
 from sqlalchemy.engine import make_url
 
-from supervisor.bench.faultproxy import FaultProxy
+from benches.faultproxy import FaultProxy
 from supervisor.models import Inspection, Job
 from supervisor.problems import PROBLEM_MEDIA_TYPE
 from tests.conftest import BROKER_URL, NO_BROKER, add_user, auth, make_settings, wait_for

@@ -15,7 +15,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from supervisor.bench.browser import launch_chromium
+from benches.browser import launch_chromium
 from tests.conftest import add_user, auth, make_settings, wait_for
 from tests.lidarfiles import REAL_DRIVE, REAL_LABELLED_DRIVE
 

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -55,3 +57,32 @@ def test_decimation_keeps_the_budget_and_covers_the_part():
 def test_decimation_leaves_small_clouds_alone():
     cloud = plane_grid(10, 10)
     assert len(decimate(cloud, max_points=1000, spacing_mm=0.1).points) == 100
+
+
+def test_the_inspect_command_reports_as_the_job_does(tmp_path):
+    """`vista scan inspect`: the job's report (the same core function) and its preview,
+    the preview's budget a parameter as the job's; a file that is no PLY is refused."""
+    from typer.testing import CliRunner
+
+    from services.lib.pointcloud.ply import read_ply, write_ply
+    from supervisor.cli import app
+
+    def cli(*args: str):
+        return CliRunner().invoke(app, list(args))
+
+    scan = tmp_path / "plane.ply"
+    write_ply(scan, plane_grid(200, 300, spacing_mm=0.1))
+    report, preview = tmp_path / "report.json", tmp_path / "preview.ply"
+    result = cli(
+        "scan", "inspect", str(scan), "-o", str(report), "--preview", str(preview),
+        "--preview-points", "5000",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "60000 points (60000 measured, organized 300 × 200)" in result.output
+    written = json.loads(report.read_text())
+    assert written["mean_spacing_mm"] == pytest.approx(0.1, rel=1e-4)
+    assert 1000 < len(read_ply(preview).points) <= 5000
+    refused = cli("scan", "inspect", str(report))
+    assert refused.exit_code == 2 and "report.json" in refused.output
+    too_few = cli("scan", "inspect", str(scan), "--preview-points", "10")
+    assert too_few.exit_code == 2 and "preview-points" in too_few.output

@@ -15,6 +15,7 @@ import httpx
 import pytest
 
 from supervisor.engine.runtime import Runtime
+from supervisor.records import DomainRecords
 from tests.conftest import add_user, auth, make_settings
 from tests.seeding import seed_defects, seed_warning
 
@@ -71,7 +72,7 @@ def test_core_is_plain_csharp_and_the_package_is_well_formed():
 
 def test_protocol_core_against_a_live_supervisor(smoke_exe, start_server, sqlite_url, tmp_path):
     settings = make_settings(tmp_path, sqlite_url)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     try:
         token = add_user(runtime, "ines", "inspector", "pw")
         server = start_server(settings, run_engine=False)
@@ -178,7 +179,7 @@ def test_a_verdict_queued_across_a_re_measure_lands_on_the_successor(
 
     bounds = [[-50.0, -50.0, -5.0], [150.0, 50.0, 5.0]]
     settings = make_settings(tmp_path, sqlite_url)
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     try:
         token = add_user(runtime, "ines", "inspector", "pw")
         server = start_server(settings, run_engine=False)

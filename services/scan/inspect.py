@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from services.lib.pointcloud.ply import PointCloud
+from services.lib.pointcloud.ply import PointCloud, read_ply
+from services.scan.kinds import ScanInspectParams
 
 
 @dataclass(frozen=True)
@@ -113,3 +115,21 @@ def decimate(cloud: PointCloud, *, max_points: int, spacing_mm: float, seed: int
             first = rng.choice(first, size=max_points, replace=False)
         index = index[np.sort(first)]
     return _subset(cloud, index)
+
+
+@dataclass(frozen=True)
+class ScanInspection:
+    """One cloud checked: its report and its decimated preview."""
+
+    report: ScanReport
+    preview: PointCloud
+
+
+def inspect_scan_file(path: Path, params: ScanInspectParams) -> ScanInspection:
+    """The ``inspect`` verb: read the PLY at ``path``, report on it, decimate a preview.
+    Raises ``PlyError`` for a file that is not a readable PLY and ``ValueError`` for a
+    cloud without a finite point."""
+    cloud = read_ply(path)
+    report = inspect_cloud(cloud, spacing_sample=params.spacing_sample)
+    preview = decimate(cloud, max_points=params.preview_points, spacing_mm=report.mean_spacing_mm)
+    return ScanInspection(report, preview)

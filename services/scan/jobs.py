@@ -7,8 +7,8 @@ from pathlib import Path
 
 from contract.context import JobContext, inputs_of_kind
 from contract.errors import JobInputError
-from services.lib.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, read_ply, write_ply
-from services.scan.inspect import decimate, inspect_cloud
+from services.lib.pointcloud.ply import PLY_MEDIA_TYPE, PlyError, write_ply
+from services.scan.inspect import inspect_scan_file
 from services.scan.kinds import PREVIEW, REPORT
 
 
@@ -21,21 +21,15 @@ def inspect_scan(ctx: JobContext) -> dict:
     share = 1.0 / len(clouds)
     for number, artifact in enumerate(clouds):
         base = number * share
-        ctx.progress(base, f"reading {artifact.name}")
+        ctx.progress(base, f"inspecting {artifact.name}")
         try:
-            cloud = read_ply(artifact.path)
-        except PlyError as exc:
+            inspected = inspect_scan_file(artifact.path, params)
+        except (PlyError, ValueError) as exc:
             raise JobInputError(f"{artifact.name}: {exc}") from exc
-        ctx.progress(base + 0.3 * share, f"measuring {artifact.name}")
-        report = inspect_cloud(cloud, spacing_sample=params.spacing_sample)
-        ctx.progress(base + 0.6 * share, f"decimating {artifact.name}")
-        preview = decimate(
-            cloud, max_points=params.preview_points, spacing_mm=report.mean_spacing_mm
-        )
+        report, preview = inspected.report, inspected.preview
         stem = Path(artifact.name).stem
         preview_path = ctx.workdir / PREVIEW.file_name(stem)
         write_ply(preview_path, preview, comments=(f"preview of artifact {artifact.id}",))
-        ctx.progress(base + 0.9 * share, f"storing results for {artifact.name}")
         ctx.add_artifact_file(
             preview_path,
             kind=PREVIEW.kind,

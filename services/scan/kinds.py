@@ -42,3 +42,4 @@ ARTIFACT_KINDS = (
     ArtifactKind("preview", "A decimated copy of a cloud for viewers.", f"{FORMATS}:inspect_cloud"),
 )
 """The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
+CLI = "services.scan.cli:register"

@@ -1,6 +1,6 @@
 """The Dramatiq broker and the names of the messages that carry job ids.
 
-Senders enqueue a message by its actor's name; only ``vista worker`` (``worker_app``)
+Senders enqueue a message by its actor's name; only ``vista worker`` (``supervisor.worker_app``)
 declares the actors that run them, so sending a job never imports the runner.
 """
 

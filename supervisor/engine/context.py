@@ -23,10 +23,10 @@ from sqlalchemy import select, update
 from contract.context import InputArtifact, NewDefect
 from contract.errors import JobCancelled, JobLost
 from contract.tolerances import Tolerances
+from supervisor.engine.port import StagedArtifact
 from supervisor.engine.runtime import Runtime
 from supervisor.models import Job, JobLogLine
 from supervisor.models._types import utcnow
-from supervisor.storage import StoredFile
 
 PROGRESS_WRITE_INTERVAL_S = 0.25
 MAX_LOG_LINES = 1000
@@ -66,15 +66,6 @@ class JobClaim:
     claimed; the handler sees them as a ``Tolerances`` model."""
     cancel_requested: bool = False
     """A cancel asked for before this attempt began (the previous one's worker died)."""
-
-
-@dataclass(frozen=True)
-class StagedArtifact:
-    kind: str
-    name: str
-    media_type: str
-    stored: StoredFile
-    meta: dict
 
 
 class StopSignal:

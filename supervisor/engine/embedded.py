@@ -26,6 +26,7 @@ from services.lib.process import (
     prepare_process,
 )
 from supervisor.engine.maintenance import release_jobs_of_worker
+from supervisor.engine.port import JobRecords
 from supervisor.engine.runner import run_job
 from supervisor.engine.runtime import Runtime, worker_name
 from supervisor.models import Job
@@ -52,13 +53,15 @@ def next_due_jobs(rt: Runtime, limit: int = 4) -> list[int]:
         )
 
 
-def _worker_main(settings_json: str, stop: mp.synchronize.Event, parent_pid: int) -> None:
+def _worker_main(
+    settings_json: str, records: JobRecords, stop: mp.synchronize.Event, parent_pid: int
+) -> None:
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when workers stop
     prepare_process()
     settings = Settings.model_validate_json(settings_json)
     limit_address_space(settings.job_memory_mb)
-    rt = Runtime.create(settings)
+    rt = Runtime.create(settings, records=records)
     while not stop.is_set() and parent_alive(parent_pid):
         ran = False
         for job_id in next_due_jobs(rt):
@@ -94,7 +97,7 @@ class EmbeddedPool:
     def _spawn(self) -> mp.process.BaseProcess:
         proc = self._ctx.Process(
             target=_worker_main,
-            args=(self._settings_json, self._stop, os.getpid()),
+            args=(self._settings_json, self._rt.records, self._stop, os.getpid()),
             name="vista-worker",
             daemon=True,
         )

@@ -23,17 +23,14 @@ from sqlalchemy.orm import Session
 
 from contract.context import InputArtifact
 from contract.errors import JobCancelled, JobInputError, JobLost, JobTimeLimit
-from supervisor.artifacts.service import record_artifact
 from supervisor.changes import record_update
-from supervisor.defects.lineage import supersede
-from supervisor.defects.service import record_defect
 from supervisor.engine.context import JobClaim, StopSignal, WorkerContext
 from supervisor.engine.dispatch import Dispatch, dispatch
+from supervisor.engine.port import JobOutputs
 from supervisor.engine.registry import get_kind
 from supervisor.engine.runtime import Runtime, worker_name
 from supervisor.engine.transient import is_transient
 from supervisor.engine.transitions import end_attempt
-from supervisor.jobs.service import input_artifacts
 from supervisor.models import Inspection, Job
 from supervisor.models._types import utcnow
 
@@ -138,7 +135,7 @@ def _inputs(rt: Runtime, session: Session, job: Job) -> tuple[InputArtifact, ...
             meta=dict(a.meta or {}),
             job_id=a.job_id,
         )
-        for a in input_artifacts(session, job)
+        for a in rt.records.inputs(session, job)
     )
 
 
@@ -195,6 +192,7 @@ def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: WorkerContext, result: dic
             session,
             claim.id,
             claim.attempt,
+            records=rt.records,
             status="succeeded",
             progress=1.0,
             result=result,
@@ -208,33 +206,18 @@ def _end_succeeded(rt: Runtime, claim: JobClaim, ctx: WorkerContext, result: dic
             session.rollback()
             ctx.discard_outputs()
             return "lost"
-        _store_outputs(session, claim, ctx)
+        rt.records.record_outputs(
+            session,
+            JobOutputs(
+                job_id=claim.id,
+                inspection_id=claim.inspection_id,
+                run_id=claim.run_id,
+                artifacts=tuple(ctx.staged),
+                findings=tuple(ctx.defects),
+            ),
+        )
     dispatch(rt.db, rt.dispatcher, ready)
     return "succeeded"
-
-
-def _store_outputs(session: Session, claim: JobClaim, ctx: WorkerContext) -> None:
-    for staged in ctx.staged:
-        record_artifact(
-            session,
-            inspection_id=claim.inspection_id,
-            kind=staged.kind,
-            name=staged.name,
-            media_type=staged.media_type,
-            stored=staged.stored,
-            meta=staged.meta,
-            job_id=claim.id,
-        )
-    for finding in ctx.defects:
-        record_defect(
-            session,
-            finding,
-            inspection_id=claim.inspection_id,
-            source="job",
-            run_id=claim.run_id,
-            job_id=claim.id,
-        )
-    supersede(session, job_id=claim.id)
 
 
 def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str | None) -> str:
@@ -243,6 +226,7 @@ def _end(rt: Runtime, claim: JobClaim, *, status: str, message: str, error: str 
             session,
             claim.id,
             claim.attempt,
+            records=rt.records,
             status=status,
             message=message,
             error=error,
@@ -329,6 +313,7 @@ def _requeue(rt: Runtime, claim: JobClaim, exc: BaseException) -> str:
             session,
             claim.id,
             claim.attempt,
+            records=rt.records,
             status="queued",
             not_before=utcnow() + timedelta(seconds=delay_s),
             dispatched_at=None,

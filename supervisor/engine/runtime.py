@@ -9,6 +9,7 @@ from pathlib import Path
 
 from supervisor.db import Database
 from supervisor.engine.dispatch import Dispatcher, make_dispatcher
+from supervisor.engine.port import JobRecords
 from supervisor.engine.registry import load_kinds
 from supervisor.settings import Settings
 from supervisor.storage import Storage
@@ -20,11 +21,16 @@ class Runtime:
     db: Database
     storage: Storage
     dispatcher: Dispatcher
+    records: JobRecords
+    """The domains' side of the engine's port (``supervisor.engine.port``)."""
 
     @classmethod
-    def create(cls, settings: Settings, *, database: Database | None = None) -> Runtime:
+    def create(
+        cls, settings: Settings, *, records: JobRecords, database: Database | None = None
+    ) -> Runtime:
         load_kinds(settings.extra_job_kinds)
         return cls(
+            records=records,
             settings=settings,
             db=database
             or Database(

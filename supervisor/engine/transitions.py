@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from supervisor.changes import record_change
 from supervisor.engine.dispatch import Dispatch
 from supervisor.engine.graph import cancel_dependents, promote_dependents
-from supervisor.inspections.service import follow_runs
+from supervisor.engine.port import JobRecords
 from supervisor.models import Job
 
 
@@ -24,6 +24,7 @@ def end_attempt(
     job_id: int,
     attempt: int,
     *,
+    records: JobRecords,
     status: str,
     guard: tuple[ColumnElement[bool], ...] = (),
     **values: Any,  # the job's other columns to set
@@ -47,6 +48,6 @@ def end_attempt(
         ready = promote_dependents(session, job_id)
     elif status in ("failed", "cancelled"):
         cancel_dependents(session, job_id, f"not run: step '{step}' (job {job_id}) {status}")
-    follow_runs(session, inspection_id=inspection_id)
+    records.job_ended(session, inspection_id=inspection_id)
     record_change(session, entity="job", entity_id=job_id, op="update", inspection_id=inspection_id)
     return ready

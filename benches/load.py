@@ -14,9 +14,9 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from supervisor.bench.http import RawHttp
-from supervisor.bench.seeding import Seeded
-from supervisor.bench.stats import busy_percent, latency_summary, process_cpu_s, system_cpu_ticks
+from benches.http import RawHttp
+from benches.seeding import Seeded
+from benches.stats import busy_percent, latency_summary, process_cpu_s, system_cpu_ticks
 from supervisor.db import make_engine
 from supervisor.models import Change, Judgment, JudgmentRevision
 from supervisor.pagination import encode_cursor

@@ -1,5 +1,6 @@
 """The module ``dramatiq`` loads in ``vista worker``: the broker, one actor per service
-queue running ``run_job``, and the maintenance loop."""
+queue running ``run_job``, and the maintenance loop — the engine assembled with the
+domains' side of its port (``supervisor.records``)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from supervisor.engine.registry import load_kinds, queues
 from supervisor.engine.runner import run_job
 from supervisor.engine.runtime import Runtime
 from supervisor.engine.transient import is_transient
+from supervisor.records import DomainRecords
 from supervisor.settings import get_settings
 
 MAX_TRANSPORT_RETRIES = 5
@@ -43,7 +45,7 @@ def _retry_transient(retries: int, exc: BaseException) -> bool:
 @lru_cache
 def _runtime() -> Runtime:
     """This worker process's database, storage and dispatcher, made on first use."""
-    return Runtime.create(get_settings())
+    return Runtime.create(get_settings(), records=DomainRecords())
 
 
 def _run_job_message(job_id: int) -> None:

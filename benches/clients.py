@@ -1,4 +1,4 @@
-"""``vista bench clients``: what the reporting clients wait for, against a real
+"""``vista clients bench``: what the reporting clients wait for, against a real
 ``vista serve`` process — the scene export (and the Khronos validator's verdict on it),
 the headset sync, and the dashboard's first meaningful paint in headless Chromium.
 
@@ -15,20 +15,22 @@ import random
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import httpx
 import numpy as np
-from sqlalchemy import insert
 
+from benches.browser import launch_chromium
+from benches.seeding import Seeded, bench_findings, new_inspection, record_findings, seed_database
+from benches.server import running_server
+from benches.validator import validate_gltf
 from contract.bench import print_verdict, say, write_document
-from supervisor.bench.browser import launch_chromium
-from supervisor.bench.seeding import defect_rows, seed_database
-from supervisor.bench.server import running_server
-from supervisor.bench.validator import validate_gltf
+from contract.context import NewDefect
+from supervisor.artifacts.service import record_artifact
+from supervisor.audit.service import Operator
 from supervisor.db import Database
-from supervisor.models import Artifact, Change, Defect, Inspection
-from supervisor.storage import URI_SCHEME
+from supervisor.storage import Storage
 
 SIDEWALL_RADIUS_MM = 2000.0
 # The dashboard's performance marks (clients/web/src/main.js): the list, then the scene's
@@ -77,20 +79,30 @@ def _on_sidewall(rng: random.Random) -> tuple[list[float], list[float]]:
     return location, [round(-s, 4), 0.0, round(math.sqrt(1 - s * s), 4)]
 
 
-def _job_defects(inspection_id: int, count: int, rng: random.Random) -> list[dict]:
-    """Defect rows as the measuring job writes them, on the cloud's sidewall: an `info` row
+def _job_findings(count: int, rng: random.Random) -> list[NewDefect]:
+    """Findings as the measuring job reports them, on the cloud's sidewall: an `info` one
     within its tolerance, a colour patch in ΔE (no millimetre value)."""
-    rows = defect_rows(inspection_id, count, rng)
-    for row in rows:
-        if row["severity"] == "info":
-            row["value_mm"] = round(row["tolerance_mm"] * rng.uniform(0.3, 0.95), 3)
-        row["measurements"] = _measurements(rng, row["value_mm"], row["tolerance_mm"])
-        if row["type"] == "color":
-            row["measurements"]["unit"] = "delta_e"
-            row["value_mm"] = row["tolerance_mm"] = None
-        row["location_mm"], row["normal"] = _on_sidewall(rng)
-        row["source"] = "job"
-    return rows
+    findings = []
+    for finding in bench_findings(count, rng):
+        value, tolerance = finding.value_mm, finding.tolerance_mm
+        if finding.severity == "info":
+            value = round(tolerance * rng.uniform(0.3, 0.95), 3)
+        measurements = _measurements(rng, value, tolerance)
+        if finding.type == "color":
+            measurements["unit"] = "delta_e"
+            value = tolerance = None
+        location, normal = _on_sidewall(rng)
+        findings.append(
+            replace(
+                finding,
+                value_mm=value,
+                tolerance_mm=tolerance,
+                measurements=measurements,
+                location_mm=tuple(location),
+                normal=tuple(normal),
+            )
+        )
+    return findings
 
 
 def _cloud(path: Path, points: int, rng: np.random.Generator) -> None:
@@ -104,39 +116,26 @@ def _cloud(path: Path, points: int, rng: np.random.Generator) -> None:
     write_ply(path, PointCloud(points=np.column_stack([uv, z]).astype(np.float32), colors=colors))
 
 
-def _seed(url: str, *, defects: int, cloud: Path, storage_root: Path) -> tuple:
+def _seed(url: str, *, defects: int, cloud: Path, storage_root: Path) -> Seeded:
+    """The API bench's users and inspection, with ``defects`` findings and the cloud as a
+    job's outputs are recorded."""
     seeded = seed_database(url, clients=1, defects=0, rng=random.Random(5))
-    rng = random.Random(7)
-    rows = _job_defects(seeded.inspection_id, defects, rng)
+    findings = _job_findings(defects, random.Random(7))
+    stored = Storage(storage_root).put_file(
+        cloud, inspection_id=seeded.inspection_id, name="cloud.ply"
+    )
     db = Database(url)
     try:
         with db.write() as session:
-            session.execute(insert(Defect), rows)
-            target = storage_root / "inspections" / str(seeded.inspection_id)
-            target.mkdir(parents=True, exist_ok=True)
-            stored = target / "cloud.ply"
-            stored.write_bytes(cloud.read_bytes())
-            artifact = session.execute(
-                insert(Artifact)
-                .values(
-                    inspection_id=seeded.inspection_id,
-                    kind="cloud",
-                    name="cloud.ply",
-                    media_type="application/x-ply",
-                    size_bytes=stored.stat().st_size,
-                    sha256="0" * 64,
-                    storage_uri=f"{URI_SCHEME}inspections/{seeded.inspection_id}/cloud.ply",
-                    meta={},
-                )
-                .returning(Artifact.id)
-            ).scalar_one()
-            session.execute(
-                insert(Change).values(
-                    entity="artifact",
-                    entity_id=artifact,
-                    op="create",
-                    inspection_id=seeded.inspection_id,
-                )
+            record_findings(session, findings, inspection_id=seeded.inspection_id, source="job")
+            record_artifact(
+                session,
+                inspection_id=seeded.inspection_id,
+                kind="cloud",
+                name="cloud.ply",
+                media_type="application/x-ply",
+                stored=stored,
+                meta={},
             )
     finally:
         db.dispose()
@@ -376,7 +375,7 @@ def run_clients_bench(
     real_data: Path | None = None,
     only_perception: bool = False,
 ) -> dict:
-    from supervisor.bench.perception import (
+    from benches.perception import (
         PAINT_TARGET_S,
         PLAYED_TARGET,
         perception_verdict,
@@ -411,13 +410,13 @@ def run_clients_bench(
         )
         db = Database(url)
         with db.write() as session:
-            sync_inspection = session.execute(
-                insert(Inspection)
-                .values(title="bench sync", area="cabin", tolerances={}, markers=[])
-                .returning(Inspection.id)
-            ).scalar_one()
-            rows = _job_defects(sync_inspection, sync_defects, random.Random(3))
-            session.execute(insert(Defect), rows)
+            sync_inspection = new_inspection(session, Operator(), title="bench sync", area="cabin")
+            record_findings(
+                session,
+                _job_findings(sync_defects, random.Random(3)),
+                inspection_id=sync_inspection,
+                source="job",
+            )
         db.dispose()
         with running_server(data, url, api_workers=1) as server:
             base = f"http://127.0.0.1:{server.port}"

@@ -1,4 +1,4 @@
-"""The perception part of ``vista bench clients``: every service's sample run (its kinds'
+"""The perception part of ``vista clients bench``: every service's sample run (its kinds'
 ``SAMPLE_RUN``, ``contract.samples``) on a live ``vista serve`` with its embedded engine,
 then what a person waits for — each job's glTF scene (export seconds, MB, the Khronos
 validator's verdict), each run page's first paint in headless Chromium at 1440 px (the
@@ -17,11 +17,11 @@ from pathlib import Path
 
 import httpx
 
+from benches.browser import launch_chromium
+from benches.seeding import seed_database
+from benches.server import running_server
+from benches.validator import validate_gltf
 from contract.bench import say
-from supervisor.bench.browser import launch_chromium
-from supervisor.bench.seeding import seed_database
-from supervisor.bench.server import running_server
-from supervisor.bench.validator import validate_gltf
 from supervisor.engine.registry import declared_hooks
 
 JOB_TIMEOUT_S = 1800

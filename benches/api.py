@@ -1,4 +1,4 @@
-"""``vista bench api``: the API under load, against a real ``vista serve`` process.
+"""``vista api bench``: the API under load, against a real ``vista serve`` process.
 
 For SQLite (always) and PostgreSQL (when a server URL is given), on a fresh database:
 
@@ -34,9 +34,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from contract.bench import say, write_document
-from supervisor.bench.http import run_async
-from supervisor.bench.load import (
+from benches.http import run_async
+from benches.load import (
     HOT_DEFECTS,
     PAGE_REQUESTS,
     PAGE_SIZE,
@@ -46,9 +45,10 @@ from supervisor.bench.load import (
     verify_judgments,
     write_test,
 )
-from supervisor.bench.seeding import fresh_postgres_database, seed_database
-from supervisor.bench.server import running_server
-from supervisor.bench.signin import sign_in_storm
+from benches.seeding import fresh_postgres_database, seed_database
+from benches.server import running_server
+from benches.signin import sign_in_storm
+from contract.bench import say, write_document
 from supervisor.migrate import upgrade
 
 TARGETS = {
@@ -192,7 +192,7 @@ def bench_fault(
 
     from sqlalchemy.engine import make_url
 
-    from supervisor.bench.faultproxy import FaultProxy
+    from benches.faultproxy import FaultProxy
 
     with (
         fresh_postgres_database(postgres_url) as url,

@@ -1,6 +1,6 @@
 """A TCP proxy that can be cut: the database or broker as a client sees it when it stops
 (connections dropped, new ones refused) and comes back — without stopping the real server
-that others share (the outage tests, and `vista bench api`'s fault row)."""
+that others share (the outage tests, and `vista api bench`'s fault row)."""
 
 from __future__ import annotations
 

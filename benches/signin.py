@@ -15,8 +15,8 @@ import time
 from collections import Counter
 from typing import Any
 
-from supervisor.bench.http import RawHttp
-from supervisor.bench.stats import latency_summary
+from benches.http import RawHttp
+from benches.stats import latency_summary
 
 READ_PATH = "/api/v1/inspections?limit=20"
 TIMEOUT_S = 30.0
