@@ -21,6 +21,7 @@ from services.odometry.drive import (
     random_path,
 )
 from services.odometry.floors import PROCEDURAL, image_floor, procedural_floor
+from services.odometry.kinds import OdometryParams
 from services.odometry.render import Effects, render
 from services.odometry.tum import Trajectory2D, read_tum, write_tum
 from supervisor.cli import app
@@ -171,7 +172,7 @@ def test_phase_correlation_peer_against_truth(short_sequence) -> None:
     from services.odometry.run import run_odometry
 
     camera = FloorCamera.from_document(json.loads((short_sequence / "camera.json").read_text()))
-    result = run_odometry(short_sequence / "frames", camera, "phase")
+    result = run_odometry(short_sequence / "frames", camera, OdometryParams(method="phase"))
     scores = evaluate(result.trajectory, read_tum(short_sequence / "truth.tum"))
     assert scores.poses == 31 and result.flagged == 0
     assert scores.rmse_dx_mm < 0.1 and scores.rmse_dy_mm < 0.1 and scores.rmse_dtheta_deg < 0.2
@@ -491,7 +492,10 @@ def test_vista_on_a_real_camera_frame_as_the_floor(tmp_path) -> None:
     truth = read_tum(tmp_path / "truth.tum")
     vista = evaluate(run_odometry(tmp_path / "frames", camera, threads=2).trajectory, truth)
     phase = evaluate(
-        run_odometry(tmp_path / "frames", camera, "phase", threads=2).trajectory, truth
+        run_odometry(
+            tmp_path / "frames", camera, OdometryParams(method="phase"), threads=2
+        ).trajectory,
+        truth,
     )
     assert vista.rmse_dx_mm < 0.05 and vista.rmse_dy_mm < 0.05 and vista.rmse_dtheta_deg < 0.05
     assert vista.drift_percent < 0.2

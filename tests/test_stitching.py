@@ -14,8 +14,9 @@ from services.lib.pointcloud.ply import PointCloud, read_ply
 from services.stitching.calibration import calibrate
 from services.stitching.calibration_sim import simulate_calibration
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
+from services.stitching.kinds import NoiseModel, StitchParams
 from services.stitching.quality import quality_report
-from services.stitching.stitch import stitch
+from services.stitching.stitch import StitchConfig, stitch
 from supervisor.cli import app
 
 
@@ -115,7 +116,10 @@ def stitched_angle():
     handeye = calibrate(session.base_T_flange, session.sensor_T_target)
     mesh = scan_sim.angle_profile()
     sensor = scan_sim.SensorModel(grid=(150, 231))
-    scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
+    robot = NoiseModel().model_dump(include={"robot_sigma_mm", "robot_sigma_deg"})
+    scans = scan_sim.simulate_scans(
+        mesh, session.true_flange_T_sensor, sensor=sensor, **robot, rng=rng
+    )
     clouds = [PointCloud(points=g.reshape(-1, 3), grid_shape=g.shape[:2]) for g in scans.scans]
     result = stitch(clouds, scans.base_T_flange, handeye.flange_T_sensor)
     scanner = scan_sim.Scanner(mesh, scans.base_T_part, sensor)
@@ -147,13 +151,17 @@ def test_quality_report_matches_the_model_box(stitched_angle) -> None:
 
 def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
     runner = CliRunner()
-    assert runner.invoke(app, ["simulate", "stitching", str(tmp_path)]).exit_code == 0
+    assert runner.invoke(app, ["stitching", "simulate", str(tmp_path)]).exit_code == 0
     handeye = tmp_path / "handeye.json"
-    calibrated = runner.invoke(app, ["calibrate", str(tmp_path / "pairs.json"), "-o", str(handeye)])
+    calibrated = runner.invoke(
+        app,
+        ["stitching", "calibrate", str(tmp_path / "pairs.json"), "-o", str(handeye)]
+        + ["--robot-sigma-mm", "0.06"],
+    )
     assert calibrated.exit_code == 0, calibrated.output
     out, report = tmp_path / "out" / "stitched.ply", tmp_path / "out" / "report.json"
     stitch_args = ["--handeye", str(handeye), "-o", str(out), "--report", str(report)]
-    done = runner.invoke(app, ["stitch", str(tmp_path / "scans.json"), *stitch_args])
+    done = runner.invoke(app, ["stitching", "stitch", str(tmp_path / "scans.json"), *stitch_args])
     assert done.exit_code == 0, done.output
     document = json.loads(report.read_text())
     assert document["points"] == len(read_ply(out).points) > 0
@@ -175,6 +183,7 @@ def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
     assert refined.exit_code == 0, refined.output
     document = json.loads(report.read_text())
     assert document["icp"]["method"] == "bounded" and len(document["icp"]["scans"]) == 3
+    assert document["icp"]["robot_sigma_mm"] == 0.06  # the calibration's, not a default
     assert document["true_error"]["mean_mm"] < 0.15
     assert document["scan_pose_error"]["max_translation_mm"] < 0.5
     assert max(document["model_bounds_difference_mm"]) < 1.0
@@ -184,3 +193,51 @@ def test_cli_simulate_calibrate_stitch(tmp_path) -> None:
     (tmp_path / "bad.json").write_text(json.dumps(scans))
     refused = runner.invoke(app, ["stitch", str(tmp_path / "bad.json"), *stitch_args])
     assert refused.exit_code == 2 and "scans[1].file 'missing.ply' does not exist" in refused.output
+    coarse = runner.invoke(
+        app, ["stitch", str(tmp_path / "scans.json"), *stitch_args, "--voxel-mm", "11"]
+    )
+    assert coarse.exit_code == 2 and "--voxel-mm" in coarse.output
+    (tmp_path / "scan_002.ply").write_bytes(b"nope")
+    unreadable = runner.invoke(app, ["stitch", str(tmp_path / "scans.json"), *stitch_args])
+    assert unreadable.exit_code == 2
+    assert "scan_002.ply: the file does not start with the PLY magic" in unreadable.output
+
+
+def test_simulate_and_bench_are_stitching_verbs_with_the_old_spellings_hidden(tmp_path) -> None:
+    runner = CliRunner()
+    verbs = runner.invoke(app, ["stitching", "--help"]).output
+    assert " simulate " in verbs and " bench " in verbs
+    for group in ("simulate", "bench"):
+        listed = runner.invoke(app, [group, "--help"]).output
+        assert " stitching " not in listed, listed
+        old = runner.invoke(app, [group, "stitching", "--help"])
+        assert old.exit_code == 0 and f"vista stitching {group}" in old.output
+    done = runner.invoke(app, ["simulate", "stitching", str(tmp_path), "--poses", "4"])
+    assert done.exit_code == 0 and (tmp_path / "truth.json").is_file(), done.output
+
+
+def test_stitch_settings_are_the_job_parameters() -> None:
+    """StitchConfig's defaults and ranges are StitchParams'; the ICP of a stitch is bounded
+    by the robot noise its calibration was given."""
+    params = StitchParams()
+    config = StitchConfig()
+    assert (config.voxel_mm, config.loop_threshold) == (params.voxel_mm, params.loop_threshold)
+    assert StitchConfig.from_params(params, {}) == config  # icp "none": kinematic poses
+    for wrong in ({"voxel_mm": 0.0}, {"voxel_mm": 11.0}, {"loop_threshold": 1.5}):
+        with pytest.raises(ValueError, match=next(iter(wrong))):
+            StitchConfig(**wrong)
+    calibration = {"noise": {"robot_sigma_mm": 0.1}, "sigma_translation_mm": 0.03}
+    bounded = StitchConfig.from_params(StitchParams(icp="bounded"), calibration).icp
+    assert (bounded.method, bounded.start) == ("bounded", params.icp_start)
+    assert (bounded.robot_sigma_mm, bounded.calibration_sigma_mm) == (0.1, 0.03)
+    assert bounded.robot_sigma_deg == NoiseModel().robot_sigma_deg  # not recorded: default
+
+
+def test_a_handeye_with_impossible_noise_is_refused(tmp_path) -> None:
+    from services.stitching.files import StitchingFileError, read_handeye
+
+    path = tmp_path / "handeye.json"
+    document = {"flange_T_sensor": np.eye(4).tolist(), "noise": {"robot_sigma_mm": -1}}
+    path.write_text(json.dumps(document))
+    with pytest.raises(StitchingFileError, match="noise.robot_sigma_mm: Input should be greater"):
+        read_handeye(path)

@@ -6,19 +6,20 @@ import json
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from services.lib.pointcloud.transforms import check_rigid, pose_error, to_json
 from services.stitching.calibration import (
     OPENCV_METHODS,
     CalibrationError,
-    NoiseModel,
     calibrate,
     calibrate_thesis,
     park_martin,
 )
 from services.stitching.calibration_sim import simulate_calibration
 from services.stitching.files import StitchingFileError, read_handeye, read_pairs, write_pairs
+from services.stitching.kinds import NoiseModel
 from supervisor.cli import app
 
 NOISELESS = dict(robot_sigma_mm=0.0, robot_sigma_deg=0.0, sensor_sigma_mm=0.0, sensor_sigma_deg=0.0)
@@ -85,7 +86,7 @@ def test_unusable_pairs_are_refused_with_a_reason() -> None:
     same = np.repeat(session.base_T_flange[:1], 5, axis=0)
     with pytest.raises(CalibrationError, match="tilt and turn"):
         calibrate(same, session.sensor_T_target[:5])
-    with pytest.raises(CalibrationError, match="robot_sigma_mm must be a positive"):
+    with pytest.raises(ValidationError, match="robot_sigma_mm\n  Input should be greater than 0"):
         NoiseModel(robot_sigma_mm=0.0)
     with pytest.raises(CalibrationError, match="unknown method"):
         calibrate(session.base_T_flange, session.sensor_T_target, method="magic")
@@ -134,10 +135,11 @@ def test_rounded_matrices_are_snapped_to_rotations() -> None:
 
 def test_cli_simulate_then_calibrate(tmp_path) -> None:
     runner = CliRunner()
-    simulated = runner.invoke(app, ["simulate", "stitching", str(tmp_path), "--corrupt", "1"])
+    simulated = runner.invoke(app, ["stitching", "simulate", str(tmp_path), "--corrupt", "1"])
     assert simulated.exit_code == 0, simulated.output
     out = tmp_path / "handeye.json"
-    done = runner.invoke(app, ["calibrate", str(tmp_path / "pairs.json"), "-o", str(out)])
+    calibrate_args = ["stitching", "calibrate", str(tmp_path / "pairs.json"), "-o", str(out)]
+    done = runner.invoke(app, calibrate_args)
     assert done.exit_code == 0, done.output
     truth = json.loads((tmp_path / "truth.json").read_text())
     assert f"dropped pair {truth['corrupted_pairs'][0]}" in done.output
@@ -145,21 +147,49 @@ def test_cli_simulate_then_calibrate(tmp_path) -> None:
     assert pose_error(flange_T_sensor, np.array(truth["flange_T_sensor"])) < (0.15, 0.05)
     assert document["method"] == "vista" and document["residual_mm"] < 0.2
     assert {"base_T_target", "sigma_translation_mm", "dropped_pairs"} <= set(document)
+    assert document["noise"] == NoiseModel().model_dump()  # what a bounded ICP stitch reads
 
-    bad_method = runner.invoke(
-        app, ["calibrate", str(tmp_path / "pairs.json"), "-o", str(out), "--method", "x"]
-    )
+    # The old spelling still works; the noise options are recorded for the stitch.
+    noisier = runner.invoke(app, [*calibrate_args[1:], "--robot-sigma-mm", "0.08"])
+    assert noisier.exit_code == 0, noisier.output
+    assert read_handeye(out)[1]["noise"]["robot_sigma_mm"] == 0.08
+    bad_method = runner.invoke(app, [*calibrate_args, "--method", "x"])
     assert bad_method.exit_code == 2 and "Invalid value for '--method'" in bad_method.output
     missing = runner.invoke(app, ["calibrate", str(tmp_path / "nope.json"), "-o", str(out)])
     assert missing.exit_code == 2 and "no such file" in missing.output
 
 
-def test_job_kind_parameters_offer_every_method() -> None:
+def test_method_lists_are_the_job_kinds_words() -> None:
+    """The calibration and ICP methods are declared once, in the kinds module; the code,
+    the commands and the jobs read them (OpenCV's by its constant's name)."""
     from typing import get_args
+
+    import cv2
 
     from services.stitching import icp
     from services.stitching.calibration import METHODS
     from services.stitching.kinds import CalibrationMethod, IcpMethod
 
-    assert set(get_args(CalibrationMethod)) == set(METHODS)
-    assert set(get_args(IcpMethod)) == {"none", *icp.METHODS}
+    assert METHODS == get_args(CalibrationMethod) == ("vista", "thesis", *OPENCV_METHODS)
+    assert all(hasattr(cv2, f"CALIB_HAND_EYE_{m.upper()}") for m in OPENCV_METHODS)
+    assert get_args(IcpMethod) == ("none", *icp.METHODS)
+
+
+def test_noise_defaults_are_the_calibrate_parameters() -> None:
+    """One declaration of the calibration noise (the job's parameters): the simulators and
+    ICP take their defaults from it."""
+    import inspect
+
+    from services.stitching.icp import IcpConfig
+    from services.stitching.kinds import CalibrateParams
+
+    noise = NoiseModel()
+    assert CalibrateParams().model_dump(exclude={"method"}) == noise.model_dump()
+    simulated = inspect.signature(simulate_calibration).parameters
+    assert {name: simulated[name].default for name in NoiseModel.model_fields} == (
+        noise.model_dump()
+    )
+    assert (IcpConfig().robot_sigma_mm, IcpConfig().robot_sigma_deg) == (
+        noise.robot_sigma_mm,
+        noise.robot_sigma_deg,
+    )

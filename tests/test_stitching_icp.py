@@ -11,6 +11,7 @@ from services.lib.pointcloud.ply import PointCloud
 from services.lib.pointcloud.transforms import from_rotvec, pose_error
 from services.stitching.calibration_sim import nominal_flange_T_sensor
 from services.stitching.icp import IcpConfig, transform_twist, twist_transform
+from services.stitching.kinds import NoiseModel
 from services.stitching.stitch import StitchConfig, stitch
 
 
@@ -20,7 +21,8 @@ def flat_scans():
     flange_T_sensor = nominal_flange_T_sensor(rng)
     mesh = scan_sim.flat_panel()
     sensor = scan_sim.SensorModel(grid=(120, 185))
-    scans = scan_sim.simulate_scans(mesh, flange_T_sensor, sensor=sensor, rng=rng)
+    robot = NoiseModel().model_dump(include={"robot_sigma_mm", "robot_sigma_deg"})
+    scans = scan_sim.simulate_scans(mesh, flange_T_sensor, sensor=sensor, **robot, rng=rng)
     clouds = [PointCloud(points=g.reshape(-1, 3), grid_shape=g.shape[:2]) for g in scans.scans]
     true_base_T_scan = scans.true_base_T_flange @ flange_T_sensor
     return clouds, scans, flange_T_sensor, true_base_T_scan

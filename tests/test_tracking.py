@@ -382,6 +382,7 @@ def test_tiny_detector_and_siamese_train_export_and_run(drive: Path, tmp_path: P
     ONNX files carry their metadata and run in the pipeline with resets."""
     from services.lib.nn.onnx_io import read_model
     from services.tracking.detector_training import DetectorTrainConfig, train_detector
+    from services.tracking.kinds import TrackParams
     from services.tracking.run import run_tracking
     from services.tracking.siamese import SiameseTrainConfig, candidate_poses, train_siamese
 
@@ -402,10 +403,7 @@ def test_tiny_detector_and_siamese_train_export_and_run(drive: Path, tmp_path: P
     assert meta["architecture"] == "sc3d-pointnet" and len(candidate_poses()) == 147
     document = run_tracking(
         drive,
-        track_id=0,
-        tracker="siamese",
-        detector="learned",
-        reset="every:4",
+        TrackParams(track_id=0, tracker="siamese", detector="learned", reset="every:4"),
         siamese_model=siamese,
         detector_model=detector,
     )
@@ -433,13 +431,15 @@ def test_siamese_candidates_see_the_points_of_their_own_boxes() -> None:
 
 
 def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> None:
+    """`vista tracking track` (job tracking.track's command; `run`, its older spelling,
+    still works), `vista tracking eval`, and their refusals."""
     runner = CliRunner()
     out = tmp_path / "track.json"
     done = runner.invoke(
         app,
         [
             "tracking",
-            "run",
+            "track",
             str(drive),
             "--track-id",
             "0",
@@ -468,11 +468,11 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
     labels = kitti.read_tracking_labels(drive / "label_02.txt")
     given = labels.camera_box[(labels.track_id == 0) & (labels.frame == 0)][0]
     by_box = tmp_path / "by_box.json"
-    done = runner.invoke(
+    done = runner.invoke(  # the older spelling
         app,
         ["tracking", "run", str(drive), "--init-box", " ".join(map(str, given)), "-o", str(by_box)],
     )
-    assert done.exit_code == 0, done.output
+    assert done.exit_code == 0 and "deprecated" in done.output, done.output
     evaluated = tmp_path / "eval.json"
     done = runner.invoke(
         app,
@@ -504,13 +504,46 @@ def test_track_commands_run_evaluate_and_refuse(drive: Path, tmp_path: Path) -> 
         (["--track-id", "0", "--detector-model", str(tmp_path / "no.onnx")], "no such model file"),
     ):
         refused = runner.invoke(
-            app, ["tracking", "run", str(drive), *arguments, "-o", str(tmp_path / "x.json")]
+            app, ["tracking", "track", str(drive), *arguments, "-o", str(tmp_path / "x.json")]
         )
         assert refused.exit_code == 2 and phrase in refused.output, (arguments, refused.output)
     refused = runner.invoke(
-        app, ["tracking", "run", str(tmp_path), "--track-id", "0", "-o", str(tmp_path / "x.json")]
+        app, ["tracking", "track", str(tmp_path), "--track-id", "0", "-o", str(tmp_path / "x.json")]
     )
     assert refused.exit_code == 2 and "not a LiDAR sequence" in refused.output
+
+
+def test_train_command_is_the_jobs_and_keeps_its_older_spellings(
+    drive: Path, tmp_path: Path
+) -> None:
+    """`vista tracking train` takes job tracking.train's params (the network among them);
+    `vista tracking train siamese|detector|default-detector …` still work for this release,
+    saying they are deprecated; a knob out of its network's range is refused by the model."""
+    from services.lib.nn.onnx_io import read_model
+
+    runner = CliRunner()
+    tiny = ["--epochs", "1", "--batch", "16", "--samples", "32", "--threads", "2"]
+    for spelling in (
+        ["train", str(drive), "--network", "siamese"],
+        ["train", "siamese", str(drive)],
+    ):
+        out = tmp_path / f"{len(spelling)}.onnx"
+        done = runner.invoke(app, ["tracking", *spelling, *tiny, "-o", str(out)])
+        assert done.exit_code == 0 and "validation similarity MSE" in done.output, done.output
+        assert read_model(out).metadata["architecture"] == "sc3d-pointnet"
+        assert ("deprecated" in done.output) == ("siamese" in spelling[:2])
+    out = str(tmp_path / "x.onnx")
+    for arguments, phrase in (
+        (["train", "detector", str(drive), "--from", "nowhere.onnx"], "no such model file"),
+        (["train", str(drive), "--window", "100"], "--window: 100 is not a multiple of 16"),
+        (["train", str(drive), "--network", "siamese", "--batch", "1"], "at least 2 pairs"),
+        (["train", str(drive), "--batch", "512"], "at most 256 windows"),
+        (["train", str(drive), "--network", "siamese", "--fine-tune"], "applies to the detector"),
+    ):
+        refused = runner.invoke(app, ["tracking", *arguments, "-o", out])
+        assert refused.exit_code == 2 and phrase in refused.output, (arguments, refused.output)
+    shown = runner.invoke(app, ["tracking", "train", "default-detector", "--help"])
+    assert shown.exit_code == 0 and "vista tracking build-default" in shown.output
 
 
 @real_data

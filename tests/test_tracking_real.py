@@ -97,7 +97,11 @@ def test_the_shipped_detector_finds_the_cars_of_a_real_drive_it_never_saw() -> N
     assert "CC BY-NC-SA 3.0" in training["licence"] and training["seed"] == 0
     assert training["data"] == ["../shared/data/kitti-object-sample"]
     assert training["command"].startswith(
-        ("vista track train default-detector", "vista tracking train default-detector")
+        (
+            "vista track train default-detector",
+            "vista tracking train default-detector",
+            "vista tracking build-default",
+        )
     )
     held_out = metadata["validation"]
     assert held_out["held_out"] and held_out["scan_names"][0].startswith(REAL_LABELLED_DRIVE.name)
@@ -108,7 +112,7 @@ def test_the_shipped_detector_finds_the_cars_of_a_real_drive_it_never_saw() -> N
 
 
 def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Path) -> None:
-    """`vista tracking train detector --from` on a few labelled scans, validated on others:
+    """`vista tracking train --from` on a few labelled scans, validated on others:
     the model starts as the shipped one (the same scores before as the shipped model
     gets), and the metadata holds both scores, the starting model and the licence."""
     from services.lib.nn.onnx_io import read_model
@@ -122,7 +126,7 @@ def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Pat
     done = CliRunner().invoke(
         app,
         [
-            "tracking", "train", "detector", str(train), "--from", str(DEFAULT_MODEL),
+            "tracking", "train", str(train), "--from", str(DEFAULT_MODEL),
             "--validate", str(held), "--epochs", "1", "--windows", "4", "--batch", "2",
             "--window", "96", "--licence", "KITTI, CC BY-NC-SA 3.0", "-o", str(out),
         ],
@@ -135,7 +139,7 @@ def test_fine_tuning_the_shipped_detector_reports_before_and_after(tmp_path: Pat
     before = metadata["validation"]["before_fine_tuning"]
     assert before["cars_near"] == metadata["validation"]["cars_near"] == 7
     refused = CliRunner().invoke(
-        app, ["tracking", "train", "detector", str(train), "--from", "nowhere.onnx", "-o", str(out)]
+        app, ["tracking", "train", str(train), "--from", "nowhere.onnx", "-o", str(out)]
     )
     assert refused.exit_code == 2 and "no such model file" in refused.output
 
@@ -144,19 +148,24 @@ def test_the_default_detector_recipe_runs_at_a_tiny_scale(tmp_path: Path) -> Non
     """The shipped model's build (simulate, train on the simulation, fine-tune on the real
     object scans, validate on the held-out drive) with one 3-frame drive and a few windows:
     every step's file is made and the metadata says what the shipped one says."""
-    from services.tracking.default_detector import build_default_detector
+    from services.tracking.default_detector import BuildSettings, build_default_detector
     from services.tracking.detector_training import DetectorTrainConfig
 
+    settings = BuildSettings(drives=1, frames=3, tune_epochs=1, tune_windows=2)
     metadata = build_default_detector(
-        tmp_path / "work", tmp_path / "detector.onnx", drives=1, frames=3,
+        tmp_path / "work", tmp_path / "detector.onnx", settings=settings,
         base_config=DetectorTrainConfig(epochs=1, batch=2, window_cells=96, windows_per_epoch=2),
-        tune_epochs=1, tune_windows=2, say=lambda message: None,
+        say=lambda message: None,
     )  # fmt: skip
     assert (tmp_path / "work" / "detector-sim.onnx").is_file()
     assert (tmp_path / "detector.onnx").is_file()
     assert metadata["validation"]["held_out"] and metadata["validation"]["cars_near"] == 47
     assert metadata["training"]["fine_tuned_from"]["file"] == "detector-sim.onnx"
     assert "CC BY-NC-SA 3.0" in metadata["training"]["licence"]
+    assert metadata["training"]["command"] == (
+        "vista tracking build-default --drives 1 --frames 3 --tune-epochs 1 --tune-windows 2 "
+        "--seed 0"
+    )
 
 
 def test_the_geometric_detector_scores_a_cars_shape_above_a_hedge_and_a_trunk() -> None:
@@ -181,7 +190,7 @@ def test_the_geometric_detector_scores_a_cars_shape_above_a_hedge_and_a_trunk() 
 
 
 def test_the_defaults_track_the_real_drives_cars(tmp_path: Path) -> None:
-    """`vista tracking run` with its defaults (geometric tracker, the shipped detector,
+    """`vista tracking track` with its defaults (geometric tracker, the shipped detector,
     adaptive resets, ego motion from the scans: the drive has no poses) on each car of the
     real labelled drive, and `vista tracking eval` on the labelled frames."""
     runner = CliRunner()
@@ -192,7 +201,7 @@ def test_the_defaults_track_the_real_drives_cars(tmp_path: Path) -> None:
             app,
             [
                 "tracking",
-                "run",
+                "track",
                 str(REAL_LABELLED_DRIVE),
                 "--track-id",
                 str(track_id),

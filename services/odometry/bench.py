@@ -1,4 +1,4 @@
-"""``vista bench odometry``: the three methods on the same simulated frames, against truth.
+"""``vista odometry bench``: the three methods on the same simulated frames, against truth.
 
 1. The thesis-like set: the 28.578 m circuit at 60 fps over concrete (thesis 6.3.3), each
    method's per-step RMSE, final error, ATE, drift, flagged pairs and pairs/s on this
@@ -40,13 +40,12 @@ from services.odometry.camera import FloorCamera
 from services.odometry.drive import Command
 from services.odometry.evaluate import evaluate
 from services.odometry.floors import PROCEDURAL, SAMPLE_IMAGES
-from services.odometry.kinds import OENET_EPOCHS, OENET_LEARNING_RATE
+from services.odometry.kinds import METHODS, OdometryParams, TrainParams
 from services.odometry.render import Effects
 from services.odometry.run import run_odometry
 from services.odometry.simulate import simulate_sequence
 from services.odometry.tum import read_tum
 
-METHODS = ("vista", "phase", "oenet")
 UNSEEN_FLOOR = "moon"
 """scikit-image's lunar surface picture: used by no model here in training."""
 KITTI_FLOOR = "KITTI street photo"
@@ -229,7 +228,7 @@ def _measure(folder: Path, method: str, model: Path | None, threads: int) -> dic
     run = run_odometry(
         folder / "frames",
         camera,
-        method,
+        OdometryParams(method=method),
         model=model if method == "oenet" else None,
         threads=threads,
     )
@@ -243,6 +242,8 @@ def _measure(folder: Path, method: str, model: Path | None, threads: int) -> dic
 
 
 def _train_oenet(model: Path, work: Path, threads: int) -> None:
+    """OE-Net trained as `vista odometry train` trains it by default (on the CPU)."""
+    from contract.training import config_from
     from services.lib.nn.regression import TrainConfig
     from services.odometry.oenet import train_oenet, training_summary
 
@@ -250,10 +251,8 @@ def _train_oenet(model: Path, work: Path, threads: int) -> None:
         _sequence(Case(f"training circuit {s}", "training", path="loop", seconds=0.0, seed=s), work)
         for s in TRAINING_SEEDS
     ]
-    say(f"training OE-Net for {OENET_EPOCHS} epochs (about an hour on 2 cores)")
-    config = TrainConfig(
-        epochs=OENET_EPOCHS, learning_rate=OENET_LEARNING_RATE, threads=threads, device="cpu"
-    )
+    config = config_from(TrainConfig, TrainParams(device="cpu"), threads=threads)
+    say(f"training OE-Net for {config.epochs} epochs (about an hour on 2 cores)")
     metadata = train_oenet(
         folders,
         model,
@@ -413,7 +412,7 @@ def run_odometry_bench(
         scratch = Path(tempfile.mkdtemp(prefix="vista-odometry-bench-"))
         work = scratch
     try:
-        methods = METHODS if oenet_model is not None else METHODS[:2]
+        methods = tuple(m for m in METHODS if oenet_model is not None or m != "oenet")
         thesis_protocol = None
         if oenet_model is not None:
             if not oenet_model.exists():

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import fail, params_options, progress_bar
+from contract.cli import alias, fail, params_options, progress_bar
 from services.odometry.kinds import OdometryParams, TrainParams
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
@@ -122,7 +122,6 @@ def run(
     from services.odometry.tum import read_tum
 
     prepare_process()
-    method = params.method
     settings = _camera(camera)
     true = None
     if truth is not None:
@@ -130,12 +129,12 @@ def run(
             true = read_tum(truth)
         except (OSError, ValueError) as exc:
             fail(str(exc))
-    with progress_bar(f"odometry ({method})") as step:
+    with progress_bar(f"odometry ({params.method})") as step:
         try:
             result = run_odometry(
                 frames_dir,
                 settings,
-                method,
+                params,
                 model=model,
                 threads=threads or available_cores(),
                 progress=lambda fraction, message: step(fraction),
@@ -231,6 +230,7 @@ def eval_(
     typer.echo(f"wrote {out}")
 
 
+@odometry_app.command("bench")
 def bench_odometry(
     out: Path = typer.Option(Path("bench-results/odometry.json"), help="Where to write the JSON."),
     oenet_model: Path = typer.Option(
@@ -268,6 +268,6 @@ def bench_odometry(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
-    simulate_app.command("odometry")(simulate)
     app.add_typer(odometry_app, name="odometry")
-    bench_app.command("odometry")(bench_odometry)
+    alias(simulate_app, "odometry", simulate, "odometry simulate")
+    alias(bench_app, "odometry", bench_odometry, "odometry bench")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from contract.context import (
     InputArtifact,
@@ -25,6 +26,10 @@ from services.odometry.kinds import (
     TRAJECTORY_PLOT,
 )
 from services.odometry.sequence import SequenceArchive, extract_sequence
+
+if TYPE_CHECKING:
+    from services.odometry.run import OdometryRun
+    from services.odometry.tum import Trajectory2D
 
 TUM_MEDIA_TYPE = "text/plain"
 
@@ -50,14 +55,8 @@ def _named(
     return message
 
 
-def odometry_job(ctx: JobContext) -> dict:
-    from services.odometry.evaluate import error_along_path, evaluate
-    from services.odometry.report import write_run
-    from services.odometry.run import run_odometry
-    from services.odometry.tum import read_tum
-
-    method = ctx.params.method
-    sequence = one_input(ctx, "frames", "the frame sequence")
+def _model_inputs(ctx: JobContext, method: str) -> list[InputArtifact]:
+    """The `model` input: OE-Net's, which method oenet needs and the others refuse."""
     models = inputs_of_kind(ctx, "model")
     if method == "oenet" and not models:
         raise JobInputError(
@@ -66,6 +65,44 @@ def odometry_job(ctx: JobContext) -> dict:
         )
     if method != "oenet" and models:
         raise JobInputError(f"method {method} uses no model; leave the `model` input out")
+    return models
+
+
+def _store_run(ctx: JobContext, result: OdometryRun, truth: Trajectory2D | None) -> None:
+    """The trajectory, its report and its plot as the job's artifacts."""
+    from services.odometry.report import write_run
+
+    out = ctx.workdir / "out"
+    out.mkdir()
+    paths = [out / o.file_name() for o in (TRAJECTORY, RUN_REPORT, TRAJECTORY_PLOT)]
+    write_run(result, *paths, truth)
+    for output, path, media_type in zip(
+        (TRAJECTORY, RUN_REPORT, TRAJECTORY_PLOT),
+        paths,
+        (TUM_MEDIA_TYPE, "application/json", "image/png"),
+        strict=True,
+    ):
+        ctx.add_artifact_file(path, kind=output.kind, name=path.name, media_type=media_type)
+
+
+def _store_evaluation(ctx: JobContext, result: OdometryRun, truth: Trajectory2D) -> dict:
+    """The run against the truth (as `vista odometry eval` scores it, with the error along
+    the path) as an artifact; its scores."""
+    from services.odometry.evaluate import error_along_path, evaluate
+
+    scores = evaluate(result.trajectory, truth, result.covariance[-1]).document()
+    along = {"along_path": error_along_path(result.trajectory, truth)}
+    ctx.add_artifact_json(scores | along, kind=EVALUATION.kind, name=EVALUATION.file_name())
+    return scores
+
+
+def odometry_job(ctx: JobContext) -> dict:
+    from services.odometry.run import run_odometry
+    from services.odometry.tum import read_tum
+
+    params = ctx.params
+    sequence = one_input(ctx, "frames", "the frame sequence")
+    models = _model_inputs(ctx, params.method)
     ctx.progress(0.01, f"unpacking {sequence.name}")
     folder = ctx.workdir / "sequence"
     found = unpacked(sequence, folder, extract_sequence)
@@ -74,7 +111,7 @@ def odometry_job(ctx: JobContext) -> dict:
         result = run_odometry(
             folder / "frames",
             found.camera,
-            method,
+            params,
             model=models[0].path if models else None,
             threads=ctx.threads,
             progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
@@ -82,24 +119,9 @@ def odometry_job(ctx: JobContext) -> dict:
     except ValueError as exc:
         raise JobInputError(_named(str(exc), sequence, found, folder, models)) from exc
     ctx.progress(0.92, "writing the trajectory")
-    out = ctx.workdir / "out"
-    out.mkdir()
-    write_run(
-        result,
-        out / TRAJECTORY.file_name(),
-        out / RUN_REPORT.file_name(),
-        out / TRAJECTORY_PLOT.file_name(),
-        truth,
-    )
-    for output, media_type in (
-        (TRAJECTORY, TUM_MEDIA_TYPE),
-        (RUN_REPORT, "application/json"),
-        (TRAJECTORY_PLOT, "image/png"),
-    ):
-        path = out / output.file_name()
-        ctx.add_artifact_file(path, kind=output.kind, name=path.name, media_type=media_type)
+    _store_run(ctx, result, truth)
     summary = {
-        "method": method,
+        "method": params.method,
         "frames": len(result.trajectory),
         "pairs_per_s": round(result.pairs_per_s, 1),
         "flagged": result.flagged,
@@ -107,10 +129,7 @@ def odometry_job(ctx: JobContext) -> dict:
         "final_sigma_xy_mm": round(float(result.sigma_xy_mm[-1]), 3),
     }
     if truth is not None:
-        scores = evaluate(result.trajectory, truth, result.covariance[-1]).document()
-        along = {"along_path": error_along_path(result.trajectory, truth)}
-        ctx.add_artifact_json(scores | along, kind=EVALUATION.kind, name=EVALUATION.file_name())
-        summary["evaluation"] = scores
+        summary["evaluation"] = _store_evaluation(ctx, result, truth)
     ctx.progress(
         1.0,
         f"{len(result.steps.motion)} pairs, {result.flagged} flagged, {result.warned} warned",

@@ -1,6 +1,6 @@
 """Job kinds of the odometry service (imported by the API: keep it light)."""
 
-from typing import Literal
+from typing import Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -8,6 +8,10 @@ from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from contract.training import TrainSettings
 from contract.views import TRAINING_REPORT_NAME
+
+Method = Literal["vista", "phase", "oenet"]
+METHODS: tuple[str, ...] = get_args(Method)
+"""How a run estimates the motions, in the order the bench lists them."""
 
 OENET_EPOCHS = 40
 OENET_LEARNING_RATE = 0.02
@@ -22,7 +26,7 @@ SEQUENCE = Inputs(
 class OdometryParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    method: Literal["vista", "phase", "oenet"] = Field(
+    method: Method = Field(
         "vista",
         description="vista: direct alignment at full resolution (no training needed); phase: "
         "phase correlation with a Fourier–Mellin turn (the classical peer); oenet: the "
@@ -116,4 +120,4 @@ PRECOMPILE = "services.odometry.direct:warm_up"
 """What `vista precompile` runs to fill numba's cache: a PNG frame decoded, a pair aligned."""
 
 SAMPLE_RUN = "services.odometry.sample:sample_run"
-"""A run of its jobs on files it makes (``contract.samples``): `vista bench clients` draws their pages and scenes."""
+"""A run of its jobs on files it makes (``contract.samples``): `vista clients bench` draws their pages and scenes."""

@@ -25,11 +25,10 @@ from services.odometry import se2
 from services.odometry.camera import FloorCamera
 from services.odometry.direct import LEVELS, align, flat_field, prepare, seed_px, warm_up
 from services.odometry.frames import frame_files, read_frame, read_frames, read_frames_at_once
+from services.odometry.kinds import OdometryParams
 from services.odometry.oenet import oenet_motions, oenet_sigma
 from services.odometry.phase import pair_motion
 from services.odometry.tum import Trajectory2D
-
-METHODS = ("vista", "phase", "oenet")
 
 MIN_RESPONSE = 0.08
 """Below this phase-correlation peak the frames did not match (textureless, blurred, too
@@ -256,16 +255,16 @@ def oenet_steps(files: list[Path], camera: FloorCamera, model: Path, threads: in
 def run_odometry(
     folder: Path,
     camera: FloorCamera,
-    method: str = "vista",
+    params: OdometryParams | None = None,
     *,
     model: Path | None = None,
     threads: int = 1,
     progress: Progress | None = None,
 ) -> OdometryRun:
-    """The trajectory of the frames in ``folder`` by ``method`` (``METHODS``; ``oenet``
-    needs the ``model`` file that ``vista odometry train`` builds)."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; known: {', '.join(METHODS)}")
+    """The trajectory of the frames in ``folder`` by ``params.method`` (default vista's;
+    ``oenet`` needs the ``model`` file that ``vista odometry train`` builds): what
+    ``vista odometry run`` and the ``odometry.run`` job do."""
+    method = (params or OdometryParams()).method
     if method == "oenet" and (model is None or not model.is_file()):
         raise ValueError(
             "OE-Net needs its model file (--model): build one with `vista odometry train "

@@ -1,4 +1,4 @@
-"""``vista bench stitching``: the stitching service against its peers, in one run.
+"""``vista stitching bench``: the stitching service against its peers, in one run.
 
 (i) Full scale — ten Gocator 3210 snapshots (1288 × 1936, ~2.5 M points each) of a
 simulated flat strip: vista's stitch + clean against the same steps written with Open3D's
@@ -31,8 +31,9 @@ from contract.bench import print_verdict, write_document
 from contract.bench import say as say_progress
 from services.lib.pointcloud.ply import read_ply
 from services.lib.pointcloud.transforms import pose_error
-from services.stitching.calibration import METHODS, OPENCV_METHODS, NoiseModel, calibrate
+from services.stitching.calibration import METHODS, OPENCV_METHODS, calibrate
 from services.stitching.calibration_sim import simulate_calibration
+from services.stitching.kinds import NoiseModel
 
 TARGETS = {
     "stitch_seconds_max": 60.0,
@@ -82,18 +83,11 @@ def calibration_bench(
         errors: dict[str, list] = {m: [] for m in methods}
         seconds: dict[str, list] = {m: [] for m in methods}
         named = 0
-        scale = case.noise_scale
-        noise = NoiseModel(0.05 * scale, 0.005 * scale, 0.02 * scale, 0.02 * scale)
+        noise = _scaled(NoiseModel(), case.noise_scale)
         for session_index in range(sessions):
             rng = np.random.default_rng([seed, session_index, case.poses, case.corrupt])
             session = simulate_calibration(
-                poses=case.poses,
-                robot_sigma_mm=noise.robot_sigma_mm,
-                robot_sigma_deg=noise.robot_sigma_deg,
-                sensor_sigma_mm=noise.sensor_sigma_mm,
-                sensor_sigma_deg=noise.sensor_sigma_deg,
-                corrupt=case.corrupt,
-                rng=rng,
+                poses=case.poses, **noise.model_dump(), corrupt=case.corrupt, rng=rng
             )
             for method in methods:
                 if method == "thesis" and session_index >= thesis_sessions:
@@ -131,6 +125,11 @@ def calibration_bench(
                     row["bad_pair_named"] = named
             rows.append(row)
     return rows
+
+
+def _scaled(noise: NoiseModel, factor: float) -> NoiseModel:
+    """Every σ of ``noise`` times ``factor``: the same robot and sensor, more or less noisy."""
+    return NoiseModel(**{name: sigma * factor for name, sigma in noise.model_dump().items()})
 
 
 def _paired(errors: dict[str, np.ndarray]) -> dict:

@@ -20,7 +20,7 @@ Three ways to solve it:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import get_args
 
 import numpy as np
@@ -35,11 +35,10 @@ from services.lib.pointcloud.transforms import (
     make_transform,
     to_rotvec,
 )
-from services.stitching.kinds import CalibrateParams, CalibrationMethod
+from services.stitching.kinds import CalibrationMethod, NoiseModel, OpenCvMethod
 
 METHODS: tuple[str, ...] = get_args(CalibrationMethod)
-OPENCV_METHODS = METHODS[2:]
-"""OpenCV's calibrateHandEye: tsai, park, horaud, andreff, daniilidis."""
+OPENCV_METHODS: tuple[str, ...] = get_args(OpenCvMethod)
 MIN_PAIRS = 3
 
 _axis = np.linspace(-50.0, 50.0, 5)
@@ -55,31 +54,6 @@ THESIS_TRANSLATION_SCALE_MM = 100.0
 
 class CalibrationError(ValueError):
     """The pairs cannot give a calibration; the message says why."""
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """1σ per axis of the robot's reported flange pose and of the sensor's plate pose."""
-
-    robot_sigma_mm: float = 0.05
-    robot_sigma_deg: float = 0.005
-    sensor_sigma_mm: float = 0.02
-    sensor_sigma_deg: float = 0.02
-
-    def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if not (np.isfinite(value) and value > 0):
-                raise CalibrationError(f"{name} must be a positive number, got {value}")
-
-    @classmethod
-    def of(cls, params: CalibrateParams) -> NoiseModel:
-        """The noise a calibrate job's or command's parameters state."""
-        return cls(
-            params.robot_sigma_mm,
-            params.robot_sigma_deg,
-            params.sensor_sigma_mm,
-            params.sensor_sigma_deg,
-        )
 
 
 @dataclass(frozen=True)
@@ -107,6 +81,9 @@ class HandEye:
     sigma_rotation_deg: float | None = None
     seconds: float = 0.0
     details: dict = field(default_factory=dict)
+    noise: NoiseModel | None = None
+    """The noise the calibration was given (the vista method weighs the pairs by it; a
+    bounded ICP stitch with this calibration bounds each scan by the robot's)."""
 
 
 def check_pairs(base_T_flange: np.ndarray, sensor_T_target: np.ndarray) -> None:
@@ -184,15 +161,10 @@ def calibrate_opencv(
     """OpenCV's ``calibrateHandEye`` (eye-in-hand: gripper = flange, camera = sensor)."""
     import cv2
 
-    codes = {
-        "tsai": cv2.CALIB_HAND_EYE_TSAI,
-        "park": cv2.CALIB_HAND_EYE_PARK,
-        "horaud": cv2.CALIB_HAND_EYE_HORAUD,
-        "andreff": cv2.CALIB_HAND_EYE_ANDREFF,
-        "daniilidis": cv2.CALIB_HAND_EYE_DANIILIDIS,
-    }
-    if method not in codes:
-        raise CalibrationError(f"unknown OpenCV method {method!r}; one of {sorted(codes)}")
+    if method not in OPENCV_METHODS:
+        raise CalibrationError(
+            f"unknown OpenCV method {method!r}; one of {', '.join(OPENCV_METHODS)}"
+        )
     check_pairs(base_T_flange, sensor_T_target)
     started = time.perf_counter()
     rotation, translation = cv2.calibrateHandEye(
@@ -200,7 +172,7 @@ def calibrate_opencv(
         list(base_T_flange[:, :3, 3:]),
         list(sensor_T_target[:, :3, :3]),
         list(sensor_T_target[:, :3, 3:]),
-        method=codes[method],
+        method=getattr(cv2, f"CALIB_HAND_EYE_{method.upper()}"),
     )
     flange_T_sensor = make_transform(rotation, translation.ravel())
     used = np.arange(len(base_T_flange))
@@ -370,7 +342,6 @@ def calibrate_vista(
             "variance_factor": variance_factor,
             "pair_chi2": [float(c) for c in per_pair_chi2],
             "chi2_threshold": threshold,
-            "noise": vars(noise),
         },
     )
 
@@ -394,11 +365,14 @@ def calibrate(
     method: str = "vista",
     noise: NoiseModel | None = None,
 ) -> HandEye:
-    """Calibrate with any of ``METHODS``."""
+    """Calibrate with any of ``METHODS``; the result keeps the noise it was given."""
+    noise = noise or NoiseModel()
     if method == "vista":
-        return calibrate_vista(base_T_flange, sensor_T_target, noise=noise)
-    if method == "thesis":
-        return calibrate_thesis(base_T_flange, sensor_T_target)
-    if method in OPENCV_METHODS:
-        return calibrate_opencv(base_T_flange, sensor_T_target, method)
-    raise CalibrationError(f"unknown method {method!r}; one of {', '.join(METHODS)}")
+        result = calibrate_vista(base_T_flange, sensor_T_target, noise=noise)
+    elif method == "thesis":
+        result = calibrate_thesis(base_T_flange, sensor_T_target)
+    elif method in OPENCV_METHODS:
+        result = calibrate_opencv(base_T_flange, sensor_T_target, method)
+    else:
+        raise CalibrationError(f"unknown method {method!r}; one of {', '.join(METHODS)}")
+    return replace(result, noise=noise)

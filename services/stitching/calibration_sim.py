@@ -3,7 +3,8 @@
 A plate with two reference holes lies in the robot's workspace; the robot shows it to the
 sensor from ``poses`` viewpoints (standoff, tilt and roll varied, as a person teaching a
 calibration would). At each pose the robot reports ``base_T_flange`` with its
-repeatability error and the sensor reports ``sensor_T_target`` with its own noise.
+repeatability error and the sensor reports ``sensor_T_target`` with its own noise (by
+default the calibration's, ``kinds.NoiseModel``).
 """
 
 from __future__ import annotations
@@ -13,13 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from services.lib.pointcloud.transforms import from_rotvec, invert, look_at, perturb
+from services.stitching.kinds import NoiseModel
 
-ROBOT_SIGMA_MM = 0.05
-"""UR10e pose repeatability ±0.05 mm, taken as σ per axis."""
-ROBOT_SIGMA_DEG = 0.005
-"""Orientation repeatability: 0.05 mm over the ~600 mm of a UR10e's wrist lever."""
-SENSOR_SIGMA_MM = 0.02
-SENSOR_SIGMA_DEG = 0.02
+NOISE = NoiseModel()
 STANDOFF_MM = (190.0, 250.0)
 """Gocator 3210: clearance 164 mm plus its 110 mm measuring range; the plate in the middle."""
 MAX_TILT_DEG = 30.0
@@ -49,10 +46,10 @@ def nominal_flange_T_sensor(rng: np.random.Generator) -> np.ndarray:
 def simulate_calibration(
     *,
     poses: int = 15,
-    robot_sigma_mm: float = ROBOT_SIGMA_MM,
-    robot_sigma_deg: float = ROBOT_SIGMA_DEG,
-    sensor_sigma_mm: float = SENSOR_SIGMA_MM,
-    sensor_sigma_deg: float = SENSOR_SIGMA_DEG,
+    robot_sigma_mm: float = NOISE.robot_sigma_mm,
+    robot_sigma_deg: float = NOISE.robot_sigma_deg,
+    sensor_sigma_mm: float = NOISE.sensor_sigma_mm,
+    sensor_sigma_deg: float = NOISE.sensor_sigma_deg,
     corrupt: int = 0,
     corrupt_mm: float = 2.0,
     corrupt_deg: float = 1.0,

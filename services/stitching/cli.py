@@ -1,4 +1,5 @@
-"""``vista stitching calibrate`` and ``vista simulate stitching``."""
+"""``vista stitching calibrate|calibration-error|stitch|simulate|bench``; the old spellings
+(``vista calibrate``, ``vista simulate stitching`` …) kept as hidden aliases for a release."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import alias, fail, params_options
+from contract.cli import alias, fail, params_options, progress_bar
 from services.stitching.kinds import CalibrateParams, StitchParams
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands: every `vista` invocation
@@ -24,23 +25,20 @@ def calibrate(
     params: CalibrateParams,
 ) -> None:
     """Robot–sensor calibration: flange_T_sensor (and the plate's base_T_target) from pairs of
-    reported robot pose and measured plate pose. The noise options weigh the vista method."""
-    from services.stitching.calibration import CalibrationError, NoiseModel
-    from services.stitching.calibration import calibrate as run_calibration
-    from services.stitching.files import StitchingFileError, read_pairs, write_handeye
+    reported robot pose and measured plate pose. The noise options weigh the vista method;
+    HANDEYE.json keeps them (a bounded ICP stitch moves scans within the robot's)."""
+    from services.stitching.files import write_handeye
+    from services.stitching.run import calibrate_pairs
 
-    method = params.method
     try:
-        base_T_flange, sensor_T_target = read_pairs(pairs)
-        noise = NoiseModel.of(params)
-        result = run_calibration(base_T_flange, sensor_T_target, method=method, noise=noise)
-    except (StitchingFileError, CalibrationError) as exc:
+        result = calibrate_pairs(pairs, params)
+    except ValueError as exc:
         fail(str(exc))
     out.parent.mkdir(parents=True, exist_ok=True)
     write_handeye(out, result)
     typer.echo(
-        f"{method}: residual {result.residual_mm:.4f} mm over {len(result.used_pairs)} of "
-        f"{len(base_T_flange)} pairs in {result.seconds * 1000:.1f} ms"
+        f"{result.method}: residual {result.residual_mm:.4f} mm over {len(result.used_pairs)} "
+        f"of {len(result.pair_residuals_mm)} pairs in {result.seconds * 1000:.1f} ms"
     )
     if result.sigma_translation_mm is not None:
         typer.echo(
@@ -96,75 +94,30 @@ def stitch(
         ..., help="Where to write REPORT.json (a .png plot goes beside it)."
     ),
     truth: Path = typer.Option(
-        None, help="truth.json of `vista simulate stitching`: adds the true errors."
+        None, help="truth.json of `vista stitching simulate`: adds the true errors."
     ),
     *,
     params: StitchParams,
 ) -> None:
     """Stitch scans into the robot base frame with the calibration, clean them (LoOP,
     closest-vertex merge, final filter) and report the overlap quality (Fig. 6.2)."""
-    from tqdm import tqdm
-
-    from services.lib.pointcloud.ply import PlyError, read_ply, write_ply
-    from services.stitching.files import (
-        StitchingFileError,
-        read_handeye,
-        read_scans,
-        read_truth,
-    )
-    from services.stitching.quality import histogram_png
-    from services.stitching.report import stitch_config, stitch_report
-    from services.stitching.stitch import stitch as run_stitch
+    from services.stitching.files import read_scans
+    from services.stitching.run import stitch_files, write_stitched
 
     try:
         files, base_T_flange = read_scans(scans)
-        flange_T_sensor, calibration = read_handeye(handeye)
-        config = stitch_config(params, calibration)
-        simulated = None if truth is None else read_truth(truth)
-        if simulated is not None and len(simulated.scan_base_T_flange) != len(files):
-            fail(f"{truth} holds {len(simulated.scan_base_T_flange)} scans, {scans} {len(files)}")
-        clouds = []
-        for file in tqdm(files, desc="reading scans", unit="scan"):
-            clouds.append(read_ply(file))
-    except (StitchingFileError, PlyError, ValueError) as exc:
+        with progress_bar("stitching") as step:
+            stitched = stitch_files(
+                files, base_T_flange, handeye, params, truth=truth, progress=step
+            )
+    except ValueError as exc:
         fail(str(exc))
-    with tqdm(total=100, desc="stitching", unit="%") as bar:
-
-        def progress(fraction: float, message: str) -> None:
-            bar.set_postfix_str(message)
-            bar.update(round(100 * fraction) - bar.n)
-
-        result = run_stitch(
-            clouds, base_T_flange, flange_T_sensor, config=config, progress=progress
-        )
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_ply(out, result.cloud, comments=("vista stitched, base frame, mm",))
-    quality, document = stitch_report(
-        result, config=config, calibration=calibration, truth=simulated
-    )
     report.parent.mkdir(parents=True, exist_ok=True)
-    report.write_text(json.dumps(document, indent=1) + "\n")
-    histogram_png(quality, report.with_suffix(".png"))
-    o = quality.overall
-    typer.echo(
-        f"{len(result.cloud.points)} points from {len(files)} scans; overlap of "
-        f"{len(quality.pairs)} pairs: mean {o.mean_mm:.4f} mm, std {o.std_mm:.4f}, "
-        f"p90 {o.p90_mm:.4f}, max {o.max_mm:.3f}"
-    )
-    if result.alignments is not None:
-        worst = max(result.alignments, key=lambda a: a.moved_mm)
-        typer.echo(
-            f"ICP {params.icp}: moved scans by up to {worst.moved_mm:.3f} mm, "
-            f"{max(a.moved_deg for a in result.alignments):.4f}°; "
-            f"{sum(a.clipped for a in result.alignments)} cut back to the kinematic bound"
-        )
-    if simulated is not None:
-        t, pose = quality.true_error, document["scan_pose_error"]
-        typer.echo(
-            f"true error to the surface: mean {t.mean_mm:.4f} mm, p90 {t.p90_mm:.4f}; scan "
-            f"poses: mean {pose['mean_translation_mm']:.4f} mm, max "
-            f"{pose['max_translation_mm']:.4f} mm / {pose['max_rotation_deg']:.4f}°"
-        )
+    write_stitched(stitched, out, report.with_suffix(".png"))
+    report.write_text(json.dumps(stitched.report, indent=1) + "\n")
+    for line in stitched.summary():
+        typer.echo(line)
     typer.echo(f"wrote {out}, {report} and {report.with_suffix('.png')}")
 
 
@@ -172,7 +125,7 @@ def compare_handeye(
     handeye: Path = typer.Argument(
         ..., help="HANDEYE.json written by `vista stitching calibrate`."
     ),
-    truth: Path = typer.Argument(..., help="truth.json written by `vista simulate stitching`."),
+    truth: Path = typer.Argument(..., help="truth.json written by `vista stitching simulate`."),
 ) -> None:
     """How far a calibration is from the simulated truth (translation mm, rotation deg)."""
     import numpy as np
@@ -222,6 +175,8 @@ def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer
     for verb, command in verbs.items():
         stitching_app.command(verb)(command)
         alias(app, verb, command, f"stitching {verb}")
+    stitching_app.command("simulate")(simulate_stitching)
+    stitching_app.command("bench")(bench_stitching)
     app.add_typer(stitching_app, name="stitching")
-    simulate_app.command("stitching")(simulate_stitching)
-    bench_app.command("stitching")(bench_stitching)
+    alias(simulate_app, "stitching", simulate_stitching, "stitching simulate")
+    alias(bench_app, "stitching", bench_stitching, "stitching bench")

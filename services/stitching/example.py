@@ -1,4 +1,4 @@
-"""A complete simulated stitching example on disk: what ``vista simulate stitching`` writes
+"""A complete simulated stitching example on disk: what ``vista stitching simulate`` writes
 and the stitching benchmark stitches. pairs.json, scan_NNN.ply, scans.json, truth.json."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from services.lib.pointcloud.ply import PointCloud, write_ply
 from services.lib.pointcloud.transforms import to_json
 from services.stitching.calibration_sim import CalibrationSession, simulate_calibration
 from services.stitching.files import write_pairs, write_scans
+from services.stitching.kinds import NoiseModel
 
 
 @dataclass(frozen=True)
@@ -62,12 +63,21 @@ def write_example(
     seed: int = 0,
 ) -> Example:
     """Simulate a calibration session and the scans of ``component`` and write them, with
-    the ground truth (true mount, true robot poses, the part's pose and bounding box)."""
+    the ground truth (true mount, true robot poses, the part's pose and bounding box). One
+    robot and sensor, with the noise a calibration assumes by default, for both."""
     rng = np.random.default_rng(seed)
-    session = simulate_calibration(poses=poses, corrupt=corrupt, rng=rng)
+    noise = NoiseModel()
+    session = simulate_calibration(poses=poses, **noise.model_dump(), corrupt=corrupt, rng=rng)
     mesh = scan_sim.COMPONENTS[component]()
     sensor = scan_sim.SensorModel(grid=grid)
-    scans = scan_sim.simulate_scans(mesh, session.true_flange_T_sensor, sensor=sensor, rng=rng)
+    scans = scan_sim.simulate_scans(
+        mesh,
+        session.true_flange_T_sensor,
+        sensor=sensor,
+        robot_sigma_mm=noise.robot_sigma_mm,
+        robot_sigma_deg=noise.robot_sigma_deg,
+        rng=rng,
+    )
     names = write_session(out_dir, session, scans.scans, None, scans.base_T_flange)
     corners = mesh.vertices @ scans.base_T_part[:3, :3].T + scans.base_T_part[:3, 3]
     truth = {

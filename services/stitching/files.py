@@ -1,7 +1,8 @@
 """The stitching file contract: PAIRS.json in, HANDEYE.json out (4×4 row-major, mm).
 
 PAIRS.json  ``{"pairs": [{"base_T_flange": M, "sensor_T_target": M}, …]}``
-HANDEYE.json ``{"flange_T_sensor": M, "base_T_target": M, "method": …, "residual_mm": …, …}``
+HANDEYE.json ``{"flange_T_sensor": M, "base_T_target": M, "method": …, "residual_mm": …, …,
+"noise": {"robot_sigma_mm": …, …}}`` (the noise the calibration was given)
 """
 
 from __future__ import annotations
@@ -12,10 +13,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from services.lib.archive import read_json
 from services.lib.pointcloud.transforms import TransformError, check_rigid, to_json
 from services.stitching.calibration import HandEye
+from services.stitching.kinds import NoiseModel
 
 
 class StitchingFileError(ValueError):
@@ -110,7 +113,13 @@ def handeye_json(result: HandEye) -> dict:
         "sigma_rotation_deg": result.sigma_rotation_deg,
         "seconds": result.seconds,
         "details": result.details,
+        "noise": None if result.noise is None else _noise_json(result.noise),
     }
+
+
+def _noise_json(noise: NoiseModel) -> dict:
+    """The noise's own fields (a calibrate job's parameters are a noise model, and more)."""
+    return {name: getattr(noise, name) for name in NoiseModel.model_fields}
 
 
 def write_handeye(path: Path, result: HandEye) -> None:
@@ -118,16 +127,22 @@ def write_handeye(path: Path, result: HandEye) -> None:
 
 
 def read_handeye(path: Path) -> tuple[np.ndarray, dict]:
-    """flange_T_sensor and the whole document (for its uncertainty and method)."""
+    """flange_T_sensor and the whole document (for its uncertainty, noise and method)."""
     data = load_json(path)
     if not isinstance(data, dict) or "flange_T_sensor" not in data:
         raise StitchingFileError(f"{path}: expected an object with flange_T_sensor")
+    try:
+        NoiseModel.model_validate(data.get("noise") or {})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        at = ".".join(["noise", *(str(p) for p in first["loc"])])
+        raise StitchingFileError(f"{path}: {at}: {first['msg']}") from None
     return _matrix(data["flange_T_sensor"], f"{path}: flange_T_sensor"), data
 
 
 @dataclass(frozen=True)
 class SimulatedTruth:
-    """truth.json of ``vista simulate stitching``: what the simulated measurements hide."""
+    """truth.json of ``vista stitching simulate``: what the simulated measurements hide."""
 
     component: str
     base_T_part: np.ndarray

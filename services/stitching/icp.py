@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import get_args
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -29,17 +30,19 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from services.lib.pointcloud.transforms import adjoint, apply, invert, make_transform
+from services.stitching.kinds import IcpAlgorithm, IcpStart, NoiseModel, StitchParams
 
-METHODS = ("point-to-point", "point-to-plane", "bounded")
-STARTS = ("kinematic", "none")
+METHODS: tuple[str, ...] = get_args(IcpAlgorithm)
+STARTS: tuple[str, ...] = get_args(IcpStart)
 MIN_CORRESPONDENCES = 100
+DEFAULT_NOISE = NoiseModel()
 
 
 @dataclass(frozen=True)
 class IcpConfig:
     method: str = "bounded"
     """point-to-point | point-to-plane | bounded (point-to-plane within the kinematic bound)."""
-    start: str = "kinematic"
+    start: str = StitchParams.model_fields["icp_start"].default
     """kinematic: start from the robot pose; none: from the previous scan's pose, as ICP on
     two raw sensor-frame scans does when no initial transform is given."""
     max_distance_mm: float = 1.0
@@ -50,8 +53,9 @@ class IcpConfig:
     source_points: int = 20_000
     target_points: int = 400_000
     """Random samples of the moving scan and of the scans already placed."""
-    robot_sigma_mm: float = 0.05
-    robot_sigma_deg: float = 0.005
+    robot_sigma_mm: float = DEFAULT_NOISE.robot_sigma_mm
+    robot_sigma_deg: float = DEFAULT_NOISE.robot_sigma_deg
+    """The robot's repeatability, 1σ per axis (a stitch takes it from the calibration)."""
     calibration_sigma_mm: float = 0.0
     calibration_sigma_deg: float = 0.0
     """1σ (total over the three axes, as HANDEYE.json reports it) of flange_T_sensor."""

@@ -8,16 +8,24 @@ from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output
 from services.lib.artifact_kinds import FORMATS
 
-CalibrationMethod = Literal["vista", "thesis", "tsai", "park", "horaud", "andreff", "daniilidis"]
-IcpMethod = Literal["none", "bounded", "point-to-point", "point-to-plane"]
+OpenCvMethod = Literal["tsai", "park", "horaud", "andreff", "daniilidis"]
+"""OpenCV's ``calibrateHandEye`` methods."""
+CalibrationMethod = Literal["vista", "thesis", OpenCvMethod]
+IcpAlgorithm = Literal["bounded", "point-to-point", "point-to-plane"]
+IcpMethod = Literal["none", IcpAlgorithm]
+"""``none``: the kinematic poses only; else the ICP algorithm."""
+IcpStart = Literal["kinematic", "none"]
 
 
-class CalibrateParams(BaseModel):
+class NoiseModel(BaseModel):
+    """1σ per axis of the robot's reported flange pose and of the sensor's plate pose: what
+    the vista calibration weighs each pair by, what a bounded ICP stitch lets a scan move
+    within (the robot's, as HANDEYE.json records it) and what the simulators draw."""
+
     model_config = ConfigDict(extra="forbid")
 
-    method: CalibrationMethod = Field(
-        "vista", description="vista (weighs the noise below), the thesis's, or a classic solver."
-    )
+    # A UR10e: its ±0.05 mm pose repeatability taken as σ per axis, and that 0.05 mm over
+    # the ~600 mm of its wrist lever as the orientation's.
     robot_sigma_mm: float = Field(
         0.05, gt=0, le=10, description="Robot repeatability, 1σ per axis (mm)."
     )
@@ -29,6 +37,13 @@ class CalibrateParams(BaseModel):
     )
     sensor_sigma_deg: float = Field(
         0.02, gt=0, le=5, description="Plate-pose noise of the sensor (deg)."
+    )
+
+
+class CalibrateParams(NoiseModel):
+    method: CalibrationMethod = Field(
+        "vista",
+        description="vista (weighs each pair by the noise), the thesis's, or a classic solver.",
     )
 
 
@@ -44,7 +59,7 @@ class StitchParams(BaseModel):
         description="none (kinematic poses) | bounded (refine within the kinematic "
         "uncertainty) | point-to-point | point-to-plane (plain ICP, as the thesis tried).",
     )
-    icp_start: Literal["kinematic", "none"] = Field(
+    icp_start: IcpStart = Field(
         "kinematic",
         description="kinematic | none (no initial transform: the thesis's Fig. 6.4 b).",
     )

@@ -1,5 +1,6 @@
 """REPORT.json of a stitch: overlap quality, what clean-up and ICP did, and (in simulation)
-the error against the truth. One builder for ``vista stitching stitch`` and the ``stitch`` job."""
+the error against the truth. One builder for ``vista stitching stitch`` and the
+``stitching.stitch`` job (``run.stitch_files``)."""
 
 from __future__ import annotations
 
@@ -10,32 +11,8 @@ import numpy as np
 from services.lib.pointcloud.transforms import pose_error
 from services.stitching.files import SimulatedTruth
 from services.stitching.icp import IcpConfig
-from services.stitching.kinds import StitchParams
 from services.stitching.quality import QualityReport, quality_report
 from services.stitching.stitch import StitchConfig, StitchResult
-
-
-def icp_config(method: str, start: str, calibration: dict) -> IcpConfig | None:
-    """The ICP option of a stitch (``none``: kinematic poses only), bounded by the
-    calibration's own uncertainty when HANDEYE.json reports one."""
-    if method == "none":
-        return None
-    return IcpConfig(
-        method=method,
-        start=start,
-        calibration_sigma_mm=float(calibration.get("sigma_translation_mm") or 0.0),
-        calibration_sigma_deg=float(calibration.get("sigma_rotation_deg") or 0.0),
-    )
-
-
-def stitch_config(params: StitchParams, calibration: dict) -> StitchConfig:
-    """The stitch a job's or command's parameters ask for, with the calibration's
-    uncertainty bounding a ``bounded`` ICP."""
-    return StitchConfig(
-        voxel_mm=params.voxel_mm,
-        loop_threshold=params.loop_threshold,
-        icp=icp_config(params.icp, params.icp_start, calibration),
-    )
 
 
 def distance_to_truth_mm(truth: SimulatedTruth, points_base: np.ndarray) -> np.ndarray:
@@ -110,6 +87,8 @@ def _icp_json(config: IcpConfig, result: StitchResult) -> dict:
         "method": config.method,
         "start": config.start,
         "max_distance_mm": config.max_distance_mm,
+        "robot_sigma_mm": config.robot_sigma_mm,
+        "robot_sigma_deg": config.robot_sigma_deg,
         "bound_probability": config.bound_probability,
         "scans": [
             {

@@ -19,11 +19,15 @@ from services.lib.pointcloud.ply import PointCloud
 from services.lib.pointcloud.transforms import apply
 from services.stitching.clean import isolated_points, loop_grid, loop_unorganized, voxel_merge
 from services.stitching.icp import Alignment, IcpConfig, refine_poses
+from services.stitching.kinds import NoiseModel, StitchParams
+
+SETTINGS = StitchParams.model_fields
+"""The stitch's settings a job or command sets: their defaults and ranges."""
 
 
 @dataclass(frozen=True)
 class StitchConfig:
-    voxel_mm: float = 0.2
+    voxel_mm: float = SETTINGS["voxel_mm"].default
     """Edge of the voxels whose points are merged into one vertex."""
     loop_radius_px: int = 1
     """LoOP context: the measured neighbours in a (2r+1)² grid window."""
@@ -31,7 +35,7 @@ class StitchConfig:
     """Normals of organized scans from central differences about this long."""
     loop_neighbours: int = 8
     """LoOP context of unorganized scans: k nearest neighbours."""
-    loop_threshold: float = 0.8
+    loop_threshold: float = SETTINGS["loop_threshold"].default
     """Points with a higher outlier probability are removed."""
     filter_cell_mm: float = 2.0
     min_points: int = 10
@@ -41,10 +45,25 @@ class StitchConfig:
     """Move the cleaned scans by ICP before merging (None: kinematic poses only)."""
 
     def __post_init__(self) -> None:
-        if not self.voxel_mm > 0:
-            raise ValueError(f"voxel_mm must be positive, got {self.voxel_mm}")
-        if not 0 < self.loop_threshold <= 1:
-            raise ValueError(f"loop_threshold must be in (0, 1], got {self.loop_threshold}")
+        StitchParams(voxel_mm=self.voxel_mm, loop_threshold=self.loop_threshold)  # its ranges
+
+    @classmethod
+    def from_params(cls, params: StitchParams, calibration: dict) -> StitchConfig:
+        """The stitch a job's or command's parameters ask for; a ``bounded`` ICP bounded by
+        the robot noise the calibration was given and by its own uncertainty, as its
+        HANDEYE.json ``calibration`` records them (the defaults where it does not)."""
+        icp = None
+        if params.icp != "none":
+            noise = NoiseModel.model_validate(calibration.get("noise") or {})
+            icp = IcpConfig(
+                method=params.icp,
+                start=params.icp_start,
+                robot_sigma_mm=noise.robot_sigma_mm,
+                robot_sigma_deg=noise.robot_sigma_deg,
+                calibration_sigma_mm=float(calibration.get("sigma_translation_mm") or 0.0),
+                calibration_sigma_deg=float(calibration.get("sigma_rotation_deg") or 0.0),
+            )
+        return cls(voxel_mm=params.voxel_mm, loop_threshold=params.loop_threshold, icp=icp)
 
 
 @dataclass(frozen=True)

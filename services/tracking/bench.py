@@ -1,4 +1,4 @@
-"""``vista bench tracking``: the thesis's Table 5.1 re-run, adaptive resets beside it, the
+"""``vista tracking bench``: the thesis's Table 5.1 re-run, adaptive resets beside it, the
 same on a real labelled drive, speed on real scans, and the detectors on real and
 simulated scans.
 
@@ -42,6 +42,7 @@ from contract.bench import print_verdict, say, write_document
 from services.tracking import bench_real
 from services.tracking.datasets import LabelledScan, labelled_scans
 from services.tracking.detection_eval import ratio_text
+from services.tracking.kinds import TRACKERS
 from services.tracking.ope import frame_scores, one_pass
 from services.tracking.pipeline import Detector, track
 from services.tracking.resets import ResetPolicy
@@ -722,7 +723,7 @@ def _print(
     workload: Workload,
 ) -> None:
     print(
-        f"\n## vista bench tracking — {len(workload.tracklets)} simulated car tracklets, {sum(len(t.frames) for _, t in workload.tracklets)} frames"
+        f"\n## vista tracking bench — {len(workload.tracklets)} simulated car tracklets, {sum(len(t.frames) for _, t in workload.tracklets)} frames"
     )
     _table("Table 5.1 re-run: Siamese tracker (SC3D) + shipped detector", siamese_rows, thesis=True)
     _table(
@@ -752,7 +753,7 @@ def _print(
         "| tracker | tracker alone (frames/s) | whole pipeline at adaptive:10, scans read from disk (frames/s) | pipeline compute only |"
     )
     print("|---|---|---|---|")
-    for name in ("geometric", "siamese"):
+    for name in TRACKERS:
         line = speed["pipeline"][name]
         print(
             f"| {name} | {speed['tracker_fps'][name]:.0f} | {line['fps']:.0f} | {line['compute_fps']:.0f} |"

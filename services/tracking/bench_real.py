@@ -1,4 +1,4 @@
-"""The real-scan half of ``vista bench tracking``: KITTI's labelled scans in ``../shared/data``.
+"""The real-scan half of ``vista tracking bench``: KITTI's labelled scans in ``../shared/data``.
 
 - **Which scans check what.** The shipped detector was fine-tuned on the 19 object scans
   and never saw the labelled drive (0048): that drive is its held-out check. To hold the
@@ -95,7 +95,7 @@ def cross_validation_models(
                 seed=seed,
                 work=work,
                 say=say,
-                command=f"vista bench tracking: the shipped model's recipe, fold {k + 1} of {FOLDS}",
+                command=f"vista tracking bench: the shipped model's recipe, fold {k + 1} of {FOLDS}",
             )
         out.append((model, test))
     return out

@@ -5,20 +5,44 @@ from __future__ import annotations
 from pathlib import Path
 
 import typer
+from typer.core import TyperGroup
 
-from contract.cli import echo_progress, fail, params_options, progress_bar
-from contract.training import TrainSettings, config_from
-from services.tracking.kinds import (
-    DETECTOR_EPOCHS,
-    DETECTOR_LEARNING_RATE,
-    FINE_TUNE_EPOCHS,
-    FINE_TUNE_LEARNING_RATE,
-    TrackParams,
-)
+from contract.cli import alias, echo_progress, fail, params_options, progress_bar
+from services.tracking.default_detector import BuildSettings
+from services.tracking.kinds import DetectParams, TrackParams, TrainParams
 
 # Heavy imports (numpy, open3d, torch, onnxruntime) stay inside the commands.
 
+OLDER_TRAIN_SPELLINGS = {
+    "detector": ["train", "--network", "detector"],
+    "siamese": ["train", "--network", "siamese"],
+    "default-detector": ["build-default"],
+}
+"""``vista tracking train WORD …`` → the words of its spelling now (kept for this release)."""
+
+
+class TrackingCommands(TyperGroup):
+    """``vista tracking``'s commands, reading ``train detector|siamese|default-detector …``
+    (the older spellings, kept hidden for this release) as ``train --network detector|siamese
+    …`` and ``build-default …``: Click cannot make ``train`` a command and a group at once."""
+
+    def resolve_command(
+        self, ctx: typer.Context, args: list[str]
+    ) -> tuple[str | None, object, list[str]]:
+        if args[:1] == ["train"] and len(args) > 1 and args[1] in OLDER_TRAIN_SPELLINGS:
+            now = OLDER_TRAIN_SPELLINGS[args[1]]
+            typer.secho(
+                f"DeprecationWarning: The command 'train {args[1]}' is deprecated: it is "
+                f"`vista tracking {' '.join(now)}` now (the old spelling works for this release).",
+                fg=typer.colors.RED,
+                err=True,
+            )
+            args = [*now, *args[2:]]
+        return super().resolve_command(ctx, args)
+
+
 track_app = typer.Typer(
+    cls=TrackingCommands,
     help="3D single-car tracking on LiDAR (thesis 5.1): simulate KITTI-format drives, detect "
     "cars, track one with detector resets, evaluate by One-Pass Evaluation.",
     no_args_is_help=True,
@@ -58,15 +82,6 @@ def simulate(
     )
 
 
-DETECTOR = typer.Option(
-    "learned",
-    help="learned (the default): the BEV network — vista's shipped model unless "
-    "--detector-model is given; trained on simulated drives and fine-tuned on KITTI's "
-    "labelled scans, on real scans it never saw it found 0.87 of the cars within 40 m at "
-    "precision 0.82, in 22 ms a scan (the geometric detector: 0.65 and 0.53, in 170 ms). "
-    "geometric: ground, clusters, L-shape boxes scored by shape — no model, for a sensor "
-    "no model fits.",
-)
 INIT_BOX_HELP = "Or start from this box: 'h w l x y z ry' (KITTI camera frame, metres, radians)."
 
 
@@ -77,18 +92,18 @@ def _camera_box(text: str) -> list[float]:
 
 
 SIAMESE_MODEL = typer.Option(
-    None, help="The Siamese tracker's ONNX encoder (vista tracking train siamese)."
+    None, help="The Siamese tracker's ONNX encoder (vista tracking train --network siamese)."
 )
 DETECTOR_MODEL = typer.Option(
     None,
-    help="A learned detector's ONNX model (vista tracking train detector; default: the shipped one).",
+    help="A learned detector's ONNX model (vista tracking train; default: the shipped one).",
 )
 THREADS = typer.Option(2, min=1, max=256, help="Threads for the networks.")
 
 
-@track_app.command("run")
+@track_app.command("track")
 @params_options(TrackParams, text={"init_box": (INIT_BOX_HELP, _camera_box)})
-def run(
+def track(
     sequence: Path = typer.Argument(
         ...,
         help="A sequence folder: vista's (velodyne/, calib.txt), a KITTI tracking download's training/velodyne/NNNN, or a raw drive.",
@@ -112,22 +127,16 @@ def run(
     and the detector's cost (% of frames) and the frames per second."""
     import json
 
-    import numpy as np
-
     from services.lib.kitti import KittiError
     from services.lib.process import prepare_process
     from services.tracking.report import plot_run
     from services.tracking.run import run_tracking
 
     prepare_process()
-
     try:
-        box = None if params.init_box is None else np.array(params.init_box)
         with progress_bar("tracking") as step:
             document = run_tracking(
-                sequence, track_id=params.track_id, init_box=box, start_frame=params.start_frame,
-                end_frame=params.end_frame, tracker=params.tracker, detector=params.detector,
-                reset=params.reset, siamese_model=siamese_model, detector_model=detector_model,
+                sequence, params, siamese_model=siamese_model, detector_model=detector_model,
                 threads=threads, progress=lambda done, total: step(done / max(total, 1)),
             )  # fmt: skip
     except (ValueError, KittiError) as exc:
@@ -144,10 +153,13 @@ def run(
     )
 
 
+alias(track_app, "run", track, "tracking track")
+
+
 @track_app.command("eval")
 def evaluate(
     sequence: Path = typer.Argument(..., help="The labelled sequence the runs tracked in."),
-    tracks: list[Path] = typer.Argument(..., help="TRACK.json files (vista tracking run)."),
+    tracks: list[Path] = typer.Argument(..., help="TRACK.json files (vista tracking track)."),
     out: Path = typer.Option(..., "-o", "--out", help="EVAL.json to write."),
     plot: Path = typer.Option(None, help="PNG of the success and precision curves."),
 ) -> None:
@@ -177,6 +189,7 @@ def evaluate(
 
 
 @track_app.command("detect")
+@params_options(DetectParams)
 def detect(
     scan: Path = typer.Argument(
         ..., help="A scan (.bin), or a folder of them (a KITTI object velodyne/)."
@@ -187,15 +200,13 @@ def detect(
     out: Path = typer.Option(
         ..., "-o", "--out", help="label_2 file to write (a folder when SCAN is one)."
     ),
-    detector: str = DETECTOR,
     detector_model: Path = DETECTOR_MODEL,
-    threshold: float = typer.Option(
-        None, min=0.0, max=1.0, help="Lowest score kept (default: the detector's own)."
-    ),
     labels: Path = typer.Option(
         None, help="label_2 folder (or file) to score the detections against."
     ),
     threads: int = THREADS,
+    *,
+    params: DetectParams,
 ) -> None:
     """Cars in LiDAR scans as KITTI label_2 lines (type Car, truncation and occlusion −1,
     alpha, the 2D box in image 2, h w l, the bottom centre x y z in the rectified camera
@@ -206,116 +217,80 @@ def detect(
     from services.tracking.detect import detect_files
 
     prepare_process()
-
     try:
         summary = detect_files(
-            scan,
-            calib,
-            out,
-            detector=detector,
-            model=detector_model,
-            threshold=threshold,
-            labels=labels,
-            threads=threads,
+            scan, calib, out, params, model=detector_model, labels=labels, threads=threads
         )
     except ValueError as exc:
         fail(str(exc))
     typer.echo(summary)
 
 
-train_app = typer.Typer(help="Train the tracking service's networks.", no_args_is_help=True)
-track_app.add_typer(train_app, name="train")
-DATA = typer.Argument(
-    ...,
-    help="Labelled sequence folders (vista tracking simulate, KITTI tracking) or KITTI object folders (velodyne/, calib/, label_2/).",
-)
-CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun resumes).")
-
-
-@train_app.command("detector")
-@params_options(TrainSettings)
-def train_detector_command(
-    data: list[Path] = DATA,
-    out: Path = typer.Option(..., "-o", "--out", help="DETECTOR.onnx to write."),
+@track_app.command("train")
+@params_options(TrainParams)
+def train(
+    data: list[Path] = typer.Argument(
+        ...,
+        help="Labelled sequence folders (vista tracking simulate, KITTI tracking) or, for the detector, KITTI object folders (velodyne/, calib/, label_2/).",
+    ),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="MODEL.onnx to write: the detector, or the Siamese encoder."
+    ),
     start_from: Path = typer.Option(
         None,
         "--from",
-        help="Fine-tune this model (vista's shipped one, or one you trained) instead of "
-        "training from scratch: a few of your labelled scans adapt it to your sensor in minutes.",
+        help="Fine-tune this detector (vista's shipped one, or one you trained; sets "
+        "--fine-tune): a few of your labelled scans adapt it to your sensor in minutes.",
     ),
     validate: list[Path] = typer.Option(
         None,
-        help="Labelled folders held out for validation (repeatable): the model is scored on "
-        "them before and after, and nothing is chosen on them. Default: a tenth of DATA.",
+        help="detector: labelled folders held out for validation (repeatable): the model is "
+        "scored on them before and after, and nothing is chosen on them. Default: a tenth of DATA.",
     ),
     paste_cars_from: list[Path] = typer.Option(
         None,
-        help="Labelled folders whose cars are also pasted into the training scans (repeatable; "
-        "the training scans' own cars always are).",
-    ),
-    paste: int = typer.Option(
-        8, min=0, max=50, help="The most cars pasted into a training scan (0: none)."
-    ),
-    batch: int = typer.Option(8, min=1, max=256),
-    windows: int = typer.Option(
-        512, min=1, max=1_000_000, help="Training windows an epoch at least (few scans repeat)."
-    ),
-    frame_step: int = typer.Option(
-        2, min=1, max=1000, help="Every n-th labelled frame of a sequence."
-    ),
-    window: int = typer.Option(
-        224, min=64, max=2048, help="Training window, cells of 0.2 m (a multiple of 16)."
-    ),
-    licence: str = typer.Option(
-        None,
-        help="The training data's licence, written into the model's metadata (KITTI's is CC BY-NC-SA 3.0).",
+        help="detector: labelled folders whose cars are also pasted into the training scans "
+        "(repeatable; the training scans' own cars always are).",
     ),
     threads: int = THREADS,
-    checkpoints: Path = CHECKPOINTS,
+    checkpoints: Path = typer.Option(
+        None, help="Folder for per-epoch checkpoints (a rerun resumes)."
+    ),
     *,
-    params: TrainSettings,
+    params: TrainParams,
 ) -> None:
-    """Train the BEV car detector (PIXOR/CenterPoint-style, 0.62 M parameters) on labelled
-    scans — KITTI object folders (velodyne/, calib/, label_2/), labelled sequences
-    (label_02.txt, or a drive's label_2/ folder) or vista's simulations — with cars cut
-    from labelled scans pasted into others, and export it as ONNX with its validation in the
-    metadata. With --from it fine-tunes a model instead (its batch norms folded, a smaller
-    step) and reports the validation scans' recall and precision before and after."""
+    """Train one of the service's networks on labelled scans and export it as ONNX with its
+    data, seed, licence and validation in the metadata. The detector (--network detector,
+    the default: BEV, PIXOR/CenterPoint-style, 0.62 M parameters) learns from KITTI object
+    folders, labelled sequences (label_02.txt, or a drive's label_2/ folder) or vista's
+    simulations, with cars cut from labelled scans pasted into others; with --fine-tune (or
+    --from) it fine-tunes a model instead (its batch norms folded, a smaller step) and
+    reports the validation scans' recall and precision before and after. SC3D's Siamese
+    PointNet (--network siamese) learns from the car tracklets of labelled sequences (cosine
+    similarity regressed to a Gaussian of the candidate's offset, with the shape-completion
+    regulariser); its encoder is exported."""
     import shlex
     import sys
 
     from services.lib.process import prepare_process
-    from services.tracking.detector_training import DetectorTrainConfig, train_detector
+    from services.tracking.training import train_network
 
     prepare_process()
-
-    if window % 16:
-        fail(f"--window {window}: a multiple of 16 cells")
-    if start_from is not None and not start_from.is_file():
-        fail(f"--from {start_from}: no such model file")
-    tuning = start_from is not None
-    config = DetectorTrainConfig(
-        epochs=params.epochs or (FINE_TUNE_EPOCHS if tuning else DETECTOR_EPOCHS),
-        batch=batch,
-        learning_rate=params.learning_rate
-        or (FINE_TUNE_LEARNING_RATE if tuning else DETECTOR_LEARNING_RATE),
-        seed=params.seed,
-        threads=threads,
-        device=params.device,
-        window_cells=window,
-        frame_step=frame_step,
-        paste=paste,
-        windows_per_epoch=windows,
-        initial=str(start_from) if tuning else None,
-    )
+    if start_from is not None:
+        params = params.model_copy(update={"fine_tune": True})
     try:
-        metadata = train_detector(
-            data, out, config, validate_on=validate or None, paste_from=paste_cars_from or None,
-            licence=licence, checkpoint_dir=checkpoints, progress=echo_progress,
+        metadata = train_network(
+            data, out, params, threads=threads, start_from=start_from,
+            validate_on=validate or None, paste_from=paste_cars_from or None,
+            checkpoint_dir=checkpoints, progress=echo_progress,
             command=shlex.join(["vista", *sys.argv[1:]]),
         )  # fmt: skip
     except ValueError as exc:
         fail(str(exc))
+    if params.network == "siamese":
+        mse = metadata["training"]["validation_similarity_mse"]
+        typer.echo(f"validation similarity MSE {mse}; wrote {out}")
+        return
     scores = metadata["validation"]
     before = scores.get("before_fine_tuning")
     if before is not None:
@@ -334,12 +309,15 @@ def _scores_line(scores: dict) -> str:
     )
 
 
-@train_app.command("default-detector")
-def train_default_detector_command(
-    out: Path = typer.Option(..., "-o", "--out", help="DETECTOR.onnx to write."),
+@track_app.command("build-default")
+@params_options(BuildSettings)
+def build_default(
+    out: Path = typer.Option(
+        None, "-o", "--out", help="Where to write the detector (default: the shipped one)."
+    ),
     work: Path = typer.Option(
         Path("bench-results/tracking"),
-        help="Simulated drives and the simulator-only model, kept and reused (also vista bench tracking's).",
+        help="Simulated drives and the simulator-only model, kept and reused (also vista tracking bench's).",
     ),
     real: Path = typer.Option(
         None,
@@ -349,68 +327,31 @@ def train_default_detector_command(
         None,
         help="A labelled real drive never trained on, to validate on (default ../shared/data/kitti-raw-2011_09_26_drive_0048).",
     ),
-    seed: int = typer.Option(0, min=0),
+    *,
+    params: BuildSettings,
 ) -> None:
-    """Build vista's shipped car detector as it ships, seeded: 40 simulated drives of 60
-    frames, a detector trained on them (the simulator-only model), fine-tuned on KITTI's
+    """Build vista's shipped car detector as it ships, seeded: simulated drives (40 of 60
+    frames), a detector trained on them (the simulator-only model), fine-tuned on KITTI's
     labelled object scans with cars pasted from them and from the drives, validated on a
-    real drive it never saw; the metadata names the data, the seed and KITTI's licence (CC
-    BY-NC-SA 3.0). About half an hour on 2 cores from an empty work folder."""
+    real drive it never saw; the metadata names the data, the seed, this command and
+    KITTI's licence (CC BY-NC-SA 3.0). About half an hour on 2 cores from an empty work
+    folder; each step is kept in --work."""
     from services.lib.process import prepare_process
     from services.tracking.default_detector import REAL_HELD_OUT, REAL_TRAIN, build_default_detector
+    from services.tracking.detect_learned import DEFAULT_MODEL
 
     prepare_process()
-
     try:
         metadata = build_default_detector(
-            work, out, real=real or REAL_TRAIN, held_out=held_out or REAL_HELD_OUT, seed=seed,
-            say=typer.echo,
+            work, out or DEFAULT_MODEL, real=real or REAL_TRAIN,
+            held_out=held_out or REAL_HELD_OUT, settings=params, say=typer.echo,
         )  # fmt: skip
     except ValueError as exc:
         fail(str(exc))
-    typer.echo(f"held out: {_scores_line(metadata['validation'])}; wrote {out}")
+    typer.echo(f"held out: {_scores_line(metadata['validation'])}; wrote {out or DEFAULT_MODEL}")
 
 
-@train_app.command("siamese")
-@params_options(TrainSettings)
-def train_siamese_command(
-    data: list[Path] = DATA,
-    out: Path = typer.Option(..., "-o", "--out", help="SIAMESE.onnx to write (the encoder)."),
-    batch: int = typer.Option(64, min=2, max=4096),
-    samples: int = typer.Option(
-        6000, min=16, max=10_000_000, help="Model–candidate pairs an epoch."
-    ),
-    threads: int = THREADS,
-    checkpoints: Path = CHECKPOINTS,
-    *,
-    params: TrainSettings,
-) -> None:
-    """Train SC3D's Siamese PointNet on the car tracklets of labelled sequences (cosine
-    similarity regressed to a Gaussian of the candidate's offset, with the shape-completion
-    regulariser) and export its encoder as ONNX."""
-    from services.lib.process import prepare_process
-    from services.tracking.siamese import SiameseTrainConfig, train_siamese
-
-    prepare_process()
-
-    if any((folder / "label_2").is_dir() for folder in data):
-        fail(
-            "the Siamese tracker learns from tracklets: give sequences with label_02, not object folders"
-        )
-    config = config_from(
-        SiameseTrainConfig, params, batch=batch, samples_per_epoch=samples, threads=threads
-    )
-    try:
-        metadata = train_siamese(
-            data, out, config, checkpoint_dir=checkpoints, progress=echo_progress
-        )
-    except ValueError as exc:
-        fail(str(exc))
-    typer.echo(
-        f"validation similarity MSE {metadata['training']['validation_similarity_mse']}; wrote {out}"
-    )
-
-
+@track_app.command("bench")
 def bench_tracking(
     out: Path = typer.Option(
         Path("bench-results/tracking.json"),
@@ -451,12 +392,13 @@ def bench_tracking(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
-    simulate_app.command("tracking")(simulate)
     app.add_typer(track_app, name="tracking")
     app.add_typer(
         track_app,
         name="track",
+        hidden=True,
         deprecated=True,
         help="Alias of `vista tracking` (kept for this release).",
     )
-    bench_app.command("tracking")(bench_tracking)
+    alias(simulate_app, "tracking", simulate, "tracking simulate")
+    alias(bench_app, "tracking", bench_tracking, "tracking bench")

@@ -1,10 +1,10 @@
-"""How vista's shipped car detector is built (``vista tracking train default-detector``), seeded,
-from data this repository reproduces:
+"""How vista's shipped car detector is built (``vista tracking build-default``), seeded,
+from data this repository reproduces, as ``BuildSettings`` say:
 
-1. ``SIM_DRIVES`` simulated drives of ``SIM_FRAMES`` frames (``vista tracking simulate``,
-   seeds ``SIM_SEED`` …), kept in the work folder;
-2. a detector trained on them alone (``vista tracking train detector``: the simulator-only
-   model, kept for contrast);
+1. ``drives`` simulated drives of ``frames`` frames (``vista tracking simulate``, seeds
+   ``SIM_SEED`` …), kept in the work folder;
+2. a detector trained on them alone (``vista tracking train``: the simulator-only model,
+   kept for contrast);
 3. that detector fine-tuned on KITTI's labelled object scans (``../shared/data/
    kitti-object-sample``) with cars pasted from them and from the simulated drives, and
    validated on a real drive it never saw (``../shared/data/kitti-raw-2011_09_26_drive_0048``,
@@ -17,10 +17,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from services.lib.shared_data import SHARED_DATA
-from services.tracking.detector_training import DetectorTrainConfig, train_detector
-from services.tracking.kinds import FINE_TUNE_EPOCHS, FINE_TUNE_LEARNING_RATE
+from services.tracking.kinds import FINE_TUNE_EPOCHS, FINE_TUNE_LEARNING_RATE, TrainParams
+
+if TYPE_CHECKING:
+    from services.tracking.detector_training import DetectorTrainConfig
 
 REAL_TRAIN = SHARED_DATA / "kitti-object-sample"
 REAL_HELD_OUT = SHARED_DATA / "kitti-raw-2011_09_26_drive_0048"
@@ -35,6 +40,39 @@ within 40 m and precision in view of the folds' held-out scans were 0.84 / 0.64 
 0.80 / 0.74 from 0.4 and 0.76 / 0.80 from 0.5; 0.4 is the one that met both targets."""
 
 Say = Callable[[str], None]
+
+
+class BuildSettings(BaseModel):
+    """What the shipped detector's build takes (``vista tracking build-default``'s options)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    drives: int = Field(
+        SIM_DRIVES, ge=1, le=10_000, description="Simulated drives the first detector learns on."
+    )
+    frames: int = Field(SIM_FRAMES, ge=2, le=100_000, description="Frames a simulated drive.")
+    tune_epochs: int = Field(
+        FINE_TUNE_EPOCHS, ge=1, le=10_000, description="Passes of the fine-tuning on real scans."
+    )
+    tune_windows: int = Field(
+        TrainParams.model_fields["windows"].default,
+        ge=1,
+        le=1_000_000,
+        description="Training windows an epoch of the fine-tuning at least.",
+    )
+    seed: int = Field(
+        0,
+        ge=0,
+        le=2**31 - 1,
+        description=f"Random seed: initial weights, shuffling, pasting (the drives are seeds {SIM_SEED} on).",
+    )
+
+    def command(self) -> str:
+        """The command that builds the model with these settings."""
+        options = " ".join(
+            f"--{name.replace('_', '-')} {value}" for name, value in self.model_dump().items()
+        )
+        return f"vista tracking build-default {options}"
 
 
 def simulated_drives(
@@ -58,6 +96,8 @@ def simulator_only(
     drives: list[Path], out: Path, config: DetectorTrainConfig, work: Path, say: Say
 ) -> Path:
     """The detector trained on simulated drives alone (kept: trained once)."""
+    from services.tracking.detector_training import train_detector
+
     if not out.is_file():
         say(
             f"training the simulator-only detector on {len(drives)} drives ({config.epochs} epochs)"
@@ -83,10 +123,12 @@ def fine_tuned(
     work: Path,
     say: Say,
     epochs: int = FINE_TUNE_EPOCHS,
-    windows: int = 512,
-    command: str = "vista tracking train default-detector",
+    windows: int = TrainParams.model_fields["windows"].default,
+    command: str,
 ) -> dict:
     """``base`` fine-tuned on the labelled scans of ``real`` (the metadata)."""
+    from services.tracking.detector_training import DetectorTrainConfig, train_detector
+
     config = DetectorTrainConfig(
         epochs=epochs,
         learning_rate=FINE_TUNE_LEARNING_RATE,
@@ -115,25 +157,28 @@ def build_default_detector(
     *,
     real: Path = REAL_TRAIN,
     held_out: Path = REAL_HELD_OUT,
-    seed: int = 0,
-    drives: int = SIM_DRIVES,
-    frames: int = SIM_FRAMES,
+    settings: BuildSettings | None = None,
     base_config: DetectorTrainConfig | None = None,
-    tune_epochs: int = FINE_TUNE_EPOCHS,
-    tune_windows: int = 512,
     say: Say = print,
 ) -> dict:
     """Steps 1–3 of the module's note; the shipped model's metadata. Each step's result is
-    kept in ``work`` and reused."""
+    kept in ``work`` and reused. ``base_config``: how the simulator-only detector trains
+    (default: as ``vista tracking train`` does)."""
+    from services.tracking.detector_training import DetectorTrainConfig
+
+    settings = settings or BuildSettings()
     for folder in (real, held_out):
         if not folder.is_dir():
             raise ValueError(f"{folder}: no such folder (the real labelled scans the model needs)")
-    say(f"simulating what {work / 'train'} lacks ({drives} drives of {frames} frames)")
-    sim = simulated_drives(work / "train", drives, frames, say)
+    say(
+        f"simulating what {work / 'train'} lacks ({settings.drives} drives of "
+        f"{settings.frames} frames)"
+    )
+    sim = simulated_drives(work / "train", settings.drives, settings.frames, say)
     base = simulator_only(
         sim,
         work / "detector-sim.onnx",
-        replace(base_config or DetectorTrainConfig(), seed=seed),
+        replace(base_config or DetectorTrainConfig(), seed=settings.seed),
         work,
         say,
     )
@@ -143,9 +188,10 @@ def build_default_detector(
         out,
         validate_on=[held_out],
         paste_from=sim,
-        seed=seed,
+        seed=settings.seed,
         work=work,
         say=say,
-        epochs=tune_epochs,
-        windows=tune_windows,
+        epochs=settings.tune_epochs,
+        windows=settings.tune_windows,
+        command=settings.command(),
     )

@@ -29,6 +29,7 @@ import numpy as np
 from services.lib import kitti
 from services.tracking.detection_eval import combine, in_view, match_scan
 from services.tracking.detections import Detections
+from services.tracking.kinds import DetectParams
 from services.tracking.pipeline import Detector
 from services.tracking.run import make_detector
 from services.tracking.sequence import Sequence
@@ -90,22 +91,28 @@ def _pairs(
     return [(scan, calib, out, labels)]
 
 
+def detector_for(params: DetectParams, model: Path | None, threads: int = 1) -> Detector:
+    """The detector ``params`` name (the learned one: ``model``, else the shipped one),
+    keeping its boxes from ``params.threshold`` (None: from its own)."""
+    detector = make_detector(params.detector, model, threads)
+    if params.threshold is not None:
+        detector.threshold = params.threshold
+    return detector
+
+
 def detect_files(
     scan: Path,
     calib: Path,
     out: Path,
+    params: DetectParams,
     *,
-    detector: str = "learned",
     model: Path | None = None,
-    threshold: float | None = None,
     labels: Path | None = None,
     threads: int = 1,
 ) -> str:
-    """Detect cars in a scan (or a folder of scans) and write label_2 results; a one-line
-    summary (with the scores when ``labels`` are given)."""
-    the_detector = make_detector(detector, model, threads)
-    if threshold is not None:
-        the_detector.threshold = threshold
+    """Detect cars in a scan (or a folder of scans) as ``params`` say and write label_2
+    results; a one-line summary (with the scores when ``labels`` are given)."""
+    the_detector = detector_for(params, model, threads)
     tallies, written = [], 0
     for scan_path, calib_path, out_path, label_path in _pairs(
         Path(scan), Path(calib), Path(out), labels
@@ -122,7 +129,7 @@ def detect_files(
             )
     summary = f"{written} cars in view written to {out}"
     if tallies:
-        scores = combine(tallies, 40.0, the_detector.threshold)
+        scores = combine(tallies, NEAR_M, the_detector.threshold)
         summary += f"; against the labels of {len(tallies)} scans: {scores.describe()}"
     return summary
 

@@ -20,7 +20,7 @@ from services.tracking.detections import Detections, empty_detections
 
 ARCHITECTURE = "bev-centre"
 DEFAULT_MODEL = Path(__file__).with_name("models") / "detector.onnx"
-"""The detector vista ships (built by ``vista tracking train detector``: see the README), used
+"""The detector vista ships (built by ``vista tracking build-default``: see the README), used
 when no model is given."""
 THRESHOLD = 0.3
 MAX_DETECTIONS = 60
@@ -77,7 +77,7 @@ class LearnedDetector:
         if found.metadata.get("architecture") != ARCHITECTURE:
             raise ValueError(
                 f"{model}: a {found.metadata.get('architecture')!r} model, not vista's car detector "
-                f"({ARCHITECTURE}); build one with `vista tracking train detector`"
+                f"({ARCHITECTURE}); build one with `vista tracking train`"
             )
         self.metadata = found.metadata
         self.threshold = float(

@@ -34,30 +34,36 @@ from services.tracking.bev import CELL_M, CHANNELS, FULL_VIEW, STRIDE, Window, e
 from services.tracking.datasets import LabelledScan, data_fingerprint, labelled_scans, split_groups
 from services.tracking.detect_learned import ARCHITECTURE, THRESHOLD
 from services.tracking.ground import Ground, estimate_ground
-from services.tracking.kinds import DETECTOR_EPOCHS, DETECTOR_LEARNING_RATE
+from services.tracking.kinds import (
+    DETECTOR_BATCH,
+    DETECTOR_EPOCHS,
+    DETECTOR_LEARNING_RATE,
+    TrainParams,
+)
 from services.tracking.paste import CutCar, cut_cars, paste_cars
 
 IMAGE_SIZE = (1242, 375)
 MIN_RETURNS = 3
 BANK_SCANS = 400
 """Cars are cut from at most this many scans of each source (a simulated set has thousands)."""
+SETTINGS = TrainParams.model_fields
 
 
 @dataclass(frozen=True)
 class DetectorTrainConfig:
     epochs: int = DETECTOR_EPOCHS
-    batch: int = 8
+    batch: int = DETECTOR_BATCH
     learning_rate: float = DETECTOR_LEARNING_RATE
-    seed: int = 0
+    seed: int = SETTINGS["seed"].default
     threads: int = 2
-    device: str = "auto"
-    window_cells: int = 224
-    frame_step: int = 2
+    device: str = SETTINGS["device"].default
+    window_cells: int = SETTINGS["window"].default
+    frame_step: int = SETTINGS["frame_step"].default
     val_fraction: float = 0.1
     augment: bool = True
-    paste: int = 8
+    paste: int = SETTINGS["paste"].default
     """The most cars pasted into a training scan (0: none)."""
-    windows_per_epoch: int = 512
+    windows_per_epoch: int = SETTINGS["windows"].default
     """An epoch is at least this many windows: a few scans are seen many times, each time
     with other cars pasted, mirrored, turned and thinned."""
     initial: str | None = None
@@ -304,7 +310,7 @@ def train_detector(
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
     sources: list[str] | None = None,
-    command: str = "vista tracking train detector",
+    command: str = "vista tracking train",
 ) -> dict:
     """Train on the labelled scans of ``folders`` (fine-tune ``config.initial`` when given),
     export to ``out`` (ONNX with its metadata) and return the metadata. Validation is on the

@@ -6,8 +6,7 @@ sequences in; an ONNX model and its training history out)."""
 from __future__ import annotations
 
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from contract.context import (
     InputArtifact,
@@ -22,16 +21,17 @@ from contract.errors import JobInputError
 from services.tracking.kinds import (
     DETECTIONS,
     DETECTIONS_IMAGE,
-    DETECTOR_EPOCHS,
     EVALUATION,
-    FINE_TUNE_EPOCHS,
-    FINE_TUNE_LEARNING_RATE,
     MODEL,
-    SIAMESE_EPOCHS,
     TRACK_PLOT,
     TRACK_REPORT,
     TRAINING_REPORT,
 )
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from services.lib import kitti
 
 
 def _unpacked(artifact: InputArtifact, folder: Path) -> Path:
@@ -57,15 +57,13 @@ def _models(models: list[InputArtifact]) -> dict[str, InputArtifact]:
     return found
 
 
-def track_job(ctx: JobContext) -> dict:
-    from services.lib.kitti import KittiError
+def _tracking_models(ctx: JobContext) -> dict[str, InputArtifact]:
+    """The `model` inputs by architecture: the Siamese encoder the tracker needs, the
+    learned detector that replaces the shipped one; any other refused."""
     from services.tracking.detect_learned import ARCHITECTURE as DETECTOR
-    from services.tracking.report import plot_run
-    from services.tracking.run import evaluate_runs, run_tracking
     from services.tracking.siamese import ARCHITECTURE as SIAMESE
 
     params = ctx.params
-    sequence = one_input(ctx, "lidar", "the LiDAR sequence")
     models = _models(inputs_of_kind(ctx, "model"))
     needed = {SIAMESE} if params.tracker == "siamese" else set()
     usable = needed | (
@@ -82,25 +80,45 @@ def track_job(ctx: JobContext) -> dict:
         raise JobInputError(
             f"the {architecture} model input is not used by these params; leave it out"
         )
+    return models
+
+
+def _store_evaluation(ctx: JobContext, folder: Path, document: dict) -> dict:
+    """The run's One-Pass Evaluation against the sequence's labels, when it has them, as an
+    artifact; its Success and Precision."""
+    from services.tracking.run import evaluate_runs
+
+    if not (folder / "label_02.txt").exists() and not (folder / "label_2").is_dir():
+        return {}
+    try:
+        evaluation = evaluate_runs(folder, [("track.json", document)]).document()
+    except ValueError as exc:
+        evaluation = {"unmeasured": str(exc)}
+    ctx.add_artifact_json(evaluation, kind=EVALUATION.kind, name=EVALUATION.file_name())
+    ope = evaluation.get("ope")
+    return {"success": ope["success"], "precision": ope["precision"]} if ope else {}
+
+
+def track_job(ctx: JobContext) -> dict:
+    from services.lib.kitti import KittiError
+    from services.tracking.detect_learned import ARCHITECTURE as DETECTOR
+    from services.tracking.report import plot_run
+    from services.tracking.run import run_tracking
+    from services.tracking.siamese import ARCHITECTURE as SIAMESE
+
+    sequence = one_input(ctx, "lidar", "the LiDAR sequence")
+    models = _tracking_models(ctx)
     ctx.progress(0.01, f"unpacking {sequence.name}")
     folder = _unpacked(sequence, ctx.workdir / "sequence")
     try:
         document = run_tracking(
-            folder,
-            track_id=params.track_id,
-            init_box=np.array(params.init_box) if params.init_box is not None else None,
-            start_frame=params.start_frame,
-            end_frame=params.end_frame,
-            tracker=params.tracker,
-            detector=params.detector,
-            reset=params.reset,
+            folder, ctx.params, threads=ctx.threads,
             siamese_model=models[SIAMESE].path if SIAMESE in models else None,
             detector_model=models[DETECTOR].path if DETECTOR in models else None,
-            threads=ctx.threads,
             progress=lambda done, total: ctx.progress(
                 0.05 + 0.85 * done / max(total, 1), f"frame {done}/{total}"
             ),
-        )
+        )  # fmt: skip
     except (ValueError, KittiError) as exc:
         raise JobInputError(in_user_words(str(exc), ctx, [sequence, *models.values()])) from exc
     document["sequence"] = sequence.label
@@ -117,17 +135,7 @@ def track_job(ctx: JobContext) -> dict:
         "resets": sum(f["reset"] for f in frames),
         "fps": document["fps"],
     }
-    if (folder / "label_02.txt").exists() or (folder / "label_2").is_dir():
-        try:
-            evaluation = evaluate_runs(folder, [("track.json", document)]).document()
-        except ValueError as exc:
-            evaluation = {"unmeasured": str(exc)}
-        ctx.add_artifact_json(evaluation, kind=EVALUATION.kind, name=EVALUATION.file_name())
-        if "ope" in evaluation:
-            summary |= {
-                "success": evaluation["ope"]["success"],
-                "precision": evaluation["ope"]["precision"],
-            }
+    summary |= _store_evaluation(ctx, folder, document)
     ctx.progress(1.0, f"{len(frames)} frames, detector on {document['detector_runs']}")
     return summary
 
@@ -153,61 +161,81 @@ def _images_by_frame(images: list[InputArtifact], frames: list[int]) -> dict[int
     return by_frame
 
 
+def _pictures(ctx: JobContext, frames: list[int]) -> dict[int, tuple[InputArtifact, np.ndarray]]:
+    """The camera `image` inputs by the frame their name gives, each read: (input, RGB)."""
+    from services.lib.images import read_image
+
+    pictures = {}
+    for frame, image in _images_by_frame(inputs_of_kind(ctx, "image"), frames).items():
+        try:
+            pictures[frame] = (image, read_image(image.path))
+        except ValueError as exc:
+            raise JobInputError(f"{image.label}: not a readable image") from exc
+    return pictures
+
+
+def _store_drawn(
+    ctx: JobContext,
+    pictures: dict[int, tuple[InputArtifact, np.ndarray]],
+    document: dict,
+    calibration: kitti.Calibration,
+) -> None:
+    """Each camera image with its scan's boxes drawn on it, as an artifact."""
+    from services.lib.images import write_image
+    from services.tracking.detect import draw_detections
+
+    scans = {scan["frame"]: scan for scan in document["scans"]}
+    for frame, (image, picture) in pictures.items():
+        name = DETECTIONS_IMAGE.file_name(Path(image.name).stem)
+        drawn = ctx.workdir / name
+        write_image(drawn, draw_detections(picture, scans[frame], calibration))
+        ctx.add_artifact_file(drawn, kind=DETECTIONS_IMAGE.kind, name=name, media_type="image/png")
+
+
 def detect_job(ctx: JobContext) -> dict:
-    from services.lib.images import read_image, write_image
     from services.lib.kitti import KittiError
-    from services.tracking.detect import detect_sequence, draw_detections
-    from services.tracking.run import make_detector
+    from services.tracking.detect import detect_sequence, detector_for
     from services.tracking.sequence import open_sequence
 
-    params = ctx.params
     sequence_input = one_input(ctx, "lidar", "the LiDAR sequence")
     models = inputs_of_kind(ctx, "model")
-    if models and params.detector != "learned":
+    if models and ctx.params.detector != "learned":
         raise JobInputError(
             "a `model` input is the learned detector's: leave it out for the geometric one"
         )
     ctx.progress(0.01, f"unpacking {sequence_input.name}")
     folder = _unpacked(sequence_input, ctx.workdir / "sequence")
-    given = [sequence_input, *models]
     try:
         sequence = open_sequence(folder)
-        images = _images_by_frame(inputs_of_kind(ctx, "image"), sequence.frames)
-        pictures = {}
-        for frame, image in images.items():
-            try:
-                pictures[frame] = read_image(image.path)
-            except ValueError as exc:
-                raise JobInputError(f"{image.label}: not a readable image") from exc
-        detector = make_detector(params.detector, models[0].path if models else None, ctx.threads)
-        if params.threshold is not None:
-            detector.threshold = params.threshold
+        pictures = _pictures(ctx, sequence.frames)
         document = detect_sequence(
             sequence,
-            detector,
-            image_sizes={f: (p.shape[1], p.shape[0]) for f, p in pictures.items()},
+            detector_for(ctx.params, models[0].path if models else None, ctx.threads),
+            image_sizes={f: (p.shape[1], p.shape[0]) for f, (_, p) in pictures.items()},
             progress=lambda done, total: ctx.progress(
                 0.05 + 0.8 * done / max(total, 1), f"scan {done}/{total}"
             ),
         )
     except (ValueError, KittiError) as exc:
-        raise JobInputError(in_user_words(str(exc), ctx, given)) from exc
+        raise JobInputError(in_user_words(str(exc), ctx, [sequence_input, *models])) from exc
     document = {
         "sequence": sequence_input.label,
         "model": models[0].label if models else None,
     } | document
     ctx.progress(0.88, "writing DETECTIONS.json and the images")
     ctx.add_artifact_json(document, kind=DETECTIONS.kind, name=DETECTIONS.file_name())
-    scans = {scan["frame"]: scan for scan in document["scans"]}
-    for frame, picture in pictures.items():
-        name = DETECTIONS_IMAGE.file_name(Path(images[frame].name).stem)
-        drawn = ctx.workdir / name
-        write_image(drawn, draw_detections(picture, scans[frame], sequence.calibration))
-        ctx.add_artifact_file(drawn, kind=DETECTIONS_IMAGE.kind, name=name, media_type="image/png")
-    found = sum(len(scan["scores"]) for scan in document["scans"])
+    _store_drawn(ctx, pictures, document, sequence.calibration)
+    summary = _detections_summary(document)
+    ctx.progress(1.0, f"{summary['detections']} cars in {summary['scans']} scans")
+    return summary
+
+
+def _detections_summary(document: dict) -> dict:
+    """A DETECTIONS.json's figures: scans, cars found, the time a scan and, with labels,
+    recall and precision."""
     summary = {
-        "scans": len(scans),
-        "detections": found,
+        "scans": len(document["scans"]),
+        "detections": sum(len(scan["scores"]) for scan in document["scans"]),
         "ms_per_scan": document["ms_per_scan"],
     }
     evaluation = document.get("evaluation")
@@ -216,38 +244,24 @@ def detect_job(ctx: JobContext) -> dict:
             "recall_near": evaluation["recall_near"],
             "precision_in_view": evaluation["precision_in_view"],
         }
-    ctx.progress(1.0, f"{found} cars in {len(scans)} scans")
     return summary
 
 
-def _starting_detector(ctx: JobContext, params: object) -> str | None:
-    """The detector a fine-tuning starts from (None: from scratch)."""
-    from services.tracking.detect_learned import DEFAULT_MODEL
-
+def _start_from(ctx: JobContext) -> Path | None:
+    """The `model` input a fine-tuning starts from (None: the shipped detector, or none)."""
     given = inputs_of_kind(ctx, "model")
-    if not params.fine_tune:
-        if given:
-            raise JobInputError("a `model` input is only used with fine_tune: leave it out")
-        return None
-    if params.network != "detector":
-        raise JobInputError("fine_tune applies to the detector, not to the Siamese encoder")
-    if given:
-        return str(given[0].path)
-    if not DEFAULT_MODEL.is_file():
-        raise JobInputError(
-            "this installation lacks vista's shipped detector: give a `model` input"
-        )
-    return str(DEFAULT_MODEL)
+    if given and not ctx.params.fine_tune:
+        raise JobInputError("a `model` input is only used with fine_tune: leave it out")
+    return given[0].path if given else None
 
 
 def train_job(ctx: JobContext) -> dict:
-    from services.tracking.detector_training import DetectorTrainConfig, train_detector
-    from services.tracking.siamese import SiameseTrainConfig, train_siamese
+    from services.tracking.training import train_network
 
-    params = ctx.params
     sequences = inputs_of_kind(ctx, "lidar")
     if not sequences:
         raise JobInputError("tracking.train needs labelled `lidar` sequences")
+    start_from = _start_from(ctx)
     folders = []
     for number, artifact in enumerate(sequences):
         ctx.progress(0.05 * number / len(sequences), f"unpacking {artifact.name}")
@@ -255,26 +269,13 @@ def train_job(ctx: JobContext) -> dict:
         if not (folder / "label_02.txt").exists():
             raise JobInputError(f"{artifact.label} has no label_02.txt: nothing to learn from")
         folders.append(folder)
-    settings = {"seed": params.seed, "threads": ctx.threads, "device": params.device}
-    start = _starting_detector(ctx, params)
-    if params.learning_rate is not None:
-        settings["learning_rate"] = params.learning_rate
-    elif start is not None:
-        settings["learning_rate"] = FINE_TUNE_LEARNING_RATE
     model = ctx.workdir / MODEL.file_name()
-    options = {
-        "checkpoint_dir": ctx.workdir / "checkpoints",
-        "progress": lambda fraction, message: ctx.progress(0.05 + 0.93 * fraction, message),
-        "sources": [a.label for a in sequences],
-    }
     try:
-        if params.network == "detector":
-            epochs = params.epochs or (FINE_TUNE_EPOCHS if start else DETECTOR_EPOCHS)
-            config = DetectorTrainConfig(epochs=epochs, initial=start, **settings)
-            metadata = train_detector(folders, model, config, **options)
-        else:
-            config = SiameseTrainConfig(epochs=params.epochs or SIAMESE_EPOCHS, **settings)
-            metadata = train_siamese(folders, model, config, **options)
+        metadata = train_network(
+            folders, model, ctx.params, threads=ctx.threads, start_from=start_from,
+            checkpoint_dir=ctx.workdir / "checkpoints", sources=[a.label for a in sequences],
+            progress=lambda fraction, message: ctx.progress(0.05 + 0.93 * fraction, message),
+        )  # fmt: skip
     except ValueError as exc:
         raise JobInputError(in_user_words(str(exc), ctx, sequences)) from exc
     store_model(ctx, model, metadata, model=MODEL, report=TRAINING_REPORT)

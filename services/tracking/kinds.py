@@ -1,7 +1,7 @@
 """Job kinds of the tracking service (imported by the API: keep it light)."""
 
 import re
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -12,9 +12,15 @@ from contract.views import TRAINING_REPORT_NAME
 
 DETECTOR_EPOCHS = 12
 DETECTOR_LEARNING_RATE = 2e-3
+DETECTOR_BATCH = 8
+DETECTOR_MAX_BATCH = 256
 FINE_TUNE_EPOCHS = 10
 FINE_TUNE_LEARNING_RATE = 5e-4
 SIAMESE_EPOCHS = 20
+SIAMESE_LEARNING_RATE = 1e-3
+SIAMESE_BATCH = 64
+"""How each network trains unless told otherwise (``network_defaults``): the detector from
+scratch, the detector fine-tuned, SC3D's Siamese encoder."""
 
 MAX_FRAME = 10_000_000
 BoxNumber = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
@@ -25,6 +31,11 @@ SEQUENCE = Inputs(
     ("lidar",),
     "a LiDAR sequence: a zip or tar of velodyne/NNNNNN.bin and calib.txt (label_02.txt, poses.txt as known)",
 )
+
+TrackerName = Literal["geometric", "siamese"]
+DetectorName = Literal["geometric", "learned"]
+TRACKERS: tuple[str, ...] = get_args(TrackerName)
+DETECTORS: tuple[str, ...] = get_args(DetectorName)
 
 DETECTOR_DESCRIPTION = "learned: the BEV network — vista's shipped model, or a `model` input (--detector-model); trained on simulated drives and fine-tuned on KITTI's labelled scans, on real scans it never saw it found 0.87 of the cars within 40 m at precision 0.82, in 22 ms a scan (the geometric detector: 0.65 and 0.53, in 170 ms). geometric: ground, clusters, L-shape boxes scored by shape — no model, for a sensor no model fits."
 
@@ -57,11 +68,11 @@ class TrackParams(BaseModel):
         "adaptive:10",
         description="adaptive[:BUDGET] (the default: the detector only when the tracker is unsure, on at most BUDGET percent of the frames — on the real drive and the simulated bench never below the tracker alone, at under 1 % of the frames for the geometric tracker), every:N (the thesis's fixed frequency 1/N) or never.",
     )
-    tracker: Literal["geometric", "siamese"] = Field(
+    tracker: TrackerName = Field(
         "geometric",
         description="geometric: point-model registration; siamese: SC3D (needs its encoder: a `model` input, or --siamese-model on the command line).",
     )
-    detector: Literal["geometric", "learned"] = Field("learned", description=DETECTOR_DESCRIPTION)
+    detector: DetectorName = Field("learned", description=DETECTOR_DESCRIPTION)
 
     @field_validator("reset")
     @classmethod
@@ -88,7 +99,7 @@ class TrackParams(BaseModel):
 class DetectParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    detector: Literal["geometric", "learned"] = Field("learned", description=DETECTOR_DESCRIPTION)
+    detector: DetectorName = Field("learned", description=DETECTOR_DESCRIPTION)
     threshold: float | None = Field(
         None, ge=0, le=1, description="The lowest score kept (default: the detector's own)."
     )
@@ -105,11 +116,82 @@ class TrainParams(TrainSettings):
         description=f"Passes (default {DETECTOR_EPOCHS} for the detector, {FINE_TUNE_EPOCHS} to fine-tune it, {SIAMESE_EPOCHS} for the Siamese).",
     )
     learning_rate: float | None = Field(
-        None, gt=0, le=1, description="Adam's step (default the network's)."
+        None,
+        gt=0,
+        le=1,
+        description=f"Adam's step (default {DETECTOR_LEARNING_RATE:g} for the detector, {FINE_TUNE_LEARNING_RATE:g} to fine-tune it, {SIAMESE_LEARNING_RATE:g} for the Siamese).",
+    )
+    batch: int | None = Field(
+        None,
+        ge=1,
+        le=4096,
+        description=f"Samples a step (default {DETECTOR_BATCH} windows for the detector, at most {DETECTOR_MAX_BATCH}; {SIAMESE_BATCH} model–candidate pairs for the Siamese, at least 2).",
     )
     fine_tune: bool = Field(
         False,
-        description="detector only: fine-tune a model — a `model` input, or else vista's shipped detector — on the sequences instead of training from scratch.",
+        description="detector only: fine-tune a model — a `model` input (--from on the command line), or else vista's shipped detector — on the sequences instead of training from scratch.",
+    )
+    window: int = Field(
+        224,
+        ge=64,
+        le=2048,
+        description="detector only: the training window, cells of 0.2 m (a multiple of 16).",
+    )
+    windows: int = Field(
+        512,
+        ge=1,
+        le=1_000_000,
+        description="detector only: training windows an epoch at least (few scans repeat).",
+    )
+    frame_step: int = Field(
+        2, ge=1, le=1000, description="detector only: every n-th labelled frame of a sequence."
+    )
+    paste: int = Field(
+        8,
+        ge=0,
+        le=50,
+        description="detector only: the most cars pasted into a training scan (0: none).",
+    )
+    samples: int = Field(
+        6000, ge=16, le=10_000_000, description="siamese only: model–candidate pairs an epoch."
+    )
+    licence: str | None = Field(
+        None,
+        max_length=500,
+        description="The training data's licence, written into the model's metadata (KITTI's is CC BY-NC-SA 3.0).",
+    )
+
+    @field_validator("window")
+    @classmethod
+    def _whole_blocks(cls, value: int) -> int:
+        if value % 16:
+            raise ValueError(f"{value} is not a multiple of 16 cells")
+        return value
+
+    @model_validator(mode="after")
+    def _batch_of_the_network(self) -> "TrainParams":
+        if self.network == "detector" and (self.batch or 0) > DETECTOR_MAX_BATCH:
+            raise ValueError(f"the detector takes at most {DETECTOR_MAX_BATCH} windows a step")
+        if self.network == "siamese" and self.batch == 1:
+            raise ValueError("the Siamese encoder needs at least 2 pairs a step")
+        return self
+
+
+def network_defaults(params: TrainParams) -> TrainParams:
+    """``params`` with the passes, the step and the batch it leaves ``None`` set to the
+    network's own: the detector's from scratch or fine-tuned, the Siamese encoder's."""
+    if params.network == "siamese":
+        epochs, rate, batch = SIAMESE_EPOCHS, SIAMESE_LEARNING_RATE, SIAMESE_BATCH
+    elif params.fine_tune:
+        epochs, rate, batch = FINE_TUNE_EPOCHS, FINE_TUNE_LEARNING_RATE, DETECTOR_BATCH
+    else:
+        epochs, rate, batch = DETECTOR_EPOCHS, DETECTOR_LEARNING_RATE, DETECTOR_BATCH
+    return params.model_copy(
+        update={
+            "epochs": params.epochs or epochs,
+            "learning_rate": params.learning_rate or rate,
+            "batch": params.batch or batch,
+        }
     )
 
 
@@ -208,4 +290,4 @@ CLI = "services.tracking.cli:register"
 """Its commands: `vista tracking …` (``register(app, simulate_app, bench_app)``)."""
 
 SAMPLE_RUN = "services.tracking.sample:sample_run"
-"""A run of its jobs on files it makes (``contract.samples``): `vista bench clients` draws their pages and scenes."""
+"""A run of its jobs on files it makes (``contract.samples``): `vista clients bench` draws their pages and scenes."""

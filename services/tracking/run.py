@@ -1,5 +1,6 @@
-"""One tracking run from a sequence folder (what ``vista tracking run`` and the ``track`` job
-do), and the evaluation of runs against a sequence's labels (``vista tracking eval``)."""
+"""One tracking run from a sequence folder (what ``vista tracking track`` and the
+``tracking.track`` job do), and the evaluation of runs against a sequence's labels
+(``vista tracking eval``)."""
 
 from __future__ import annotations
 
@@ -11,15 +12,13 @@ import numpy as np
 
 from services.lib import kitti
 from services.lib.boxes import check_boxes, iou_3d
+from services.tracking.kinds import DETECTORS, TRACKERS, TrackParams
 from services.tracking.ope import OPEResult, frame_scores, one_pass
 from services.tracking.pipeline import Detector, track
 from services.tracking.report import lidar_boxes, track_document
 from services.tracking.resets import ResetPolicy
 from services.tracking.sequence import Sequence, open_sequence, tracklets
 from services.tracking.tracker import Tracker
-
-TRACKERS = ("geometric", "siamese")
-DETECTORS = ("geometric", "learned")
 
 
 def make_tracker(name: str, model: Path | None, threads: int = 1) -> Tracker:
@@ -31,7 +30,7 @@ def make_tracker(name: str, model: Path | None, threads: int = 1) -> Tracker:
         if model is None:
             raise ValueError(
                 "the siamese tracker needs its encoder: --siamese-model SIAMESE.onnx (build one with "
-                "`vista tracking train siamese DATA… -o SIAMESE.onnx`)"
+                "`vista tracking train DATA… --network siamese -o SIAMESE.onnx`)"
             )
         from services.tracking.siamese import SiameseTracker
 
@@ -50,7 +49,7 @@ def make_detector(name: str, model: Path | None, threads: int = 1) -> Detector:
         if model is None and not DEFAULT_MODEL.is_file():
             raise ValueError(
                 f"this installation lacks vista's shipped detector ({DEFAULT_MODEL}): give "
-                "--detector-model DETECTOR.onnx (build one with `vista tracking train detector`) "
+                "--detector-model DETECTOR.onnx (build one with `vista tracking train`) "
                 "or use --detector geometric"
             )
         if model is not None and not Path(model).is_file():
@@ -149,28 +148,28 @@ def scan_stream(
 
 def run_tracking(
     folder: Path,
+    params: TrackParams,
     *,
-    track_id: int | None = None,
-    init_box: np.ndarray | None = None,
-    start_frame: int | None = None,
-    end_frame: int | None = None,
-    tracker: str = "geometric",
-    detector: str = "learned",
-    reset: str = "adaptive:10",
     siamese_model: Path | None = None,
     detector_model: Path | None = None,
     threads: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict:
-    """Track the target through the sequence in ``folder``; the TRACK.json document."""
-    policy = ResetPolicy.parse(reset)
+    """Track the target ``params`` give through the sequence in ``folder``, with their
+    tracker, detector and reset policy (the models: the Siamese encoder, a learned detector
+    instead of the shipped one); the TRACK.json document."""
+    policy = ResetPolicy.parse(params.reset)
     sequence = open_sequence(folder)
     target = find_target(
-        sequence, track_id=track_id, init_box=init_box, start_frame=start_frame, end_frame=end_frame
+        sequence,
+        track_id=params.track_id,
+        init_box=None if params.init_box is None else np.array(params.init_box),
+        start_frame=params.start_frame,
+        end_frame=params.end_frame,
     )
-    the_tracker = make_tracker(tracker, siamese_model, threads)
+    the_tracker = make_tracker(params.tracker, siamese_model, threads)
     the_detector = (
-        make_detector(detector, detector_model, threads) if policy.mode != "never" else None
+        make_detector(params.detector, detector_model, threads) if policy.mode != "never" else None
     )
     result = track(
         scan_stream(sequence, target.frames),
@@ -186,8 +185,8 @@ def run_tracking(
         sequence.calibration,
         sequence=str(folder),
         track_id=target.track_id,
-        tracker=tracker,
-        detector=detector if policy.mode != "never" else None,
+        tracker=params.tracker,
+        detector=params.detector if policy.mode != "never" else None,
         reset=policy.text(),
         ego_motion=sequence.poses is not None,
     )

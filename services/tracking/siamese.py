@@ -37,7 +37,12 @@ import numpy as np
 
 from services.lib.boxes import YAW, from_box_frame, wrap
 from services.lib.nn.fit import Progress
-from services.tracking.kinds import SIAMESE_EPOCHS
+from services.tracking.kinds import (
+    SIAMESE_BATCH,
+    SIAMESE_EPOCHS,
+    SIAMESE_LEARNING_RATE,
+    TrainParams,
+)
 from services.tracking.sequence import open_sequence, tracklets
 from services.tracking.tracker import (
     IN_BOX_MARGIN_M,
@@ -137,15 +142,18 @@ def points_in_candidates(
     return np.where(inside_count[:, None, None] > 0, out, 0.0).astype(np.float32)
 
 
+SETTINGS = TrainParams.model_fields
+
+
 @dataclass(frozen=True)
 class SiameseTrainConfig:
     epochs: int = SIAMESE_EPOCHS
-    batch: int = 64
-    learning_rate: float = 1e-3
-    seed: int = 0
+    batch: int = SIAMESE_BATCH
+    learning_rate: float = SIAMESE_LEARNING_RATE
+    seed: int = SETTINGS["seed"].default
     threads: int = 2
-    device: str = "auto"
-    samples_per_epoch: int = 6000
+    device: str = SETTINGS["device"].default
+    samples_per_epoch: int = SETTINGS["samples"].default
     completion_weight: float = 1.0
     val_fraction: float = 0.1
 
@@ -242,12 +250,14 @@ def train_siamese(
     out: Path,
     config: SiameseTrainConfig,
     *,
+    licence: str | None = None,
     checkpoint_dir: Path | None = None,
     progress: Progress | None = None,
     sources: list[str] | None = None,
 ) -> dict:
     """Train the encoder (and its shape decoder) on the car tracklets of ``folders``; export
-    the encoder to ``out`` (ONNX with its metadata) and return the metadata."""
+    the encoder to ``out`` (ONNX with its metadata) and return the metadata. ``licence`` is
+    the training data's, as the metadata should say it."""
     import torch
 
     from services.lib.nn.fit import fit
@@ -329,7 +339,8 @@ def train_siamese(
             "validation_similarity_mse": round(result.best_score, 5),
             "seconds": round(result.seconds, 1),
             "history": result.history,
-            "command": "vista tracking train siamese",
+            "licence": licence,
+            "command": "vista tracking train --network siamese",
         },
     }
     export_onnx(
@@ -402,7 +413,7 @@ class SiameseTracker:
         if found.metadata.get("architecture") != ARCHITECTURE:
             raise ValueError(
                 f"{model}: a {found.metadata.get('architecture')!r} model, not the Siamese tracker's "
-                f"encoder ({ARCHITECTURE}); build one with `vista tracking train siamese`"
+                f"encoder ({ARCHITECTURE}); build one with `vista tracking train --network siamese`"
             )
         if search not in ("local", "full"):
             raise ValueError(f"search {search!r}: use 'local' or 'full'")

@@ -1,6 +1,6 @@
 """Simulated LiDAR drives with ground truth, in KITTI tracking's formats.
 
-``simulate_sequence`` writes a sequence folder as ``vista tracking run`` reads it:
+``simulate_sequence`` writes a sequence folder as ``vista tracking track`` reads it:
 ``velodyne/NNNNNN.bin`` (one HDL-64E turn a frame, 10 Hz), ``calib.txt`` (the tracking
 benchmark's, KITTI's 2011-09-26 rig), ``label_02.txt`` (every car, van, pedestrian and
 cyclist the camera sees within 80 m: track id, 2D box, truncation, occlusion from the

@@ -308,12 +308,13 @@ def simulate_scans(
     flange_T_sensor: np.ndarray,
     *,
     sensor: SensorModel | None = None,
-    robot_sigma_mm: float = 0.05,
-    robot_sigma_deg: float = 0.005,
+    robot_sigma_mm: float,
+    robot_sigma_deg: float,
     overlap: float = 0.3,
     rng: np.random.Generator,
 ) -> ScanSession:
-    """Scan ``mesh`` (placed in front of the robot) along a workplan; report poses with noise."""
+    """Scan ``mesh`` (placed in front of the robot) along a workplan; report poses with the
+    robot's noise (1σ per axis; the caller's robot: a library states none of its own)."""
     sensor = sensor or SensorModel()
     base_T_part = make_transform(np.eye(3), np.array([550.0, -100.0, -250.0]))
     base_T_sensor = workplan(mesh, base_T_part, sensor, overlap=overlap)
