@@ -546,7 +546,8 @@ def test_build_default_at_a_tiny_scale(tmp_path: Path) -> None:
     """The shipped model's recipe end to end on three simulated drives, one epoch a stage,
     64 × 64: simulated teacher, LiDAR adaptation on the real drive, student, int8 weights,
     the held-out score and the licence in the metadata; the predict command uses it."""
-    from services.depth.default_model import BuildSettings, build_default_model
+    from services.depth.default_model import build_default_model
+    from services.depth.kinds import BuildSettings
     from services.lib.nn.onnx_io import read_model
 
     out = tmp_path / "depth.onnx"
@@ -558,7 +559,8 @@ def test_build_default_at_a_tiny_scale(tmp_path: Path) -> None:
         student_epochs=1,
         student_sim_drives=2,
         batch=4,
-        size=(64, 64),
+        width=64,
+        height=64,
     )
     metadata = build_default_model(out, work=tmp_path / "work", settings=settings)
     assert read_model(out).metadata == metadata
@@ -594,12 +596,12 @@ def test_predict_uses_the_shipped_model(tmp_path: Path, monkeypatch: pytest.Monk
     """A new user's first real images: no model given, the shipped one answers (its
     metadata says where it comes from and its licence); without one, the error says how to
     get one."""
-    import services.depth.default_model as default_model
+    import services.depth.models as models
     from services.lib.nn.onnx_io import read_model
 
-    shipped = read_model(default_model.PACKAGED).metadata
+    shipped = read_model(models.PACKAGED).metadata
     assert "CC BY-NC-SA 3.0" in shipped["licence"] and shipped["validation"]["shipped"]["frames"]
-    assert default_model.PACKAGED.stat().st_size <= 5_000_000
+    assert models.PACKAGED.stat().st_size <= 5_000_000
     images = tmp_path / "images"
     images.mkdir()
     for name in ("000000.png", "000001.png"):
@@ -610,12 +612,100 @@ def test_predict_uses_the_shipped_model(tmp_path: Path, monkeypatch: pytest.Monk
     preview = cv2.imread(str(tmp_path / "p" / "000000.color.png"))
     assert depth.shape == (375, 1242) and preview.shape[0] > 375  # the colour bar below
     assert (tmp_path / "p" / "000000.ply").stat().st_size > 1000  # clouds, as the job's default
-    from services.depth.models import DepthModel
-
     raw = np.full((1, 1, 4, 4), 0.5, np.float32)
     raw[0, 0, 0, 0] = np.nan  # an int8 model out of its calibration's range answered so
     with pytest.raises(ValueError, match="no valid depth .* 6.2% of the pixels"):
-        DepthModel(default_model.PACKAGED).to_depth(raw)
-    monkeypatch.setattr(default_model, "PACKAGED", tmp_path / "none.onnx")
+        models.DepthModel(models.PACKAGED).to_depth(raw)
+    monkeypatch.setattr(models, "PACKAGED", tmp_path / "none.onnx")
     result = CliRunner().invoke(app, ["depth", "predict", str(images), "-o", str(tmp_path / "q")])
     assert result.exit_code == 2 and "vista depth build-default" in result.output
+
+
+def test_predict_reads_a_raw_drive_as_the_job_does(tmp_path: Path) -> None:
+    """`vista depth predict` and the `depth.predict` job read a folder alike
+    (``predict.image_set``): a KITTI raw drive's ``image_02/data/``, placed by the
+    calibration in its date folder; several sets each go to their own folder."""
+    from services.depth.kinds import PredictParams
+    from services.depth.predict import image_set, predict_depth
+    from services.lib.pointcloud.ply import read_ply
+    from tests.depthfiles import small_drive, tiny_depth_model
+
+    drive = small_drive(tmp_path / "2011_09_26" / "drive", frames=2, stereo=False)
+    (drive / "image_02" / "data").mkdir()
+    for image in sorted((drive / "image_02").glob("*.png")):
+        image.rename(drive / "image_02" / "data" / image.name)
+    (drive / "calib.json").rename(drive.parent / "calib.json")
+    found = image_set(drive)
+    assert [p.name for p in found.images] == ["0000000000.png", "0000000001.png"]
+    assert found.calibration == drive
+    model = tiny_depth_model(tmp_path / "tiny.onnx")
+    out = tmp_path / "cli"
+    result = CliRunner().invoke(
+        app, ["depth", "predict", str(drive), "-o", str(out), "--model", str(model), "--int8"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "wrote 2 depth maps" in result.output and "int8" in result.output
+    assert (out / "model.int8.onnx").is_file()
+    cloud = read_ply(out / "0000000001.ply")
+    assert cloud.grid_shape == (64, 128)
+    both = predict_depth([found, image_set(drive)], PredictParams(), tmp_path / "core", model=model)
+    assert [p.depth_path.parent.name for p in both.images] == ["set-0"] * 2 + ["set-1"] * 2
+    assert both.architecture == "tiny" and (both.width, both.height) == (64, 32)
+    assert np.array_equal(
+        read_depth_png(both.images[1].depth_path), read_depth_png(both.images[3].depth_path)
+    )
+    refused = CliRunner().invoke(app, ["depth", "predict", str(tmp_path), "-o", str(out)])
+    assert refused.exit_code == 2 and "no PNG or JPEG images" in refused.output
+
+
+def test_train_command_and_its_old_spellings(tmp_path: Path) -> None:
+    """`vista depth train` trains what the `depth.train` job would, `--network` choosing the
+    teacher or the student; `train-teacher` and `distill` still work, hidden."""
+    from services.depth.cli import depth_app
+    from services.lib.nn.onnx_io import read_model
+    from tests.depthfiles import small_drive
+
+    drives = [str(small_drive(tmp_path / f"d{k}", seed=k)) for k in range(2)]
+    small = ["--width", "64", "--height", "64", "--epochs", "1", "--batch", "2"]
+    small += ["--device", "cpu", "--threads", "2"]
+    teacher = tmp_path / "teacher.onnx"
+    old = ["depth", "train-teacher", *drives, "-o", str(teacher), *small]
+    result = CliRunner().invoke(app, old)
+    assert result.exit_code == 0, result.output
+    assert "monodepth2-resnet18: val_abs_rel" in result.output
+    training = read_model(teacher).metadata["training"]
+    assert training["supervision"] == "depth" and training["inputs"] == drives
+    student = tmp_path / "student.onnx"
+    new = ["depth", "train", *drives, "--model", str(teacher), "-o", str(student), *small]
+    result = CliRunner().invoke(app, new)
+    assert result.exit_code == 0, result.output
+    training = read_model(student).metadata["training"]
+    assert training["teacher"] == "teacher.onnx" and training["method"] == "vista"
+    refused = CliRunner().invoke(app, ["depth", "train", *drives, "-o", str(student), *small])
+    assert refused.exit_code == 2 and "network student needs its teacher" in refused.output
+    missing = tmp_path / "none.onnx"
+    old = ["depth", "distill", *drives, "--teacher", str(missing), "-o", str(student), *small]
+    refused = CliRunner().invoke(app, old)
+    assert refused.exit_code == 2 and f"{missing}: no such file" in refused.output
+    shown = {c.name for c in depth_app.registered_commands if not c.hidden}
+    assert {"train", "predict", "simulate", "bench", "build-default"} <= shown
+    assert not shown & {"train-teacher", "distill"}
+
+
+def test_simulate_and_bench_are_depth_verbs(tmp_path: Path) -> None:
+    """`vista depth simulate` and `vista depth bench`; the old `vista simulate depth` and
+    `vista bench depth` kept as hidden aliases."""
+    runner = CliRunner()
+    assert runner.invoke(app, ["depth", "bench", "--help"]).exit_code == 0
+    for old, new in (
+        (["simulate", "depth"], "depth simulate"),
+        (["bench", "depth"], "depth bench"),
+    ):
+        result = runner.invoke(app, [*old, "--help"])
+        assert result.exit_code == 0 and f"Alias of `vista {new}`" in result.output
+    result = runner.invoke(
+        app, ["simulate", "depth", str(tmp_path / "d"), "--frames", "1", "--width", "64",
+              "--height", "32"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert read_drive(tmp_path / "d").names == ("0000000000",)

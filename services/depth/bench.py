@@ -1,4 +1,4 @@
-"""``vista bench depth``: the simulator-only models, their adaptations to a real camera and
+"""``vista depth bench``: the simulator-only models, their adaptations to a real camera and
 the shipped model side by side.
 
 1. Data: simulated stereo drives (three frames each) to train on, other simulated frames
@@ -33,24 +33,27 @@ import numpy as np
 from contract.bench import print_verdict, say, write_document
 from services.depth.camera import kitti_camera
 from services.depth.data import FrameSet, load_frames
-from services.depth.default_model import PACKAGED
+from services.depth.distill import METHODS
 from services.depth.drive import read_drive
+from services.depth.kinds import BuildSettings
 from services.depth.metrics import METRICS, evaluate_image, mean_errors
-from services.depth.models import DepthModel
+from services.depth.models import PACKAGED, DepthModel
 from services.depth.training import DepthTrainConfig
 from services.lib.images import read_image
 from services.lib.kitti import read_depth_png
 from services.lib.process import available_cores, prepare_process
 
-TRAIN_SIZE = (320, 96)
+BUILD = BuildSettings()
+"""The shipped model's build: the bench trains at its size, on as many drives, as long."""
+TRAIN_SIZE = BUILD.size
 LATENCY_SIZE = (1024, 320)
-TRAIN_DRIVES, TEST_FRAMES = 500, 120
+TRAIN_DRIVES, TEST_FRAMES = BUILD.sim_drives, 120
 TEST_SEED = 900_000
+"""Held-out drives' seeds: far from the training drives' 0 … TRAIN_DRIVES."""
 SIM_SET = "simulated, held out"
 HELD_OUT_SET = "KITTI real, held out (10 testing frames of other drives)"
 ADAPTATION_SET = "KITTI real drive 0052 (the adaptation drive: seen in training)"
-"""Held-out drives' seeds: far from the training drives' 0 … TRAIN_DRIVES."""
-TEACHER_EPOCHS, STUDENT_EPOCHS = 8, 8
+TEACHER_EPOCHS, STUDENT_EPOCHS = BUILD.teacher_epochs, BUILD.student_epochs
 LATENCY_RUNS = 10
 THESIS = {
     "student": {
@@ -136,7 +139,7 @@ def _students(
 ) -> dict[str, Path]:
     from services.depth.distill import distill, save_student, teacher_targets
 
-    paths = {method: work / f"student-{method}.onnx" for method in ("thesis", "vista")}
+    paths = {method: work / f"student-{method}.onnx" for method in METHODS}
     missing = [m for m, p in paths.items() if not p.is_file()]
     if not missing:
         return paths
@@ -345,7 +348,7 @@ def _print_tables(accuracy: dict, latency: dict) -> None:
 def _adapted(work: Path, teacher: Path, sim: list[Path], batch: int) -> dict[str, Path]:
     """The simulator's teacher adapted to KITTI's camera by drive 0052's LiDAR and by its
     video, and the student of the LiDAR-adapted one (``default_model``'s stages)."""
-    from services.depth.default_model import REAL_DRIVE, BuildSettings, adapted_models
+    from services.depth.default_model import REAL_DRIVE, adapted_models
 
     if not REAL_DRIVE.is_dir():
         return {}
@@ -414,7 +417,7 @@ def run_depth_bench(
     student_epochs: int = STUDENT_EPOCHS,
     test_frames: int = TEST_FRAMES,
     latency_runs: int = LATENCY_RUNS,
-    batch: int = 8,
+    batch: int = BUILD.batch,
 ) -> dict:
     """The whole bench (module docstring); returns the JSON document it writes."""
     prepare_process()
@@ -423,7 +426,7 @@ def run_depth_bench(
     train_drives_paths, test_drives = _sim_data(work, train_drives, test_frames)
     frames = None
     teacher_path = teacher or work / "teacher.onnx"
-    students_ready = all((work / f"student-{m}.onnx").is_file() for m in ("thesis", "vista"))
+    students_ready = all((work / f"student-{m}.onnx").is_file() for m in METHODS)
     if not teacher_path.is_file() or not students_ready:
         frames = load_frames(train_drives_paths, *TRAIN_SIZE)
     if not teacher_path.is_file():
@@ -439,7 +442,7 @@ def run_depth_bench(
     students = (
         _students(work, teacher_path, frames, students_config)
         if frames is not None
-        else {m: work / f"student-{m}.onnx" for m in ("thesis", "vista")}
+        else {m: work / f"student-{m}.onnx" for m in METHODS}
     )
     models = {
         "teacher (simulator only)": teacher_path,

@@ -7,11 +7,13 @@ from pathlib import Path
 
 import typer
 
-from contract.cli import echo_progress, fail, params_options
-from contract.training import config_from
-from services.depth.kinds import PredictParams, TrainParams
+from contract.cli import alias, echo_progress, fail, params_options
+from services.depth.kinds import BuildSettings, PredictParams, TrainParams
 
 # Heavy imports (numpy, OpenCV, torch) stay inside the commands.
+
+BUILD = BuildSettings()
+"""The shipped model's build, whose drives and epochs the bench trains by default."""
 
 depth_app = typer.Typer(
     help="Monocular depth: simulate driving scenes with dense depth, train a teacher, distil a "
@@ -114,133 +116,117 @@ def evaluate(
     typer.echo(f"wrote {out}")
 
 
-def _load(folders: list[Path], width: int, height: int, lidar: bool = False):  # noqa: ANN202 - a FrameSet
-    from services.depth.data import load_frames
-
-    try:
-        return load_frames(folders, width, height, lidar=lidar)
-    except ValueError as exc:
-        fail(str(exc))
-
-
 THREADS = typer.Option(2, min=1, max=256, help="Threads for torch.")
 CHECKPOINTS = typer.Option(None, help="Folder for per-epoch checkpoints (a rerun resumes).")
+DRIVES = typer.Argument(
+    ...,
+    help="Drive folders (image_02/, and image_03/, depth/, velodyne/, poses.txt as the "
+    "supervision needs) or image folders (a student learns on images alone; a right camera or "
+    "poses add vista's photometric term).",
+)
+OUT_MODEL = typer.Option(..., "-o", "--out", help="MODEL.onnx to write.")
 
 
-@depth_app.command("train-teacher")
-@params_options(TrainParams, fixed={"network": "teacher", "method": "vista"})
-def train_teacher_command(
-    data: list[Path] = typer.Argument(
-        ...,
-        help="Drive folders (image_02/, and image_03/, depth/, velodyne/, poses.txt as the supervision needs).",
-    ),
-    out: Path = typer.Option(..., "-o", "--out", help="TEACHER.onnx to write."),
-    initial: Path = typer.Option(
-        None,
-        "--from",
-        help="A teacher to adapt (e.g. one trained on the simulator) instead of starting from scratch.",
-    ),
-    threads: int = THREADS,
-    checkpoints: Path = CHECKPOINTS,
-    *,
+def _train(
+    data: list[Path],
+    out: Path,
+    model: Path | None,
+    threads: int,
+    checkpoints: Path | None,
     params: TrainParams,
 ) -> None:
-    """Train Monodepth2's network (ResNet-18 encoder, 14.3 M parameters) as a teacher:
-    self-supervised from stereo, from video with a pose network, or both (photometric
-    L1 + SSIM with α = 0.85, edge-aware smoothness, per-pixel minimum reprojection,
-    auto-masking), or supervised by depth maps or by the LiDAR scans of the drives. With
-    --from, adapts a trained teacher to your camera (e.g. the simulator's, on your own
-    scans or video). Writes ONNX with its encoder and decoder features as extra outputs
-    (for vista's distillation) and the validation AbsRel."""
-    from services.depth.teacher import save_teacher, train_teacher
-    from services.depth.training import DepthTrainConfig
+    """What `vista depth train` and its old spellings do."""
+    from services.depth.train import train_depth
 
-    supervision, width, height = params.supervision, params.width, params.height
-    if initial is not None and not initial.is_file():
-        fail(f"--from {initial}: no such file")
-    frames = _load(data, width, height, lidar=supervision == "lidar")
-    typer.echo(
-        f"{len(frames)} frames from {len(data)} folder{'s' * (len(data) > 1)} at {width} × {height}"
-    )
-    config = config_from(DepthTrainConfig, params, threads=threads)
     try:
-        result = train_teacher(
-            frames,
-            supervision,
-            config,
-            initial=initial,
+        trained = train_depth(
+            data,
+            params,
+            out,
+            model=model,
+            threads=threads,
             checkpoint_dir=checkpoints,
             progress=echo_progress,
         )
     except ValueError as exc:
         fail(str(exc))
-    save_teacher(
-        result,
-        out,
-        config,
-        width=width,
-        height=height,
-        data=[str(folder) for folder in data],
-        **({"from": initial.name} if initial is not None else {}),
+    scores = ", ".join(f"{name} {value:.3f}" for name, value in trained.metrics.items())
+    typer.echo(
+        f"wrote {out} ({trained.architecture}: {scores} on {trained.frames['val']} held-out "
+        f"frames; best epoch {trained.best_epoch})"
     )
-    score = (
-        f"validation AbsRel {result.val_abs_rel:.3f}"
-        if result.val_abs_rel is not None
-        else f"validation loss {result.fit.best_score:.4f}"
-    )
-    typer.echo(f"wrote {out} ({score}, best epoch {result.fit.best_epoch})")
 
 
-@depth_app.command("distill")
-@params_options(TrainParams, fixed={"network": "student", "supervision": "depth"})
-def distill_command(
-    images: list[Path] = typer.Argument(
-        ...,
-        help="Image folders or drive folders (a right camera or poses add vista's photometric term).",
+@depth_app.command("train")
+@params_options(TrainParams)
+def train_command(
+    data: list[Path] = DRIVES,
+    out: Path = OUT_MODEL,
+    model: Path = typer.Option(
+        None,
+        "--model",
+        help="The teacher (vista's, or any depth model with its spec JSON beside it): a "
+        "student's to learn from (needed); a teacher's to adapt (e.g. one trained on the "
+        "simulator) instead of starting from scratch.",
     ),
-    teacher: Path = typer.Option(
-        ..., help="TEACHER.onnx: vista's, or any depth model with its spec JSON beside it."
-    ),
-    out: Path = typer.Option(..., "-o", "--out", help="STUDENT.onnx to write."),
     threads: int = THREADS,
     checkpoints: Path = CHECKPOINTS,
     *,
     params: TrainParams,
 ) -> None:
-    """Distil TEACHER into the student, DeepLabv3+ with MobileNetV2 (2.67 M parameters),
-    on the given images, by the thesis's L1 or vista's method; writes ONNX and the student's
-    AbsRel against the teacher on held-out images."""
-    from services.depth.distill import distill, save_student
-    from services.depth.models import DepthModel
-    from services.depth.training import DepthTrainConfig
+    """Train a depth network as the `depth.train` job does. --network teacher: Monodepth2's
+    network (ResNet-18 encoder, 14.3 M parameters), self-supervised from stereo, from video
+    with a pose network, or both (photometric L1 + SSIM with α = 0.85, edge-aware
+    smoothness, per-pixel minimum reprojection, auto-masking), or supervised by depth maps
+    or by the LiDAR scans of the drives; with --model, adapts that teacher to your camera
+    (e.g. the simulator's, on your own scans or video); writes ONNX with its encoder and
+    decoder features as extra outputs (for vista's distillation) and the validation AbsRel.
+    --network student: distils the --model teacher into DeepLabv3+ with MobileNetV2 (2.67 M
+    parameters) by the thesis's L1 or vista's method; writes ONNX and the student's AbsRel
+    against the teacher on held-out images."""
+    _train(data, out, model, threads, checkpoints, params)
 
-    method, width, height = params.method, params.width, params.height
-    try:
-        model = DepthModel(teacher, threads)
-    except ValueError as exc:
-        fail(str(exc))
-    frames = _load(images, width, height)
-    typer.echo(
-        f"{len(frames)} frames at {width} × {height}; teacher {teacher} ({model.spec.width} × {model.spec.height})"
-    )
-    config = config_from(DepthTrainConfig, params, threads=threads)
-    try:
-        result = distill(
-            model, frames, method, config, checkpoint_dir=checkpoints, progress=echo_progress
-        )
-    except ValueError as exc:
-        fail(str(exc))
-    save_student(
-        result,
-        out,
-        config,
-        width=width,
-        height=height,
-        teacher=model.spec.metadata.get("architecture", teacher.name),
-    )
-    typer.echo(
-        f"wrote {out} (AbsRel against the teacher {result.val_abs_rel_to_teacher:.3f} on held-out images; hints: {', '.join(result.hints) or 'none'}; photometric: {result.photometric})"
-    )
+
+@depth_app.command(
+    "train-teacher",
+    hidden=True,
+    deprecated=True,
+    help="Alias of `vista depth train --network teacher` (kept for this release).",
+)
+@params_options(TrainParams, fixed={"network": "teacher", "method": "vista"})
+def train_teacher_command(
+    data: list[Path] = DRIVES,
+    out: Path = OUT_MODEL,
+    initial: Path = typer.Option(
+        None, "--from", help="A teacher to adapt (`vista depth train`'s --model)."
+    ),
+    threads: int = THREADS,
+    checkpoints: Path = CHECKPOINTS,
+    *,
+    params: TrainParams,
+) -> None:
+    _train(data, out, initial, threads, checkpoints, params)
+
+
+@depth_app.command(
+    "distill",
+    hidden=True,
+    deprecated=True,
+    help="Alias of `vista depth train --network student` (kept for this release).",
+)
+@params_options(TrainParams, fixed={"network": "student", "supervision": "depth"})
+def distill_command(
+    images: list[Path] = DRIVES,
+    teacher: Path = typer.Option(
+        ..., help="The teacher to learn from (`vista depth train`'s --model)."
+    ),
+    out: Path = OUT_MODEL,
+    threads: int = THREADS,
+    checkpoints: Path = CHECKPOINTS,
+    *,
+    params: TrainParams,
+) -> None:
+    _train(images, out, teacher, threads, checkpoints, params)
 
 
 @depth_app.command("predict")
@@ -266,53 +252,24 @@ def predict_command(
     *,
     params: PredictParams,
 ) -> None:
-    """Depth maps at each image's own size, in KITTI's convention, with colour previews (and
-    each image's point cloud, as the `depth.predict` job; the int8 model is kept as
-    OUT/model.int8.onnx)."""
-    import numpy as np
+    """Depth maps at each image's own size in KITTI's convention, colour previews and point
+    clouds, as the `depth.predict` job makes them (an int8 model kept as OUT/model.int8.onnx)."""
+    from services.depth.predict import image_set, predict_depth
 
-    from services.depth.data import image_files
-    from services.depth.default_model import default_model
-    from services.depth.drive import read_calibration, read_calibration_file
-    from services.depth.models import DepthModel
-    from services.depth.predict import predict_folder, resize_for
-    from services.depth.quantize import quantize_int8
-    from services.lib.images import read_image
-
-    folder = images_dir / "image_02" if (images_dir / "image_02").is_dir() else images_dir
-    if not folder.is_dir():
-        fail(f"{images_dir}: no such folder")
     try:
-        model_path = model_path or default_model()
-    except ValueError as exc:
-        fail(str(exc))
-    paths = image_files(folder / "data" if (folder / "data").is_dir() else folder)
-    if not paths:
-        fail(f"{folder}: no PNG or JPEG images")
-    try:
-        model = DepthModel(model_path, threads)
-        camera = None
-        if params.clouds:
-            first = read_image(paths[0])
-            place = calib or (images_dir if folder != images_dir else None)
-            size = (first.shape[1], first.shape[0])
-            read = read_calibration_file if place and place.is_file() else read_calibration
-            camera = read(place, size) if place else None
-        if params.int8:
-            sample = np.stack(
-                [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]
-            )
-            model = DepthModel(
-                quantize_int8(model, sample, out_dir / "model.int8.onnx", operators=True), threads
-            )
-        done = predict_folder(
-            model, paths, out_dir, camera=camera, clouds=params.clouds, progress=echo_progress
+        done = predict_depth(
+            [image_set(images_dir, calib)],
+            params,
+            out_dir,
+            model=model_path,
+            threads=threads,
+            progress=echo_progress,
         )
     except ValueError as exc:
         fail(str(exc))
-    mean_ms = 1000 * sum(p.seconds for p in done) / len(done)
     typer.echo(
-        f"wrote {len(done)} depth maps to {out_dir} ({mean_ms:.0f} ms a frame at {model.spec.width} × {model.spec.height}{', int8' if params.int8 else ''})"
+        f"wrote {len(done.images)} depth maps to {out_dir} ({1000 * done.mean_seconds:.0f} ms a "
+        f"frame at {done.width} × {done.height}{', int8' if params.int8 else ''})"
     )
 
 
@@ -336,13 +293,14 @@ def import_command(
 
 
 @depth_app.command("build-default")
+@params_options(BuildSettings)
 def build_default_command(
     out: Path = typer.Option(
         None, "-o", "--out", help="Where to write the model (default: the packaged one)."
     ),
     work: Path = typer.Option(
         Path("bench-results/depth"),
-        help="Simulated drives and each stage's model, reused by the next run (and by vista bench depth).",
+        help="Simulated drives and each stage's model, reused by the next run (and by vista depth bench).",
     ),
     real_drive: Path = typer.Option(
         None, help="A KITTI-raw-layout drive with velodyne/ (default: ../shared/data's drive 0052)."
@@ -351,62 +309,27 @@ def build_default_command(
         None,
         help="Real frames to score on, never trained on (default: ../shared/data's kitti-object-testing-sample).",
     ),
-    sim_drives: int = typer.Option(500, min=2, help="Simulated stereo drives of three frames."),
-    teacher_epochs: int = typer.Option(8, min=1),
-    adapt_epochs: int = typer.Option(20, min=1),
-    adapt_sim_drives: int = typer.Option(
-        40, min=1, help="Simulated drives mixed into the adaptation."
-    ),
-    student_epochs: int = typer.Option(8, min=1),
-    student_sim_drives: int = typer.Option(
-        300, min=1, help="Simulated drives the student also learns on."
-    ),
-    width: int = typer.Option(320, min=64, max=4096),
-    height: int = typer.Option(96, min=64, max=4096),
-    seed: int = typer.Option(
-        0, min=0, help="Random seed (simulation, initial weights, shuffling)."
-    ),
-    threads: int = THREADS,
+    *,
+    params: BuildSettings,
 ) -> None:
     """Build the depth model vista ships: a teacher trained on simulated drives, adapted to a
     real camera by that drive's LiDAR (simulated drives mixed in), the student distilled from
     it on real and simulated images, its weights stored in int8 (computed in float), scored
     on the held-out real frames; data, scores, seed, this command and KITTI's licence go into
     its metadata. About an hour on 2 cores at the defaults; each stage is kept in --work."""
-    from services.depth.default_model import (
-        HELD_OUT,
-        PACKAGED,
-        REAL_DRIVE,
-        BuildSettings,
-        build_default_model,
-    )
+    from services.depth.default_model import HELD_OUT, REAL_DRIVE, build_default_model
+    from services.depth.models import PACKAGED
 
-    if width % 32 or height % 32:
-        fail(f"--width {width} --height {height}: both must be multiples of 32 (at least 64)")
-    settings = BuildSettings(
-        sim_drives=sim_drives,
-        teacher_epochs=teacher_epochs,
-        adapt_epochs=adapt_epochs,
-        adapt_sim_drives=min(adapt_sim_drives, sim_drives - 1),
-        student_epochs=student_epochs,
-        student_sim_drives=min(student_sim_drives, sim_drives),
-        seed=seed,
-        threads=threads,
-        size=(width, height),
-    )
+    given = params.model_dump(exclude={"threads"})
+    options = " ".join(f"--{name.replace('_', '-')} {value}" for name, value in given.items())
     try:
         metadata = build_default_model(
             out or PACKAGED,
             work=work,
             real_drive=real_drive or REAL_DRIVE,
             held_out=held_out or HELD_OUT,
-            settings=settings,
-            command=(
-                f"vista depth build-default --sim-drives {sim_drives} --teacher-epochs "
-                f"{teacher_epochs} --adapt-epochs {adapt_epochs} --adapt-sim-drives "
-                f"{adapt_sim_drives} --student-epochs {student_epochs} --student-sim-drives "
-                f"{student_sim_drives} --width {width} --height {height} --seed {seed}"
-            ),
+            settings=params,
+            command=f"vista depth build-default {options}",
             progress=echo_progress,
         )
     except ValueError as exc:
@@ -419,6 +342,7 @@ def build_default_command(
     )
 
 
+@depth_app.command("bench")
 def bench_depth(
     out: Path = typer.Option(Path("bench-results/depth.json"), help="Where to write the JSON."),
     work: Path = typer.Option(
@@ -430,10 +354,10 @@ def bench_depth(
         help="A teacher to distil instead of training one (vista's or any with its spec JSON).",
     ),
     train_drives: int = typer.Option(
-        500, min=2, help="Simulated stereo drives of three frames to train on."
+        BUILD.sim_drives, min=2, help="Simulated stereo drives of three frames to train on."
     ),
-    teacher_epochs: int = typer.Option(8, min=1),
-    student_epochs: int = typer.Option(8, min=1),
+    teacher_epochs: int = typer.Option(BUILD.teacher_epochs, min=1),
+    student_epochs: int = typer.Option(BUILD.student_epochs, min=1),
 ) -> None:
     """The simulator-only teacher and students, the teacher adapted to KITTI's camera by a
     real drive's LiDAR and by its video, the student of the adapted teacher and the shipped
@@ -458,6 +382,6 @@ def bench_depth(
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:
-    simulate_app.command("depth")(simulate)
     app.add_typer(depth_app, name="depth")
-    bench_app.command("depth")(bench_depth)
+    alias(simulate_app, "depth", simulate, "depth simulate")
+    alias(bench_app, "depth", bench_depth, "depth bench")

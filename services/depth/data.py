@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.vocabulary import Progress
-from services.depth.drive import IMAGE_SUFFIXES, read_drive
+from services.depth.drive import image_files, read_drive
 from services.lib.images import read_image
 from services.lib.kitti import read_depth_png
 
@@ -76,14 +76,6 @@ def nominal_K(width: int, height: int) -> np.ndarray:
     from services.depth.camera import kitti_camera
 
     return kitti_camera().resized(width, height).K
-
-
-def image_files(folder: Path) -> list[Path]:
-    return sorted(
-        p
-        for p in Path(folder).iterdir()
-        if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.endswith(".color.png")
-    )
 
 
 def _scan_depths(drive, width: int, height: int) -> list[np.ndarray] | None:  # noqa: ANN001 - a kitti.Drive

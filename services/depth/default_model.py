@@ -1,5 +1,5 @@
-"""The depth model vista ships (``services/depth/models/depth.onnx``) and how it is built,
-by ``vista depth build-default``, seeded, from what this repository can reproduce:
+"""How the depth model vista ships (``models.PACKAGED``) is built by ``vista depth
+build-default``, seeded, from what this repository can reproduce:
 
 1. simulated stereo drives of three frames (seeds 0 … ``sim_drives`` − 1, the bench's) →
    the teacher supervised by their depth: the simulator-only model;
@@ -27,43 +27,17 @@ from pathlib import Path
 import numpy as np
 
 from services.depth.data import Progress
+from services.depth.kinds import BuildSettings, Supervision
 from services.lib.shared_data import SHARED_DATA
 
-PACKAGED = Path(__file__).resolve().parent / "models" / "depth.onnx"
 REAL_DRIVE = SHARED_DATA / "kitti-raw-2011_09_26"
 HELD_OUT = SHARED_DATA / "kitti-object-testing-sample"
 KITTI_LICENCE = (
     "Adapted with KITTI raw data (Geiger, Lenz, Stiller, Urtasun; KIT and TTI-C), licensed "
     "CC BY-NC-SA 3.0: this model is for non-commercial use, shared alike, with attribution."
 )
-SIZE = (320, 96)
 ADAPT_LEARNING_RATE = 1e-4
 """A third of training from scratch's: the simulator's teacher is adjusted, not relearned."""
-
-
-def default_model() -> Path:
-    """The packaged model; ValueError saying how to get one when this installation has none."""
-    if not PACKAGED.is_file():
-        raise ValueError(
-            f"{PACKAGED}: this installation ships no depth model; build it with `vista depth "
-            "build-default` or give one with --model"
-        )
-    return PACKAGED
-
-
-@dataclass(frozen=True)
-class BuildSettings:
-    sim_drives: int = 500
-    teacher_epochs: int = 8
-    adapt_epochs: int = 20
-    adapt_sim_drives: int = 40
-    """Simulated drives mixed into the adaptation (three frames each)."""
-    student_epochs: int = 8
-    student_sim_drives: int = 300
-    batch: int = 8
-    seed: int = 0
-    threads: int = 2
-    size: tuple[int, int] = SIZE
 
 
 @dataclass(frozen=True)
@@ -185,7 +159,7 @@ def adapt_teacher(
     teacher: Path,
     real: Path,
     sim: list[Path],
-    supervision: str,
+    supervision: Supervision,
     settings: BuildSettings,
     work: Path,
     say: Progress,
@@ -307,6 +281,17 @@ def adapted_models(
     return out
 
 
+def _within_simulated(settings: BuildSettings) -> BuildSettings:
+    """``settings`` asking for no more simulated drives in the adaptation and in the
+    student's training than are simulated (the adaptation one fewer)."""
+    return settings.model_copy(
+        update={
+            "adapt_sim_drives": min(settings.adapt_sim_drives, settings.sim_drives - 1),
+            "student_sim_drives": min(settings.student_sim_drives, settings.sim_drives),
+        }
+    )
+
+
 def build_default_model(
     out: Path,
     *,
@@ -324,6 +309,7 @@ def build_default_model(
     from services.lib.nn.onnx_io import METADATA_KEY, store_weights_int8
 
     say = progress or (lambda fraction, message: None)
+    settings = _within_simulated(settings)
     for folder, what in ((real_drive, "real drive"), (held_out, "held-out frames")):
         if not Path(folder).is_dir():
             raise ValueError(f"{folder}: no such folder (the {what})")
@@ -360,7 +346,7 @@ def build_default_model(
         "build": {
             "command": command,
             "seed": settings.seed,
-            "settings": {k: v for k, v in settings.__dict__.items() if k != "threads"},
+            "settings": settings.model_dump(exclude={"threads"}),
         },
         "licence": KITTI_LICENCE,
     }

@@ -17,18 +17,19 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, get_args
 
 import numpy as np
 
 from services.depth.data import FrameSet
-
-if TYPE_CHECKING:
-    import torch
+from services.depth.kinds import DistillMethod
 from services.depth.models import DepthModel
 from services.depth.training import Batch, DepthTrainConfig, FitResult, Progress, fingerprint, fit
 
-METHODS = ("thesis", "vista")
+if TYPE_CHECKING:
+    import torch
+
+METHODS: tuple[DistillMethod, ...] = get_args(DistillMethod)
 HINT_WEIGHT = 0.5
 GRADIENT_WEIGHT = 0.5
 PHOTOMETRIC_WEIGHT = 0.5
@@ -50,7 +51,7 @@ class StudentResult:
     model: object
     """The trained ``nets.Student`` (eval mode)."""
     fit: FitResult
-    method: str
+    method: DistillMethod
     val_abs_rel_to_teacher: float
     hints: tuple[str, ...]
     photometric: str
@@ -111,7 +112,7 @@ def _pick(array: np.ndarray, batch: Batch, device: torch.device) -> torch.Tensor
 def distill(
     teacher: DepthModel,
     frames: FrameSet,
-    method: str,
+    method: DistillMethod,
     config: DepthTrainConfig,
     *,
     checkpoint_dir: Path | None = None,

@@ -92,10 +92,17 @@ def inspect_calibration(path: Path, declared: str) -> Inspected:
     return Inspected("application/json" if is_json else "text/plain", meta)
 
 
-def _images_in(folder: Path) -> list[Path]:
+def image_files(folder: Path) -> list[Path]:
+    """The PNG and JPEG images of ``folder`` (or of its ``data/``, KITTI raw's layout) by
+    name, previews (``*.color.png``) left out; every reader of an image folder lists it so."""
+    folder = Path(folder)
     if (folder / "data").is_dir():
         folder = folder / "data"
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    return sorted(
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.endswith(".color.png")
+    )
 
 
 @dataclass(frozen=True)
@@ -124,7 +131,7 @@ def read_drive(folder: Path) -> Drive:
     left_dir = folder / "image_02"
     if not left_dir.is_dir():
         raise ValueError(f"{folder}: no image_02/ folder (the left camera's images)")
-    left = _images_in(left_dir)
+    left = image_files(left_dir)
     if not left:
         raise ValueError(f"{left_dir}: no PNG or JPEG images")
     names = tuple(p.stem for p in left)
@@ -132,7 +139,7 @@ def read_drive(folder: Path) -> Drive:
     camera = read_calibration(folder, (first.shape[1], first.shape[0]))
     right = None
     if (folder / "image_03").is_dir():
-        by_name = {p.stem: p for p in _images_in(folder / "image_03")}
+        by_name = {p.stem: p for p in image_files(folder / "image_03")}
         missing = [n for n in names if n not in by_name]
         if missing:
             raise ValueError(f"{folder / 'image_03'}: no right image for {missing[:3]}")

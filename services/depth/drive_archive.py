@@ -21,6 +21,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from contract.artifacts import Inspected
+from services.depth.drive import IMAGE_SUFFIXES
 from services.lib.archive import (
     ArchiveError,
     Member,
@@ -33,7 +34,6 @@ from services.lib.archive import (
 from services.lib.formats import checked
 
 HINT = "pack a drive folder with `tar czf drive.tar.gz -C DRIVE .` (image_02/ inside)"
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 SCAN_SUFFIXES = (".bin",)
 SCAN_POINT_BYTES = 16
 MAX_MEMBER_BYTES = {"image": 256 << 20, "text": 64 << 20}

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from contract.context import (
     InputArtifact,
@@ -16,6 +17,7 @@ from contract.context import (
     unpacked,
 )
 from contract.errors import JobInputError
+from services.depth.drive import IMAGE_SUFFIXES
 from services.depth.kinds import (
     CLOUD,
     DEPTH_MAP,
@@ -28,10 +30,16 @@ from services.depth.kinds import (
 from services.depth.metrics import METRICS
 from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 
+if TYPE_CHECKING:
+    from services.depth.predict import ImageSet, PredictedImage
 
-def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[InputArtifact, Path]]:
-    """Each drive archive unpacked to a drive folder; the images together in one folder
-    (``images/``, named by artifact so two uploads called alike stay apart)."""
+
+def _folders(
+    ctx: JobContext, artifacts: list[InputArtifact]
+) -> list[tuple[InputArtifact | None, Path]]:
+    """Each drive archive unpacked to a drive folder, with its artifact; the images together
+    in one folder (``images/``, staged as ``<artifact id>-<name>`` so two uploads called
+    alike stay apart), with None."""
     from services.depth.drive_archive import extract_drive
 
     out, images = [], ctx.workdir / "images"
@@ -42,11 +50,8 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
             out.append((artifact, folder))
         else:
             images.mkdir(exist_ok=True)
-            suffix = (
-                Path(artifact.name).suffix.lower()
-                if Path(artifact.name).suffix.lower() in (".png", ".jpg", ".jpeg")
-                else ".png"
-            )
+            suffix = Path(artifact.name).suffix.lower()
+            suffix = suffix if suffix in IMAGE_SUFFIXES else ".png"
             shutil.copyfile(
                 artifact.path, images / f"{artifact.id:08d}-{Path(artifact.name).stem}{suffix}"
             )
@@ -55,81 +60,64 @@ def _folders(ctx: JobContext, artifacts: list[InputArtifact]) -> list[tuple[Inpu
     return out
 
 
+def _user_name(drive: InputArtifact | None, image: Path) -> str:
+    """How the user knows a staged image: a drive's frame as ``ARCHIVE-FRAME``, an uploaded
+    image by its own name."""
+    if drive is not None:
+        return f"{Path(drive.name).name.split('.')[0]}-{image.stem}"
+    return image.stem.split("-", 1)[1]
+
+
+def _image_sets(
+    groups: list[tuple[InputArtifact | None, Path]], calibration: Path | None
+) -> tuple[list[ImageSet], dict[Path, str]]:
+    """The staged folders read as the command reads a folder (``predict.image_set``: a
+    drive placed by its own calibration, the images by the ``calibration`` input), and
+    each image's name as the user knows it."""
+    from services.depth.predict import image_set
+
+    sets = [image_set(folder, None if drive else calibration) for drive, folder in groups]
+    names = {
+        path: _user_name(drive, path)
+        for (drive, _), found in zip(groups, sets, strict=True)
+        for path in found.images
+    }
+    return sets, names
+
+
 def train_job(ctx: JobContext) -> dict:
-    from contract.training import config_from
-    from services.depth.data import load_frames
-    from services.depth.distill import STUDENT_ARCHITECTURE, distill, save_student
-    from services.depth.models import DepthModel
-    from services.depth.teacher import TEACHER_ARCHITECTURE, save_teacher, train_teacher
-    from services.depth.training import DepthTrainConfig
+    from services.depth.train import train_depth
     from services.lib.nn.onnx_io import read_model
 
-    params = ctx.params
     data = inputs_of_kind(ctx, "drive", "image")
     teachers = inputs_of_kind(ctx, "model")
-    if params.network == "student" and not teachers:
-        raise JobInputError(
-            "network student needs the teacher as a `model` input (a depth.train teacher's, or your own ONNX with vista's metadata)"
-        )
     if len(teachers) > 1:
         raise JobInputError(f"one `model` input at most; got {len(teachers)}")
     ctx.progress(0.01, f"unpacking {len(data)} input{'s' * (len(data) > 1)}")
-    folders = _folders(ctx, data)
-    config = config_from(DepthTrainConfig, params, threads=ctx.threads)
-    say = lambda fraction, message: ctx.progress(0.1 + 0.85 * fraction, message)  # noqa: E731 - a one-line adapter
-    path = ctx.workdir / MODEL.file_name()
-    inputs = [a.label for a in data]
-    size = {"width": params.width, "height": params.height}
+    folders = [folder for _, folder in _folders(ctx, data)]
     try:
-        frames = load_frames(
-            [folder for _, folder in folders],
-            params.width,
-            params.height,
-            lidar=params.network == "teacher" and params.supervision == "lidar",
-            progress=lambda f, m: ctx.progress(0.02 + 0.08 * f, m),
+        trained = train_depth(
+            folders,
+            ctx.params,
+            ctx.workdir / MODEL.file_name(),
+            model=teachers[0].path if teachers else None,
+            inputs=[a.label for a in data],
+            model_name=teachers[0].label if teachers else None,
+            threads=ctx.threads,
+            checkpoint_dir=ctx.workdir / "checkpoints",
+            progress=ctx.progress,
         )
-        if params.network == "teacher":
-            result = train_teacher(
-                frames,
-                params.supervision,
-                config,
-                initial=teachers[0].path if teachers else None,
-                checkpoint_dir=ctx.workdir / "checkpoints",
-                progress=say,
-            )
-            ctx.progress(0.96, "exporting to ONNX")
-            adapted = {"adapted_from": teachers[0].label} if teachers else {}
-            metrics = save_teacher(result, path, config, **size, inputs=inputs, **adapted)
-            architecture = TEACHER_ARCHITECTURE
-        else:
-            teacher = DepthModel(teachers[0].path, ctx.threads)
-            result = distill(
-                teacher,
-                frames,
-                params.method,
-                config,
-                checkpoint_dir=ctx.workdir / "checkpoints",
-                progress=say,
-            )
-            ctx.progress(0.96, "exporting to ONNX")
-            metrics = save_student(
-                result,
-                path,
-                config,
-                **size,
-                teacher=teachers[0].label,
-                inputs=inputs,
-            )
-            architecture = STUDENT_ARCHITECTURE
     except ValueError as exc:
         raise JobInputError(in_user_words(str(exc), ctx, data + teachers)) from exc
     # the metadata: the spec, the training with its history, the metrics
-    store_model(ctx, path, read_model(path).metadata, model=MODEL, report=TRAINING_REPORT)
-    ctx.progress(1.0, f"{architecture}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
-    return {"architecture": architecture, **metrics}
+    metadata = read_model(trained.path).metadata
+    store_model(ctx, trained.path, metadata, model=MODEL, report=TRAINING_REPORT)
+    scores = ", ".join(f"{k} {v:.4f}" for k, v in trained.metrics.items())
+    ctx.progress(1.0, f"{trained.architecture}: {scores}")
+    return {"architecture": trained.architecture, **trained.metrics}
 
 
-def _scored(ctx: JobContext, item, image: Path, truth: InputArtifact, stem: str) -> dict:  # noqa: ANN001
+def _scored(ctx: JobContext, item: PredictedImage, truth: InputArtifact, stem: str) -> dict:
     """One prediction against its ground truth: the seven metrics (median-scaled, Garg's
     crop) and the error map kept as an output."""
     import cv2
@@ -146,7 +134,8 @@ def _scored(ctx: JobContext, item, image: Path, truth: InputArtifact, stem: str)
     except ValueError as exc:
         return {"unmeasured": f"{truth.label}: {exc}"}
     path = ctx.workdir / ERROR_MAP.file_name(stem)
-    cv2.imwrite(str(path), error_preview(gt_m, pred_m, scored.scale, read_image(image)))
+    image = read_image(item.image_path)
+    cv2.imwrite(str(path), error_preview(gt_m, pred_m, scored.scale, image))
     ctx.add_artifact_file(path, kind=ERROR_MAP.kind, name=path.name, media_type="image/png")
     return {
         **{k: round(v, 4) for k, v in scored.errors.to_json().items()},
@@ -155,137 +144,86 @@ def _scored(ctx: JobContext, item, image: Path, truth: InputArtifact, stem: str)
     }
 
 
-def predict_job(ctx: JobContext) -> dict:
+def _kept(ctx: JobContext, item: PredictedImage, stem: str, truth: InputArtifact | None) -> dict:
+    """An image's depth map, preview and cloud kept as outputs under the user's name for
+    it (``stem``); its entry in the report, scored when it has its ``truth``."""
+    ctx.add_artifact_file(
+        item.depth_path,
+        kind=DEPTH_MAP.kind,
+        name=DEPTH_MAP.file_name(stem),
+        media_type="image/png",
+        meta={"width": item.width, "height": item.height, "unit": "m x 256"},
+    )
+    ctx.add_artifact_file(
+        item.colour_path, kind=PREVIEW.kind, name=PREVIEW.file_name(stem), media_type="image/png"
+    )
+    if item.cloud_path is not None:
+        ctx.add_artifact_file(
+            item.cloud_path,
+            kind=CLOUD.kind,
+            name=CLOUD.file_name(stem),
+            media_type=PLY_MEDIA_TYPE,
+            meta={"frame": "camera (x right, y down, z forward)"},
+        )
+    entry = {
+        "name": stem,
+        "seconds": round(item.seconds, 4),
+        "median_depth_m": round(item.median_depth_m, 3),
+        "width": item.width,
+        "height": item.height,
+    }
+    if truth is not None:
+        entry["evaluation"] = _scored(ctx, item, truth, stem)
+    return entry
+
+
+def _evaluation(entries: list[dict], truths: dict[str, InputArtifact]) -> dict:
+    """The report's summary against ground truth: the scored images' mean metrics."""
     import numpy as np
 
-    from services.depth.data import image_files
-    from services.depth.default_model import default_model
-    from services.depth.drive import read_calibration, read_calibration_file
-    from services.depth.models import DepthModel
-    from services.depth.predict import predict_folder, resize_for
-    from services.depth.quantize import quantize_int8
-    from services.lib.images import read_image
+    scored = [e["evaluation"] for e in entries if "abs_rel" in e.get("evaluation", {})]
+    means = {m: round(float(np.mean([e[m] for e in scored])), 4) for m in METRICS}
+    return {
+        "images": len(scored),
+        "unmatched_ground_truth": sorted(set(truths) - {e["name"] for e in entries}),
+        "median_scaling": True,
+        **(means if scored else {}),
+    }
+
+
+def predict_job(ctx: JobContext) -> dict:
+    from services.depth.predict import predict_depth
 
     given = inputs_of_kind(ctx, "model")
     images = inputs_of_kind(ctx, "image", "drive")
     truths = {Path(a.name).stem: a for a in inputs_of_kind(ctx, "depth")}
     calibrations = inputs_of_kind(ctx, "calibration")
-    calibration = calibrations[0] if calibrations else None
-    try:
-        model = DepthModel(given[0].path if given else default_model(), ctx.threads)
-    except ValueError as exc:
-        raise JobInputError(in_user_words(str(exc), ctx, given)) from exc
-    model_name = given[0].name if given else "vista's shipped model"
+    calibration = calibrations[0].path if calibrations else None
     ctx.progress(0.02, f"unpacking {len(images)} input{'s' * (len(images) > 1)}")
     groups = _folders(ctx, images)
-    out = ctx.workdir / "out"
-    report = {
-        "model": model.spec.metadata.get("architecture", model_name),
-        "int8": ctx.params.int8,
-        "images": [],
-    }
     try:
-        if ctx.params.int8:
-            paths = [
-                p
-                for _, folder in groups
-                for p in image_files(
-                    folder / "image_02" if (folder / "image_02").is_dir() else folder
-                )
-            ]
-            sample = np.stack(
-                [resize_for(model, read_image(p)) for p in paths[:: max(1, len(paths) // 32)]]
-            )
-            model = DepthModel(
-                quantize_int8(model, sample, ctx.workdir / "model.int8.onnx", operators=True),
-                ctx.threads,
-            )
-        for number, (artifact, folder) in enumerate(groups):
-            drive = artifact is not None
-            paths = image_files(folder / "image_02") if drive else image_files(folder)
-            camera = None
-            if drive or calibration is not None:
-                first = read_image(paths[0])
-                size = (first.shape[1], first.shape[0])
-                camera = (
-                    read_calibration(folder, size)
-                    if drive
-                    else read_calibration_file(calibration.path, size)
-                )
-            target = out / f"group-{number}"
-            done = predict_folder(
-                model,
-                paths,
-                target,
-                camera=camera,
-                clouds=ctx.params.clouds,
-                progress=lambda f, m, n=number: ctx.progress(0.05 + 0.9 * (n + f) / len(groups), m),
-                shown=(
-                    (lambda p, a=artifact: f"{a.name} {p.name}")
-                    if drive
-                    else (lambda p: p.name.split("-", 1)[1])  # staged as <artifact id>-<name>
-                ),
-            )
-            for item, source in zip(done, paths, strict=True):
-                stem = (
-                    f"{Path(artifact.name).name.split('.')[0]}-{item.name}"
-                    if drive
-                    else item.name.split("-", 1)[1]
-                )
-                ctx.add_artifact_file(
-                    item.depth_path,
-                    kind=DEPTH_MAP.kind,
-                    name=DEPTH_MAP.file_name(stem),
-                    media_type="image/png",
-                    meta={"width": item.width, "height": item.height, "unit": "m x 256"},
-                )
-                ctx.add_artifact_file(
-                    item.colour_path,
-                    kind=PREVIEW.kind,
-                    name=PREVIEW.file_name(stem),
-                    media_type="image/png",
-                )
-                if item.cloud_path is not None:
-                    ctx.add_artifact_file(
-                        item.cloud_path,
-                        kind=CLOUD.kind,
-                        name=CLOUD.file_name(stem),
-                        media_type=PLY_MEDIA_TYPE,
-                        meta={"frame": "camera (x right, y down, z forward)"},
-                    )
-                entry = {
-                    "name": stem,
-                    "seconds": round(item.seconds, 4),
-                    "median_depth_m": round(item.median_depth_m, 3),
-                    "width": item.width,
-                    "height": item.height,
-                }
-                if stem in truths:
-                    entry["evaluation"] = _scored(ctx, item, source, truths[stem], stem)
-                report["images"].append(entry)
+        sets, names = _image_sets(groups, calibration)
+        prediction = predict_depth(
+            sets,
+            ctx.params,
+            ctx.workdir / "out",
+            model=given[0].path if given else None,
+            threads=ctx.threads,
+            progress=lambda f, m: ctx.progress(0.05 + 0.9 * f, m),
+            shown=names.__getitem__,
+        )
+        entries = [
+            _kept(ctx, item, names[item.image_path], truths.get(names[item.image_path]))
+            for item in prediction.images
+        ]
     except ValueError as exc:
-        raise JobInputError(
-            in_user_words(str(exc), ctx, [*given, *images, *calibrations, *truths.values()])
-        ) from exc
-    scored = [i["evaluation"] for i in report["images"] if "abs_rel" in i.get("evaluation", {})]
+        every = [*given, *images, *calibrations, *truths.values()]
+        raise JobInputError(in_user_words(str(exc), ctx, every)) from exc
+    model = prediction.architecture or (given[0].name if given else "vista's shipped model")
+    report = {"model": model, "int8": ctx.params.int8, "images": entries}
     if truths:
-        report["evaluation"] = {
-            "images": len(scored),
-            "unmatched_ground_truth": sorted(set(truths) - {i["name"] for i in report["images"]}),
-            "median_scaling": True,
-            **(
-                {m: round(float(np.mean([e[m] for e in scored])), 4) for m in METRICS}
-                if scored
-                else {}
-            ),
-        }
+        report["evaluation"] = _evaluation(entries, truths)
     ctx.add_artifact_json(report, kind=PREDICT_REPORT.kind, name=PREDICT_REPORT.file_name())
-    seconds = [i["seconds"] for i in report["images"]]
-    ctx.progress(
-        1.0, f"{len(seconds)} depth maps, {1000 * sum(seconds) / len(seconds):.0f} ms a frame"
-    )
-    return {
-        "images": len(seconds),
-        "mean_seconds": round(sum(seconds) / len(seconds), 4),
-        "int8": ctx.params.int8,
-    }
+    mean_s = prediction.mean_seconds
+    ctx.progress(1.0, f"{len(entries)} depth maps, {1000 * mean_s:.0f} ms a frame")
+    return {"images": len(entries), "mean_seconds": round(mean_s, 4), "int8": ctx.params.int8}

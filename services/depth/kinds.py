@@ -12,21 +12,28 @@ from services.lib.artifact_kinds import FORMATS
 
 EPOCHS = 12
 
+Network = Literal["teacher", "student"]
+"""What ``depth.train`` trains: Monodepth2's network, or the student distilled from one."""
+Supervision = Literal["stereo", "mono", "both", "depth", "lidar"]
+"""What teaches a teacher (``teacher.py``)."""
+DistillMethod = Literal["thesis", "vista"]
+"""How a student learns from its teacher (``distill.py``)."""
+
 
 class TrainParams(TrainSettings):
-    network: Literal["teacher", "student"] = Field(
+    network: Network = Field(
         "student",
         description="teacher: Monodepth2's network trained on the drives (adapting the `model` "
         "input when one is given); student: DeepLabv3+ with MobileNetV2 distilled from the "
         "`model` input.",
     )
-    supervision: Literal["stereo", "mono", "both", "depth", "lidar"] = Field(
+    supervision: Supervision = Field(
         "depth",
         description="A teacher's: stereo (image_03/), mono (video, pose network), both, depth "
         "(the drives' depth maps) or lidar (the drives' velodyne/ scans through their "
         "calibration; simulated drives give depth/).",
     )
-    method: Literal["thesis", "vista"] = Field(
+    method: DistillMethod = Field(
         "vista",
         description="A student's: thesis (L1 on the teacher's depth) or vista (log + gradients "
         "+ feature hints + photometric).",
@@ -45,6 +52,39 @@ class TrainParams(TrainSettings):
     epochs: int = Field(EPOCHS, ge=1, le=10_000, description="Passes over the frames.")
     batch: int = Field(8, ge=1, le=4096, description="Frames per step.")
     learning_rate: float = Field(3e-4, gt=0, le=1, description="Adam's step (cosine schedule).")
+
+
+TRAIN = TrainParams.model_fields
+
+
+class BuildSettings(BaseModel):
+    """How ``vista depth build-default`` builds the model vista ships (``default_model``):
+    its options come from here; the training size, batch and seed are ``depth.train``'s."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    sim_drives: int = Field(500, ge=2, description="Simulated stereo drives of three frames.")
+    teacher_epochs: int = Field(8, ge=1, description="The simulator's teacher's passes.")
+    adapt_epochs: int = Field(
+        20, ge=1, description="Passes adapting the teacher by the real drive's LiDAR."
+    )
+    adapt_sim_drives: int = Field(
+        40, ge=1, description="Simulated drives mixed into the adaptation."
+    )
+    student_epochs: int = Field(8, ge=1, description="The student's passes.")
+    student_sim_drives: int = Field(
+        300, ge=1, description="Simulated drives the student also learns on."
+    )
+    width: int = TRAIN["width"]
+    height: int = TRAIN["height"]
+    batch: int = TRAIN["batch"]
+    seed: int = TRAIN["seed"]
+    threads: int = Field(2, ge=1, le=256, description="Threads for torch.")
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height), px: every stage's training size."""
+        return self.width, self.height
 
 
 class PredictParams(BaseModel):

@@ -35,6 +35,18 @@ from services.lib.nn.onnx_io import read_model, session
 
 OUTPUT_KINDS = ("depth", "disparity", "sigmoid_disparity")
 FEATURE_OUTPUTS = ("encoder", "decoder")
+PACKAGED = Path(__file__).resolve().parent / "models" / "depth.onnx"
+"""The model vista ships (``default_model.build_default_model`` builds it)."""
+
+
+def default_model() -> Path:
+    """The packaged model; ValueError saying how to get one when this installation has none."""
+    if not PACKAGED.is_file():
+        raise ValueError(
+            f"{PACKAGED}: this installation ships no depth model; build it with `vista depth "
+            "build-default` or give one with --model"
+        )
+    return PACKAGED
 
 
 @dataclass(frozen=True)

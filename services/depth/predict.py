@@ -1,6 +1,7 @@
-"""Depth for a folder of images: each image resized to the model's input, the depth resized
-back to the image's own size and written in KITTI's convention, with a colour preview and,
-when asked, a point cloud.
+"""Depth for images — ``vista depth predict`` and the ``depth.predict`` job alike
+(``predict_depth``): each image resized to the model's input, the depth resized back to the
+image's own size and written in KITTI's convention, with a colour preview and, when asked,
+a point cloud.
 
 - ``NAME.png``: uint16, metres × 256 (0 = none), the input's size;
 - ``NAME.color.png``: inverse depth through the magma colour map (near bright), a colour bar
@@ -20,7 +21,10 @@ import numpy as np
 
 from contract.vocabulary import Progress
 from services.depth.camera import PinholeCamera
-from services.depth.models import DepthModel
+from services.depth.drive import image_files, read_calibration, read_calibration_file
+from services.depth.kinds import PredictParams
+from services.depth.models import DepthModel, default_model
+from services.depth.quantize import CALIBRATION_IMAGES, quantize_int8
 from services.lib.images import read_image
 from services.lib.kitti import write_depth_png
 
@@ -31,6 +35,7 @@ CLOUD_MAX_DEPTH_M = 80.0
 @dataclass(frozen=True)
 class PredictedImage:
     name: str
+    image_path: Path
     depth_path: Path
     colour_path: Path
     cloud_path: Path | None
@@ -205,6 +210,7 @@ def predict_folder(
         done.append(
             PredictedImage(
                 name,
+                path,
                 depth_path,
                 colour_path,
                 cloud_path,
@@ -219,3 +225,103 @@ def predict_folder(
             f"image {k + 1}/{len(images)}, {shown(path)}: {seconds * 1000:.0f} ms",
         )
     return done
+
+
+@dataclass(frozen=True)
+class ImageSet:
+    """Images to predict and what places their clouds."""
+
+    images: tuple[Path, ...]
+    calibration: Path | None
+    """A calibration file, or a folder with ``calib.json`` or ``calib_cam_to_cam.txt`` (there
+    or in its parent); None: KITTI's camera at the images' size."""
+
+
+def image_set(folder: Path, calibration: Path | None = None) -> ImageSet:
+    """The images of ``folder`` as the command and the job read them: a drive folder's left
+    images (``image_02/``, or KITTI raw's ``image_02/data/``), placed by ``calibration`` or
+    else the drive's own; or the folder's PNG and JPEG images (or its ``data/``'s), placed
+    by ``calibration``. ValueError when there is no image."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: no such folder")
+    drive = (folder / "image_02").is_dir()
+    images = image_files(folder / "image_02" if drive else folder)
+    if not images:
+        raise ValueError(f"{folder}: no PNG or JPEG images")
+    return ImageSet(tuple(images), calibration or (folder if drive else None))
+
+
+@dataclass(frozen=True)
+class DepthPrediction:
+    images: tuple[PredictedImage, ...]
+    """Every image of every set, in order."""
+    architecture: str | None
+    """The model's, as its metadata says (None for a model without vista's)."""
+    width: int
+    height: int
+    """The model's input size, px."""
+    int8_path: Path | None
+    """The int8 model predicted with, when asked for."""
+
+    @property
+    def mean_seconds(self) -> float:
+        return sum(p.seconds for p in self.images) / len(self.images)
+
+
+def predict_depth(
+    sets: list[ImageSet],
+    params: PredictParams,
+    out_dir: Path,
+    *,
+    model: Path | None = None,
+    threads: int = 2,
+    progress: Progress | None = None,
+    shown: Callable[[Path], str] = lambda path: path.name,
+) -> DepthPrediction:
+    """Depth for every image of ``sets`` by the model at ``model`` (None: the one vista
+    ships), quantized to int8 first when ``params`` say so (calibrated on up to
+    ``CALIBRATION_IMAGES`` of the images, evenly spaced; kept as ``out_dir/model.int8.onnx``).
+    The files of the module docstring go to ``out_dir``, a set's to ``out_dir/set-K/`` when
+    there are several (their names may repeat). ValueError naming a file it cannot use."""
+    say = progress or (lambda fraction, message: None)
+    fp32 = network = DepthModel(model or default_model(), threads)
+    paths = [path for images in sets for path in images.images]
+    int8_path = out_dir / "model.int8.onnx" if params.int8 else None
+    if int8_path is not None:
+        network = DepthModel(
+            quantize_int8(network, _calibration_frames(network, paths), int8_path, operators=True),
+            threads,
+        )
+    done: list[PredictedImage] = []
+    for k, images in enumerate(sets):
+        before, count = len(done), len(images.images)
+        done += predict_folder(
+            network,
+            list(images.images),
+            out_dir if len(sets) == 1 else out_dir / f"set-{k}",
+            camera=_camera(images) if params.clouds else None,
+            clouds=params.clouds,
+            progress=lambda f, m, b=before, n=count: say((b + f * n) / len(paths), m),
+            shown=shown,
+        )
+    architecture = fp32.spec.metadata.get("architecture")
+    return DepthPrediction(tuple(done), architecture, fp32.spec.width, fp32.spec.height, int8_path)
+
+
+def _calibration_frames(model: DepthModel, paths: list[Path]) -> np.ndarray:
+    """(N, H, W, 3) uint8: every len(paths) // ``CALIBRATION_IMAGES``-th image at the
+    model's size, what int8 quantization calibrates on."""
+    chosen = paths[:: max(1, len(paths) // CALIBRATION_IMAGES)]
+    return np.stack([resize_for(model, read_image(path)) for path in chosen])
+
+
+def _camera(images: ImageSet) -> PinholeCamera | None:
+    """The camera of ``images``' calibration at the size of their first image."""
+    if images.calibration is None:
+        return None
+    first = read_image(images.images[0])
+    size = (first.shape[1], first.shape[0])
+    if images.calibration.is_file():
+        return read_calibration_file(images.calibration, size)
+    return read_calibration(images.calibration, size)

@@ -25,10 +25,12 @@ import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import get_args
 
 import numpy as np
 
 from services.depth.data import FrameSet
+from services.depth.kinds import Supervision
 from services.depth.training import (
     Batch,
     DepthTrainConfig,
@@ -39,8 +41,8 @@ from services.depth.training import (
     make_batch,
 )
 
-SUPERVISIONS = ("stereo", "mono", "both", "depth", "lidar")
-SUPERVISED = ("depth", "lidar")
+SUPERVISIONS: tuple[Supervision, ...] = get_args(Supervision)
+SUPERVISED: tuple[Supervision, ...] = ("depth", "lidar")
 TRAINING_HEADS = ("heads.1", "heads.2", "heads.3")
 """The coarser disparities' heads: trained, but not in an exported teacher."""
 TEACHER_ARCHITECTURE = "monodepth2-resnet18"
@@ -54,7 +56,7 @@ class TeacherResult:
     model: object
     """The trained ``nets.Teacher`` (eval mode)."""
     fit: FitResult
-    supervision: str
+    supervision: Supervision
     val_abs_rel: float | None
     """AbsRel on the validation drives when they have depth (median-scaled for ``mono``)."""
     split: dict[str, int]
@@ -79,7 +81,7 @@ def axis_angle_matrix(pose):  # noqa: ANN001, ANN201 - torch tensors
     return out
 
 
-def supervision_needs(frames: FrameSet, supervision: str) -> None:
+def supervision_needs(frames: FrameSet, supervision: Supervision) -> None:
     """ValueError naming what the frames lack for ``supervision``."""
     if supervision not in SUPERVISIONS:
         raise ValueError(f"supervision {supervision!r}: one of {', '.join(SUPERVISIONS)}")
@@ -183,7 +185,7 @@ def load_teacher(path: Path):  # noqa: ANN201 - a nets.Teacher
     if architecture != TEACHER_ARCHITECTURE:
         raise ValueError(
             f"{path}: a {architecture!r} model; fine-tuning starts from a teacher "
-            f"({TEACHER_ARCHITECTURE}, written by vista depth train-teacher)"
+            f"({TEACHER_ARCHITECTURE}, written by vista depth train --network teacher)"
         )
     teacher = fold_batch_norms(Teacher())
     load_onnx_weights(teacher, path, unused=TRAINING_HEADS)
@@ -192,7 +194,7 @@ def load_teacher(path: Path):  # noqa: ANN201 - a nets.Teacher
 
 def train_teacher(
     frames: FrameSet,
-    supervision: str,
+    supervision: Supervision,
     config: DepthTrainConfig,
     *,
     initial: Path | None = None,

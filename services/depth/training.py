@@ -18,7 +18,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from contract.vocabulary import DeviceChoice
 from services.depth.data import FrameSet
+from services.depth.kinds import TRAIN
 from services.lib.nn.fit import FitResult, Progress
 from services.lib.nn.fit import fit as shared_fit
 
@@ -28,12 +30,14 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class DepthTrainConfig:
-    epochs: int = 12
-    batch: int = 8
-    learning_rate: float = 3e-4
-    seed: int = 0
+    """A training's settings, its defaults ``depth.train``'s (``TrainParams``)."""
+
+    epochs: int = TRAIN["epochs"].default
+    batch: int = TRAIN["batch"].default
+    learning_rate: float = TRAIN["learning_rate"].default
+    seed: int = TRAIN["seed"].default
     threads: int = 2
-    device: str = "auto"
+    device: DeviceChoice = TRAIN["device"].default
     val_fraction: float = 0.1
     augment: bool = True
     """Random horizontal flips and colour jitter of the network's input (Monodepth2's)."""
