@@ -22,7 +22,7 @@ import httpx
 import numpy as np
 
 from benches.browser import launch_chromium
-from benches.seeding import Seeded, bench_findings, new_inspection, record_findings, seed_database
+from benches.seeding import Seeded, bench_findings, new_inspection, seed_database
 from benches.server import running_server
 from benches.validator import validate_gltf
 from contract.bench import print_verdict, say, write_document
@@ -30,6 +30,7 @@ from contract.context import NewDefect
 from supervisor.artifacts.service import record_artifact
 from supervisor.audit.service import Operator
 from supervisor.db import Database
+from supervisor.defects.service import record_defects
 from supervisor.storage import Storage
 
 SIDEWALL_RADIUS_MM = 2000.0
@@ -127,7 +128,7 @@ def _seed(url: str, *, defects: int, cloud: Path, storage_root: Path) -> Seeded:
     db = Database(url)
     try:
         with db.write() as session:
-            record_findings(session, findings, inspection_id=seeded.inspection_id, source="job")
+            record_defects(session, findings, inspection_id=seeded.inspection_id, source="job")
             record_artifact(
                 session,
                 inspection_id=seeded.inspection_id,
@@ -411,7 +412,7 @@ def run_clients_bench(
         db = Database(url)
         with db.write() as session:
             sync_inspection = new_inspection(session, Operator(), title="bench sync", area="cabin")
-            record_findings(
+            record_defects(
                 session,
                 _job_findings(sync_defects, random.Random(3)),
                 inspection_id=sync_inspection,

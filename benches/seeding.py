@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import random
 import secrets
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import timedelta
@@ -19,7 +19,7 @@ from contract.context import NewDefect
 from contract.vocabulary import DEFECT_TYPES, SEVERITIES
 from supervisor.audit.service import Operator
 from supervisor.db import Database
-from supervisor.defects.service import record_defect
+from supervisor.defects.service import record_defects
 from supervisor.inspections import service as inspections
 from supervisor.inspections.schemas import InspectionCreate
 from supervisor.users.service import create_token, create_user
@@ -84,16 +84,6 @@ def bench_findings(count: int, rng: random.Random) -> list[NewDefect]:
     return findings
 
 
-def record_findings(
-    session: Session, findings: Sequence[NewDefect], *, inspection_id: int, source: str
-) -> list[int]:
-    """Each finding recorded as the engine records a job's (``record_defect``)."""
-    return [
-        record_defect(session, finding, inspection_id=inspection_id, source=source)
-        for finding in findings
-    ]
-
-
 def new_inspection(
     session: Session, actor: Operator, *, title: str, area: str, **fields: str
 ) -> int:
@@ -128,7 +118,7 @@ def seed_database(url: str, *, clients: int, defects: int, rng: random.Random) -
             inspection_id = new_inspection(
                 session, actor, title="bench api", area="cargo", aircraft="A320", serial="MSN-BENCH"
             )
-            defect_ids = record_findings(
+            defect_ids = record_defects(
                 session, bench_findings(defects, rng), inspection_id=inspection_id, source="bench"
             )
     finally:

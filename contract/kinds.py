@@ -59,6 +59,48 @@ class Output:
 
 
 @dataclass(frozen=True)
+class Presenter:
+    """A job kind's results in the inspection's scene: ``hook`` (``module:function``, a
+    ``contract.scene.Present``) draws the newest ``reads`` output of the inspection over
+    the points of the input it read of kind ``over``, with the inspection's files of the
+    kinds ``surfaces`` (PLY triangle meshes) beside them."""
+
+    reads: Output
+    hook: str
+    over: str = "cloud"
+    """The artifact kind of the input drawn as points beneath the lines."""
+    surfaces: tuple[str, ...] = ()
+    """Artifact kinds drawn as surfaces (the nominal panels of a measurement)."""
+
+    def load(self) -> Present:
+        return load_hook(self.hook)
+
+
+@dataclass(frozen=True)
+class Presentation:
+    """How a kind's results are shown, declared in one place and read by every client:
+    ``page`` (``module:function``, a ``contract.views.View``: its run page's figures,
+    plots and pictures from its stored outputs; None: the outputs' list only), ``scene``
+    (``module:function``, a ``contract.scene.SceneHook``: its results in 3D, served as
+    glTF at ``GET /jobs/{id}/scene.glb`` for the dashboard, the headset and Unity) and
+    ``inspection`` (its lines in the inspection's scene, a ``Presenter``)."""
+
+    page: str | None = None
+    scene: str | None = None
+    inspection: Presenter | None = None
+
+    def load_page(self) -> View | None:
+        return None if self.page is None else load_hook(self.page)
+
+    def load_scene(self) -> SceneHook | None:
+        return None if self.scene is None else load_hook(self.scene)
+
+
+TRAINING_PAGE = Presentation(page="contract.views:training_view")
+"""Every training kind's run page: its history and its model's metadata."""
+
+
+@dataclass(frozen=True)
 class JobKind:
     name: str
     queue: str
@@ -74,17 +116,12 @@ class JobKind:
     outputs: tuple[Output, ...] = ()
     """What it writes (the handler takes the names from here): a later step's inputs are
     checked against them, and ``GET /job-kinds`` lists them."""
-    present: Presenter | None = None
-    """How its results appear in the inspection's 3D scene, if they do."""
+    shows: Presentation = Presentation()
+    """How its results are shown: its run page, its own 3D scene, and its part of the
+    inspection's scene — one declaration."""
     aliases: tuple[str, ...] = ()
     """Older names still accepted (scripts, stored runs): a step given one runs this kind
     and is stored under ``name``."""
-    view: str | None = None
-    """``module:function`` (a ``contract.views.View``): its results on the job's run page —
-    figures, plots, pictures — drawn from its stored outputs; None: the outputs' list only."""
-    scene: str | None = None
-    """``module:function`` (a ``contract.scene.SceneHook``): its results in 3D, served as
-    glTF (``GET /jobs/{id}/scene.glb``) for the headset, Unity and the dashboard."""
 
     @property
     def input_kinds(self) -> tuple[str, ...]:
@@ -92,24 +129,6 @@ class JobKind:
 
     def load_handler(self) -> Callable[[Any], dict]:
         return load_hook(self.handler)
-
-    def load_view(self) -> View | None:
-        return None if self.view is None else load_hook(self.view)
-
-    def load_scene(self) -> SceneHook | None:
-        return None if self.scene is None else load_hook(self.scene)
-
-
-@dataclass(frozen=True)
-class Presenter:
-    """A job kind's results in the scene: ``hook`` (``module:function``, a
-    ``contract.scene.Present``) draws the newest ``reads`` output of the inspection."""
-
-    reads: Output
-    hook: str
-
-    def load(self) -> Present:
-        return load_hook(self.hook)
 
 
 def load_hook(path: str) -> Any:

@@ -9,7 +9,7 @@ document is silent); ``FIELDS`` says where each finding type's limit lives in bo
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Annotated, Literal, get_args
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -147,7 +147,6 @@ def severity(value: float, limit: float, *, above: bool) -> str:
 
 
 ToleranceState = Literal["out", "within", "uncertain"]
-TOLERANCE_STATES: tuple[str, ...] = get_args(ToleranceState)
 """A measured finding against its limit, given its 1σ: ``out`` of tolerance only when it
 lies beyond the limit by 2σ or more, ``within`` only when inside it by 2σ or more,
 ``uncertain`` between (``tolerance_state``)."""
@@ -155,22 +154,13 @@ DECISION_SIGMAS = 2.0
 
 
 def tolerance_state(value: float, limit: float, sigma_mm: float | None, *, above: bool) -> str:
-    """``out``, ``within`` or ``uncertain`` (``TOLERANCE_STATES``) of ``value`` against
+    """``out``, ``within`` or ``uncertain`` (``ToleranceState``) of ``value`` against
     ``limit`` (an upper limit if ``above``, else a lower one), its 1σ ``sigma_mm`` (None:
     judged by the value alone, as a finding without an uncertainty is)."""
     beyond = value > limit if above else value < limit
     if sigma_mm is not None and abs(value - limit) < DECISION_SIGMAS * sigma_mm:
         return "uncertain"
     return "out" if beyond else "within"
-
-
-def stored_state(severity: str, measurements: dict | None) -> str:
-    """A stored finding's ``tolerance_state``: as measured with its σ, else by its
-    severity alone (within for info, out otherwise)."""
-    state = (measurements or {}).get("tolerance_state")
-    if state in TOLERANCE_STATES:
-        return state
-    return "within" if severity == "info" else "out"
 
 
 def advice(
@@ -223,7 +213,7 @@ def judge(
     finding_type: str,
     value: float,
     limits: Limits,
-    gap_range_mm: list[float] | None = None,
+    gap_range_mm: tuple[float, float] | None = None,
     sigma_mm: float | None = None,
 ) -> Judged | None:
     """A stored finding judged against ``limits`` as ``measure`` judges it: a step by its

@@ -167,7 +167,7 @@ TRAINING_REPORT_NAME = "training.json"
 
 
 def training_view(files: JobFiles) -> list[Figures | Plot | Pictures]:
-    """The view hook of every training kind (``view="contract.views:training_view"``)."""
+    """The view hook of every training kind (``contract.kinds.TRAINING_PAGE``)."""
     return training_panels(files.json(TRAINING_REPORT_NAME))
 
 

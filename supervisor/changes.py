@@ -30,6 +30,31 @@ def record_change(
     )
 
 
+def record_changes(
+    session: Session,
+    *,
+    entity: str,
+    entity_ids: list[int],
+    op: str,
+    inspection_id: int | None,
+    user_id: int | None = None,
+) -> None:
+    """``record_change`` for many rows of one entity at once."""
+    session.execute(
+        insert(Change),
+        [
+            {
+                "entity": entity,
+                "entity_id": entity_id,
+                "op": op,
+                "inspection_id": inspection_id,
+                "user_id": user_id,
+            }
+            for entity_id in entity_ids
+        ],
+    )
+
+
 def add_created(session: Session, entity: str, row: object, user_id: int) -> None:
     """Add a new row and log its creation (see ``record_update``)."""
     session.add(row)

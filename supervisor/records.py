@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 
 from supervisor.artifacts.service import record_artifact
 from supervisor.defects.lineage import supersede
-from supervisor.defects.service import record_defect
+from supervisor.defects.service import record_defects
 from supervisor.engine.port import JobOutputs
 from supervisor.inspections.service import follow_runs
 from supervisor.jobs.service import input_artifacts
@@ -35,15 +35,14 @@ class DomainRecords:
                 meta=staged.meta,
                 job_id=outputs.job_id,
             )
-        for finding in outputs.findings:
-            record_defect(
-                session,
-                finding,
-                inspection_id=outputs.inspection_id,
-                source="job",
-                run_id=outputs.run_id,
-                job_id=outputs.job_id,
-            )
+        record_defects(
+            session,
+            outputs.findings,
+            inspection_id=outputs.inspection_id,
+            source="job",
+            run_id=outputs.run_id,
+            job_id=outputs.job_id,
+        )
         supersede(session, job_id=outputs.job_id)
 
     def job_ended(self, session: Session, *, inspection_id: int) -> None:

@@ -1,5 +1,5 @@
 """Defect measurement against the simulator's ground truth (small assemblies; the accuracy
-sweep at 0.1 mm spacing is `vista bench defects`)."""
+sweep at 0.1 mm spacing is `vista defects bench`)."""
 
 from __future__ import annotations
 
@@ -248,9 +248,7 @@ def test_a_measurement_within_two_sigma_of_its_limit_is_uncertain(flat_example) 
 
     cloud = read_ply(flat_example / "cloud.ply")
     steps = [f for f in measure(cloud, MeasureConfig()).findings if f.type == "step"]
-    assert all(
-        f.sigma_mm > 0 and abs(f.measurements["sigma_mm"] - f.sigma_mm) < 1e-4 for f in steps
-    )
+    assert all(f.sigma_mm > 0 and abs(f.measurements.sigma_mm - f.sigma_mm) < 1e-4 for f in steps)
     step = min(steps, key=lambda f: abs(f.value))
     limit = round(abs(step.value) + 0.5 * step.sigma_mm, 4)  # half a σ above the value
     config = parse_config({"step_mm": {"max": limit}})
@@ -258,7 +256,7 @@ def test_a_measurement_within_two_sigma_of_its_limit_is_uncertain(flat_example) 
     unsure = [f for f in result.uncertain if f.type == "step"]
     assert [f.source["seam"] for f in unsure] == [step.source["seam"]]
     assert unsure[0] not in result.defects and unsure[0].severity == "info"
-    assert "re-scan at ≤" in unsure[0].measurements["advice"]
+    assert "re-scan at ≤" in unsure[0].measurements.advice
     document = result_document(result, config)
     assert [d["seam"] for d in document["uncertain"] if d["type"] == "step"] == [
         step.source["seam"]
@@ -283,6 +281,30 @@ def test_config_errors_name_the_key() -> None:
     assert config.sections.pitch_mm == 5
 
 
+def test_options_typed_override_the_config_files_settings(tmp_path) -> None:
+    from services.defects.config import read_config
+    from services.defects.kinds import MeasureParams
+
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps({"step_mm": {"max": 0.3}, "measurement": {"pitch_mm": 5}}))
+    options = MeasureParams(pitch_mm=3.0, slab_mm=2.0)
+    tolerances, settings = read_config(path, options, {"slab_mm"})
+    assert tolerances.step_mm.max == 0.3 and (settings.pitch_mm, settings.slab_mm) == (5, 2)
+    assert read_config(None, options, {"slab_mm"})[1].pitch_mm == 3.0  # no file: the options
+    with pytest.raises(ValueError, match="none.json: no such file"):
+        read_config(tmp_path / "none.json", options, set())
+
+
+def test_simulate_and_bench_are_the_services_verbs_and_the_old_spellings_hide() -> None:
+    runner = CliRunner()
+    for verb in ("measure", "simulate", "bench"):
+        assert runner.invoke(app, ["defects", verb, "--help"]).exit_code == 0
+    for group in ("simulate", "bench"):
+        assert runner.invoke(app, [group, "defects", "--help"]).exit_code == 0
+        assert "defects" not in runner.invoke(app, [group, "--help"]).output
+    assert runner.invoke(app, ["measure", "--help"]).exit_code == 0
+
+
 def test_a_cloud_without_panels_is_refused() -> None:
     rng = np.random.default_rng(0)
     spray = PointCloud(points=rng.uniform(0, 50, (5000, 3)).astype(np.float32))
@@ -293,15 +315,23 @@ def test_a_cloud_without_panels_is_refused() -> None:
 
 
 def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
+    """`vista defects measure`: an option typed on the command line wins over CONFIG.json's
+    setting; CONFIG.json's own settings are kept; errors name what is wrong."""
     runner = CliRunner()
     out = tmp_path / "result.json"
+    config = json.loads((flat_example / "config.json").read_text())
+    config["measurement"] |= {"max_gap_mm": 12.0, "edge_model": "auto"}
+    (tmp_path / "config.json").write_text(json.dumps(config))
     done = runner.invoke(
         app,
         [
+            "defects",
             "measure",
             str(flat_example / "cloud.ply"),
             "--config",
-            str(flat_example / "config.json"),
+            str(tmp_path / "config.json"),
+            "--max-gap-mm",
+            "10",
             "-o",
             str(out),
             "--plot",
@@ -317,21 +347,30 @@ def test_cli_measure_and_its_errors(flat_example, tmp_path) -> None:
     assert len(truth_part.splitlines()) <= 7, truth_part  # a summary; the rest in the file
     written = json.loads(out.read_text())
     assert written["seams"] and written["truth_evaluation"]["seams"].startswith("4/4")
+    assert written["config"]["measurement"] == config["measurement"] | {"max_gap_mm": 10.0}
     assert (tmp_path / "p.png").stat().st_size > 10_000
+    refused = runner.invoke(
+        app,
+        ["defects", "measure", str(flat_example / "cloud.ply"), "-o", str(out)]
+        + ["--pitch-mm", "0.1"],
+    )
+    assert refused.exit_code == 2 and "--pitch-mm" in refused.output
     bad = tmp_path / "bad.json"
     bad.write_text('{"step_mm": {"max": "big"}}')
     failed = runner.invoke(
-        app, ["measure", str(flat_example / "cloud.ply"), "--config", str(bad), "-o", str(out)]
+        app,
+        ["defects", "measure", str(flat_example / "cloud.ply")]
+        + ["--config", str(bad), "-o", str(out)],
     )
     assert failed.exit_code == 2 and "step_mm.max: Input should be a valid number" in failed.output
     missing = runner.invoke(app, ["measure", str(tmp_path / "none.ply"), "-o", str(out)])
-    assert missing.exit_code == 2 and "none.ply" in missing.output
+    assert missing.exit_code == 2 and "none.ply" in missing.output  # the old spelling too
     truth = json.loads((flat_example / "truth.json").read_text())
     del truth["seams"][0]["step_mm"]
     (tmp_path / "truth.json").write_text(json.dumps(truth))
     untrue = runner.invoke(
         app,
-        ["measure", str(flat_example / "cloud.ply"), "-o", str(out)]
+        ["defects", "measure", str(flat_example / "cloud.ply"), "-o", str(out)]
         + ["--truth", str(tmp_path / "truth.json")],
     )
     assert untrue.exit_code == 2 and "not a truth document" in untrue.output
@@ -378,7 +417,7 @@ def test_edge_sweep_reports_unmeasured_sections_and_the_gauge(tmp_path) -> None:
     vista, gauge = rows["square"]["vista"], rows["square"]["gauge"]
     assert vista["edge_models"] == {"square": 8}
     # a 1 mm slab holds 5 rows at 0.2 mm spacing: a corner is placed within about a
-    # quarter spacing (the 0.05 mm target is for 0.1 mm spacing, `vista bench defects`)
+    # quarter spacing (the 0.05 mm target is for 0.1 mm spacing, `vista defects bench`)
     assert vista["gap_error_p95_mm"] < 0.15 < gauge["gap_error_p95_mm"]
     assert vista["negative_gaps"] == 0 and vista["unmeasured_share"] < 0.05
     hidden = rows["shadowed"]["vista"]

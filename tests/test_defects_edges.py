@@ -222,7 +222,7 @@ def test_a_tapered_seam_along_the_rows_claims_the_lattice_it_shares() -> None:
 
 
 def test_a_wide_arc_seen_at_few_places_is_placed_by_its_radius(tmp_path) -> None:
-    """The seed-3 assembly at 0.75 mm (``vista simulate defects --seed 3``): arcs of about
+    """The seed-3 assembly at 0.75 mm (``vista defects simulate --seed 3``): arcs of about
     1.6 mm, one or two of the coarse grid's columns on them in most sections. Their
     radius, shared along each seam, pins the edge where no chamfer explains the points as
     well; the floor a few columns gave (the stretch / √3) made every parallelism's σ
@@ -255,10 +255,10 @@ def test_rows_along_the_seam_advise_turning_the_scan() -> None:
     to turn the scan lines to the seam as well as to scan finer."""
     along = _measured(2.3, 0.4, ("square", 0), ("square", 0), spacing_mm=1.0, yaw_deg=0.0)
     assert _one_seam(along).edge_sampling_mm >= 0.9 * along.spacing_mm
-    assert next(f for f in along.findings if f.type == "gap").measurements["one_phase"]
+    assert next(f for f in along.findings if f.type == "gap").measurements.one_phase
     turned = _measured(2.3, 0.4, ("square", 0), ("square", 0), spacing_mm=1.0, yaw_deg=15.0)
     assert _one_seam(turned).edge_sampling_mm < 0.5 * turned.spacing_mm
-    assert "one_phase" not in next(f for f in turned.findings if f.type == "gap").measurements
+    assert next(f for f in turned.findings if f.type == "gap").measurements.one_phase is None
     words = advice(2.3, 2.0, 0.4, 1.0, one_phase=True)
     assert "re-scan at ≤ 0.37 mm spacing" in words and "turned 5–15° to the seam" in words
     assert "turned" not in advice(2.3, 2.0, 0.4, 1.0)

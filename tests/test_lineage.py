@@ -61,8 +61,9 @@ def two_measurements() -> list[tuple[list[NewDefect], list]]:
     measured each time as the job does: its findings and its cloud's bounds."""
     from services.defects.config import MeasureConfig
     from services.defects.example import BASE_T_PART, merged_cloud
-    from services.defects.jobs import _bounds_mm, _in_tolerance_seams, _new_defect
+    from services.defects.jobs import _in_tolerance_seams, _new_defect
     from services.defects.measure import measure
+    from services.defects.run import _bounds_mm
     from services.defects.simulate import AssemblySpec, SensorModel, random_assembly, scan_assembly
 
     assembly = random_assembly(AssemblySpec(), np.random.default_rng(3))
@@ -86,8 +87,9 @@ def live(start_server, tmp_path, sqlite_url):
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
     from supervisor.engine.runtime import Runtime
+    from supervisor.records import DomainRecords
 
-    runtime = Runtime.create(settings)
+    runtime = Runtime.create(settings, records=DomainRecords())
     admin = add_user(runtime, "ada", "admin", "admin-pw")
     add_user(runtime, "ines", "inspector", "ines-pw")
     yield server, runtime, admin

@@ -1,4 +1,4 @@
-"""``vista bench defects``: accuracy against ground truth over a sweep of assemblies (gap,
+"""``vista defects bench``: accuracy against ground truth over a sweep of assemblies (gap,
 step, taper, noise, curvature, density), detection precision/recall per defect type, and
 time per square metre — with a single-profile gap gauge as the peer, in the same run —
 and an edge sweep: square, chamfered and rounded edges (0.2–5 mm), mixed sides, views

@@ -1,21 +1,31 @@
-"""``vista defects measure``, ``vista simulate defects`` and ``vista bench defects``."""
+"""``vista defects measure``, ``vista defects simulate`` and ``vista defects bench`` (and
+their old spellings ``vista measure``, ``vista simulate defects``, ``vista bench defects``)."""
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
-from contract.cli import alias, fail, progress_bar
+from contract.cli import alias, fail, params_options, progress_bar
 from contract.tolerances import finding_line
+from services.defects.kinds import MeasureParams, MeasureSettings
 from services.lib.wording import counted
+
+if TYPE_CHECKING:
+    from services.defects.run import Measured
+    from services.defects.truth import Truth
 
 # Heavy imports (numpy, scipy, open3d) stay inside the commands.
 
 
+@params_options(MeasureParams, fixed={"keep_in_tolerance": True})
 def measure(
+    ctx: typer.Context,
     cloud: Path = typer.Argument(
         ...,
         help="Stitched cloud, e.g. from `vista stitching stitch`: PLY (mm), or PCD, LAS/LAZ, "
@@ -24,53 +34,71 @@ def measure(
     config: Path = typer.Option(
         None,
         "--config",
-        help="CONFIG.json: tolerances and measurement settings (defaults if omitted).",
+        help="CONFIG.json: tolerances and measurement settings (defaults if omitted); an "
+        "option below given on the command line overrides its setting.",
     ),
     out: Path = typer.Option(..., "-o", "--out", help="Where to write RESULT.json."),
     plot: Path = typer.Option(None, help="Also write the gap/step profiles as a PNG."),
     truth: Path = typer.Option(
-        None, help="truth.json of `vista simulate defects`: prints the errors against it."
+        None, help="truth.json of `vista defects simulate`: prints the errors against it."
     ),
     threads: int = typer.Option(
         None, min=1, max=256, help="Threads to measure on (default: one per available core)."
     ),
+    *,
+    params: MeasureParams,
 ) -> None:
     """Measure every seam (gap, step, parallelism), junction (mismatch) and surface defect
     (dents, bumps, scratches, colour) of a panel-assembly cloud against the tolerances."""
-    from services.defects.config import MeasureConfig, parse_config
+    from services.defects.config import read_config
     from services.defects.measure import MeasureError
-    from services.defects.measure import measure as run_measure
-    from services.defects.report import profile_png, result_document
+    from services.defects.run import measure_cloud
     from services.defects.truth import Truth
-    from services.lib.archive import read_json
-    from services.lib.pointcloud.scanner import load_cloud
     from services.lib.process import available_cores, prepare_process
 
     prepare_process()
-
     try:
-        settings = (
-            MeasureConfig() if config is None else parse_config(read_json(config), str(config))
+        tolerances, settings = read_config(
+            config, params, _typed(ctx, MeasureSettings.model_fields)
         )
-        truth_json = None if truth is None else read_json(truth)
-        points = load_cloud(cloud)
-    except (ValueError, OSError) as exc:  # ConfigError, PlyError, a cloud's format, a JSON
+        true = None if truth is None else Truth.read(truth)
+    except ValueError as exc:  # ConfigError, a JSON's, a truth document's
         fail(str(exc))
-    try:
-        true = None if truth_json is None else Truth.from_document(truth_json)
-    except ValueError as exc:
-        fail(f"{truth}: {exc}")
     with progress_bar("measuring") as step:
         try:
-            result = run_measure(
-                points, settings, threads=threads or available_cores(), progress=step
+            measured = measure_cloud(
+                cloud,
+                tolerances,
+                settings,
+                threads=threads or available_cores(),
+                progress=step,
             )
-        except MeasureError as exc:
-            fail(f"{cloud}: {exc}")
-    document = result_document(result, settings)
+        except (MeasureError, OSError) as exc:  # a cloud not read, or no panel assembly
+            fail(str(exc))
+    document = measured.document
+    if true is not None:
+        document = {**document, "truth_evaluation": _evaluation(measured, true)}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(document, indent=1) + "\n")
-    waited = _seconds_since_start()
+    _echo_measurement(measured, _seconds_since_start())
+    if plot is not None:
+        measured.draw_profiles(plot)
+        typer.echo(f"wrote {plot}")
+    typer.echo(f"wrote {out}")
+    if true is not None:
+        typer.echo("\n".join(_truth_lines(document["truth_evaluation"], out)))
+
+
+def _typed(ctx: typer.Context, names: Iterable[str]) -> set[str]:
+    """Those of ``names`` whose options were given on the command line."""
+    sources = {name: ctx.get_parameter_source(name) for name in names}
+    return {name for name, source in sources.items() if source and source.name == "COMMANDLINE"}
+
+
+def _echo_measurement(measured: Measured, waited: float | None) -> None:
+    """The measurement in lines: the counts and time, each panel, seam and junction, the
+    unmeasured seams, the defects and the uncertain findings (as RESULT.json has them)."""
+    result, document, limits = measured.result, measured.document, measured.config.tolerances
     typer.echo(
         f"{result.point_count} points (spacing {result.spacing_mm:.3f} mm), "
         f"{counted(len(result.panels), 'panel')} ({result.panel_area_m2:.4f} m²), "
@@ -104,7 +132,7 @@ def measure(
     for d in document["defects"]:
         typer.echo(
             "  "
-            + finding_line(d["type"], d["value"], d.get("panels"), settings.tolerances)
+            + finding_line(d["type"], d["value"], d.get("panels"), limits)
             + f" {d['severity']:<8} confidence {d['confidence']:.2f} at {[round(v, 1) for v in d['location']]}"
         )
     unsure = document["uncertain"]
@@ -113,26 +141,21 @@ def measure(
     for d in unsure:
         typer.echo(
             "  "
-            + finding_line(d["type"], d["value"], d.get("panels"), settings.tolerances)
+            + finding_line(d["type"], d["value"], d.get("panels"), limits)
             + f" ± {d['sigma_mm']:.3f} (1σ) UNCERTAIN — {d['measurements']['advice']}"
         )
-    if plot is not None:
-        profile_png(result, settings, plot)
-        typer.echo(f"wrote {plot}")
-    typer.echo(f"wrote {out}")
-    if true is not None:
-        from services.defects.evaluate import evaluate
-
-        summary = evaluate(result, true, settings.tolerances).summary()
-        document["truth_evaluation"] = summary
-        out.write_text(json.dumps(document, indent=1) + "\n")
-        for line in _truth_lines(summary):
-            typer.echo(line)
-        typer.echo(f"the whole evaluation: {out} (truth_evaluation)")
 
 
-def _truth_lines(summary: dict) -> list[str]:
-    """The evaluation against the truth in a few lines (errors in mm)."""
+def _evaluation(measured: Measured, true: Truth) -> dict:
+    """The measurement against the simulation's truth (RESULT.json's truth_evaluation)."""
+    from services.defects.evaluate import evaluate
+
+    return evaluate(measured.result, true, measured.config.tolerances).summary()
+
+
+def _truth_lines(summary: dict, out: Path) -> list[str]:
+    """The evaluation against the truth in a few lines (errors in mm), and where the rest
+    is."""
 
     def mm(value: float | None) -> str:
         return "–" if value is None else f"{value:.3f}"
@@ -157,6 +180,7 @@ def _truth_lines(summary: dict) -> list[str]:
         f"{mm(summary['mismatch_error_p95_mm'])} mm",
         f"  out of tolerance: {hits(summary['geometric']) or 'none'}",
         f"  surface: {hits(summary['surface']) or 'none'}",
+        f"the whole evaluation: {out} (truth_evaluation)",
     ]
 
 
@@ -308,8 +332,10 @@ def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer
         help="Gaps, steps, parallelism, mismatch and surface defects of a stitched cloud.",
         no_args_is_help=True,
     )
-    defects_app.command("measure")(measure)
-    alias(app, "measure", measure, "defects measure")
+    verbs = {"measure": measure, "simulate": simulate_defects, "bench": bench_defects}
+    for verb, command in verbs.items():
+        defects_app.command(verb)(command)
     app.add_typer(defects_app, name="defects")
-    simulate_app.command("defects")(simulate_defects)
-    bench_app.command("defects")(bench_defects)
+    alias(app, "measure", measure, "defects measure")
+    alias(simulate_app, "defects", simulate_defects, "defects simulate")
+    alias(bench_app, "defects", bench_defects, "defects bench")

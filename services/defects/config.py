@@ -1,20 +1,22 @@
 """What a measurement is judged against (tolerances) and how it is taken (settings).
 
 CONFIG.json — the inspection's tolerances, in the same shape as an inspection's
-``tolerances`` in the API, and optional measurement settings:
+``tolerances`` in the API (``contract.tolerances.Tolerances``), and optional measurement
+settings (``services.defects.kinds.MeasureSettings``, the job's parameters):
 
-    {"gap_mm": {"min": 0.5, "max": 3.0}, "step_mm": {"max": 0.5},
-     "parallelism_mm": {"max": 0.5}, "mismatch_mm": {"max": 0.5},
-     "surface": {"dent_depth_mm": 0.2, "scratch_depth_mm": 0.1, "color_delta_e": 3.0},
-     "measurement": {"pitch_mm": 2.0, "cell_mm": 0.2, "edge_model": "auto",
-                     "gap_mode": "walls"}}
+    {"gap_mm": {"min": …, "max": …}, "step_mm": {"max": …}, "parallelism_mm": {"max": …},
+     "mismatch_mm": {"max": …},
+     "surface": {"dent_depth_mm": …, "scratch_depth_mm": …, "color_delta_e": …},
+     "measurement": {"pitch_mm": …, "cell_mm": …, "edge_model": …, "gap_mode": …, …}}
 
-Every key is optional: what is missing takes the default below.
+Every key is optional: what is missing takes its default, declared once in those models
+(``contract.tolerances.Limits`` for the limits).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
@@ -24,6 +26,7 @@ from contract.training import config_from
 from services.defects.kinds import MeasureSettings
 from services.defects.sections import SETTINGS, SectionConfig
 from services.defects.surface import SurfaceConfig
+from services.lib.archive import read_json
 
 Model = TypeVar("Model", bound=BaseModel)
 
@@ -52,6 +55,12 @@ class MeasureConfig:
 
 def parse_config(document: Any, where: str = "config") -> MeasureConfig:
     """The MeasureConfig a CONFIG.json (or an inspection's tolerances) asks for."""
+    tolerances, settings = config_parts(document, where)
+    return measure_config(limits_of(tolerances), settings)
+
+
+def config_parts(document: Any, where: str = "config") -> tuple[Tolerances, MeasureSettings]:
+    """A CONFIG.json's tolerances and measurement settings; ConfigError naming the key."""
     if not isinstance(document, dict):
         raise ConfigError(f"{where}: expected a JSON object")
     limits = {k: v for k, v in document.items() if k != "measurement"}
@@ -59,7 +68,19 @@ def parse_config(document: Any, where: str = "config") -> MeasureConfig:
     settings = _validated(
         MeasureSettings, document.get("measurement") or {}, f"{where}.measurement"
     )
-    return measure_config(limits_of(tolerances), settings)
+    return tolerances, settings
+
+
+def read_config(
+    path: Path | None, options: MeasureSettings, given: set[str]
+) -> tuple[Tolerances, MeasureSettings]:
+    """The tolerances and settings a command measures with: CONFIG.json's at ``path``
+    (every default without one), its `measurement` block overridden by the ``options``
+    named in ``given`` (those typed on the command line). ValueError naming the file."""
+    if path is None:
+        return Tolerances(), options
+    tolerances, settings = config_parts(read_json(path), str(path))
+    return tolerances, settings.model_copy(update={n: getattr(options, n) for n in given})
 
 
 def _validated(model: type[Model], document: Any, where: str) -> Model:

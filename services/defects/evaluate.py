@@ -1,5 +1,5 @@
 """How a measurement compares with the simulator's ground truth (truth.json of
-``vista simulate defects``): per-section gap and step errors, parallelism and mismatch
+``vista defects simulate``): per-section gap and step errors, parallelism and mismatch
 errors, out-of-tolerance precision/recall, surface detection recall and false positives."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A simulated panel-assembly inspection on disk: what ``vista simulate defects`` writes.
+"""A simulated panel-assembly inspection on disk: what ``vista defects simulate`` writes.
 
 pairs.json (calibration session), scan_NNN.ply (organized, coloured), scans.json (the
 robot's reported poses), config.json (default tolerances), cloud.ply (the scans merged

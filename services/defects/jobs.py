@@ -3,16 +3,11 @@ the profile plot and the defects out."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from contract.context import JobContext, NewDefect, input_error, one_input
-from contract.errors import JobInputError
-from contract.tolerances import limits_of
-from services.defects.config import measure_config
 from services.defects.kinds import PROFILES, RESULT
-from services.defects.measure import Finding, MeasureError, MeasureResult, SeamResult, measure
-from services.defects.report import finding_document, profile_png, result_document
-from services.lib.pointcloud.ply import PlyError, read_ply
+from services.defects.measure import Finding, MeasureError, MeasureResult, SeamResult
+from services.defects.report import finding_document
+from services.defects.run import Measured, measure_cloud
 from services.lib.wording import counted
 
 
@@ -51,69 +46,62 @@ def _in_tolerance_seams(result: MeasureResult) -> list[NewDefect]:
 
 
 def measure_job(ctx: JobContext) -> dict:
-    params = ctx.params
     cloud = one_input(ctx, "cloud", "the stitched point cloud")
-    config = measure_config(limits_of(ctx.tolerances), params)
     ctx.progress(0.02, f"reading {cloud.name}")
     try:
-        points = read_ply(cloud.path)
-    except PlyError as exc:
-        raise input_error(cloud, exc) from exc
-    try:
-        result = measure(
-            points,
-            config,
+        measured = measure_cloud(
+            cloud.path,
+            ctx.tolerances,
+            ctx.params,
             threads=ctx.threads,
             progress=lambda fraction, message: ctx.progress(0.1 + 0.8 * fraction, message),
         )
     except MeasureError as exc:
-        raise JobInputError(f"{cloud.label}: {exc}") from exc
+        raise input_error(cloud, exc) from exc
     ctx.progress(0.92, "storing results")
-    ctx.add_artifact_json(
-        result_document(result, config), kind=RESULT.kind, name=RESULT.file_name()
-    )
+    ctx.add_artifact_json(measured.document, kind=RESULT.kind, name=RESULT.file_name())
     plot = ctx.workdir / PROFILES.file_name()
-    profile_png(result, config, plot)
+    measured.draw_profiles(plot)
     ctx.add_artifact_file(plot, kind=PROFILES.kind, name=plot.name, media_type="image/png")
+    result = measured.result
     defects = [_new_defect(f) for f in result.defects + result.uncertain]
-    if params.keep_in_tolerance:
+    if ctx.params.keep_in_tolerance:
         defects += _in_tolerance_seams(result)
     for defect in defects:
         ctx.add_defect(defect)
-    by_type: dict[str, int] = {}
-    for finding in result.defects:
-        by_type[finding.type] = by_type.get(finding.type, 0) + 1
     unmeasured = [s for s in result.seams if s.unmeasured is not None]
     for seam in unmeasured:  # each in the job's log, with why
         ctx.progress(0.97, f"{_seam_name(seam)} unmeasured: {seam.unmeasured}")
-    warning = _warning(unmeasured, len(result.seams), len(result.panels))
     ctx.progress(
         1.0,
         f"{counted(len(result.defects), 'defect')} out of tolerance, "
         f"{len(result.uncertain)} uncertain, in {counted(len(result.seams), 'seam')}"
         + (f"; {len(unmeasured)} of them unmeasured" if unmeasured else ""),
     )
+    return _summary(measured, unmeasured)
+
+
+def _summary(measured: Measured, unmeasured: list[SeamResult]) -> dict:
+    """The job's result: what it found, in counts, and the area its cloud covers."""
+    result = measured.result
+    warning = _warning(unmeasured, len(result.seams), len(result.panels))
+    by_type: dict[str, int] = {}
+    for finding in result.defects:
+        by_type[finding.type] = by_type.get(finding.type, 0) + 1
     return {
         **({"warning": warning} if warning else {}),
         "panels": len(result.panels),
         "panel_area_m2": round(result.panel_area_m2, 5),
         "seams": len(result.seams),
-        "unmeasured_seams": sum(s.unmeasured is not None for s in result.seams),
+        "unmeasured_seams": len(unmeasured),
         "unmeasured_sections": sum(int((~s.measured).sum()) for s in result.seams),
         "junctions": len(result.junctions),
         "defects": len(result.defects),
         "uncertain": len(result.uncertain),
         "defects_by_type": by_type,
         "seconds": round(sum(result.seconds.values()), 3),
-        "cloud_bounds_mm": _bounds_mm(points.points),
+        "cloud_bounds_mm": measured.cloud_bounds_mm,
     }
-
-
-def _bounds_mm(points: np.ndarray) -> list[list[float]]:
-    """The cloud's axis-aligned box, [min, max] in mm: the area this measurement covers
-    (an earlier finding inside it that this one did not find again is no longer current)."""
-    finite = points[np.isfinite(points).all(axis=1)]
-    return [np.round(finite.min(axis=0), 2).tolist(), np.round(finite.max(axis=0), 2).tolist()]
 
 
 def _seam_name(seam: SeamResult) -> str:

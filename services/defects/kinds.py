@@ -5,7 +5,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.artifacts import ArtifactKind
-from contract.kinds import Inputs, JobKind, Output, Presenter
+from contract.kinds import Inputs, JobKind, Output, Presentation, Presenter
 from services.lib.artifact_kinds import FORMATS
 
 EdgeModel = Literal["auto", "square", "chamfer", "round", "free", "void"]
@@ -79,9 +79,11 @@ MEASURE = JobKind(
     ),
     inputs=(Inputs(("cloud",), "the stitched point cloud", made_by=("stitching.stitch",)),),
     outputs=(RESULT, PROFILES),
-    present=Presenter(RESULT, "services.defects.present:scene_lines"),
-    view="services.defects.views:measure_view",
-    scene="services.defects.views:measure_scene",
+    shows=Presentation(
+        page="services.defects.views:measure_view",
+        scene="services.defects.views:measure_scene",
+        inspection=Presenter(RESULT, "services.defects.present:scene_lines", surfaces=("mesh",)),
+    ),
 )
 
 KINDS = (MEASURE,)

@@ -18,6 +18,13 @@ from math import erf, sqrt
 import numpy as np
 from scipy import ndimage
 
+from contract.findings import (
+    FindingMeasurements,
+    JunctionMeasurements,
+    SeamMeasurements,
+    Stats,
+    revised,
+)
 from contract.tolerances import advice, judge, severity, tolerance_state, upper_limit
 from contract.vocabulary import Progress
 from services.defects import binning
@@ -47,13 +54,6 @@ MIN_SIGMA_MM = 0.005
 
 class MeasureError(ValueError):
     """The cloud cannot be measured (too few points, no panels)."""
-
-
-@dataclass(frozen=True)
-class Stats:
-    min: float
-    mean: float
-    max: float
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,9 @@ class Finding:
     """info (within tolerance), minor, major, critical."""
     confidence: float
     source: dict
-    measurements: dict
+    """Which seam (and its panels), junction (and its seams) or panel it was found on."""
+    measurements: FindingMeasurements
+    """Its family's model (``contract.findings``): what it was judged on and how."""
     sigma_mm: float | None = None
     """1σ of the value (a seam's or junction's measurement); None for surface findings."""
     state: str = ""
@@ -590,7 +592,7 @@ def _seam_result(
         else:
             slope, offset, scatter = 0.0, float(gap.mean()), 0.0
         ends = (float(slope * seam.start_mm + offset), float(slope * seam.end_mm + offset))
-        gap_stats = Stats(float(gap.min()), float(gap.mean()), float(gap.max()))
+        gap_stats = Stats(min=float(gap.min()), mean=float(gap.mean()), max=float(gap.max()))
         parallelism = abs(ends[1] - ends[0])
         gap_sigma = max(scatter, own, MIN_SIGMA_MM)
     height = float(np.nanmean(profile.at_local[:, 2]))
@@ -606,7 +608,7 @@ def _seam_result(
         end=start_end[1],
         length_mm=seam.length_mm,
         gap_mm=gap_stats,
-        step_mm=Stats(float(steps.min()), float(steps.mean()), float(steps.max())),
+        step_mm=Stats(min=float(steps.min()), mean=float(steps.mean()), max=float(steps.max())),
         gap_at_ends_mm=ends,
         parallelism_mm=parallelism,
         gap_sigma_mm=gap_sigma,
@@ -679,27 +681,28 @@ def _judged(
     *,
     above: bool,
     spacing_mm: float,
-    measurements: dict,
+    measurements: FindingMeasurements,
     one_phase: bool = False,
-) -> tuple[str, str, float, dict]:
+) -> tuple[str, str, float, FindingMeasurements]:
     """(severity, tolerance state, confidence, measurements with the 1σ, the state and,
     for an uncertain finding, the advice) of a seam's or junction's measurement;
     ``one_phase``: its edges were sampled at one place by every profile (kept, for the
     advice when the tolerances change)."""
     sigma_mm = round(sigma_mm, 4)  # as stored, so the advice quotes the same σ
     state = tolerance_state(value, limit, sigma_mm, above=above)
-    extra = {
-        "sigma_mm": sigma_mm,
-        "tolerance_state": state,
-        "spacing_mm": round(spacing_mm, 4),
-    } | ({"one_phase": True} if one_phase else {})
-    if state == "uncertain":
-        extra["advice"] = advice(value, limit, sigma_mm, spacing_mm, one_phase)
+    uncertain = state == "uncertain"
     return (
         severity(value, limit, above=above),
         state,
         confidence(value, limit, sigma_mm),
-        {**measurements, **extra},
+        revised(
+            measurements,
+            sigma_mm=sigma_mm,
+            tolerance_state=state,
+            spacing_mm=round(spacing_mm, 4),
+            one_phase=one_phase or None,
+            advice=advice(value, limit, sigma_mm, spacing_mm, one_phase) if uncertain else None,
+        ),
     )
 
 
@@ -711,7 +714,11 @@ much wider than a spacing are missing points (dropout), not one phase."""
 
 
 def _gap_findings(
-    seam: SeamResult, config: MeasureConfig, source: dict, profile: dict, spacing_mm: float
+    seam: SeamResult,
+    config: MeasureConfig,
+    source: dict,
+    profile: SeamMeasurements,
+    spacing_mm: float,
 ) -> list[Finding]:
     """The gap (worst running median of the measured sections, or the gap line at the
     seam's ends) and the parallelism of a measured seam, each with its 1σ and judged by
@@ -727,7 +734,7 @@ def _gap_findings(
     sigmas = np.concatenate([seam.sections_gap_sigma_mm[measured], [0.0, 0.0]])
     narrowest, widest = int(np.argmin(gaps)), int(np.argmax(gaps))
     sigma = max(seam.gap_sigma_mm, float(sigmas[narrowest]), float(sigmas[widest]))
-    gap_range = [round(float(gaps[narrowest]), 4), round(float(gaps[widest]), 4)]
+    gap_range = (round(float(gaps[narrowest]), 4), round(float(gaps[widest]), 4))
     judged = judge("gap", gaps[widest], t, gap_range, sigma)  # which end, against which limit
     above = judged.value == gap_range[1] and judged.limit == t.gap_max_mm
     worst = widest if above else narrowest
@@ -741,14 +748,14 @@ def _gap_findings(
         one_phase=one_phase,
         # what it was judged on, and where: a change of tolerances judges it again
         # (contract.tolerances.judge) and moves it to the end of the range it is judged by
-        measurements={
-            **profile,
-            "gap_range_mm": gap_range,
-            "gap_range_at_mm": [
-                [round(float(v), 4) for v in places[narrowest]],
-                [round(float(v), 4) for v in places[widest]],
-            ],
-        },
+        measurements=revised(
+            profile,
+            gap_range_mm=gap_range,
+            gap_range_at_mm=(
+                tuple(round(float(v), 4) for v in places[narrowest]),
+                tuple(round(float(v), 4) for v in places[widest]),
+            ),
+        ),
     )
     gap = Finding(
         "gap",
@@ -814,13 +821,13 @@ def _seam_findings(
     window, pitch = config.sections.decision_sections, config.sections.pitch_mm
     for seam in seams:
         source = {"seam": seam.id, "panels": list(seam.panels)}
-        profile = {
-            "gap_mm": None if seam.gap_mm is None else vars(seam.gap_mm),
-            "step_mm": vars(seam.step_mm),
-            "parallelism_mm": seam.parallelism_mm,
-            "length_mm": seam.length_mm,
-            "unmeasured_sections": int((~seam.measured).sum()),
-        }
+        profile = SeamMeasurements(
+            gap_mm=seam.gap_mm,
+            step_mm=seam.step_mm,
+            parallelism_mm=seam.parallelism_mm,
+            length_mm=seam.length_mm,
+            unmeasured_sections=int((~seam.measured).sum()),
+        )
         on_seam = []
         if seam.unmeasured is None:
             on_seam += _gap_findings(seam, config, source, profile, spacing_mm)
@@ -864,7 +871,7 @@ def _seam_findings(
             junction.mismatch_sigma_mm,
             above=True,
             spacing_mm=spacing_mm,
-            measurements={"gaps_mm": list(junction.gaps_mm)},
+            measurements=JunctionMeasurements(gaps_mm=list(junction.gaps_mm)),
         )
         findings.append(
             Finding(
@@ -891,10 +898,10 @@ def _along_seam(finding: Finding, seam: SeamResult) -> Finding:
     seam's ends (mm): what a later measurement's finding is matched by."""
     direction = seam.end - seam.start
     along_mm = float(np.dot(finding.location - seam.start, direction) / np.linalg.norm(direction))
-    seam_mm = [np.round(seam.start, 2).tolist(), np.round(seam.end, 2).tolist()]
+    seam_mm = (tuple(np.round(seam.start, 2).tolist()), tuple(np.round(seam.end, 2).tolist()))
     return replace(
         finding,
-        measurements={**finding.measurements, "along_mm": round(along_mm, 1), "seam_mm": seam_mm},
+        measurements=revised(finding.measurements, along_mm=round(along_mm, 1), seam_mm=seam_mm),
     )
 
 

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.findings import Stats, stored
 from services.defects.config import MeasureConfig, config_document
 from services.defects.edges import MODELS
-from services.defects.measure import Finding, MeasureResult, PanelResult, SeamResult, Stats
+from services.defects.measure import Finding, MeasureResult, PanelResult, SeamResult
 from services.defects.sections import EdgeShape
 from services.lib.wording import counted
 
@@ -40,13 +41,14 @@ def finding_document(f: Finding) -> dict:
         "tolerance_state": f.state or ("out" if f.out_of_tolerance else "within"),
         **f.source,
         "measurements": {
-            k: (_number(v) if isinstance(v, float) else v) for k, v in f.measurements.items()
+            k: (_number(v) if isinstance(v, float) else v)
+            for k, v in stored(f.measurements).items()
         },
     }
 
 
 def _stats(stats: Stats | None) -> dict | None:
-    return None if stats is None else {k: _number(v) for k, v in vars(stats).items()}
+    return None if stats is None else {k: _number(v) for k, v in stats.model_dump().items()}
 
 
 def _edge(edge: EdgeShape) -> dict:

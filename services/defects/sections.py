@@ -99,7 +99,7 @@ class SectionConfig:
     """``auto``: each side's edge model chosen by the information criterion. ``square``,
     ``chamfer``, ``round``, ``free``: that model on every side (the user's choice, as in
     profile gap/flush tools). ``void``: the last measured point of each panel, what a
-    single-profile gap gauge reports (the peer in ``vista bench defects``)."""
+    single-profile gap gauge reports (the peer in ``vista defects bench``)."""
     gap_mode: str = SETTINGS["gap_mode"].default
     """``walls``: between the two side faces along the mean direction of the tops (the
     default). ``surface``: between the edge points along panel a's top (Gocator's

@@ -32,6 +32,13 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
+from contract.findings import (
+    ColorMeasurements,
+    DentMeasurements,
+    ScratchMeasurements,
+    SurfaceMeasurements,
+    revised,
+)
 from services.defects.morphology import dilate, erode, label8
 from services.defects.panels import Panels
 from services.defects.raster import Raster, block_cells, block_sums
@@ -69,7 +76,7 @@ class SurfaceFinding:
     """Depth (mm) of dents, bumps and scratches; ΔE of colour patches."""
     extent_mm: float
     """Diameter (dents, bumps, colour: of the circle of the same area) or length."""
-    measurements: dict
+    measurements: SurfaceMeasurements
     confidence: float
 
 
@@ -429,7 +436,7 @@ def _relief(
                 at,
                 abs(depth),
                 float(diameter),
-                {"depth_mm": abs(depth), "diameter_mm": float(diameter)},
+                DentMeasurements(depth_mm=abs(depth), diameter_mm=float(diameter)),
                 _confidence(abs(depth), config.dent_detect_mm, 0.01),
             )
         )
@@ -454,8 +461,8 @@ def _join_collinear(
         for i in range(len(pieces)):
             for j in range(i + 1, len(pieces)):
                 a, b = pieces[i], pieces[j]
-                da = np.array(a.measurements["direction_uv"])
-                db = np.array(b.measurements["direction_uv"])
+                da = np.array(a.measurements.direction_uv)
+                db = np.array(b.measurements.direction_uv)
                 offset = b.at_uv - a.at_uv
                 across = abs(offset @ np.array([-da[1], da[0]]))
                 between = abs(offset @ da) - (a.extent_mm + b.extent_mm) / 2
@@ -479,10 +486,10 @@ def _merged(a: SurfaceFinding, b: SurfaceFinding, direction: np.ndarray) -> Surf
     first, last = ends[int(np.argmin(along))], ends[int(np.argmax(along))]
     length = float(np.linalg.norm(last - first))
     depth = max(a.value, b.value)
-    width = (
-        a.measurements["width_mm"] * a.extent_mm + b.measurements["width_mm"] * b.extent_mm
-    ) / (a.extent_mm + b.extent_mm)
-    measurements = {**a.measurements, "depth_mm": depth, "length_mm": length, "width_mm": width}
+    width = (a.measurements.width_mm * a.extent_mm + b.measurements.width_mm * b.extent_mm) / (
+        a.extent_mm + b.extent_mm
+    )
+    measurements = revised(a.measurements, depth_mm=depth, length_mm=length, width_mm=width)
     return SurfaceFinding(
         "scratch",
         a.panel,
@@ -496,11 +503,11 @@ def _merged(a: SurfaceFinding, b: SurfaceFinding, direction: np.ndarray) -> Surf
 
 def _on_scratch(finding: SurfaceFinding, scratch: SurfaceFinding, margin_mm: float = 2.0) -> bool:
     """Whether a small dent lies on a scratch (its deepest part, seen as a round pit)."""
-    direction = np.array(scratch.measurements["direction_uv"])
+    direction = np.array(scratch.measurements.direction_uv)
     offset = finding.at_uv - scratch.at_uv
     along = abs(offset @ direction)
     across = abs(offset @ np.array([-direction[1], direction[0]]))
-    small = finding.extent_mm < 2 * margin_mm + scratch.measurements["width_mm"]
+    small = finding.extent_mm < 2 * margin_mm + scratch.measurements.width_mm
     return small and along <= scratch.extent_mm / 2 + margin_mm and across <= margin_mm
 
 
@@ -551,12 +558,12 @@ def _scratches(
                 at,
                 deepest,
                 length,
-                {
-                    "depth_mm": deepest,
-                    "length_mm": length,
-                    "width_mm": width,
-                    "direction_uv": direction.tolist(),
-                },
+                ScratchMeasurements(
+                    depth_mm=deepest,
+                    length_mm=length,
+                    width_mm=width,
+                    direction_uv=tuple(direction.tolist()),
+                ),
                 _confidence(float(score[found][own].max()), config.scratch_sigma, 1.0),
             )
         )
@@ -680,7 +687,9 @@ def _color(
                 at,
                 mean_delta,
                 float(diameter),
-                {"delta_e": mean_delta, "peak_delta_e": float(values.max()), "area_mm2": area},
+                ColorMeasurements(
+                    delta_e=mean_delta, peak_delta_e=float(values.max()), area_mm2=area
+                ),
                 _confidence(mean_delta, config.color_detect, 0.5),
             )
         )

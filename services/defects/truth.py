@@ -1,16 +1,18 @@
 """The simulated assembly's ground truth in the base frame (mm): its panels, seams,
 junctions and surface defects, as frozen dataclasses; ``Truth.document()`` is the
-``truth.json`` that ``vista simulate defects`` writes and ``Truth.from_document`` reads
+``truth.json`` that ``vista defects simulate`` writes and ``Truth.from_document`` reads
 it back."""
 
 from __future__ import annotations
 
 from dataclasses import MISSING, asdict, dataclass, fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from services.defects.simulate import Assembly, SeamTruth, layout_normal, layout_to_part
+from services.lib.archive import read_json
 from services.lib.pointcloud.transforms import apply
 
 Point = tuple[float, float, float]
@@ -131,7 +133,16 @@ class Truth:
                 ),
             )
         except (KeyError, TypeError) as exc:
-            raise ValueError(f"not a truth document of `vista simulate defects`: no {exc}") from exc
+            raise ValueError(f"not a truth document of `vista defects simulate`: no {exc}") from exc
+
+    @classmethod
+    def read(cls, path: Path) -> Truth:
+        """A truth.json read back; ValueError naming the file and what is wrong."""
+        document = read_json(path)
+        try:
+            return cls.from_document(document)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from exc
 
 
 def _make(kind: type, values: dict, where: str) -> Any:

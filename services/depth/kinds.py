@@ -5,7 +5,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.artifacts import ArtifactKind
-from contract.kinds import Inputs, JobKind, Output
+from contract.kinds import TRAINING_PAGE, Inputs, JobKind, Output, Presentation
 from contract.training import TrainSettings
 from contract.views import TRAINING_REPORT_NAME
 from services.lib.artifact_kinds import FORMATS
@@ -113,7 +113,7 @@ DEPTH_TRAIN = JobKind(
     name="depth.train",
     queue="training",
     handler="services.depth.jobs:train_job",
-    view="contract.views:training_view",
+    shows=TRAINING_PAGE,
     params=TrainParams,
     description=(
         "Trains a monocular depth network on `drive` archives (KITTI layout) or `image`s: a "
@@ -139,8 +139,9 @@ DEPTH_PREDICT = JobKind(
     name="depth.predict",
     queue="depth",
     handler="services.depth.jobs:predict_job",
-    view="services.depth.views:predict_view",
-    scene="services.depth.views:predict_scene",
+    shows=Presentation(
+        page="services.depth.views:predict_view", scene="services.depth.views:predict_scene"
+    ),
     params=PredictParams,
     description=(
         "Depth for an inspection's images (`image`s, or `drive` archives' left images) by a "

@@ -5,7 +5,7 @@ from typing import Literal, get_args
 from pydantic import BaseModel, ConfigDict, Field
 
 from contract.artifacts import ArtifactKind
-from contract.kinds import Inputs, JobKind, Output
+from contract.kinds import TRAINING_PAGE, Inputs, JobKind, Output, Presentation
 from contract.training import TrainSettings
 from contract.views import TRAINING_REPORT_NAME
 
@@ -59,8 +59,9 @@ ODOMETRY = JobKind(
     aliases=("odometry",),
     queue="odometry",
     handler="services.odometry.jobs:odometry_job",
-    view="services.odometry.views:run_view",
-    scene="services.odometry.views:run_scene",
+    shows=Presentation(
+        page="services.odometry.views:run_view", scene="services.odometry.views:run_scene"
+    ),
     params=OdometryParams,
     description=(
         "Floor-camera visual odometry of a `frames` sequence: the camera's trajectory (TUM, "
@@ -86,7 +87,7 @@ ODOMETRY_TRAIN = JobKind(
     name="odometry.train",
     queue="training",
     handler="services.odometry.jobs:train_job",
-    view="contract.views:training_view",
+    shows=TRAINING_PAGE,
     params=TrainParams,
     description=(
         "Trains OE-Net (thesis Table 6.1) on the consecutive frame pairs of `frames` "

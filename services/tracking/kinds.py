@@ -6,7 +6,7 @@ from typing import Annotated, Literal, get_args
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from contract.artifacts import ArtifactKind
-from contract.kinds import Inputs, JobKind, Output
+from contract.kinds import TRAINING_PAGE, Inputs, JobKind, Output, Presentation
 from contract.training import TrainSettings
 from contract.views import TRAINING_REPORT_NAME
 
@@ -208,8 +208,9 @@ TRACK = JobKind(
     aliases=("track",),
     queue="tracking",
     handler="services.tracking.jobs:track_job",
-    view="services.tracking.views:track_view",
-    scene="services.tracking.views:track_scene",
+    shows=Presentation(
+        page="services.tracking.views:track_view", scene="services.tracking.views:track_scene"
+    ),
     params=TrackParams,
     description=(
         "Tracks one car through a `lidar` sequence (thesis 5.1): the tracker every frame, the "
@@ -233,8 +234,9 @@ DETECT = JobKind(
     name="tracking.detect",
     queue="tracking",
     handler="services.tracking.jobs:detect_job",
-    view="services.tracking.views:detect_view",
-    scene="services.tracking.views:detect_scene",
+    shows=Presentation(
+        page="services.tracking.views:detect_view", scene="services.tracking.views:detect_scene"
+    ),
     params=DetectParams,
     description=(
         "Finds the cars in every scan of a `lidar` sequence (thesis 5.1's detector) and writes "
@@ -261,7 +263,7 @@ TRACK_TRAIN = JobKind(
     aliases=("track.train",),
     queue="training",
     handler="services.tracking.jobs:train_job",
-    view="contract.views:training_view",
+    shows=TRAINING_PAGE,
     params=TrainParams,
     description=(
         "Trains the learned car detector or SC3D's Siamese encoder on labelled `lidar` "

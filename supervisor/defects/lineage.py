@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from sqlalchemy import bindparam, insert, select, update
 from sqlalchemy.orm import Session
 
+from contract.findings import SeamMeasurements, measurements_of
 from supervisor.changes import record_change
 from supervisor.models import Defect, Job, Judgment, JudgmentRevision
 
@@ -149,7 +150,8 @@ def _overlap_pairs(old: list[Placed], new: list[Placed]) -> list[tuple[float, in
 
 
 def _placed(row) -> Placed:  # noqa: ANN001 - a result row
-    seam = (row.measurements or {}).get("seam_mm")
+    found = measurements_of(row.type, row.measurements)
+    seam = found.seam_mm if isinstance(found, SeamMeasurements) else None
     return Placed(
         id=row.id,
         type=row.type,

@@ -5,7 +5,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, computed_field
 
-from contract.tolerances import ToleranceState, stored_state
+from contract.findings import stored_state
+from contract.tolerances import ToleranceState
 from contract.vocabulary import DefectType, Severity
 from supervisor.models.defects import DefectStatus, Ended, Verdict
 from supervisor.requests import MAX_MM, Millimetres, RequestId, RequestModel

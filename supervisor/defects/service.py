@@ -1,13 +1,15 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from sqlalchemy import insert, or_, select, update
 from sqlalchemy.orm import Session
 
 from contract.context import NewDefect
+from contract.findings import Reading
 from supervisor.audit.service import Actor, audit
-from supervisor.changes import record_change, record_update
+from supervisor.changes import record_changes, record_update
 from supervisor.defects.schemas import DefectCreate, DefectHistoryOut, DefectOut, LineageStep
 from supervisor.inspections.service import ensure_live
 from supervisor.judgments.consensus import consensus_for
@@ -15,17 +17,17 @@ from supervisor.models import Defect, Inspection, JudgmentRevision, Run, User
 from supervisor.models._types import utcnow
 from supervisor.problems import Problem, not_found
 
-READING_KEYS = ("value", "unit", "tolerance")
+READING_KEYS = tuple(Reading.model_fields)
 
 
 def reading(value_mm: float | None, tolerance_mm: float | None, measurements: dict | None) -> dict:
     """A defect's value, unit and tolerance: from its measurements (where a non-millimetre
     value such as a colour ΔE lives), else its millimetre columns."""
-    measurements = measurements or {}
+    read = Reading.model_validate(measurements or {})
     return {
-        "value": measurements.get("value", value_mm),
-        "unit": measurements.get("unit", "mm"),
-        "tolerance": measurements.get("tolerance", tolerance_mm),
+        "value": value_mm if read.value is None else read.value,
+        "unit": read.unit,
+        "tolerance": tolerance_mm if read.tolerance is None else read.tolerance,
     }
 
 
@@ -57,38 +59,72 @@ def record_defect(
     job_id: int | None = None,
     user_id: int | None = None,
 ) -> int:
-    """The one way a defect's row comes to be (a job's finding, one reported by hand): the
-    row, open, and its change-log entry; returns its id."""
-    defect_id = session.execute(
-        insert(Defect)
-        .values(
-            inspection_id=inspection_id,
-            run_id=run_id,
-            job_id=job_id,
-            type=finding.type,
-            status="open",
-            value_mm=finding.value_mm,
-            tolerance_mm=finding.tolerance_mm,
-            measurements=finding.measurements,
-            location_mm=list(finding.location_mm),
-            normal=list(finding.normal),
-            extent_mm=finding.extent_mm,
-            severity=finding.severity,
-            confidence=finding.confidence,
-            source=source,
-        )
-        .returning(Defect.id)
-    ).scalar_one()
-    session.execute(update(Defect).where(Defect.id == defect_id).values(lineage_id=defect_id))
-    record_change(
+    """One finding through ``record_defects``; returns its id."""
+    (defect_id,) = record_defects(
+        session,
+        [finding],
+        inspection_id=inspection_id,
+        source=source,
+        run_id=run_id,
+        job_id=job_id,
+        user_id=user_id,
+    )
+    return defect_id
+
+
+LINEAGE_CHUNK = 1000
+"""Ids per statement when a batch starts its lineages (well under SQLite's variables)."""
+
+
+def record_defects(
+    session: Session,
+    findings: Sequence[NewDefect],
+    *,
+    inspection_id: int,
+    source: str,
+    run_id: int | None = None,
+    job_id: int | None = None,
+    user_id: int | None = None,
+) -> list[int]:
+    """The one way defect rows come to be (a job's findings, one reported by hand, a
+    bench's seed): each row, open and the first of its lineage, and its change-log entry;
+    returns their ids in the findings' order."""
+    if not findings:
+        return []
+    rows = [
+        {
+            "inspection_id": inspection_id,
+            "run_id": run_id,
+            "job_id": job_id,
+            "type": f.type,
+            "status": "open",
+            "value_mm": f.value_mm,
+            "tolerance_mm": f.tolerance_mm,
+            "measurements": f.measurements,
+            "location_mm": list(f.location_mm),
+            "normal": list(f.normal),
+            "extent_mm": f.extent_mm,
+            "severity": f.severity,
+            "confidence": f.confidence,
+            "source": source,
+        }
+        for f in findings
+    ]
+    ids = list(
+        session.scalars(insert(Defect).returning(Defect.id, sort_by_parameter_order=True), rows)
+    )
+    for start in range(0, len(ids), LINEAGE_CHUNK):
+        chunk = ids[start : start + LINEAGE_CHUNK]
+        session.execute(update(Defect).where(Defect.id.in_(chunk)).values(lineage_id=Defect.id))
+    record_changes(
         session,
         entity="defect",
-        entity_id=defect_id,
+        entity_ids=ids,
         op="create",
         inspection_id=inspection_id,
         user_id=user_id,
     )
-    return defect_id
+    return ids
 
 
 def create(session: Session, *, data: DefectCreate, actor: Actor) -> Defect:

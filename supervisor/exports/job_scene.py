@@ -53,7 +53,7 @@ def job_scene_file(runtime: Runtime, job_id: int, max_points: int) -> BinaryIO:
     with runtime.db.read() as session:
         job = get_job(session, job_id=job_id)
         kind = get_kind(job.kind)
-        hook = kind.load_scene() if kind is not None else None
+        hook = kind.shows.load_scene() if kind is not None else None
         if hook is None:
             raise Problem(404, f"Job {job_id} ({job.kind}) has no 3D scene.")
         if job.status != "succeeded":

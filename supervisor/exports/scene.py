@@ -102,17 +102,17 @@ class SceneRun:
 def scene_runs(session: Session, *, inspection_id: int) -> list[SceneRun]:
     """The inspection's measured runs, newest first (a run whose cloud was deleted has no
     scene left to show and is left out)."""
-    kinds = {presenter_kind.name for presenter_kind in all_presenting_kinds()}
+    over = {k.name: k.shows.inspection.over for k in all_presenting_kinds()}
     jobs = session.scalars(
         select(Job)
-        .where(Job.inspection_id == inspection_id, Job.kind.in_(kinds), Job.status == "succeeded")
+        .where(Job.inspection_id == inspection_id, Job.kind.in_(over), Job.status == "succeeded")
         .order_by(Job.finished_at.desc(), Job.id.desc())
     ).all()
     runs: dict[int, SceneRun] = {}
     for job in jobs:
         if job.run_id in runs:
             continue
-        clouds = [a for a in input_artifacts(session, job) if a.kind == "cloud"]
+        clouds = [a for a in input_artifacts(session, job) if a.kind == over[job.kind]]
         if not clouds:
             continue
         run_name = session.scalar(select(Run.name).where(Run.id == job.run_id)) or ""
@@ -196,12 +196,18 @@ def gather(
             .order_by(Defect.id)
         )
     ]
+    if run is None:  # no measurement yet: the newest cloud, and results uploaded by hand
+        presenters = [k.shows.inspection for k in all_presenting_kinds()]
+    else:
+        kind = get_kind(run.kind)
+        presenters = [kind.shows.inspection] if kind and kind.shows.inspection else []
+    presenters = list(dict.fromkeys(presenters))
     run_jobs = select(Job.id).where(Job.run_id == (run.run_id if run else -1))
     meshes = session.execute(
         select(Artifact.id, Artifact.storage_uri)
         .where(
             Artifact.inspection_id == inspection.id,
-            Artifact.kind == "mesh",
+            Artifact.kind.in_({kind for p in presenters for kind in p.surfaces}),
             Artifact.media_type == PLY_MEDIA_TYPE,
             or_(Artifact.job_id.is_(None), Artifact.job_id.in_(run_jobs)),
         )
@@ -209,20 +215,17 @@ def gather(
     ).all()
     clouds = select(Artifact).where(
         Artifact.inspection_id == inspection.id,
-        Artifact.kind == "cloud",
+        Artifact.kind.in_({p.over for p in presenters}),
         Artifact.media_type == PLY_MEDIA_TYPE,
     )
-    if run is None:  # no measurement yet: the newest cloud, and results uploaded by hand
+    if run is None:
         cloud = session.scalar(clouds.order_by(Artifact.id.desc()).limit(1))
-        presenters = [k.present for k in all_presenting_kinds()]
         reads = Artifact.job_id.is_(None)
     else:
         cloud = session.scalar(clouds.where(Artifact.id == run.cloud_artifact_id))
-        kind = get_kind(run.kind)
-        presenters = [kind.present] if kind is not None and kind.present is not None else []
         reads = Artifact.job_id == run.job_id
     presented = []
-    for presenter in dict.fromkeys(presenters):
+    for presenter in presenters:
         newest = session.scalar(
             select(Artifact.storage_uri)
             .where(
@@ -252,7 +255,7 @@ def all_presenting_kinds() -> list:
     """The job kinds that present results in an inspection's scene."""
     if not all_kinds():
         load_kinds()
-    return [k for k in all_kinds() if k.present is not None]
+    return [k for k in all_kinds() if k.shows.inspection is not None]
 
 
 def _cloud_colors(colors: np.ndarray | None, points_m: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """A job's run page: the job, its inputs and outputs, and its results drawn as the job's
-kind declares (``JobKind.view``, a ``contract.views.View`` hook called on the stored
+kind declares (``JobKind.shows.page``, a ``contract.views.View`` hook called on the stored
 outputs). A hook that cannot read a file says so in ``note``: the page still lists the
 files."""
 
@@ -68,7 +68,7 @@ def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
     given, outputs, files = job_files(session, storage, job)
     panels, note = [], None
     kind = get_kind(job.kind)
-    view = kind.load_view() if kind is not None else None
+    view = kind.shows.load_page() if kind is not None else None
     if view is None:
         view = result_view
         note = "this kind of job declares no view of its results: its result's figures and its files are shown"
@@ -88,7 +88,7 @@ def job_view(session: Session, storage: Storage, job_id: int) -> JobViewOut:
         log=_log(session, job.id),
         scene=(
             f"/api/v1/jobs/{job.id}/scene.glb"
-            if kind is not None and kind.scene is not None and job.status == "succeeded"
+            if kind is not None and kind.shows.scene is not None and job.status == "succeeded"
             else None
         ),
     )

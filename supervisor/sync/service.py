@@ -26,7 +26,7 @@ from sqlalchemy import bindparam, select, text, update
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from contract.tolerances import stored_state
+from contract.findings import stored_state
 from supervisor.db import Database
 from supervisor.defects.service import READING_KEYS, reading
 from supervisor.engine.registry import all_kinds
@@ -261,7 +261,7 @@ def job_warnings(session: Session, inspection_id: int) -> list[dict]:
 def job_scenes(session: Session, inspection_id: int) -> list[dict]:
     """The inspection's finished jobs that have a 3D scene (a trajectory, depth clouds, a
     track), newest first: what a headset lists beside the inspection's scene."""
-    with_scene = [k.name for k in all_kinds() if k.scene is not None]
+    with_scene = [k.name for k in all_kinds() if k.shows.scene is not None]
     return [
         {
             **_job_ref(j),
