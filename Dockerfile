@@ -28,6 +28,7 @@ RUN pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu
 # Only what the distribution needs: the Alembic migrations are found next to the
 # `supervisor` package (supervisor/migrate.py), so they are copied alongside it.
 COPY pyproject.toml alembic.ini ./
+COPY contract ./contract
 COPY supervisor ./supervisor
 COPY services ./services
 COPY migrations ./migrations

@@ -28,8 +28,8 @@ test: $(STAMP_TEST)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 lint: $(STAMP_TEST)
-	$(VENV)/bin/ruff check contract supervisor services tests clients/python
-	$(VENV)/bin/ruff format --check contract supervisor services tests clients/python
+	$(VENV)/bin/ruff check contract supervisor services benches tests clients/python
+	$(VENV)/bin/ruff format --check contract supervisor services benches tests clients/python
 
 install: $(STAMP_RUN) $(WEB_BUILT)
 install-test: $(STAMP_TEST)

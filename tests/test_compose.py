@@ -299,10 +299,17 @@ def test_dockerfile() -> None:
     assert any(re.search(r"pip install\b.*-e \.", r) for r in runs), "missing `pip install -e .`"
     user = (by_name.get("USER") or ["root"])[-1]
     assert user not in ("root", "0"), "the image must run as a non-root user"
+    copied = set()
     for rest in by_name.get("COPY", []):
         for source in rest.split()[:-1]:
             if not source.startswith("--"):
                 assert (ROOT / source).exists(), f"Dockerfile copies {source}, which is missing"
+                copied.add(source)
+    # every package of the product is in the image; the benches are not the product
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    packages = {p.rstrip("*") for p in project["tool"]["setuptools"]["packages"]["find"]["include"]}
+    assert packages - {"benches"} <= copied, f"the image lacks {packages - {'benches'} - copied}"
+    assert "benches" not in copied
 
 
 def test_torch_pin_matches_pyproject() -> None:
