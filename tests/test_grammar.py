@@ -5,6 +5,8 @@ spellings hidden aliases."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import typer
 from annotated_types import Ge, Le
@@ -14,21 +16,10 @@ from contract.cli import params_options
 from supervisor.cli import app
 from supervisor.engine.registry import all_kinds, load_kinds
 
-EXECUTION_OPTIONS = {
-    "out",
-    "plot",
-    "report",
-    "preview",
-    "truth",
-    "threads",
-    "seed",
-    "device",
-    "checkpoints",
-    "work",
-    "licence",
-}
-"""Options a command may have beside its job's parameters: where files go, how it runs.
-Anything that changes a result is a Params field, so a job can set it too."""
+EXECUTION_OPTIONS = {"threads"}
+"""Options a command may have beside its job's parameters and its files (any option typed
+as a path): how many threads it runs on. Anything that changes a result is a Params field,
+so a job can set it too."""
 
 
 # Typer vendors its own Click: its commands and parameters are told apart by what they
@@ -104,7 +95,7 @@ def test_a_command_restating_a_parameter_is_found():
 
     @planted.command("good")
     @params_options(_Planted)
-    def good(out: str = typer.Option(None), *, params: _Planted) -> None: ...
+    def good(out: Path = typer.Option(None), *, params: _Planted) -> None: ...
 
     @planted.command("drifted")
     def drifted(
