@@ -82,3 +82,31 @@ def test_more_triangles_than_allowed_are_refused_before_reading(tmp_path):
     write_stl(path, box_mesh(HALF))
     with pytest.raises(StlError, match="holds 12 triangles; at most 10"):
         read_stl(path, max_triangles=10)
+
+
+def test_a_nominal_upload_is_checked_reported_and_scaled_to_mm(tmp_path):
+    """`nominal` uploads as every kind: the STL read as a comparison will, what it is
+    reported, metres scaled to millimetres (a copy kept), anything else a 422 sentence."""
+    from supervisor.artifacts.validation import validate_upload
+    from supervisor.problems import Problem
+
+    stl = tmp_path / "part.stl"
+    write_stl(stl, box_mesh(HALF / 1000.0))  # a CAD export in metres
+    kept = validate_upload(
+        stl, media_type="application/octet-stream", name="part.stl", kind="nominal", units="m"
+    )
+    assert kept.media_type == "model/stl" and kept.replacement is not None
+    nominal = kept.meta["nominal"]
+    assert nominal["watertight"] and nominal["consistently_oriented"]
+    assert nominal["source_units"] == "m" and nominal["bounds_max_mm"] == pytest.approx(HALF)
+    assert np.allclose(read_stl(kept.replacement).vertices_mm.max(axis=0), HALF, atol=1e-5)
+    open_sheet = TriangleMesh(box_mesh(HALF).vertices_mm, box_mesh(HALF).faces[:2])
+    write_stl(stl, open_sheet, binary=False)
+    as_is = validate_upload(
+        stl, media_type="application/octet-stream", name="part.stl", kind="nominal"
+    )
+    assert as_is.replacement is None and as_is.meta["nominal"]["border_edges"] == 4
+    stl.write_bytes(b"ply\nformat ascii 1.0\nend_header\n")
+    with pytest.raises(Problem) as refused:
+        validate_upload(stl, media_type="application/octet-stream", name="x.stl", kind="nominal")
+    assert refused.value.status == 422 and "is not a nominal model" in refused.value.detail

@@ -101,6 +101,15 @@ def _scanner_seeds(tmp: Path) -> dict[str, Seed]:
     return found
 
 
+def _stl_bytes(tmp: Path) -> bytes:
+    from services.lib.pointcloud.stl import write_stl
+    from tests.test_mesh_distance import box_mesh
+
+    path = tmp / "nominal.stl"
+    write_stl(path, box_mesh(np.array([40.0, 25.0, 10.0])))
+    return path.read_bytes()
+
+
 @pytest.fixture(scope="module")
 def seeds(tmp_path_factory) -> dict[str, Seed]:
     """One valid file per format, each kept by ``validate_upload`` as it is."""
@@ -122,6 +131,7 @@ def seeds(tmp_path_factory) -> dict[str, Seed]:
         **_scanner_seeds(tmp),
         "depth": Seed("depth", _png((12, 16), "uint16")),
         "tum": Seed("trajectory", b"0 0 0 0 0 0 0 1\n0.1 0.002 0 0 0 0 0.01 0.99995\n"),
+        "stl": Seed("nominal", _stl_bytes(tmp)),
     }
     for name, seed in found.items():
         path = tmp / f"seed-{name}"
@@ -366,7 +376,7 @@ def _cpu_s() -> float:
 @pytest.mark.parametrize(
     "form",
     ["ply", "ply-mesh", "json", "zip", "tar", "tar.gz", "drive", "lidar", "onnx", "png"]
-    + ["depth", "tum", *SCANNER_FORMS],
+    + ["depth", "tum", "stl", *SCANNER_FORMS],
 )
 def test_damaged_files_are_kept_or_refused_with_a_4xx_sentence(seeds, tmp_path, form):
     """Each case: kept, or a 4xx sentence; within ``CASE_CPU_S`` and ``CASE_PEAK_MB``;

@@ -91,6 +91,13 @@ ARTIFACT_KINDS = (
     ArtifactKind(
         "mesh", "Nominal panel surfaces as a PLY triangle mesh.", f"{FORMATS}:inspect_mesh"
     ),
+    ArtifactKind(
+        "nominal",
+        "A part's nominal (CAD) surface as a triangle mesh: an STL, binary or ASCII, in mm "
+        "(or scaled to mm from `units`); whether it is closed and consistently oriented is "
+        "reported, not required.",
+        f"{FORMATS}:inspect_nominal",
+    ),
 )
 """The kinds of file only this service knows (the shared ones: ``services.lib.artifact_kinds``)."""
 

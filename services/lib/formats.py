@@ -103,6 +103,34 @@ def inspect_mesh(path: Path, media_type: str) -> Inspected:
     return _ply(path, mesh=True)
 
 
+STL_MEDIA_TYPE = "model/stl"
+
+
+def inspect_nominal(path: Path, media_type: str, units: str | None = None) -> Inspected:
+    """A part's nominal model: an STL (binary or ASCII) read as a comparison will read it,
+    its closure, orientation, border, area and bounds reported (a nominal need not be
+    closed); in millimetres, or scaled to them from ``units`` (a scaled copy is kept)."""
+    from services.lib.pointcloud.mesh_distance import TriangleMesh
+    from services.lib.pointcloud.scanner import UNITS_MM
+    from services.lib.pointcloud.stl import StlError, mesh_report, read_stl, write_stl
+
+    try:
+        mesh = read_stl(path)
+    except StlError as exc:
+        raise ArtifactRefused(
+            f"is not a nominal model vista reads (an STL, binary or ASCII): {text_of(exc)}"
+        ) from exc
+    scale = UNITS_MM[units or "mm"]
+    replacement = None
+    if scale != 1.0:
+        mesh = TriangleMesh(mesh.vertices_mm * scale, mesh.faces)
+        replacement = path.with_name(path.name + ".mm.stl")
+        write_stl(replacement, mesh)
+    report = asdict(mesh_report(mesh))
+    meta = {"format": "stl", "units": "mm", "source_units": units or "mm", **report}
+    return Inspected(STL_MEDIA_TYPE, {"nominal": meta}, replacement)
+
+
 def inspect_json(path: Path, media_type: str) -> Inspected:
     """Parsed whole, once its nesting is known to be at most ``MAX_JSON_DEPTH`` (Python's
     parser recurses once per level: 200 000 brackets would exhaust the stack)."""

@@ -103,7 +103,8 @@ async def upload_artifact(
     units: Literal[tuple(UNITS_MM)] | None = Query(
         None,
         description="A point cloud's unit, when its format's convention does not hold: PLY "
-        "and XYZ/ASC text are read as mm, PCD, LAS/LAZ and PTS as m, E57 is m by its standard.",
+        "and XYZ/ASC text are read as mm, PCD, LAS/LAZ and PTS as m, E57 is m by its "
+        "standard; a nominal STL's (which says none: mm unless given).",
     ),
     runtime: Runtime = Depends(get_runtime),
     user: CurrentUser = Depends(editors),

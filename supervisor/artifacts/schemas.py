@@ -14,6 +14,7 @@ MEDIA_TYPES = {
     "text/plain": ".txt",
     "text/csv": ".csv",
     "model/gltf-binary": ".glb",
+    "model/stl": ".stl",
     "application/zip": ".zip",
     "application/gzip": ".tar.gz",
     "application/x-bzip2": ".tar.bz2",

@@ -23,7 +23,9 @@ def validate_upload(
     inspect = artifact_kinds()[kind].load_inspect()
     takes_units = inspect is not None and "units" in introspect.signature(inspect).parameters
     if units is not None and not takes_units:
-        raise Problem(422, f"units apply to point clouds, not to a file of kind {kind}.")
+        raise Problem(
+            422, f"units apply to point clouds and nominals, not to a file of kind {kind}."
+        )
     if inspect is None:
         return Inspected(media_type)
     try:
