@@ -205,6 +205,7 @@ class LiveServer:
 
     def __init__(self, settings: Settings, runtime: Runtime, run_engine: bool) -> None:
         app = create_app(settings, runtime=runtime, run_engine=run_engine)
+        self.runtime = runtime
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.app = app
@@ -240,6 +241,14 @@ def start_server(tmp_path: Path) -> Iterator[Callable[..., LiveServer]]:
     for server, rt in started:
         server.stop()
         rt.db.dispose()
+
+
+@pytest.fixture
+def live_api(start_server, tmp_path: Path, sqlite_url: str) -> tuple[LiveServer, Runtime, str]:
+    """An API served on SQLite without its engine, its runtime, and the admin ada's token
+    (password admin-pw); a test adds the other users it needs with ``add_user``."""
+    server = start_server(make_settings(tmp_path, sqlite_url), run_engine=False)
+    return server, server.runtime, add_user(server.runtime, "ada", "admin", "admin-pw")
 
 
 def wait_for(predicate: Callable[[], object], *, timeout: float = 30.0, what: str = "condition"):

@@ -10,7 +10,7 @@ import httpx
 import pytest
 from vista_client import Headset, HeadsetOffline, VistaClient, VistaError
 
-from tests.conftest import add_user, make_settings
+from tests.conftest import add_user
 from tests.seeding import seed_defects
 
 
@@ -31,18 +31,11 @@ class LosingTransport(httpx.HTTPTransport):
 
 
 @pytest.fixture
-def live(start_server, tmp_path, sqlite_url):
-    settings = make_settings(tmp_path, sqlite_url)
-    server = start_server(settings, run_engine=False)
-    from supervisor.engine.runtime import Runtime
-    from supervisor.records import DomainRecords
-
-    runtime = Runtime.create(settings, records=DomainRecords())
-    admin = add_user(runtime, "ada", "admin", "admin-pw")
+def live(live_api):
+    _, runtime, _ = live_api
     add_user(runtime, "ines", "inspector", "ines-pw")
     add_user(runtime, "ivan", "inspector", "ivan-pw")
-    yield server, runtime, admin
-    runtime.db.dispose()
+    return live_api
 
 
 def test_headset_offline_reconnect_conflicts_and_retries(live, tmp_path):

@@ -10,8 +10,6 @@ import httpx
 import pytest
 
 from benches.browser import launch_chromium
-from supervisor.engine.runtime import Runtime
-from supervisor.records import DomainRecords
 from tests.conftest import add_user, auth, make_settings, wait_for
 from tests.edgeclouds import seam_cloud
 from tests.seeding import measure_uploaded
@@ -46,7 +44,7 @@ def test_create_upload_measure_and_judge_from_the_browser(
 ):
     settings = make_settings(tmp_path, sqlite_url, embedded_workers=1, extra_job_kinds=[])
     server = start_server(settings)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     scan = tmp_path / "wing-seam.e57"
     _seam_e57(scan)
@@ -163,7 +161,6 @@ def test_create_upload_measure_and_judge_from_the_browser(
     assert again["params"]["pitch_mm"] == 4 and again["kind"] == "defects.measure"
     http.close()
     assert errors == []
-    runtime.db.dispose()
 
 
 def _token(url: str) -> str:
@@ -179,7 +176,7 @@ def test_cancel_and_retry_a_job_from_its_row(start_server, tmp_path, sqlite_url,
 
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     add_user(runtime, "vic", "viewer", "vic-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
@@ -215,7 +212,6 @@ def test_cancel_and_retry_a_job_from_its_row(start_server, tmp_path, sqlite_url,
     assert page.locator(f"{row} button").count() == 0 and page.locator("#run-box").is_hidden()
     http.close()
     assert errors == [], errors
-    runtime.db.dispose()
 
 
 def test_unmeasured_seams_and_uncertain_findings_show_as_such(
@@ -231,7 +227,7 @@ def test_unmeasured_seams_and_uncertain_findings_show_as_such(
 
     settings = make_settings(tmp_path, sqlite_url, embedded_workers=1, extra_job_kinds=[])
     server = start_server(settings)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
@@ -279,7 +275,6 @@ def test_unmeasured_seams_and_uncertain_findings_show_as_such(
     assert page.text_content(status) == "succeeded · warning"
     http.close()
     assert errors == [], errors
-    runtime.db.dispose()
 
 
 def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
@@ -290,7 +285,7 @@ def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
     named set is applied, its name and version shown; another inspector reads, not edits."""
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     ivan = add_user(runtime, "ivan", "inspector", "ivan-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=10)
@@ -363,7 +358,6 @@ def test_tolerances_edited_in_the_browser_keep_the_limits_not_touched(
     assert page.is_disabled("#tolerance-fields input[name='gap_mm.max']")
     assert page.is_disabled("#tolerance-save")
     http.close()
-    runtime.db.dispose()
 
 
 def test_files_are_told_apart_and_a_picker_selects_all_of_a_kind(
@@ -377,7 +371,7 @@ def test_files_are_told_apart_and_a_picker_selects_all_of_a_kind(
 
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "cabin"}).json()["id"]
@@ -428,7 +422,6 @@ def test_files_are_told_apart_and_a_picker_selects_all_of_a_kind(
     page.screenshot(path=str(tmp_path / "picker-1024.png"))
     http.close()
     assert errors == [], errors
-    runtime.db.dispose()
 
 
 def test_a_finding_added_by_clicking_the_scene_and_annotated(
@@ -441,7 +434,7 @@ def test_a_finding_added_by_clicking_the_scene_and_annotated(
 
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
     inspection = http.post("/api/v1/inspections", json={"title": "t", "area": "wing"}).json()["id"]
@@ -490,7 +483,6 @@ def test_a_finding_added_by_clicking_the_scene_and_annotated(
     page.screenshot(path=str(tmp_path / "by-hand-1440.png"))
     http.close()
     assert errors == [], errors
-    runtime.db.dispose()
 
 
 def test_a_list_of_numbers_is_typed_as_its_help_says(start_server, tmp_path, sqlite_url, browser):
@@ -498,7 +490,7 @@ def test_a_list_of_numbers_is_typed_as_its_help_says(start_server, tmp_path, sql
     among them is refused in the form, naming the field."""
     settings = make_settings(tmp_path, sqlite_url)
     server = start_server(settings, run_engine=False)
-    runtime = Runtime.create(settings, records=DomainRecords())
+    runtime = server.runtime
     add_user(runtime, "ines", "inspector", "ines-pw")
     http = httpx.Client(base_url=server.url, headers=auth(_token(server.url)), timeout=30)
     inspection = http.post(
@@ -522,4 +514,3 @@ def test_a_list_of_numbers_is_typed_as_its_help_says(start_server, tmp_path, sql
     params = sent.value.post_data_json["steps"][0]["params"]
     assert params["init_box"] == [1.5, 1.6, 3.9, 0, 1.7, 10, -1.56]
     http.close()
-    runtime.db.dispose()

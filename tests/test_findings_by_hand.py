@@ -6,23 +6,16 @@ from __future__ import annotations
 import pytest
 from vista_client import Headset, VistaClient
 
-from tests.conftest import add_user, make_settings
+from tests.conftest import add_user
 from tests.seeding import seed_defects
 
 
 @pytest.fixture
-def live(start_server, tmp_path, sqlite_url):
-    settings = make_settings(tmp_path, sqlite_url)
-    server = start_server(settings, run_engine=False)
-    from supervisor.engine.runtime import Runtime
-    from supervisor.records import DomainRecords
-
-    runtime = Runtime.create(settings, records=DomainRecords())
-    admin = add_user(runtime, "ada", "admin", "admin-pw")
+def live(live_api):
+    _, runtime, _ = live_api
     add_user(runtime, "ines", "inspector", "ines-pw")
     add_user(runtime, "vic", "viewer", "vic-pw")
-    yield server, runtime, admin
-    runtime.db.dispose()
+    return live_api
 
 
 def test_a_finding_by_hand_and_notes_reach_the_headset_and_the_audit_log(live) -> None:

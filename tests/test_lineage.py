@@ -13,7 +13,7 @@ from vista_client import Headset, VistaClient
 
 from contract.context import NewDefect
 from supervisor.defects.lineage import Placed, match, pieces
-from tests.conftest import add_user, make_settings
+from tests.conftest import add_user
 from tests.seeding import record_measurement
 
 SEAM = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])
@@ -83,17 +83,10 @@ def two_measurements() -> list[tuple[list[NewDefect], list]]:
 
 
 @pytest.fixture
-def live(start_server, tmp_path, sqlite_url):
-    settings = make_settings(tmp_path, sqlite_url)
-    server = start_server(settings, run_engine=False)
-    from supervisor.engine.runtime import Runtime
-    from supervisor.records import DomainRecords
-
-    runtime = Runtime.create(settings, records=DomainRecords())
-    admin = add_user(runtime, "ada", "admin", "admin-pw")
+def live(live_api):
+    _, runtime, _ = live_api
     add_user(runtime, "ines", "inspector", "ines-pw")
-    yield server, runtime, admin
-    runtime.db.dispose()
+    return live_api
 
 
 def _by_type(defects: list[dict], kind: str) -> list[dict]:
