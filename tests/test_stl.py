@@ -110,3 +110,34 @@ def test_a_nominal_upload_is_checked_reported_and_scaled_to_mm(tmp_path):
     with pytest.raises(Problem) as refused:
         validate_upload(stl, media_type="application/octet-stream", name="x.stl", kind="nominal")
     assert refused.value.status == 422 and "is not a nominal model" in refused.value.detail
+
+
+def test_a_nominal_in_metres_uploads_through_the_api_as_millimetres(client, tokens, tmp_path):
+    """As a user sends it: POST …/artifacts?kind=nominal&units=m keeps part.stl in mm, the
+    file sent named in its metadata; the download reads back at the part's true size."""
+    from tests.conftest import auth
+
+    headers = auth(tokens["inspector"])
+    inspection = client.post(
+        "/api/v1/inspections", json={"title": "bracket", "area": "wing"}, headers=headers
+    ).json()["id"]
+    sent = tmp_path / "part.stl"
+    write_stl(sent, box_mesh(HALF / 1000.0))
+    answer = client.post(
+        f"/api/v1/inspections/{inspection}/artifacts",
+        params={"kind": "nominal", "name": "part.stl", "units": "m"},
+        content=sent.read_bytes(),
+        headers={**headers, "Content-Type": "model/stl"},
+    )
+    assert answer.status_code == 201, answer.text
+    stored = answer.json()
+    assert stored["name"] == "part.stl" and stored["media_type"] == "model/stl"
+    assert stored["meta"]["nominal"]["area_mm2"] == pytest.approx(2 * (80 * 50 + 80 * 20 + 50 * 20))
+    assert stored["meta"]["source"]["name"] == "part.stl"
+    got = tmp_path / "got.stl"
+    got.write_bytes(
+        client.get(
+            f"/api/v1/inspections/{inspection}/artifacts/{stored['id']}/content", headers=headers
+        ).content
+    )
+    assert np.allclose(read_stl(got).vertices_mm.max(axis=0), HALF, atol=1e-4)

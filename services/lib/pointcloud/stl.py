@@ -116,13 +116,10 @@ def write_stl(path: Path, mesh: TriangleMesh, *, binary: bool = True, name: str 
             file.write(struct.pack("<I", len(records)))
             records.tofile(file)
         return
-    facets = (
-        f"  facet normal {n[0]:.9g} {n[1]:.9g} {n[2]:.9g}\n    outer loop\n"
-        + "".join(f"      vertex {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in c)
-        + "    endloop\n  endfacet\n"
-        for n, c in zip(normals, corners, strict=True)
-    )
-    path.write_text(f"solid {name}\n{''.join(facets)}endsolid {name}\n")
+    vertex = "      vertex %.17g %.17g %.17g\n"
+    facet = f"  facet normal %.9g %.9g %.9g\n    outer loop\n{vertex * 3}    endloop\n  endfacet\n"
+    values = np.hstack([normals, corners.reshape(-1, 9)]).ravel().tolist()
+    path.write_text(f"solid {name}\n{(facet * len(corners)) % tuple(values)}endsolid {name}\n")
 
 
 def mesh_report(mesh: TriangleMesh) -> MeshReport:
