@@ -2,30 +2,48 @@
 vertices): each point's closest point on the mesh, the face it lies on, and the distance
 signed by the side of the surface the point is on.
 
-The closest point on a triangle is found region by region (Ericson, *Real-Time Collision
-Detection*, 5.1.5: the face, one of three edges or one of three vertices), vectorised over
-points × candidate triangles. The sign is the angle-weighted pseudo-normal's at that
-closest point (Bærentzen & Aanæs 2005: the face's normal on a face, the sum of the two
-faces' normals on an edge, the angle-weighted sum of the incident faces' normals at a
-vertex), which is correct on a closed, consistently oriented mesh and on an open one away
-from its border; positive on the side the faces' normals point to.
+Each point first looks in its cell of a grid whose cells list the faces within a band of
+them (a cell about half a typical face): if one of those faces is within the band, no other
+face can be nearer, and the answer is certain. Points farther from the surface, or in a
+cell a huge face reaches, search a bounding-volume hierarchy of the faces (their Z-order
+halved down to pairs) nearer box first, skipping every box farther than the best face so
+far, starting from the face nearest to the point before (consecutive points of a scan are
+neighbours). The closest point on a triangle is found region by region
+(Ericson, *Real-Time Collision Detection*, 5.1.5: the face, one of three edges or one of
+three vertices). The sign is the angle-weighted pseudo-normal's at that closest point
+(Bærentzen & Aanæs 2005: the face's normal on a face, the sum of the two faces' normals on
+an edge, the angle-weighted sum of the incident faces' normals at a vertex), which is
+correct on a closed, consistently oriented mesh and on an open one away from its border;
+positive on the side the faces' normals point to.
 
-Candidates: each point's k nearest triangle centroids. The answer is certified exact when
-the k-th centroid is farther than the best distance found plus the largest distance from a
-centroid to its triangle's corners (no other triangle can come closer); points that fail
-the check are searched again with twice as many candidates, until all pass.
+The search is compiled (numba) and runs without the GIL: ``workers`` threads share the
+points.
 """
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+from numba import njit
 
-FIRST_CANDIDATES = 8
-CHUNK_POINTS = 65_536
-"""Points per vectorised block (× candidates × 3 doubles stay a few tens of MB)."""
+LEAF_FACES = 2
+"""Faces in a leaf of the hierarchy."""
+STACK_DEPTH = 128
+"""Boxes waiting in one point's descent: twice the depth of a median-split tree of any
+size vectors allow."""
+GRID_MAX_CELLS = 1 << 24
+"""Cells of the grid that answers points near the surface before the hierarchy is asked."""
+GRID_MAX_ENTRIES = 1 << 25
+"""Face entries the grid may hold (4 bytes each); a mesh needing more goes without it."""
+GRID_CELLS_PER_FACE = 64
+"""A face whose reach covers more cells is left to the hierarchy: those cells are marked
+incomplete and their points search the hierarchy."""
+BAND_SHARE = 0.3
+CELL_SHARE = 0.5
+"""The grid lists in each cell the faces within this share of a cell of it: a point whose
+nearest listed face is that near is answered without the hierarchy."""
 
 
 @dataclass(frozen=True)
@@ -57,56 +75,140 @@ class MeshDistance:
 
 
 @dataclass(frozen=True)
-class _Prepared:
-    corners: np.ndarray  # (F, 3, 3) each face's corners
-    centroids: cKDTree
-    reach_mm: float  # the largest distance from a centroid to its face's corners
+class MeshIndex:
+    """A mesh made ready for distance queries: its faces in the hierarchy's order, their
+    pseudo-normals, the hierarchy's boxes. Build once with :func:`index_mesh` and query as
+    often as wanted (an alignment queries the same mesh tens of times)."""
+
+    face_order: np.ndarray  # (F,) original face of each face in hierarchy order
+    corners: np.ndarray  # (F, 3, 3) each face's corners, hierarchy order
     face_normals: np.ndarray  # (F, 3) unit
     edge_normals: np.ndarray  # (F, 3, 3) pseudo-normal of edge ab, bc, ca of each face
     vertex_normals: np.ndarray  # (F, 3, 3) pseudo-normal at corner a, b, c of each face
+    face_boxes: np.ndarray  # (F, 6) each face's low and high corner
+    boxes: np.ndarray  # (B, 6) each box's low and high corner
+    box_content: np.ndarray  # (B, 2) a leaf's first face and count; else its first
+    # child (the second follows it) and 0
+    grid: _Grid
 
 
-def signed_distance(mesh: TriangleMesh, points_mm: np.ndarray) -> MeshDistance:
-    """Each of ``points_mm`` (N, 3)'s signed distance to ``mesh``, exact on its triangles."""
-    points = np.asarray(points_mm, dtype=np.float64)
+def signed_distance(
+    mesh: TriangleMesh | MeshIndex, points_mm: np.ndarray, workers: int = 1
+) -> MeshDistance:
+    """Each of ``points_mm`` (N, 3)'s signed distance to ``mesh``, exact on its triangles,
+    on ``workers`` threads."""
+    points = np.ascontiguousarray(points_mm, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError("points are (N, 3) coordinates")
-    prepared = _prepare(mesh)
+    if not np.isfinite(points).all():
+        raise ValueError("points are finite coordinates")
+    index = mesh if isinstance(mesh, MeshIndex) else index_mesh(mesh)
     distance = np.empty(len(points))
     closest = np.empty((len(points), 3))
     face = np.empty(len(points), dtype=np.int64)
-    for start in range(0, len(points), CHUNK_POINTS):
-        block = slice(start, start + CHUNK_POINTS)
-        distance[block], closest[block], face[block] = _block(prepared, points[block])
-    return MeshDistance(distance, closest, face)
+    grid = index.grid
+
+    def share(part: slice) -> None:
+        _nearest(
+            points[part], index.corners, index.face_normals, index.edge_normals,
+            index.vertex_normals, index.face_boxes, index.boxes, index.box_content,
+            grid.origin_mm, grid.cell_mm, grid.band_mm, grid.shape, grid.complete, grid.start,
+            grid.faces, distance[part], closest[part], face[part],
+        )  # fmt: skip
+
+    bounds = np.linspace(0, len(points), max(1, workers) + 1).astype(int)
+    parts = [slice(bounds[i], bounds[i + 1]) for i in range(len(bounds) - 1)]
+    if len(parts) == 1:
+        share(parts[0])
+    else:
+        with ThreadPoolExecutor(len(parts)) as pool:
+            list(pool.map(share, parts))
+    return MeshDistance(distance, closest, index.face_order[face])
 
 
-def _prepare(mesh: TriangleMesh) -> _Prepared:
+def index_mesh(mesh: TriangleMesh) -> MeshIndex:
+    """The faces' hierarchy and pseudo-normals."""
     vertices = np.asarray(mesh.vertices_mm, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     corners = vertices[faces]
-    centroids = corners.mean(axis=1)
-    reach = float(np.linalg.norm(corners - centroids[:, None, :], axis=2).max())
     cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
     face_normals = cross / np.where(area2 > 0, area2, 1.0)[:, None]
     # edges, each once whatever the faces' orientation: their two faces' normals summed
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, edge_index = np.unique(edges, axis=0, return_inverse=True)
+    _, edge_index = np.unique(edges[:, 0] * len(vertices) + edges[:, 1], return_inverse=True)
     edge_sum = np.zeros((edge_index.max() + 1, 3))
-    np.add.at(edge_sum, edge_index, np.repeat(face_normals, 3, axis=0))
+    np.add.at(edge_sum, edge_index.ravel(), np.repeat(face_normals, 3, axis=0))
     # corners: the incident faces' normals weighted by the angle each makes there
     vertex_sum = np.zeros((len(vertices), 3))
     weighted = _corner_angles(corners)[:, :, None] * face_normals[:, None, :]
     np.add.at(vertex_sum, faces.ravel(), weighted.reshape(-1, 3))
-    return _Prepared(
-        corners=corners,
-        centroids=cKDTree(centroids),
-        reach_mm=reach,
-        face_normals=face_normals,
-        edge_normals=edge_sum[edge_index.reshape(-1, 3)],
-        vertex_normals=vertex_sum[faces],
+    edge_normals = edge_sum[edge_index.reshape(-1, 3)]
+    vertex_normals = vertex_sum[faces]
+
+    order = np.argsort(_morton(corners.mean(axis=1)), kind="stable")
+    face_boxes = np.ascontiguousarray(
+        np.concatenate([corners.min(axis=1), corners.max(axis=1)], axis=1)[order]
     )
+    boxes, content = _build_hierarchy(face_boxes)
+    return MeshIndex(
+        face_order=order,
+        corners=np.ascontiguousarray(corners[order]),
+        face_normals=np.ascontiguousarray(face_normals[order]),
+        edge_normals=np.ascontiguousarray(edge_normals[order]),
+        vertex_normals=np.ascontiguousarray(vertex_normals[order]),
+        face_boxes=face_boxes,
+        boxes=boxes,
+        box_content=content,
+        grid=_grid(face_boxes),
+    )
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """Cells over the mesh's box, each listing the faces within ``band_mm`` of it (a
+    point in the cell whose nearest listed face is within ``band_mm`` has found its
+    nearest face of all)."""
+
+    origin_mm: np.ndarray  # (3,)
+    cell_mm: float
+    band_mm: float
+    shape: np.ndarray  # (3,) cells along x, y, z; zeros: no grid
+    complete: np.ndarray  # (C,) uint8: 1 where every face within the band is listed
+    start: np.ndarray  # (C + 1,) each cell's first entry
+    faces: np.ndarray  # (E,) int32 the listed faces
+
+
+def _grid(face_boxes: np.ndarray) -> _Grid:
+    """A grid whose cell is the faces' typical size (coarser where the mesh's box would
+    need more than ``GRID_MAX_CELLS``)."""
+    low, high = face_boxes[:, :3].min(axis=0), face_boxes[:, 3:].max(axis=0)
+    typical = float(np.median((face_boxes[:, 3:] - face_boxes[:, :3]).max(axis=1)))
+    extent = high - low
+    cell = max(
+        CELL_SHARE * typical, float(np.prod(extent + typical) / GRID_MAX_CELLS) ** (1 / 3), 1e-6
+    )
+    band = BAND_SHARE * cell
+    origin = low - band
+    shape = np.maximum(np.ceil((extent + 2 * band) / cell).astype(np.int64), 1)
+    complete, start, faces = _fill_grid(face_boxes, origin, cell, band, shape)
+    if faces is None:
+        shape, faces = np.zeros(3, dtype=np.int64), np.zeros(0, dtype=np.int32)
+    return _Grid(origin, cell, band, shape, complete, start, faces)
+
+
+def _fill_grid(
+    face_boxes: np.ndarray, origin: np.ndarray, cell: float, band: float, shape: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    complete = np.ones(int(np.prod(shape)), dtype=np.uint8)
+    counts = np.zeros(len(complete) + 1, dtype=np.int64)
+    _count_grid(face_boxes, origin, cell, band * 1.001, shape, complete, counts)
+    if counts.sum() > GRID_MAX_ENTRIES:
+        return complete, np.zeros(1, dtype=np.int64), None
+    start = np.concatenate([[0], np.cumsum(counts[:-1])])
+    faces = np.empty(start[-1], dtype=np.int32)
+    _list_grid(face_boxes, origin, cell, band * 1.001, shape, start.copy(), faces)
+    return complete, start, faces
 
 
 def _corner_angles(corners: np.ndarray) -> np.ndarray:
@@ -122,91 +224,277 @@ def _corner_angles(corners: np.ndarray) -> np.ndarray:
     return angles
 
 
-def _block(prepared: _Prepared, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The signed distances, closest points and faces of one block of points."""
-    count = len(prepared.corners)
-    distance = np.full(len(points), np.inf)
-    closest = np.empty((len(points), 3))
-    face = np.empty(len(points), dtype=np.int64)
-    region = np.empty(len(points), dtype=np.int8)
-    open_points = np.arange(len(points))
-    k = min(FIRST_CANDIDATES, count)
-    while len(open_points):
-        reached, candidates = prepared.centroids.query(points[open_points], k=k)
-        reached, candidates = (
-            reached.reshape(len(open_points), -1),
-            candidates.reshape(len(open_points), -1),
-        )
-        p = points[open_points]
-        near, where = closest_on_triangles(
-            np.repeat(p, k, axis=0), prepared.corners[candidates.ravel()]
-        )
-        near = near.reshape(len(p), k, 3)
-        squared = np.einsum("ijk,ijk->ij", near - p[:, None, :], near - p[:, None, :])
-        squared[~np.isfinite(squared)] = np.inf  # a degenerate face's inside: none
-        best = np.argmin(squared, axis=1)
-        rows = np.arange(len(p))
-        distance[open_points] = np.sqrt(squared[rows, best])
-        closest[open_points] = near[rows, best]
-        face[open_points] = candidates[rows, best]
-        region[open_points] = where.reshape(len(p), k)[rows, best]
-        certain = (k == count) | (reached[:, -1] >= distance[open_points] + prepared.reach_mm)
-        open_points = open_points[~certain]
-        k = min(2 * k, count)
-    normal = _pseudo_normal(prepared, face, region)
-    side = np.einsum("ij,ij->i", points - closest, normal)
-    return np.where(side < 0, -distance, distance), closest, face
+def _morton(points: np.ndarray) -> np.ndarray:
+    """Each point's place along a Z-order curve through its 1024³ cell of the points' box
+    (its three 10-bit cell indices' bits interleaved)."""
+    low, high = points.min(axis=0), points.max(axis=0)
+    cells = ((points - low) / np.maximum(high - low, 1e-300) * 1023).astype(np.uint64)
+    spread = cells & np.uint64(0x3FF)
+    for shift, mask in ((16, 0x30000FF), (8, 0x300F00F), (4, 0x30C30C3), (2, 0x9249249)):
+        spread = (spread | (spread << np.uint64(shift))) & np.uint64(mask)
+    return (spread[:, 0] << np.uint64(2)) | (spread[:, 1] << np.uint64(1)) | spread[:, 2]
 
 
-def _pseudo_normal(prepared: _Prepared, face: np.ndarray, region: np.ndarray) -> np.ndarray:
-    """The pseudo-normal at each closest point: region 0 the face, 1–3 a corner (a, b, c),
-    4–6 an edge (ab, bc, ca)."""
-    normal = prepared.face_normals[face].copy()
-    at_corner = (region >= 1) & (region <= 3)
-    normal[at_corner] = prepared.vertex_normals[face[at_corner], region[at_corner] - 1]
-    on_edge = region >= 4
-    normal[on_edge] = prepared.edge_normals[face[on_edge], region[on_edge] - 4]
-    return normal
+@njit(cache=True, nogil=True)
+def _build_hierarchy(face_boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes over the faces (in Z order), each range halved until a leaf holds
+    ``LEAF_FACES`` or fewer; a box's two children follow each other."""
+    count = face_boxes.shape[0]
+    most = 2 * count + 1  # a leaf holds at least one face
+    boxes = np.empty((most, 6))
+    content = np.zeros((most, 2), dtype=np.int64)
+    # (box, first, end) waiting to be split
+    pending = np.empty((most, 3), dtype=np.int64)
+    pending[0, 0], pending[0, 1], pending[0, 2] = 0, 0, count
+    waiting, made = 1, 1
+    while waiting > 0:
+        waiting -= 1
+        box, first, end = pending[waiting, 0], pending[waiting, 1], pending[waiting, 2]
+        for axis in range(3):
+            boxes[box, axis] = face_boxes[first:end, axis].min()
+            boxes[box, 3 + axis] = face_boxes[first:end, 3 + axis].max()
+        if end - first <= LEAF_FACES:
+            content[box, 0], content[box, 1] = first, end - first
+            continue
+        middle = (first + end) // 2
+        content[box, 0] = made
+        pending[waiting, 0], pending[waiting, 1], pending[waiting, 2] = made, first, middle
+        pending[waiting + 1, 0], pending[waiting + 1, 1] = made + 1, middle
+        pending[waiting + 1, 2] = end
+        waiting += 2
+        made += 2
+    return boxes[:made].copy(), content[:made].copy()
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cell_span(
+    face_boxes: np.ndarray,
+    f: int,
+    origin: np.ndarray,
+    cell: float,
+    band: float,
+    shape: np.ndarray,
+    span: np.ndarray,
+) -> int:
+    """The cells face ``f``'s box reaches within ``band`` into ``span`` (3, 2): first and
+    last along each axis; returns how many."""
+    total = 1
+    for axis in range(3):
+        first = int(np.floor((face_boxes[f, axis] - band - origin[axis]) / cell))
+        last = int(np.floor((face_boxes[f, 3 + axis] + band - origin[axis]) / cell))
+        span[axis, 0] = min(max(first, 0), shape[axis] - 1)
+        span[axis, 1] = min(max(last, 0), shape[axis] - 1)
+        total *= span[axis, 1] - span[axis, 0] + 1
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _count_grid(
+    face_boxes: np.ndarray,
+    origin: np.ndarray,
+    cell: float,
+    band: float,
+    shape: np.ndarray,
+    complete: np.ndarray,
+    counts: np.ndarray,
+) -> None:
+    span = np.empty((3, 2), dtype=np.int64)
+    for f in range(face_boxes.shape[0]):
+        many = _cell_span(face_boxes, f, origin, cell, band, shape, span) > GRID_CELLS_PER_FACE
+        for i in range(span[0, 0], span[0, 1] + 1):
+            for j in range(span[1, 0], span[1, 1] + 1):
+                for k in range(span[2, 0], span[2, 1] + 1):
+                    at = (i * shape[1] + j) * shape[2] + k
+                    if many:
+                        complete[at] = 0
+                    else:
+                        counts[at] += 1
+
+
+@njit(cache=True, nogil=True)
+def _list_grid(
+    face_boxes: np.ndarray,
+    origin: np.ndarray,
+    cell: float,
+    band: float,
+    shape: np.ndarray,
+    next_free: np.ndarray,
+    faces: np.ndarray,
+) -> None:
+    span = np.empty((3, 2), dtype=np.int64)
+    for f in range(face_boxes.shape[0]):
+        if _cell_span(face_boxes, f, origin, cell, band, shape, span) > GRID_CELLS_PER_FACE:
+            continue
+        for i in range(span[0, 0], span[0, 1] + 1):
+            for j in range(span[1, 0], span[1, 1] + 1):
+                for k in range(span[2, 0], span[2, 1] + 1):
+                    at = (i * shape[1] + j) * shape[2] + k
+                    faces[next_free[at]] = f
+                    next_free[at] += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _box_squared(point: np.ndarray, boxes: np.ndarray, box: int) -> float:
+    total = 0.0
+    for axis in range(3):
+        below = boxes[box, axis] - point[axis]
+        above = point[axis] - boxes[box, 3 + axis]
+        outside = max(below, above, 0.0)
+        total += outside * outside
+    return total
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _closest_on_triangle(p: np.ndarray, corners: np.ndarray, out: np.ndarray) -> int:
+    """The closest point on triangle ``corners`` (3, 3) to ``p`` into ``out`` (3,), and
+    where it lies: 0 the face's inside, 1–3 corner a, b or c, 4–6 edge ab, bc or ca
+    (Ericson 5.1.5, the Voronoi regions in his order)."""
+    a, b, c = corners[0], corners[1], corners[2]
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    if d1 <= 0.0 and d2 <= 0.0:
+        out[:] = a
+        return 1
+    bp0, bp1, bp2 = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    if d3 >= 0.0 and d4 <= d3:
+        out[:] = b
+        return 2
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        t = d1 / (d1 - d3)
+        out[0], out[1], out[2] = a[0] + t * ab0, a[1] + t * ab1, a[2] + t * ab2
+        return 4
+    cp0, cp1, cp2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    if d6 >= 0.0 and d5 <= d6:
+        out[:] = c
+        return 3
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        t = d2 / (d2 - d6)
+        out[0], out[1], out[2] = a[0] + t * ac0, a[1] + t * ac1, a[2] + t * ac2
+        return 6
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out[0], out[1], out[2] = (
+            b[0] + t * (c[0] - b[0]),
+            b[1] + t * (c[1] - b[1]),
+            b[2] + t * (c[2] - b[2]),
+        )
+        return 5
+    total = va + vb + vc
+    if total <= 0.0:  # a face without area that no edge test took: its first corner
+        out[:] = a
+        return 1
+    v, w = vb / total, vc / total
+    out[0], out[1], out[2] = (
+        a[0] + v * ab0 + w * ac0,
+        a[1] + v * ab1 + w * ac1,
+        a[2] + v * ab2 + w * ac2,
+    )
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def _nearest(points: np.ndarray, corners: np.ndarray, face_normals: np.ndarray, edge_normals: np.ndarray, vertex_normals: np.ndarray, face_boxes: np.ndarray, boxes: np.ndarray, content: np.ndarray, origin: np.ndarray, cell: float, band: float, shape: np.ndarray, complete: np.ndarray, start: np.ndarray, listed: np.ndarray, distance: np.ndarray, closest: np.ndarray, face: np.ndarray) -> None:  # fmt: skip
+    stack = np.empty(STACK_DEPTH, dtype=np.int64)
+    near = np.empty(3)
+    best_point = np.empty(3)
+    previous = 0
+    per_cell = 1.0 / cell
+    for i in range(points.shape[0]):
+        p = points[i]
+        # the grid's cell first: its faces hold the answer if one is within the band
+        at, inside = 0, shape[0] > 0
+        for axis in range(3):
+            c = int(np.floor((p[axis] - origin[axis]) * per_cell)) if inside else -1
+            inside = inside and 0 <= c < shape[axis]
+            at = at * shape[axis] + c
+        inside = inside and complete[at] == 1
+        # the face nearest to the point before: the first bound to beat
+        best_face, best_region = previous, _closest_on_triangle(p, corners[previous], best_point)
+        best = (p[0] - best_point[0]) ** 2 + (p[1] - best_point[1]) ** 2
+        best += (p[2] - best_point[2]) ** 2
+        answered = False
+        if inside:
+            for e in range(start[at], start[at + 1]):
+                f = listed[e]
+                if _box_squared(p, face_boxes, f) >= best:
+                    continue
+                where = _closest_on_triangle(p, corners[f], near)
+                squared = (p[0] - near[0]) ** 2 + (p[1] - near[1]) ** 2 + (p[2] - near[2]) ** 2
+                if squared < best:
+                    best, best_face, best_region = squared, f, where
+                    best_point[:] = near
+            answered = best <= band * band
+        stack[0], waiting = 0, 0 if answered else 1
+        while waiting > 0:
+            waiting -= 1
+            box = stack[waiting]
+            if _box_squared(p, boxes, box) >= best:
+                continue
+            if content[box, 1] > 0:
+                for f in range(content[box, 0], content[box, 0] + content[box, 1]):
+                    where = _closest_on_triangle(p, corners[f], near)
+                    squared = (p[0] - near[0]) ** 2 + (p[1] - near[1]) ** 2 + (p[2] - near[2]) ** 2
+                    if squared < best:
+                        best, best_face, best_region = squared, f, where
+                        best_point[:] = near
+                continue
+            left = content[box, 0]
+            right = left + 1
+            to_left, to_right = _box_squared(p, boxes, left), _box_squared(p, boxes, right)
+            # the nearer child on top, to be opened first
+            if to_left <= to_right:
+                if to_right < best:
+                    stack[waiting] = right
+                    waiting += 1
+                if to_left < best:
+                    stack[waiting] = left
+                    waiting += 1
+            else:
+                if to_left < best:
+                    stack[waiting] = left
+                    waiting += 1
+                if to_right < best:
+                    stack[waiting] = right
+                    waiting += 1
+        if best_region == 0:
+            normal = face_normals[best_face]
+        elif best_region <= 3:
+            normal = vertex_normals[best_face, best_region - 1]
+        else:
+            normal = edge_normals[best_face, best_region - 4]
+        side = (p[0] - best_point[0]) * normal[0] + (p[1] - best_point[1]) * normal[1]
+        side += (p[2] - best_point[2]) * normal[2]
+        root = np.sqrt(best)
+        distance[i] = -root if side < 0.0 else root
+        closest[i] = best_point
+        face[i] = best_face
+        previous = best_face
+
+
+@njit(cache=True, nogil=True)
+def _closest_each(
+    points: np.ndarray, corners: np.ndarray, closest: np.ndarray, region: np.ndarray
+) -> None:
+    for i in range(points.shape[0]):
+        region[i] = _closest_on_triangle(points[i], corners[i], closest[i])
 
 
 def closest_on_triangles(points: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each point (N, 3)'s closest point on its triangle (N, 3, 3) and where it lies: 0 the
-    face's inside, 1–3 corner a, b or c, 4–6 edge ab, bc or ca (Ericson 5.1.5, every
-    Voronoi region tested for all points at once)."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    ab, ac, ap = b - a, c - a, points - a
-    bp, cp = points - b, points - c
-
-    def dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return np.einsum("ij,ij->i", u, v)
-
-    d1, d2 = dot(ab, ap), dot(ac, ap)
-    d3, d4 = dot(ab, bp), dot(ac, bp)
-    d5, d6 = dot(ab, cp), dot(ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denominator = va + vb + vc
-        v_face = vb / denominator
-        w_face = vc / denominator
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    closest = a + v_face[:, None] * ab + w_face[:, None] * ac
-    region = np.zeros(len(points), dtype=np.int8)
-    # the tests in Ericson's order; a later one applies only where no earlier did
-    rules = (
-        ((d1 <= 0) & (d2 <= 0), a, 1),
-        ((d3 >= 0) & (d4 <= d3), b, 2),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + t_ab[:, None] * ab, 4),
-        ((d6 >= 0) & (d5 <= d6), c, 3),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + t_ac[:, None] * ac, 6),
-        ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), b + t_bc[:, None] * (c - b), 5),
-    )
-    decided = np.zeros(len(points), dtype=bool)
-    for test, point, code in rules:
-        chosen = test & ~decided
-        closest[chosen] = point[chosen]
-        region[chosen] = code
-        decided |= chosen
+    face's inside, 1–3 corner a, b or c, 4–6 edge ab, bc or ca."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    corners = np.ascontiguousarray(corners, dtype=np.float64)
+    closest = np.empty_like(points)
+    region = np.empty(len(points), dtype=np.int8)
+    _closest_each(points, corners, closest, region)
     return closest, region
