@@ -32,7 +32,7 @@ COPY contract ./contract
 COPY supervisor ./supervisor
 COPY services ./services
 COPY migrations ./migrations
-RUN pip install -e .
+RUN pip install -e ".[cad]"
 
 # Non-root user; its data folder holds the artifact volume mount point, created here so
 # a fresh named volume takes this ownership.

@@ -49,7 +49,7 @@ $(STAMP_RUN): pyproject.toml clients/python/pyproject.toml | $(VENV)/bin/activat
 	@ldconfig -p | grep -q 'libusb-1.0.so.0' || \
 	  { echo "installing Debian package libusb-1.0-0 (for open3d)"; \
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0; }
-	$(PY) -m pip install -q -e . -e clients/python
+	$(PY) -m pip install -q -e ".[cad]" -e clients/python
 	$(VISTA) precompile
 	@touch $@
 

@@ -142,6 +142,19 @@ class ColorMeasurements(SurfaceMeasurements):
     area_mm2: float | None = None
 
 
+class DeviationMeasurements(FindingMeasurements):
+    """An area of the surface off its nominal beyond the profile band: ``value`` is its
+    peak signed deviation (positive: outside the nominal's material)."""
+
+    region: str | None = Field(None, description="The nominal's region it lies in.")
+    mean_mm: float | None = Field(None, description="Mean deviation over its area.")
+    area_mm2: float | None = None
+    points: int | None = Field(None, description="Scan points in it.")
+    band_mm: tuple[float, float] | None = Field(
+        None, description="The profile band (min, max) it was judged against."
+    )
+
+
 MEASUREMENTS: dict[DefectType, type[FindingMeasurements]] = {
     "gap": SeamMeasurements,
     "step": SeamMeasurements,
@@ -151,6 +164,7 @@ MEASUREMENTS: dict[DefectType, type[FindingMeasurements]] = {
     "bump": DentMeasurements,
     "scratch": ScratchMeasurements,
     "color": ColorMeasurements,
+    "deviation": DeviationMeasurements,
 }
 """Each finding type's measurements."""
 

@@ -29,6 +29,16 @@ class Limits:
     """Also the limit for bumps (their height)."""
     scratch_depth_mm: float = 0.1
     color_delta_e: float = 3.0
+    profile_min_mm: float = -0.5
+    profile_max_mm: float = 0.5
+    """A surface's deviation from its nominal must lie in [min, max]."""
+    profile_regions: tuple[tuple[str, float, float], ...] = ()
+    """Regions of the nominal with their own (name, min, max)."""
+
+    def profile_band(self, region: str | None) -> tuple[float, float]:
+        """(min, max) deviation accepted in ``region`` (the part's band where it has none)."""
+        own = {name: (low, high) for name, low, high in self.profile_regions}
+        return own.get(region or "", (self.profile_min_mm, self.profile_max_mm))
 
 
 class _Strict(BaseModel):
@@ -65,6 +75,31 @@ class SurfaceTolerances(_Strict):
     )
 
 
+class ProfileMm(_Strict):
+    """A surface-profile band: ``{"max": m}`` is ±m, ``{"min": a, "max": b}`` is [a, b]
+    (a ≤ 0 ≤ b: the nominal itself is in tolerance)."""
+
+    min: float | None = Field(None, ge=-TOLERANCE_MAX_MM, le=0)
+    max: float = Field(..., ge=0, le=TOLERANCE_MAX_MM)
+
+    @model_validator(mode="after")
+    def _wide(self) -> ProfileMm:
+        if (-self.max if self.min is None else self.min) >= self.max:
+            raise ValueError("a profile band must be wider than nothing: min < max")
+        return self
+
+    def band(self) -> tuple[float, float]:
+        return (-self.max if self.min is None else self.min), self.max
+
+
+class ProfileTolerances(ProfileMm):
+    """The part's profile band, and regions of its nominal (named in the file: STL solids,
+    OBJ groups, glTF meshes, STEP faces) with their own."""
+
+    max: float = Field(Limits.profile_max_mm, ge=0, le=TOLERANCE_MAX_MM)
+    regions: dict[str, ProfileMm] | None = None
+
+
 class Tolerances(_Strict):
     """Acceptance limits; a measurement outside them becomes a defect."""
 
@@ -73,6 +108,7 @@ class Tolerances(_Strict):
     parallelism_mm: LimitMm | None = None
     mismatch_mm: LimitMm | None = None
     surface: SurfaceTolerances | None = None
+    profile_mm: ProfileTolerances | None = None
 
 
 FIELDS: dict[tuple[str, str], tuple[str, str, str]] = {
@@ -85,6 +121,8 @@ FIELDS: dict[tuple[str, str], tuple[str, str, str]] = {
     ("bump", "max"): ("surface", "dent_depth_mm", "dent_depth_mm"),
     ("scratch", "max"): ("surface", "scratch_depth_mm", "scratch_depth_mm"),
     ("color", "max"): ("surface", "color_delta_e", "color_delta_e"),
+    ("deviation", "min"): ("profile_mm", "min", "profile_min_mm"),
+    ("deviation", "max"): ("profile_mm", "max", "profile_max_mm"),
 }
 """(finding type, "min" or "max") → (section, key) in the document, field of ``Limits``."""
 
@@ -102,6 +140,11 @@ def limits_of(tolerances: Tolerances) -> Limits:
         for section, key, field in FIELDS.values()
         if key in document.get(section, {})
     }
+    profile = tolerances.profile_mm
+    if profile is not None:
+        low, high = profile.band()
+        regions = tuple((name, *band.band()) for name, band in (profile.regions or {}).items())
+        given |= {"profile_min_mm": low, "profile_max_mm": high, "profile_regions": regions}
     return replace(Limits(), **given)
 
 
@@ -133,6 +176,10 @@ def tolerances_of(limits: Limits) -> Tolerances:
     document: dict = {}
     for section, key, field in FIELDS.values():
         document.setdefault(section, {})[key] = getattr(limits, field)
+    if limits.profile_regions:
+        document["profile_mm"]["regions"] = {
+            name: {"min": low, "max": high} for name, low, high in limits.profile_regions
+        }
     return Tolerances.model_validate(document)
 
 
@@ -215,13 +262,24 @@ def judge(
     limits: Limits,
     gap_range_mm: tuple[float, float] | None = None,
     sigma_mm: float | None = None,
+    region: str | None = None,
 ) -> Judged | None:
     """A stored finding judged against ``limits`` as ``measure`` judges it: a step by its
     size either way, a gap by the range of its seam's gaps (``gap_range_mm``: the narrowest
     and the widest) — the widest against the maximum unless only the narrowest is out —
     anything else against its upper limit; with its 1σ ``sigma_mm``, its
-    ``tolerance_state`` too. None for a gap stored without its range: it cannot be judged
+    ``tolerance_state`` too. A deviation (signed) against its ``region``'s profile band,
+    the side it lies on. None for a gap stored without its range: it cannot be judged
     again without measuring."""
+    if finding_type == "deviation":
+        low, high = limits.profile_band(region)
+        limit, above = (high, True) if value >= 0 else (low, False)
+        return Judged(
+            value,
+            limit,
+            severity(abs(value), abs(limit), above=True),
+            tolerance_state(value, limit, sigma_mm, above=above),
+        )
     if finding_type == "gap":
         if gap_range_mm is None:
             return None
@@ -249,6 +307,8 @@ def limit_text(finding_type: str, limits: Limits) -> str:
     both ends of a gap's range, a step's size either way, the others' upper limit."""
     if finding_type == "gap":
         return f"{limits.gap_min_mm:.2f}–{limits.gap_max_mm:.2f} mm"
+    if finding_type == "deviation":
+        return f"{limits.profile_min_mm:+.2f} … {limits.profile_max_mm:+.2f} mm"
     limit = upper_limit(limits, finding_type)
     if finding_type == "color":
         return f"≤ {limit:.1f} ΔE"

@@ -7,7 +7,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Literal, get_args
 
-DefectType = Literal["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"]
+DefectType = Literal[
+    "gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color", "deviation"
+]
 Severity = Literal["info", "minor", "major", "critical"]
 """``info``: a measurement within tolerance (a seam), kept for review."""
 DeviceChoice = Literal["auto", "cpu", "cuda"]

@@ -296,7 +296,7 @@ def test_dockerfile() -> None:
     assert any(re.search(rf"pip install\b.*\b{re.escape(TORCH_PIN)}(\s|$)", r) for r in runs), (
         f"the Dockerfile must pip install {TORCH_PIN}"
     )
-    assert any(re.search(r"pip install\b.*-e \.", r) for r in runs), "missing `pip install -e .`"
+    assert any(re.search(r"pip install\b.*-e \"?\.", r) for r in runs), "missing `pip install -e .`"
     user = (by_name.get("USER") or ["root"])[-1]
     assert user not in ("root", "0"), "the image must run as a non-root user"
     copied = set()

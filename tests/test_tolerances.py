@@ -67,6 +67,7 @@ def test_a_patch_of_one_limit_keeps_the_others(client, tokens) -> None:
         "parallelism_mm": None,
         "mismatch_mm": None,
         "surface": None,
+        "profile_mm": None,
     }
 
 

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 import typer
 
 from contract.cli import alias, fail, params_options, progress_bar
-from contract.tolerances import finding_line
-from services.defects.kinds import MeasureParams, MeasureSettings
+from contract.tolerances import Tolerances, finding_line
+from services.defects.kinds import CompareParams, MeasureParams, MeasureSettings
 from services.lib.wording import counted
 
 if TYPE_CHECKING:
@@ -87,6 +87,134 @@ def measure(
     typer.echo(f"wrote {out}")
     if true is not None:
         typer.echo("\n".join(_truth_lines(document["truth_evaluation"], out)))
+
+
+def _reference_points(path: str) -> dict:
+    """POINTS.json: {"nominal": {name: [x, y, z]}, "scan": {name: [x, y, z]}} in mm."""
+    from services.lib.archive import read_json
+
+    return read_json(Path(path))
+
+
+POINTS_HELP = (
+    'POINTS.json for --align points: {"nominal": {name: [x, y, z]}, "scan": {name: '
+    "[x, y, z]}} in mm — the nominal's reference points and the same points picked on the "
+    "scan (3-2-1 / RPS; at least three)."
+)
+
+
+@params_options(CompareParams, text={"reference_points": (POINTS_HELP, _reference_points)})
+def compare(
+    cloud: Path = typer.Argument(
+        ..., help="The scan: PLY (mm), or PCD, LAS/LAZ, E57, XYZ/ASC, PTS in their units."
+    ),
+    nominal: Path = typer.Argument(
+        ...,
+        help="The part's nominal: STL (binary or ASCII), OBJ, PLY mesh, glTF/GLB (metres) "
+        "or STEP (tessellated to 0.01 mm).",
+    ),
+    config: Path = typer.Option(
+        None,
+        "--config",
+        help='CONFIG.json: the tolerances, as for `measure`, with profile_mm ({"max": m} '
+        'for ±m, {"min": a, "max": b}, and "regions": {name: {…}} for regions of '
+        "the nominal); default ±0.5 mm.",
+    ),
+    out: Path = typer.Option(
+        ...,
+        "-o",
+        "--out",
+        help="RESULT.json to write; beside it RESULT.ply (the aligned cloud coloured by "
+        "deviation, its scalar field `deviation`), RESULT.regions.csv and RESULT.png "
+        "(the histogram).",
+    ),
+    threads: int = typer.Option(
+        None, min=1, max=256, help="Threads to compare on (default: one per available core)."
+    ),
+    *,
+    params: CompareParams,
+) -> None:
+    """Compare a scan with its part's nominal (CAD): align it (given, best fit or
+    reference points), measure each point's signed deviation, and report every region's
+    statistics and coverage and every area beyond the profile band."""
+    from services.defects.compare import CompareError, compare_cloud
+    from services.defects.config import config_parts
+    from services.lib.archive import read_json
+    from services.lib.process import available_cores, prepare_process
+
+    prepare_process()
+    try:
+        tolerances = (
+            Tolerances() if config is None else config_parts(read_json(config), str(config))[0]
+        )
+    except ValueError as exc:
+        fail(str(exc))
+    with progress_bar("comparing") as step:
+        try:
+            compared = compare_cloud(
+                cloud, nominal, tolerances, params, threads=threads or available_cores(),
+                progress=step,
+            )  # fmt: skip
+        except (CompareError, OSError) as exc:
+            fail(str(exc))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(compared.document, indent=1) + "\n")
+    written = [
+        out,
+        out.with_suffix(".ply"),
+        out.with_suffix(".regions.csv"),
+        out.with_suffix(".png"),
+    ]
+    compared.write_cloud(written[1])
+    written[2].write_text(compared.region_table())
+    compared.write_histogram(written[3])
+    _echo_comparison(compared.document)
+    for path in written:
+        typer.echo(f"wrote {path}")
+
+
+def _echo_comparison(document: dict) -> None:
+    """RESULT.json in lines: the alignment, each region, the findings."""
+    alignment = document["alignment"]
+    sigma = alignment["pose_sigma"]
+    typer.echo(
+        f"{document['points']} points (spacing {document['spacing_mm']:.3f} mm, "
+        f"{document['strays']} strays) against {document['nominal']['triangles']} triangles "
+        f"in {sum(document['seconds'].values()):.2f} s"
+    )
+    typer.echo(
+        f"aligned ({alignment['method']}): residual rms {alignment['residual_rms_mm']:.4f} mm, "
+        f"robust σ {alignment['residual_robust_mm']:.4f} mm; moved "
+        f"{alignment['moved_mm']:.3f} mm, turned {alignment['turned_deg']:.4f}°; pose 1σ "
+        + ", ".join(f"{k} {v:.2g}" for k, v in sigma.items())
+    )
+    for warning in alignment["warnings"]:
+        typer.echo(f"WARNING: {warning}")
+    band = document["profile_band_mm"]
+    for region in document["regions"]:
+        if not region["points"]:
+            typer.echo(
+                f"  {region['region']}: not scanned (coverage {region['coverage_share']:.0%})"
+            )
+            continue
+        typer.echo(
+            f"  {region['region']}: {region['points']} points, mean {region['mean_mm']:+.3f}, "
+            f"σ {region['sigma_mm']:.3f}, {region['min_mm']:+.3f} … {region['max_mm']:+.3f} mm; "
+            f"{region['within_share']:.1%} within {region['band_mm'][0]:+.2f} … "
+            f"{region['band_mm'][1]:+.2f}; covered {region['coverage_share']:.0%}"
+        )
+    found = document["defects"]
+    typer.echo(
+        f"{counted(len(found), 'deviation')} out of the profile band ({band[0]:+.2f} … "
+        f"{band[1]:+.2f} mm by default)" + (":" if found else ".")
+    )
+    for finding in found + document["uncertain"]:
+        state = " UNCERTAIN" if finding["tolerance_state"] == "uncertain" else ""
+        typer.echo(
+            f"  {finding['region']}: peak {finding['value']:+.3f} mm at "
+            f"{[round(v, 1) for v in finding['location']]}, mean {finding['mean_mm']:+.3f} mm "
+            f"over {finding['area_mm2']:.0f} mm² — {finding['severity']}{state}"
+        )
 
 
 def _typed(ctx: typer.Context, names: Iterable[str]) -> set[str]:
@@ -332,7 +460,12 @@ def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer
         help="Gaps, steps, parallelism, mismatch and surface defects of a stitched cloud.",
         no_args_is_help=True,
     )
-    verbs = {"measure": measure, "simulate": simulate_defects, "bench": bench_defects}
+    verbs = {
+        "measure": measure,
+        "compare": compare,
+        "simulate": simulate_defects,
+        "bench": bench_defects,
+    }
     for verb, command in verbs.items():
         defects_app.command(verb)(command)
     app.add_typer(defects_app, name="defects")

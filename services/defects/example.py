@@ -17,15 +17,19 @@ import numpy as np
 from contract.vocabulary import Say
 from services.defects.config import MeasureConfig, config_document
 from services.defects.simulate import (
+    Assembly,
     AssemblyScans,
     AssemblySpec,
+    assembly_mesh,
     random_assembly,
     scan_assembly,
 )
 from services.defects.truth import truth_of
+from services.lib.pointcloud.mesh_distance import TriangleMesh
 from services.lib.pointcloud.ply import PointCloud, write_ply
 from services.lib.pointcloud.scan_sim import SensorModel
-from services.lib.pointcloud.transforms import invert, make_transform, perturb, to_json
+from services.lib.pointcloud.stl import write_stl
+from services.lib.pointcloud.transforms import apply, invert, make_transform, perturb, to_json
 from services.stitching.calibration_sim import simulate_calibration
 from services.stitching.example import calibration_truth, write_session
 from services.stitching.stitch import StitchConfig, stitch
@@ -94,6 +98,7 @@ def write_defects_example(
         **truth_of(assembly, BASE_T_PART).document(),
     }
     (out_dir / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    write_assembly_nominal(out_dir / "nominal.stl", assembly)
     (out_dir / "config.json").write_text(
         json.dumps(config_document(MeasureConfig()), indent=1) + "\n"
     )
@@ -105,6 +110,21 @@ def write_defects_example(
         len(truth["defects"]),
         len(merged.points),
     )
+
+
+def write_assembly_nominal(path: Path, assembly: Assembly) -> None:
+    """The assembly's nominal as an ASCII STL in the base frame (the merged cloud's): one
+    solid per panel (``panel N``) and the backing; its dents, scratches and colour patches
+    are what a comparison finds."""
+    mesh, owner = assembly_mesh(assembly)
+    names = tuple(f"panel {p.id}" for p in assembly.panels) + ("backing",)
+    region = np.where(owner < 0, len(assembly.panels), owner)
+    vertices = apply(BASE_T_PART, mesh.vertices)
+    # the scan simulator's faces are wound the other way (its ray caster ignores which
+    # side they face): a nominal's normals point out of the material
+    faces = np.asarray(mesh.faces)[:, ::-1]
+    write_stl(path, TriangleMesh(vertices, faces), binary=False, region_of_face=region,
+              regions=names)  # fmt: skip
 
 
 def write_demo_assembly(out_dir: Path, *, spacing_mm: float, seed: int, say: Say) -> DefectsExample:

@@ -3,11 +3,23 @@ the profile plot and the defects out."""
 
 from __future__ import annotations
 
-from contract.context import JobContext, NewDefect, input_error, one_input
-from services.defects.kinds import PROFILES, RESULT
+import numpy as np
+
+from contract.context import (
+    JobContext,
+    JobInputError,
+    NewDefect,
+    in_user_words,
+    input_error,
+    one_input,
+)
+from contract.findings import DeviationMeasurements, stored
+from services.defects.compare import CompareError, compare_cloud
+from services.defects.kinds import COMPARISON, DEVIATION_CLOUD, HISTOGRAM, PROFILES, RESULT
 from services.defects.measure import Finding, MeasureError, MeasureResult, SeamResult
 from services.defects.report import finding_document
 from services.defects.run import Measured, measure_cloud
+from services.lib.pointcloud.ply import PLY_MEDIA_TYPE
 from services.lib.wording import counted
 
 
@@ -127,3 +139,87 @@ def _warning(unmeasured: list[SeamResult], seams: int, panels: int) -> str | Non
     )
     reasons = "; ".join(f"{_seam_name(s)}: {s.unmeasured}" for s in unmeasured)
     return f"{head}, so their gap, parallelism and mismatch are not judged — {reasons}"
+
+
+def compare_job(ctx: JobContext) -> dict:
+    """``defects.compare``: the cloud against the nominal; the comparison, the deviation
+    cloud and histogram stored, each area beyond the profile band a `deviation` finding."""
+    cloud = one_input(ctx, "cloud", "the scan")
+    nominal = one_input(ctx, "nominal", "the part's nominal model")
+    ctx.progress(0.02, f"reading {cloud.name} and {nominal.name}")
+    try:
+        compared = compare_cloud(
+            cloud.path,
+            nominal.path,
+            ctx.tolerances,
+            ctx.params,
+            threads=ctx.threads,
+            progress=lambda fraction, message: ctx.progress(0.05 + 0.85 * fraction, message),
+        )
+    except CompareError as exc:
+        raise JobInputError(in_user_words(str(exc), ctx, [cloud, nominal])) from exc
+    ctx.progress(0.92, "storing results")
+    document = compared.document
+    ctx.add_artifact_json(document, kind=COMPARISON.kind, name=COMPARISON.file_name())
+    for output, write, media_type in (
+        (DEVIATION_CLOUD, compared.write_cloud, PLY_MEDIA_TYPE),
+        (HISTOGRAM, compared.write_histogram, "image/png"),
+    ):
+        path = ctx.workdir / output.file_name()
+        write(path)
+        ctx.add_artifact_file(path, kind=output.kind, name=path.name, media_type=media_type)
+    for finding in compared.deviation.findings:
+        ctx.add_defect(_deviation_defect(finding.document(), compared.alignment.residual_robust_mm))
+    alignment = document["alignment"]
+    for warning in alignment["warnings"]:
+        ctx.progress(0.97, f"alignment: {warning}")
+    found = document["defects"]
+    ctx.progress(
+        1.0,
+        f"{counted(len(found), 'deviation')} beyond the profile band, "
+        f"{len(document['uncertain'])} uncertain; aligned ({alignment['method']}) with "
+        f"residual {alignment['residual_robust_mm']:.4f} mm",
+    )
+    aligned = compared.aligned_mm
+    return {
+        **({"warning": "; ".join(alignment["warnings"])} if alignment["warnings"] else {}),
+        "points": document["points"],
+        "alignment": alignment["method"],
+        "residual_mm": alignment["residual_robust_mm"],
+        "defects": len(found),
+        "uncertain": len(document["uncertain"]),
+        "regions": len(document["regions"]),
+        "seconds": round(sum(document["seconds"].values()), 3),
+        "cloud_bounds_mm": [
+            np.round(aligned.min(axis=0), 2).tolist(),
+            np.round(aligned.max(axis=0), 2).tolist(),
+        ],
+    }
+
+
+def _deviation_defect(document: dict, sigma_mm: float) -> NewDefect:
+    """A `deviation` finding as the job reports it (its measurements typed by
+    ``contract.findings.DeviationMeasurements``)."""
+    measurements = DeviationMeasurements(
+        value=document["value"],
+        unit="mm",
+        tolerance=document["tolerance"],
+        tolerance_state=document["tolerance_state"],
+        sigma_mm=round(sigma_mm, 5),
+        region=document["region"],
+        mean_mm=document["mean_mm"],
+        area_mm2=document["area_mm2"],
+        points=document["points"],
+        band_mm=tuple(document["band_mm"]),
+    )
+    return NewDefect(
+        type="deviation",
+        location_mm=tuple(document["location"]),
+        normal=tuple(document["normal"]),
+        value_mm=document["value"],
+        tolerance_mm=document["tolerance"],
+        extent_mm=document["extent_mm"],
+        severity=document["severity"],
+        confidence=1.0 if document["tolerance_state"] == "out" else 0.5,
+        measurements=stored(measurements),
+    )

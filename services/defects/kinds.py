@@ -1,8 +1,10 @@
-"""Job kind of the defects service (imported by the API: keep it light)."""
+"""Job kinds of the defects service (imported by the API: keep it light)."""
+
+from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contract.artifacts import ArtifactKind
 from contract.kinds import Inputs, JobKind, Output, Presentation, Presenter
@@ -61,6 +63,55 @@ class MeasureParams(MeasureSettings):
     )
 
 
+AlignMethod = Literal["given", "best-fit", "points"]
+Point = tuple[float, float, float]
+
+
+class ReferencePoints(BaseModel):
+    """Named points of the nominal and the same points picked on the scan (mm), for a
+    3-2-1 / RPS alignment."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    nominal: dict[str, Point] = Field(..., min_length=3, description="On the nominal.")
+    scan: dict[str, Point] = Field(..., min_length=3, description="Picked on the scan.")
+
+
+class CompareParams(BaseModel):
+    """How a scan is compared with its nominal (the tolerances: the inspection's, with
+    ``profile_mm``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    align: AlignMethod = Field(
+        "best-fit",
+        description="given: the cloud is in the part's frame already; best-fit: robust "
+        "point-to-plane ICP onto the nominal; points: reference points (3-2-1 / RPS).",
+    )
+    start: Literal["as-is", "principal-axes"] = Field(
+        "as-is",
+        description="Where a best fit starts: the cloud as it lies (a robot cell's or a "
+        "fixture's rough pose), or its principal axes matched to the nominal's (a cloud "
+        "in a scanner's own frame; a nearly symmetric part is then ambiguous).",
+    )
+    reference_points: ReferencePoints | None = Field(
+        None, description="For align=points: the named points on the nominal and the scan."
+    )
+    color_scale_mm: float | None = Field(
+        None,
+        gt=0,
+        le=100,
+        description="Half-width of the deviation colour bar (default: the profile band's "
+        "wider side).",
+    )
+
+    @model_validator(mode="after")
+    def _points_given(self) -> CompareParams:
+        if self.align == "points" and self.reference_points is None:
+            raise ValueError("align=points needs reference_points")
+        return self
+
+
 RESULT = Output("report", "defects.json")
 PROFILES = Output("plot", "seam-profiles.png")
 
@@ -86,16 +137,41 @@ MEASURE = JobKind(
     ),
 )
 
-KINDS = (MEASURE,)
+COMPARISON = Output("report", "comparison.json")
+DEVIATION_CLOUD = Output("cloud", "deviation.ply")
+HISTOGRAM = Output("plot", "deviation-histogram.png")
+
+COMPARE = JobKind(
+    name="defects.compare",
+    queue="defects",
+    handler="services.defects.jobs:compare_job",
+    params=CompareParams,
+    description=(
+        "A scan against its part's nominal (CAD): the `cloud` aligned to the `nominal` "
+        "(given, best fit or reference points, with its residual and pose σ), each point's "
+        "signed deviation, per region its statistics and coverage, and every area beyond "
+        "the inspection's profile band (`profile_mm`) a `deviation` finding. Writes the "
+        "result (as `vista defects compare`'s RESULT.json), the aligned cloud coloured "
+        "by deviation (with the deviation as a scalar field) and the histogram."
+    ),
+    inputs=(
+        Inputs(("cloud",), "the scan", made_by=("stitching.stitch",)),
+        Inputs(("nominal",), "the part's nominal model"),
+    ),
+    outputs=(COMPARISON, DEVIATION_CLOUD, HISTOGRAM),
+)
+
+KINDS = (MEASURE, COMPARE)
 ARTIFACT_KINDS = (
     ArtifactKind(
         "mesh", "Nominal panel surfaces as a PLY triangle mesh.", f"{FORMATS}:inspect_mesh"
     ),
     ArtifactKind(
         "nominal",
-        "A part's nominal (CAD) surface as a triangle mesh: an STL, binary or ASCII, in mm "
-        "(or scaled to mm from `units`); whether it is closed and consistently oriented is "
-        "reported, not required.",
+        "A part's nominal (CAD) model: STL (binary or ASCII), OBJ, PLY mesh, glTF/GLB or "
+        "STEP (tessellated to 0.01 mm), in mm unless the file says otherwise (glTF: metres) "
+        "or `units` does; its regions (STL solids, OBJ groups, glTF meshes, STEP faces) "
+        "kept; whether it is closed and consistently oriented is reported, not required.",
         f"{FORMATS}:inspect_nominal",
     ),
 )

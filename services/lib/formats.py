@@ -104,31 +104,50 @@ def inspect_mesh(path: Path, media_type: str) -> Inspected:
 
 
 STL_MEDIA_TYPE = "model/stl"
+NOMINAL_MEDIA_TYPES = {
+    "stl": STL_MEDIA_TYPE,
+    "obj": "model/obj",
+    "ply": PLY_MEDIA_TYPE,
+    "gltf": "model/gltf+json",
+    "glb": GLB_MEDIA_TYPE,
+    "step": "model/step",
+}
+MAX_LISTED_REGIONS = 200
+"""A nominal's regions named in its metadata (a STEP may have thousands of faces)."""
 
 
 def inspect_nominal(path: Path, media_type: str, units: str | None = None) -> Inspected:
-    """A part's nominal model: an STL (binary or ASCII) read as a comparison will read it,
-    its closure, orientation, border, area and bounds reported (a nominal need not be
-    closed); in millimetres, or scaled to them from ``units`` (a scaled copy is kept)."""
-    from services.lib.pointcloud.mesh_distance import TriangleMesh
+    """A part's nominal model read as a comparison will read it (STL, OBJ, PLY mesh,
+    glTF/GLB, STEP), its regions, closure, orientation, border, area and bounds reported (a
+    nominal need not be closed); in millimetres: a file in other units (``units``, or a
+    glTF's metres) is kept as an STL in mm beside it, its regions as its solids."""
+    from services.lib.pointcloud.nominal import NominalError, read_nominal
     from services.lib.pointcloud.scanner import UNITS_MM
-    from services.lib.pointcloud.stl import StlError, mesh_report, read_stl, write_stl
+    from services.lib.pointcloud.stl import mesh_report, write_stl
 
     try:
-        mesh = read_stl(path)
-    except StlError as exc:
+        nominal = read_nominal(path, None if units is None else UNITS_MM[units])
+    except (NominalError, OSError) as exc:
         raise ArtifactRefused(
-            f"is not a nominal model vista reads (an STL, binary or ASCII): {text_of(exc)}"
+            "is not a nominal model vista reads (STL, OBJ, PLY mesh, glTF/GLB or STEP): "
+            f"{text_of(exc)}"
         ) from exc
-    scale = UNITS_MM[units or "mm"]
-    replacement = None
-    if scale != 1.0:
-        mesh = TriangleMesh(mesh.vertices_mm * scale, mesh.faces)
-        replacement = path.with_name(path.name + ".mm.stl")
-        write_stl(replacement, mesh)
-    report = asdict(mesh_report(mesh))
-    meta = {"format": "stl", "units": "mm", "source_units": units or "mm", **report}
-    return Inspected(STL_MEDIA_TYPE, {"nominal": meta}, replacement)
+    replacement, stored_type = None, NOMINAL_MEDIA_TYPES[nominal.format]
+    if nominal.scale_to_mm != 1.0 or nominal.format in ("gltf", "glb"):
+        replacement, stored_type = path.with_name(path.name + ".mm.stl"), STL_MEDIA_TYPE
+        several = len(nominal.regions) > 1
+        write_stl(replacement, nominal.mesh, binary=not several,
+                  region_of_face=nominal.region_of_face, regions=nominal.regions)  # fmt: skip
+    report = asdict(mesh_report(nominal.mesh))
+    meta = {
+        "format": nominal.format,
+        "units": "mm",
+        "source_units": units or ("m" if nominal.format in ("gltf", "glb") else "mm"),
+        "regions": list(nominal.regions[:MAX_LISTED_REGIONS]),
+        "region_count": len(nominal.regions),
+        **report,
+    }
+    return Inspected(stored_type, {"nominal": meta}, replacement)
 
 
 def inspect_json(path: Path, media_type: str) -> Inspected:

@@ -13,6 +13,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from contract.findings import (
+    DeviationMeasurements,
     FindingMeasurements,
     SeamMeasurements,
     measurements_of,
@@ -47,7 +48,8 @@ def _rejudged(defect: Defect, limits: Limits) -> bool:
     if value is None:
         return False
     gap_range = found.gap_range_mm if isinstance(found, SeamMeasurements) else None
-    judged = judge(defect.type, value, limits, gap_range, found.sigma_mm)
+    region = found.region if isinstance(found, DeviationMeasurements) else None
+    judged = judge(defect.type, value, limits, gap_range, found.sigma_mm, region)
     if judged is None:
         if found.stale == STALE:
             return False

@@ -67,6 +67,7 @@ TYPE_COLORS = {
     "dent": "#3cb44b",
     "bump": "#9a6324",
     "color": "#f032e6",
+    "deviation": "#42d4f4",
 }
 """One distinct colour per type (the dashboard's legend uses the same ones)."""
 PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)

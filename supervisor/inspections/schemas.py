@@ -165,7 +165,10 @@ class InspectionOut(BaseModel):
     )
     @property
     def limits(self) -> dict[str, float]:
-        return asdict(limits_of(self.tolerances))
+        # a region's own profile band is read from `tolerances.profile_mm.regions`
+        flat = asdict(limits_of(self.tolerances))
+        del flat["profile_regions"]
+        return flat
 
 
 class TrashedInspectionOut(InspectionOut):

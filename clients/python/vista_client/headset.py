@@ -33,7 +33,9 @@ from vista_client.client import VistaClient, VistaError
 
 BATCH = 1000
 VERDICTS = ("confirmed", "rejected", "reclassified", "uncertain")
-DEFECT_TYPES = ("gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color")
+DEFECT_TYPES = (
+    "gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color", "deviation"
+)  # fmt: skip
 MAX_COMMENT_CHARS = 4000
 
 

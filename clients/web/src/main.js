@@ -7,11 +7,13 @@ import { showJob } from "./runpage.js";
 import { SceneView } from "./scene.js";
 import { ToleranceForm } from "./tolerances.js";
 
-const TYPES = ["gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color"];
+const TYPES = [
+  "gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color", "deviation",
+];
 // One distinct colour per type: the scene's rings use the same (supervisor/exports/scene.py).
 const TYPE_COLORS = {
   gap: "#e6194b", step: "#f58231", parallelism: "#ffe119", mismatch: "#911eb4",
-  scratch: "#4363d8", dent: "#3cb44b", bump: "#9a6324", color: "#f032e6",
+  scratch: "#4363d8", dent: "#3cb44b", bump: "#9a6324", color: "#f032e6", deviation: "#42d4f4",
 };
 // The scene's lines, each shown in the legend when the scene holds it.
 const SCENE_LINES = [
@@ -85,7 +87,8 @@ function exceedance(defect) {
   const { value, tolerance } = valueOf(defect);
   if (!known(value) || !tolerance) return 0;
   const size = Math.abs(value);
-  return belowMinimum(defect) ? tolerance / Math.max(size, 1e-6) : size / tolerance;
+  // a deviation below its band is judged by the band's lower (negative) end
+  return belowMinimum(defect) ? tolerance / Math.max(size, 1e-6) : size / Math.abs(tolerance);
 }
 
 // The inspection's acceptance limits for this defect's type (its `limits`: the tolerances'
@@ -97,6 +100,7 @@ function limitsOf(defect) {
     parallelism: { max: limits.parallelism_max_mm }, mismatch: { max: limits.mismatch_max_mm },
     dent: { max: limits.dent_depth_mm }, bump: { max: limits.dent_depth_mm },
     scratch: { max: limits.scratch_depth_mm }, color: { max: limits.color_delta_e },
+    deviation: { min: limits.profile_min_mm, max: limits.profile_max_mm },
   }[defect.type] || {};
   let { min = null, max = null } = range;
   if (belowMinimum(defect)) min = defect.tolerance; // what it was judged by

@@ -131,17 +131,15 @@ def index_mesh(mesh: TriangleMesh) -> MeshIndex:
     vertices = np.asarray(mesh.vertices_mm, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     corners = vertices[faces]
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    area2 = np.linalg.norm(cross, axis=1)
-    face_normals = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    normals = face_normals(mesh)
     # edges, each once whatever the faces' orientation: their two faces' normals summed
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     _, edge_index = np.unique(edges[:, 0] * len(vertices) + edges[:, 1], return_inverse=True)
     edge_sum = np.zeros((edge_index.max() + 1, 3))
-    np.add.at(edge_sum, edge_index.ravel(), np.repeat(face_normals, 3, axis=0))
+    np.add.at(edge_sum, edge_index.ravel(), np.repeat(normals, 3, axis=0))
     # corners: the incident faces' normals weighted by the angle each makes there
     vertex_sum = np.zeros((len(vertices), 3))
-    weighted = _corner_angles(corners)[:, :, None] * face_normals[:, None, :]
+    weighted = _corner_angles(corners)[:, :, None] * normals[:, None, :]
     np.add.at(vertex_sum, faces.ravel(), weighted.reshape(-1, 3))
     edge_normals = edge_sum[edge_index.reshape(-1, 3)]
     vertex_normals = vertex_sum[faces]
@@ -154,7 +152,7 @@ def index_mesh(mesh: TriangleMesh) -> MeshIndex:
     return MeshIndex(
         face_order=order,
         corners=np.ascontiguousarray(corners[order]),
-        face_normals=np.ascontiguousarray(face_normals[order]),
+        face_normals=np.ascontiguousarray(normals[order]),
         edge_normals=np.ascontiguousarray(edge_normals[order]),
         vertex_normals=np.ascontiguousarray(vertex_normals[order]),
         face_boxes=face_boxes,
@@ -209,6 +207,14 @@ def _fill_grid(
     faces = np.empty(start[-1], dtype=np.int32)
     _list_grid(face_boxes, origin, cell, band * 1.001, shape, start.copy(), faces)
     return complete, start, faces
+
+
+def face_normals(mesh: TriangleMesh) -> np.ndarray:
+    """(F, 3) each face's unit normal (zero for a face without area)."""
+    corners = np.asarray(mesh.vertices_mm, dtype=np.float64)[np.asarray(mesh.faces)]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    return cross / np.where(area2 > 0, area2, 1.0)[:, None]
 
 
 def _corner_angles(corners: np.ndarray) -> np.ndarray:

@@ -375,9 +375,11 @@ def write_ply(
     *,
     comments: tuple[str, ...] = (),
     faces: np.ndarray | None = None,
+    scalars: dict[str, np.ndarray] | None = None,
 ) -> None:
     """Write ``cloud`` as binary little-endian PLY (vista's on-disk point cloud); with
-    ``faces`` ((M, 3) vertex indices) a triangle mesh."""
+    ``faces`` ((M, 3) vertex indices) a triangle mesh; with ``scalars`` a float property
+    per point each (a scalar field, as CloudCompare shows it)."""
     fields: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if cloud.normals is not None:
         fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
@@ -385,6 +387,7 @@ def write_ply(
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
     if cloud.intensity is not None:
         fields += [("intensity", "<f4")]
+    fields += [(name, "<f4") for name in scalars or {}]
     rows = np.empty(len(cloud.points), dtype=np.dtype(fields))
     rows["x"], rows["y"], rows["z"] = cloud.points.T
     if cloud.normals is not None:
@@ -393,6 +396,8 @@ def write_ply(
         rows["red"], rows["green"], rows["blue"] = cloud.colors.T
     if cloud.intensity is not None:
         rows["intensity"] = cloud.intensity
+    for name, values in (scalars or {}).items():
+        rows[name] = values
     ply_names = {"<f4": "float", "u1": "uchar"}
     lines = ["ply", "format binary_little_endian 1.0"]
     lines += [f"comment {c}" for c in comments]

@@ -29,6 +29,8 @@ BINARY_RECORD = np.dtype(
     [("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")]
 )
 VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)")
+SOLID_END = re.compile(rb"^[ \t]*endsolid[^\n]*$", flags=re.M)
+SOLID_NAME = re.compile(rb"^\s*solid[ \t]*([^\n]*)")
 
 
 class StlError(ValueError):
@@ -52,6 +54,14 @@ class MeshReport:
 
 def read_stl(path: Path, *, max_triangles: int = MAX_TRIANGLES) -> TriangleMesh:
     """The mesh in the STL at ``path`` (binary or ASCII), in the file's units."""
+    return read_stl_regions(path, max_triangles=max_triangles)[0]
+
+
+def read_stl_regions(
+    path: Path, *, max_triangles: int = MAX_TRIANGLES
+) -> tuple[TriangleMesh, np.ndarray, tuple[str, ...]]:
+    """The mesh, each face's region and the regions' names: an ASCII STL's ``solid``
+    blocks by their names; a binary STL is one region, ``part``."""
     size = path.stat().st_size
     with path.open("rb") as file:
         head = file.read(BINARY_HEADER + 4)
@@ -60,7 +70,7 @@ def read_stl(path: Path, *, max_triangles: int = MAX_TRIANGLES) -> TriangleMesh:
         if size == BINARY_HEADER + 4 + count * BINARY_RECORD.itemsize:
             _check_count(count, max_triangles)
             records = np.fromfile(path, dtype=BINARY_RECORD, count=count, offset=BINARY_HEADER + 4)
-            return _shared(records["corners"])
+            return _shared(records["corners"]), np.zeros(count, np.int64), ("part",)
     if not head.lstrip().startswith(b"solid"):
         raise StlError(
             "neither a binary STL (its size does not match the triangle count in its header) "
@@ -71,7 +81,20 @@ def read_stl(path: Path, *, max_triangles: int = MAX_TRIANGLES) -> TriangleMesh:
             f"the ASCII STL of {size} bytes may hold more than {max_triangles} triangles, "
             "the most that are read"
         )
-    return _shared(_ascii_corners(path.read_bytes()))
+    names, corners, region = [], [], []
+    for block in SOLID_END.split(path.read_bytes()):
+        if not VERTEX.search(block):
+            continue
+        named = SOLID_NAME.search(block)
+        name = (named.group(1).decode(errors="replace").strip() if named else "") or "part"
+        if name not in names:
+            names.append(name)
+        found = _ascii_corners(block)
+        corners.append(found)
+        region.append(np.full(len(found), names.index(name)))
+    if not corners:
+        raise StlError("an ASCII STL lists its triangles' corners in threes; found 0")
+    return _shared(np.concatenate(corners)), np.concatenate(region), tuple(names)
 
 
 def _check_count(count: int, max_triangles: int) -> None:
@@ -102,8 +125,17 @@ def _shared(corners: np.ndarray) -> TriangleMesh:
     return TriangleMesh(vertices, index.reshape(-1, 3))
 
 
-def write_stl(path: Path, mesh: TriangleMesh, *, binary: bool = True, name: str = "vista") -> None:
-    """``mesh`` as an STL (binary by default), each facet's normal from its corners."""
+def write_stl(
+    path: Path,
+    mesh: TriangleMesh,
+    *,
+    binary: bool = True,
+    name: str = "vista",
+    region_of_face: np.ndarray | None = None,
+    regions: tuple[str, ...] = (),
+) -> None:
+    """``mesh`` as an STL (binary by default), each facet's normal from its corners; an
+    ASCII one with ``regions`` holds one ``solid`` of each region's faces."""
     corners = np.asarray(mesh.vertices_mm, dtype=np.float64)[np.asarray(mesh.faces)]
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
@@ -116,10 +148,21 @@ def write_stl(path: Path, mesh: TriangleMesh, *, binary: bool = True, name: str 
             file.write(struct.pack("<I", len(records)))
             records.tofile(file)
         return
+    if region_of_face is None or len(regions) < 2:
+        region_of_face, regions = np.zeros(len(corners), np.int64), (name,)
+    path.write_text(
+        "".join(
+            _ascii_solid(corners[region_of_face == k], normals[region_of_face == k], solid)
+            for k, solid in enumerate(regions)
+        )
+    )
+
+
+def _ascii_solid(corners: np.ndarray, normals: np.ndarray, name: str) -> str:
     vertex = "      vertex %.17g %.17g %.17g\n"
     facet = f"  facet normal %.9g %.9g %.9g\n    outer loop\n{vertex * 3}    endloop\n  endfacet\n"
     values = np.hstack([normals, corners.reshape(-1, 9)]).ravel().tolist()
-    path.write_text(f"solid {name}\n{(facet * len(corners)) % tuple(values)}endsolid {name}\n")
+    return f"solid {name}\n{(facet * len(corners)) % tuple(values)}endsolid {name}\n"
 
 
 def mesh_report(mesh: TriangleMesh) -> MeshReport:

@@ -23,7 +23,7 @@ namespace Vista.Client
     public static class DefectTypes
     {
         /// <summary>All defect types, in the server's order.</summary>
-        public static readonly string[] All = { "gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color" };
+        public static readonly string[] All = { "gap", "step", "parallelism", "mismatch", "scratch", "dent", "bump", "color", "deviation" };
     }
 
     /// <summary>The answer to a sign-in: a bearer token and when it expires.</summary>
@@ -86,7 +86,7 @@ namespace Vista.Client
         public long Id;
         /// <summary>The measuring run that found it, or null when reported by hand.</summary>
         public long? RunId;
-        /// <summary>gap, step, parallelism, mismatch, scratch, dent, bump or color.</summary>
+        /// <summary>gap, step, parallelism, mismatch, scratch, dent, bump, color or deviation.</summary>
         public string Type;
         /// <summary>open, resolved, … (the server's workflow state).</summary>
         public string Status;

@@ -1,0 +1,288 @@
+"""Parts with a nominal and a scan of the part as made, the truth known: a curved skin panel
+(warped, dented), an angle profile (twisted) and a plate whose hole was drilled in the wrong
+place. Each nominal is a triangle mesh of the part's scanned faces, outward normals, with
+its faces named by region; the scan samples the part as made (the nominal with its
+deviation field along the normals, a hole where it was drilled), with the scanner's noise,
+outliers, an unscanned share, and lies in the scanner's frame (``nominal_T_cloud`` away).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.lib.pointcloud.mesh_distance import TriangleMesh
+from services.lib.pointcloud.transforms import apply, from_rotvec, invert
+
+PARTS = ("panel", "angle", "plate")
+
+
+@dataclass(frozen=True)
+class Dent:
+    centre_mm: tuple[float, float, float]
+    """On the nominal surface."""
+    radius_mm: float
+    depth_mm: float
+    """Signed: negative into the part."""
+
+
+@dataclass(frozen=True)
+class NominalPart:
+    name: str
+    mesh: TriangleMesh
+    region_of_face: np.ndarray
+    """(F,) index into ``regions``."""
+    regions: tuple[str, ...]
+    points_mm: np.ndarray
+    """The scan, in the scanner's frame."""
+    deviation_mm: np.ndarray
+    """(N,) each scan point's true signed distance to the nominal (outliers: NaN)."""
+    nominal_T_cloud: np.ndarray
+    dents: tuple[Dent, ...]
+    warp_mm: float
+    hole: dict | None = None
+    """A mis-drilled hole: nominal and actual centre and radius."""
+
+
+def make_part(
+    name: str,
+    *,
+    seed: int = 0,
+    spacing_mm: float = 0.5,
+    noise_mm: float = 0.01,
+    warp_mm: float = 0.3,
+    unscanned_share: float = 0.2,
+    outlier_share: float = 0.05,
+    dents: int = 3,
+    misalignment: tuple[float, float] = (3.0, 2.0),
+) -> NominalPart:
+    """One of ``PARTS`` scanned at ``spacing_mm`` with ``noise_mm`` 1σ; its true surface
+    warped by up to ``warp_mm``, with ``dents`` dents; ``unscanned_share`` of its area
+    never scanned, ``outlier_share`` of the points stray; the scan ``misalignment`` (mm,
+    degrees) away from the nominal's frame."""
+    if name not in PARTS:
+        raise ValueError(f"no part {name!r}: one of {', '.join(PARTS)}")
+    rng = np.random.default_rng(seed)
+    mesh, region_of_face, regions, surface = _NOMINALS[name]()
+    points, normals, faces = _surface_samples(mesh, spacing_mm, rng)
+    hole = None
+    keep = np.ones(len(points), dtype=bool)
+    extra = np.zeros((0, 3))
+    if name == "plate":  # drilled 6 mm off: material where the nominal has its hole
+        nominal_centre, actual_centre, radius = np.array([0.0, 0.0]), np.array([6.0, 0.0]), 10.0
+        keep &= np.linalg.norm(points[:, :2] - actual_centre, axis=1) > radius
+        filled = _disc_samples(nominal_centre, radius, spacing_mm, rng)
+        filled = filled[np.linalg.norm(filled[:, :2] - actual_centre, axis=1) > radius]
+        extra = filled
+        hole = {"nominal_mm": [0, 0, 0], "actual_mm": [6, 0, 0], "radius_mm": radius}
+    made_dents = _dents(mesh, surface, dents, rng)
+    field = _deviation(points, normals, surface, warp_mm, made_dents)
+    actual = points + field[:, None] * normals
+    deviation = field.copy()
+    actual, deviation = actual[keep], deviation[keep]
+    if len(extra):
+        actual = np.vstack([actual, extra])
+        deviation = np.concatenate([deviation, np.full(len(extra), np.nan)])  # measured later
+    # an unscanned share: a band across the part's longest axis
+    axis = int(np.argmax(np.ptp(actual, axis=0)))
+    cut = np.quantile(actual[:, axis], [0.5 - unscanned_share / 2, 0.5 + unscanned_share / 2])
+    seen = (actual[:, axis] < cut[0]) | (actual[:, axis] > cut[1])
+    actual, deviation = actual[seen], deviation[seen]
+    actual = actual + rng.normal(0, noise_mm, actual.shape)
+    strays = int(outlier_share * len(actual))
+    if strays:
+        low, high = actual.min(axis=0) - 5, actual.max(axis=0) + 5
+        actual = np.vstack([actual, rng.uniform(low, high, (strays, 3))])
+        deviation = np.concatenate([deviation, np.full(strays, np.nan)])
+    order = rng.permutation(len(actual))  # a real scan's order: along its lines
+    order = np.lexsort((actual[:, 0], np.round(actual[:, 1] / spacing_mm)))
+    rotvec = rng.normal(size=3)
+    rotvec *= np.radians(misalignment[1]) / np.linalg.norm(rotvec)
+    shift = rng.normal(size=3)
+    shift *= misalignment[0] / np.linalg.norm(shift)
+    nominal_T_cloud = from_rotvec(rotvec, shift)
+    return NominalPart(
+        name,
+        mesh,
+        region_of_face,
+        regions,
+        apply(invert(nominal_T_cloud), actual[order]),
+        deviation[order],
+        nominal_T_cloud,
+        made_dents,
+        warp_mm,
+        hole,
+    )
+
+
+def _sheet(u: np.ndarray, v: np.ndarray, to_xyz) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+    """A grid sheet: vertices ``to_xyz(u, v)`` over the grid of u × v, two faces a cell,
+    counter-clockwise seen from +normal (u × v direction)."""
+    gu, gv = np.meshgrid(u, v, indexing="ij")
+    vertices = to_xyz(gu.ravel(), gv.ravel())
+    rows, cols = len(u), len(v)
+    cell = (np.arange(rows - 1)[:, None] * cols + np.arange(cols - 1)[None, :]).ravel()
+    faces = np.vstack(
+        [
+            np.column_stack([cell, cell + cols, cell + cols + 1]),
+            np.column_stack([cell, cell + cols + 1, cell + 1]),
+        ]
+    )
+    return vertices, faces
+
+
+def _panel() -> tuple:
+    """A fuselage skin panel: a 600 × 400 mm patch of a 1 m radius cylinder, outside up,
+    with its 3 mm trimmed edges."""
+    radius = 1000.0
+
+    def xyz(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        angle = u / radius
+        return np.column_stack([radius * np.sin(angle), v, radius * np.cos(angle) - radius])
+
+    vertices, faces = _sheet(np.linspace(-300, 300, 241), np.linspace(-200, 200, 161), xyz)
+    return _with_walls(vertices, faces, (241, 161), 3.0, ("skin", "edges"), "panel")
+
+
+def _angle() -> tuple:
+    """An angle profile 500 mm long: a 60 mm flange (z up) and a 40 mm web (-y out), its
+    outer faces and its two 3 mm thick ends."""
+    length = np.linspace(0, 500, 201)
+    flange, ff = _sheet(length, np.linspace(0, 60, 25), lambda x, y: np.column_stack([x, y, 0 * x]))
+    web, wf = _sheet(length, np.linspace(0, 40, 17), lambda x, z: np.column_stack([x, 0 * x, -z]))
+    wf = wf[:, ::-1]
+    ends = []
+    for x in (0.0, 500.0):
+        ends += [
+            [[x, 0, 0], [x, 60, 0], [x, 60, -3], [x, 0, -3]],
+            [[x, 0, 0], [x, 3, 0], [x, 3, -40], [x, 0, -40]],
+        ]
+    quads = np.array(ends, float)
+    end_vertices = quads.reshape(-1, 3)
+    base = len(flange) + len(web) + 4 * np.arange(len(quads))
+    end_faces = np.vstack(
+        [np.column_stack([base, base + 1, base + 2]), np.column_stack([base, base + 2, base + 3])]
+    )
+    centre = np.array([250.0, 30.0, -20.0])
+    end_faces = _outward(np.vstack([flange, web, end_vertices]), end_faces, centre)
+    vertices = np.vstack([flange, web, end_vertices])
+    faces = np.vstack([ff, wf + len(flange), end_faces])
+    region = np.concatenate(
+        [np.zeros(len(ff), np.int64), np.ones(len(wf), np.int64), np.full(len(end_faces), 2)]
+    )
+    return TriangleMesh(vertices, faces), region, ("flange", "web", "ends"), "angle"
+
+
+def _plate() -> tuple:
+    """A 300 × 200 mm plate's top with a 20 mm hole at its centre, and its 5 mm edges."""
+    vertices, faces = _sheet(
+        np.linspace(-150, 150, 151), np.linspace(-100, 100, 101),
+        lambda x, y: np.column_stack([x, y, 0 * x]),
+    )  # fmt: skip
+    mesh, region, regions, surface = _with_walls(
+        vertices, faces, (151, 101), 5.0, ("top", "edges"), "plate"
+    )
+    corners = np.asarray(mesh.vertices_mm)[mesh.faces]
+    keep = (region == 1) | (np.linalg.norm(corners.mean(axis=1)[:, :2], axis=1) > 10.0)
+    return TriangleMesh(mesh.vertices_mm, mesh.faces[keep]), region[keep], regions, surface
+
+
+def _with_walls(vertices: np.ndarray, faces: np.ndarray, shape: tuple[int, int], depth: float,
+                regions: tuple[str, str], surface: str) -> tuple:  # fmt: skip
+    """A grid sheet with walls ``depth`` deep down its border (straight down -z)."""
+    rows, cols = shape
+    index = np.arange(rows * cols).reshape(rows, cols)
+    loop = np.concatenate([index[0, :], index[1:, -1], index[-1, -2::-1], index[-2:0:-1, 0]])
+    top = vertices[loop]
+    bottom = top - np.array([0.0, 0.0, depth])
+    base = len(vertices)
+    following = np.roll(np.arange(len(loop)), -1)
+    a, b = loop, loop[following]
+    c, d = base + following, base + np.arange(len(loop))
+    walls = np.vstack([np.column_stack([a, d, c]), np.column_stack([a, c, b])])
+    everything = np.vstack([vertices, bottom])
+    walls = _outward(everything, walls, vertices.mean(axis=0))
+    region = np.concatenate([np.zeros(len(faces), np.int64), np.ones(len(walls), np.int64)])
+    return TriangleMesh(everything, np.vstack([faces, walls])), region, regions, surface
+
+
+def _outward(vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """``faces`` turned where needed so their normals point away from ``centre`` (in the
+    horizontal plane for walls)."""
+    corners = vertices[faces]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    away = corners.mean(axis=1) - centre
+    away[:, 2] = 0 if np.abs(normal[:, 2]).max() < 1e-9 else away[:, 2]
+    flip = np.einsum("ij,ij->i", normal, away) < 0
+    faces = faces.copy()
+    faces[flip] = faces[flip][:, ::-1]
+    return faces
+
+
+_NOMINALS = {"panel": _panel, "angle": _angle, "plate": _plate}
+
+
+def _surface_samples(mesh: TriangleMesh, spacing_mm: float, rng: np.random.Generator):  # noqa: ANN202
+    """Points spread evenly over the mesh (one per spacing² of area), their face normal."""
+    corners = np.asarray(mesh.vertices_mm)[mesh.faces]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    count = int(area.sum() / spacing_mm**2)
+    face = rng.choice(len(area), count, p=area / area.sum())
+    r1, r2 = rng.random(count), rng.random(count)
+    flip = r1 + r2 > 1
+    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
+    c = corners[face]
+    points = c[:, 0] + r1[:, None] * (c[:, 1] - c[:, 0]) + r2[:, None] * (c[:, 2] - c[:, 0])
+    normals = cross[face] / (2 * area[face])[:, None]
+    return points, normals, face
+
+
+def _disc_samples(
+    centre: np.ndarray, radius: float, spacing: float, rng: np.random.Generator
+) -> np.ndarray:
+    count = int(np.pi * radius**2 / spacing**2)
+    r = radius * np.sqrt(rng.random(count))
+    angle = rng.uniform(0, 2 * np.pi, count)
+    return np.column_stack(
+        [centre[0] + r * np.cos(angle), centre[1] + r * np.sin(angle), np.zeros(count)]
+    )
+
+
+def _dents(
+    mesh: TriangleMesh, surface: str, count: int, rng: np.random.Generator
+) -> tuple[Dent, ...]:
+    vertices = np.asarray(mesh.vertices_mm)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    made = []
+    for _ in range(count):
+        i = rng.integers(len(vertices))
+        centre = vertices[i]
+        if np.any(np.abs(centre - (low + high) / 2) > 0.4 * (high - low) + 1e-9):
+            centre = (low + high) / 2 + 0.3 * (rng.random(3) - 0.5) * (high - low)
+            centre = vertices[np.argmin(np.linalg.norm(vertices - centre, axis=1))]
+        made.append(Dent(tuple(float(c) for c in centre), float(rng.uniform(6, 15)),
+                         -float(rng.uniform(0.3, 1.0))))  # fmt: skip
+    return tuple(made)
+
+
+def _deviation(points: np.ndarray, normals: np.ndarray, surface: str, warp_mm: float,
+               dents: tuple[Dent, ...]) -> np.ndarray:  # fmt: skip
+    """Each nominal surface point's true normal offset: the warp (a panel's bow, an angle's
+    twist) and the dents (Gaussian-free cosine caps)."""
+    if surface == "angle":  # twisted: the far end turned about the length axis
+        turn = np.radians(0.05) * warp_mm / 0.3 * points[:, 0] / 500.0
+        moved = points.copy()
+        moved[:, 1] = points[:, 1] * np.cos(turn) - points[:, 2] * np.sin(turn)
+        moved[:, 2] = points[:, 1] * np.sin(turn) + points[:, 2] * np.cos(turn)
+        field = np.einsum("ij,ij->i", moved - points, normals)
+    else:  # bowed: up to warp_mm at the middle, none at the edges
+        span = np.ptp(points[:, :2], axis=0)
+        u = (points[:, :2] - points[:, :2].min(axis=0)) / span
+        field = warp_mm * np.sin(np.pi * u[:, 0]) * np.sin(np.pi * u[:, 1])
+    for dent in dents:
+        r = np.linalg.norm(points - np.array(dent.centre_mm), axis=1)
+        inside = r < dent.radius_mm
+        field[inside] += dent.depth_mm * 0.5 * (1 + np.cos(np.pi * r[inside] / dent.radius_mm))
+    return field
