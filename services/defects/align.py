@@ -4,9 +4,9 @@ the six pose parameters:
 - **given**: the cloud is already in the part's frame (a robot cell, a calibrated
   stitching); the residual is measured, nothing is moved.
 - **best fit**: robust point-to-plane ICP against the mesh (Chen & Medioni), each step's
-  residuals weighted by Tukey's biweight at 4.685 robust σ (MAD), so points off the nominal
-  by more than a few σ (outliers, a dent, a part of the scan the nominal lacks) stop
-  pulling; started from a given pose, or from the principal axes (the cloud's and the
+  residuals weighted by Tukey's biweight at 4.685 robust σ (MAD, annealed from the start's
+  misfit down), so points off the nominal by more than a few σ (outliers, a dent, a part
+  of the scan the nominal lacks) stop pulling once the fit is close; started from a given pose, or from the principal axes (the cloud's and the
   nominal's centroid and axes matched, each of the four proper sign choices tried). Only
   scan points are matched to the mesh, so nominal areas the scan never covered cost
   nothing. It reports how far it moved the cloud and whether a few points decide a pose
@@ -37,6 +37,11 @@ DAMPING = 1e-9
 surface does not fix (a plane's in-plane motion) takes no step."""
 MAX_TURN_RAD = np.radians(5.0)
 """The largest turn one step takes."""
+ANNEALING = 0.7
+ANNEALED_FROM = 99.0
+"""Each iteration the smallest σ the weights take shrinks by ``ANNEALING``, from this
+percentile of the start's misfits down to ``MIN_SCALE_MM``: far points (a part's end, its edges, whatever few
+points fix a direction) pull while the fit is coarse, then only those that agree."""
 CONVERGED_MM = 1e-5
 """A step moving no point of the part's extent by more than this ends the fit."""
 FEW_POINTS_SHARE = 0.01
@@ -232,12 +237,15 @@ def _icp(mesh: MeshIndex, sample: np.ndarray, start: np.ndarray, workers: int,
     extent = float(np.linalg.norm(sample.max(axis=0) - sample.min(axis=0)))
     normals = np.empty_like(mesh.face_normals)  # in the mesh's own numbering
     normals[mesh.face_order] = mesh.face_normals
-    done = 0
+    done, floor_mm = 0, None
     for done in range(1, iterations + 1):  # noqa: B007 (the count is reported)
         moved = apply(pose, sample)
         found = signed_distance(mesh, moved, workers)
         residual = found.distance_mm
-        weight = _tukey(residual)
+        if floor_mm is None:  # annealed from the start's own misfit down to the noise
+            floor_mm = float(np.percentile(np.abs(residual), ANNEALED_FROM))
+        floor_mm *= ANNEALING
+        weight = _tukey(residual, floor_mm)
         jacobian = _plane_jacobian(moved, normals[found.face])
         information = (jacobian * weight[:, None]).T @ jacobian
         # a touch of damping: a direction the surface does not fix stays where it is
@@ -247,7 +255,8 @@ def _icp(mesh: MeshIndex, sample: np.ndarray, start: np.ndarray, workers: int,
         if turn > MAX_TURN_RAD:  # far from the answer, the planes' linearisation is not
             step *= MAX_TURN_RAD / turn
         pose = from_rotvec(step[:3], step[3:]) @ pose
-        if np.linalg.norm(step[:3]) * extent + np.linalg.norm(step[3:]) < CONVERGED_MM:
+        settled = np.linalg.norm(step[:3]) * extent + np.linalg.norm(step[3:]) < CONVERGED_MM
+        if settled and floor_mm <= MIN_SCALE_MM:
             break
     moved = apply(pose, sample)
     found = signed_distance(mesh, moved, workers)
@@ -269,9 +278,10 @@ def _angle_between(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(turn) - 1) / 2, -1.0, 1.0))))
 
 
-def _tukey(residual: np.ndarray) -> np.ndarray:
-    """Tukey's biweight at ``TUKEY_C`` robust σ of the residuals (MAD)."""
-    c = TUKEY_C * max(_robust_scale(residual), MIN_SCALE_MM)
+def _tukey(residual: np.ndarray, floor_mm: float = MIN_SCALE_MM) -> np.ndarray:
+    """Tukey's biweight at ``TUKEY_C`` robust σ of the residuals (MAD), σ taken no
+    smaller than ``floor_mm``."""
+    c = TUKEY_C * max(_robust_scale(residual), MIN_SCALE_MM, floor_mm)
     u = residual / c
     return np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
 

@@ -89,6 +89,19 @@ def measure(
         typer.echo("\n".join(_truth_lines(document["truth_evaluation"], out)))
 
 
+def _simulate_part(out_dir: Path, name: str, spacing_mm: float, seed: int) -> None:
+    from services.defects.nominal_parts import PARTS, make_part, write_part
+
+    if name not in PARTS:
+        fail(f"--part: unknown {name!r}; known: {', '.join(PARTS)}")
+    made = make_part(name, seed=seed, spacing_mm=max(spacing_mm, 0.3), warp_mm=0.3)
+    written = write_part(out_dir, made)
+    typer.echo(f"wrote {', '.join(str(p) for p in written)} ({len(made.points_mm)} points)")
+    typer.echo(
+        f"compare it: vista defects compare {written[0]} {written[1]} -o {out_dir}/result.json"
+    )
+
+
 def _reference_points(path: str) -> dict:
     """POINTS.json: {"nominal": {name: [x, y, z]}, "scan": {name: [x, y, z]}} in mm."""
     from services.lib.archive import read_json
@@ -363,12 +376,23 @@ def simulate_defects(
         "round (r 0.5–2 mm), chamfer (0.3–1 mm × 45°), square.",
     ),
     seed: int = typer.Option(0, help="Random seed."),
+    part: str = typer.Option(
+        None,
+        help="Instead of an assembly, one part scanned against its nominal: panel (a "
+        "warped, dented skin panel), angle (a twisted angle profile) or plate (a hole "
+        "drilled 6 mm off); writes cloud.ply, nominal.stl, nominal.step and truth.json.",
+    ),
 ) -> None:
     """Write a simulated panel assembly with seams (gap, taper, step; rounded, chamfered or
     square edges), dents, bumps, scratches and colour patches: calibration pairs, coloured
-    scans, the merged cloud, default tolerances and the ground truth."""
+    scans, the merged cloud, its nominal (nominal.stl, a solid per panel), default
+    tolerances and the ground truth — or, with --part, one part and its nominal."""
     from services.defects.example import write_defects_example
     from services.defects.simulate import EDGE_KINDS, AssemblySpec
+
+    if part is not None:
+        _simulate_part(out_dir, part, spacing_mm, seed)
+        return
 
     if not 2 <= rows * cols <= 12:
         fail(f"an assembly has 2 to 12 panels; --rows {rows} × --cols {cols} = {rows * cols}")

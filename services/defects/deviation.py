@@ -6,8 +6,10 @@ A finding is a connected area of points beyond the band on one side (above or be
 one region: points within ``LINK_SPACINGS`` point spacings of each other belong together
 (cells of two spacings, joined to their 26 neighbours). An area smaller than
 ``MIN_POINTS`` points is not reported: a stray point, or the noise of a surface lying at
-the band's edge. Its value is its peak deviation, signed, where that lies; its area is its
-points' share of the cloud's area (spacing² a point); its mean is over its points.
+the band's edge. Its value is its peak deviation, signed, where that lies — each point's
+deviation taken as the median of its nine nearest in the area, so that a stray point
+inside it is no peak; its area is its points' share of the cloud's area (spacing² a
+point); its mean is over its points.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from services.lib.pointcloud.mesh_distance import MeshDistance, TriangleMesh, fa
 
 LINK_SPACINGS = 2.0
 MIN_POINTS = 12
+PEAK_NEIGHBOURS = 9
 COVER_SPACINGS = 3.0
 """A place on the nominal is covered when a scan point lies within this many spacings."""
 COVER_SAMPLES = 400_000
@@ -216,14 +219,15 @@ def _areas(points_mm: np.ndarray, out: np.ndarray, region: np.ndarray,
 def _finding(points_mm: np.ndarray, deviation: np.ndarray, members: np.ndarray, region: str,
              normals: np.ndarray, limits: Limits, spacing: float,
              sigma_mm: float | None) -> DeviationFinding:  # fmt: skip
-    values = deviation[members]
+    values = _local_median(points_mm[members], deviation[members])
     peak = members[int(np.argmax(np.abs(values)))]
-    judged = judge("deviation", float(deviation[peak]), limits, sigma_mm=sigma_mm, region=region)
+    value = float(values[members == peak][0])
+    judged = judge("deviation", value, limits, sigma_mm=sigma_mm, region=region)
     assert judged is not None
     box = points_mm[members].max(axis=0) - points_mm[members].min(axis=0)
     return DeviationFinding(
         region=region,
-        value_mm=float(deviation[peak]),
+        value_mm=value,
         at_mm=points_mm[peak],
         normal=normals[peak],
         mean_mm=float(values.mean()),
@@ -235,6 +239,15 @@ def _finding(points_mm: np.ndarray, deviation: np.ndarray, members: np.ndarray, 
         severity=judged.severity,
         state=judged.state,
     )
+
+
+def _local_median(points_mm: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Each point's deviation as the median of its ``PEAK_NEIGHBOURS`` nearest points' in
+    its area (itself among them): a stray point, or the noise of one, does not make a
+    peak."""
+    k = min(PEAK_NEIGHBOURS, len(values))
+    _, nearest = cKDTree(points_mm).query(points_mm, k=k)
+    return np.median(values[nearest.reshape(len(values), k)], axis=1)
 
 
 def _coverage(mesh: TriangleMesh, region_of_face: np.ndarray, regions: int,

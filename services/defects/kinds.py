@@ -182,7 +182,7 @@ CLI = "services.defects.cli:register"
 DEMO_EXAMPLE = "services.defects.example:write_demo_assembly"
 """What `vista demo` simulates and runs: a cabin sidewall whose seams stray out of tolerance."""
 PRECOMPILE = "services.defects.measure:warm_up"
-"""What `vista precompile` runs to fill numba's cache: a small measurement."""
+"""What `vista precompile` runs to fill numba's cache: a small measurement and comparison."""
 USES = ("stitching",)
 """The services whose code this one calls (its simulator writes a stitching session and
 merges the scans by ``services.stitching.stitch``, as a real inspection does): a service

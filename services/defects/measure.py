@@ -364,6 +364,12 @@ def warm_up() -> None:
     points = np.stack([u[keep], v[keep], np.zeros(keep.sum())], 1).astype(np.float32)
     colors = np.full(points.shape, 128, np.uint8)
     measure(PointCloud(points=points, colors=colors))
+    # and a comparison's distances: a plate's scan against its nominal
+    from services.lib.pointcloud.mesh_distance import TriangleMesh, signed_distance
+
+    plate = TriangleMesh(np.array([[0, 0, 0], [121, 0, 0], [121, 60, 0], [0, 60, 0.0]]),
+                         np.array([[0, 1, 2], [0, 2, 3]]))  # fmt: skip
+    signed_distance(plate, points.astype(np.float64) + [0.0, 0.0, 0.1], workers=2)
 
 
 BRIDGE_CELLS = 6

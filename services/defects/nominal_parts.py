@@ -8,7 +8,9 @@ outliers, an unscanned share, and lies in the scanner's frame (``nominal_T_cloud
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -76,7 +78,7 @@ def make_part(
         filled = filled[np.linalg.norm(filled[:, :2] - actual_centre, axis=1) > radius]
         extra = filled
         hole = {"nominal_mm": [0, 0, 0], "actual_mm": [6, 0, 0], "radius_mm": radius}
-    made_dents = _dents(mesh, surface, dents, rng)
+    made_dents = _dents(mesh, region_of_face, surface, dents, rng)
     field = _deviation(points, normals, surface, warp_mm, made_dents)
     actual = points + field[:, None] * normals
     deviation = field.copy()
@@ -84,10 +86,8 @@ def make_part(
     if len(extra):
         actual = np.vstack([actual, extra])
         deviation = np.concatenate([deviation, np.full(len(extra), np.nan)])  # measured later
-    # an unscanned share: a band across the part's longest axis
-    axis = int(np.argmax(np.ptp(actual, axis=0)))
-    cut = np.quantile(actual[:, axis], [0.5 - unscanned_share / 2, 0.5 + unscanned_share / 2])
-    seen = (actual[:, axis] < cut[0]) | (actual[:, axis] > cut[1])
+    # an unscanned share: the far end along x (the longest side of every part)
+    seen = actual[:, 0] < np.quantile(actual[:, 0], 1.0 - unscanned_share)
     actual, deviation = actual[seen], deviation[seen]
     actual = actual + rng.normal(0, noise_mm, actual.shape)
     strays = int(outlier_share * len(actual))
@@ -175,7 +175,8 @@ def _angle() -> tuple:
 
 
 def _plate() -> tuple:
-    """A 300 × 200 mm plate's top with a 20 mm hole at its centre, and its 5 mm edges."""
+    """A 300 × 200 mm plate's top with a 20 mm hole at its centre (its wall follows the
+    top's grid round it), and its 5 mm edges."""
     vertices, faces = _sheet(
         np.linspace(-150, 150, 151), np.linspace(-100, 100, 101),
         lambda x, y: np.column_stack([x, y, 0 * x]),
@@ -183,9 +184,27 @@ def _plate() -> tuple:
     mesh, region, regions, surface = _with_walls(
         vertices, faces, (151, 101), 5.0, ("top", "edges"), "plate"
     )
-    corners = np.asarray(mesh.vertices_mm)[mesh.faces]
-    keep = (region == 1) | (np.linalg.norm(corners.mean(axis=1)[:, :2], axis=1) > 10.0)
-    return TriangleMesh(mesh.vertices_mm, mesh.faces[keep]), region[keep], regions, surface
+    vertices = np.asarray(mesh.vertices_mm)
+    keep = (region == 1) | (np.linalg.norm(vertices[mesh.faces].mean(axis=1)[:, :2], axis=1) > 10.0)
+    faces, region = mesh.faces[keep], region[keep]
+    # the hole's wall: the top's border round the hole (edges of one face) drawn 5 mm down
+    edges = faces[region == 0][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = np.sort(edges, axis=1)
+    _, first, uses = np.unique(key, axis=0, return_index=True, return_counts=True)
+    rim = edges[first[uses == 1]]
+    rim = rim[np.linalg.norm(vertices[rim].mean(axis=1)[:, :2], axis=1) < 20.0]
+    below = len(vertices) + np.arange(2 * len(rim)).reshape(-1, 2)
+    lowered = vertices[rim.ravel()] - [0.0, 0.0, 5.0]
+    wall = np.vstack([np.column_stack([rim[:, 0], below[:, 0], rim[:, 1]]),
+                      np.column_stack([rim[:, 1], below[:, 0], below[:, 1]])])  # fmt: skip
+    everything = np.vstack([vertices, lowered])
+    corners = everything[wall]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    inward = np.einsum("ij,ij->i", normal[:, :2], -corners.mean(axis=1)[:, :2]) < 0
+    wall[inward] = wall[inward][:, ::-1]  # out of the material: towards the hole's axis
+    faces = np.vstack([faces, wall])
+    region = np.concatenate([region, np.full(len(wall), 2)])
+    return TriangleMesh(everything, faces), region, ("top", "edges", "hole"), surface
 
 
 def _with_walls(vertices: np.ndarray, faces: np.ndarray, shape: tuple[int, int], depth: float,
@@ -251,17 +270,23 @@ def _disc_samples(
 
 
 def _dents(
-    mesh: TriangleMesh, surface: str, count: int, rng: np.random.Generator
+    mesh: TriangleMesh,
+    region_of_face: np.ndarray,
+    surface: str,
+    count: int,
+    rng: np.random.Generator,
 ) -> tuple[Dent, ...]:
-    vertices = np.asarray(mesh.vertices_mm)
-    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    """Dents on the part's main face (its region 0: the skin, the flange, the plate's top),
+    10–70 % along x (clear of the unscanned end) and 15–85 % across, clear of the hole."""
+    top = np.asarray(mesh.vertices_mm)[np.unique(mesh.faces[region_of_face == 0])]
+    low, high = top.min(axis=0), top.max(axis=0)
     made = []
-    for _ in range(count):
-        i = rng.integers(len(vertices))
-        centre = vertices[i]
-        if np.any(np.abs(centre - (low + high) / 2) > 0.4 * (high - low) + 1e-9):
-            centre = (low + high) / 2 + 0.3 * (rng.random(3) - 0.5) * (high - low)
-            centre = vertices[np.argmin(np.linalg.norm(vertices - centre, axis=1))]
+    while len(made) < count:
+        share = np.array([rng.uniform(0.1, 0.7), rng.uniform(0.15, 0.85)])
+        target = low[:2] + share * (high[:2] - low[:2])
+        centre = top[np.argmin(np.linalg.norm(top[:, :2] - target, axis=1))]
+        if surface == "plate" and np.linalg.norm(centre[:2]) < 35.0:
+            continue
         made.append(Dent(tuple(float(c) for c in centre), float(rng.uniform(6, 15)),
                          -float(rng.uniform(0.3, 1.0))))  # fmt: skip
     return tuple(made)
@@ -270,9 +295,9 @@ def _dents(
 def _deviation(points: np.ndarray, normals: np.ndarray, surface: str, warp_mm: float,
                dents: tuple[Dent, ...]) -> np.ndarray:  # fmt: skip
     """Each nominal surface point's true normal offset: the warp (a panel's bow, an angle's
-    twist) and the dents (Gaussian-free cosine caps)."""
-    if surface == "angle":  # twisted: the far end turned about the length axis
-        turn = np.radians(0.05) * warp_mm / 0.3 * points[:, 0] / 500.0
+    twist) and the dents (raised-cosine caps)."""
+    if surface == "angle":  # twisted: the far end turned so that its flange's tip moves warp_mm
+        turn = warp_mm / 60.0 * points[:, 0] / 500.0
         moved = points.copy()
         moved[:, 1] = points[:, 1] * np.cos(turn) - points[:, 2] * np.sin(turn)
         moved[:, 2] = points[:, 1] * np.sin(turn) + points[:, 2] * np.cos(turn)
@@ -286,3 +311,60 @@ def _deviation(points: np.ndarray, normals: np.ndarray, surface: str, warp_mm: f
         inside = r < dent.radius_mm
         field[inside] += dent.depth_mm * 0.5 * (1 + np.cos(np.pi * r[inside] / dent.radius_mm))
     return field
+
+
+def part_shape(name: str) -> object:
+    """The part's nominal solid as Open CASCADE builds it (the meshes above are its
+    scanned faces): the skin panel a 3 mm shell of the 1 m cylinder, the angle its L
+    section drawn along 500 mm, the plate a 5 mm block with its 20 mm hole."""
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox, BRepPrimAPI_MakeCylinder, BRepPrimAPI_MakePrism
+    from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt, gp_Vec
+
+    if name == "panel":
+        radius, span = 1000.0, 0.6
+        axis = gp_Ax2(gp_Pnt(0, -200, -radius), gp_Dir(0, 1, 0),
+                      gp_Dir(np.sin(-span / 2), 0, np.cos(-span / 2)))  # fmt: skip
+        outer = BRepPrimAPI_MakeCylinder(axis, radius, 400, span).Shape()
+        inner = BRepPrimAPI_MakeCylinder(axis, radius - 3, 400, span).Shape()
+        return BRepAlgoAPI_Cut(outer, inner).Shape()
+    if name == "angle":
+        outline = BRepBuilderAPI_MakePolygon()
+        for corner in ((0, 0, 0), (0, 60, 0), (0, 60, -3), (0, 3, -3), (0, 3, -40), (0, 0, -40)):
+            outline.Add(gp_Pnt(*corner))
+        outline.Close()
+        section = BRepBuilderAPI_MakeFace(outline.Wire()).Face()
+        return BRepPrimAPI_MakePrism(section, gp_Vec(500, 0, 0)).Shape()
+    block = BRepPrimAPI_MakeBox(gp_Pnt(-150, -100, -5), 300, 200, 5).Shape()
+    drill = BRepPrimAPI_MakeCylinder(gp_Ax2(gp_Pnt(0, 0, -10), gp_Dir(0, 0, 1)), 10, 20).Shape()
+    return BRepAlgoAPI_Cut(block, drill).Shape()
+
+
+def write_part(folder: Path, part: NominalPart) -> list[Path]:
+    """The part's scan (cloud.ply, the scanner's frame), nominal (nominal.stl, its regions
+    as solids; nominal.step where Open CASCADE is installed) and truth.json (the pose, the
+    dents, the hole, each point's true deviation's summary)."""
+    from services.lib.pointcloud.ply import PointCloud, write_ply
+    from services.lib.pointcloud.step import available, write_step
+    from services.lib.pointcloud.stl import write_stl
+    from services.lib.pointcloud.transforms import to_json
+
+    folder.mkdir(parents=True, exist_ok=True)
+    written = [folder / "cloud.ply", folder / "nominal.stl", folder / "truth.json"]
+    write_ply(written[0], PointCloud(part.points_mm.astype(np.float32)),
+              comments=(f"vista simulated {part.name}, scanner frame, mm",))  # fmt: skip
+    write_stl(written[1], part.mesh, binary=False, region_of_face=part.region_of_face,
+              regions=part.regions)  # fmt: skip
+    truth = {
+        "part": part.name,
+        "nominal_T_cloud": to_json(part.nominal_T_cloud),
+        "warp_mm": part.warp_mm,
+        "dents": [asdict(d) for d in part.dents],
+        "hole": part.hole,
+    }
+    written[2].write_text(json.dumps(truth, indent=1) + "\n")
+    if available():
+        write_step(folder / "nominal.step", part_shape(part.name))
+        written.append(folder / "nominal.step")
+    return written

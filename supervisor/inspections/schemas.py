@@ -55,6 +55,20 @@ class SurfacePatch(RequestModel):
     color_delta_e: float | None = Field(None, gt=0, le=100)
 
 
+class ProfileBandPatch(RequestModel):
+    min: float | None = Field(None, ge=-TOLERANCE_MAX_MM, le=0)
+    max: float = Field(..., ge=0, le=TOLERANCE_MAX_MM)
+
+
+class ProfilePatch(RequestModel):
+    """A surface-profile band changed: `max` alone is ±max; `regions` replaces every
+    region's own band at once (null: none)."""
+
+    min: float | None = Field(None, ge=-TOLERANCE_MAX_MM, le=0)
+    max: float | None = Field(None, ge=0, le=TOLERANCE_MAX_MM)
+    regions: dict[str, ProfileBandPatch] | None = None
+
+
 class TolerancesPatch(RequestModel):
     """Changes to an inspection's tolerances: a limit (or section) not named keeps its
     value, one given takes it, one given as null goes back to its default. The merged
@@ -65,6 +79,7 @@ class TolerancesPatch(RequestModel):
     parallelism_mm: LimitPatch | None = None
     mismatch_mm: LimitPatch | None = None
     surface: SurfacePatch | None = None
+    profile_mm: ProfilePatch | None = None
 
     def changes(self) -> dict:
         """What was sent: sections and limits named, null where a default is restored."""

@@ -147,7 +147,7 @@ def _gltf(path: Path) -> tuple:
     scene = trimesh.load(path, force="scene", process=False)
     vertices, faces, regions, names = [], [], [], []
     offset = 0
-    for node in scene.graph.nodes_geometry:
+    for node in sorted(scene.graph.nodes_geometry):  # by name: the same order each time
         transform, geometry = scene.graph[node]
         mesh = scene.geometry[geometry]
         if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
