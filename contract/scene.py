@@ -60,6 +60,20 @@ class PointSet:
 
 
 @dataclass(frozen=True)
+class Surface:
+    """Triangles drawn in one colour, translucent where its alpha is below 1 (a part's
+    nominal behind the scan's deviation colours)."""
+
+    name: str
+    vertices_mm: np.ndarray
+    """(V, 3) in the scene's frame: +Z up, mm."""
+    faces: np.ndarray
+    """(F, 3) vertex indices, counter-clockwise seen from outside."""
+    colour_rgba: tuple[float, float, float, float]
+    extras: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class MovingBox:
     """A box that moves frame by frame (a tracked object): its pose at each key time; or,
     with one key and ``shown_at_s``, a box of one frame (a detection)."""
@@ -87,6 +101,7 @@ class JobScene:
     lines: tuple[LineGroup, ...] = ()
     points: tuple[PointSet, ...] = ()
     boxes: tuple[MovingBox, ...] = ()
+    surfaces: tuple[Surface, ...] = ()
     frame_s: float = 0.1
     """How long one frame is shown (``PointSet.shown_at_s``)."""
     frame: str = ""

@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from contract.bench import print_verdict, say, write_document
+from services.defects.bench_nominal import DISTANCE_POINTS, run_nominal_sweep
+from services.defects.bench_nominal import TARGETS as NOMINAL_TARGETS
 from services.defects.config import MeasureConfig
 from services.defects.evaluate import Evaluation, error_p95, evaluate, within_2sigma
 from services.defects.example import BASE_T_PART, merged_cloud
@@ -207,7 +209,12 @@ def spacing_cases(
 
 LIMIT_CASES = ("square, rows along the seams (limit)",)
 """Shown for what they teach, not held to the accuracy targets."""
-SWEEPS = {"assemblies": CASES, "edges": EDGE_CASES, "spacing": spacing_cases()}
+SWEEPS = {
+    "assemblies": CASES,
+    "edges": EDGE_CASES,
+    "spacing": spacing_cases(),
+    "nominal": (),  # parts against their nominal: services.defects.bench_nominal
+}
 
 
 def _run(
@@ -441,10 +448,12 @@ def run_defects_bench(
     cases: tuple[SweepCase, ...] = CASES,
     edge_cases: tuple[SweepCase, ...] = EDGE_CASES,
     spacing_sweep: tuple[SweepCase, ...] = SWEEPS["spacing"],
+    nominal_points: int = DISTANCE_POINTS,
 ) -> dict:
     """Run the ``sweeps`` (``assemblies``: ``cases``; ``edges``: ``edge_cases``;
-    ``spacing``: ``spacing_sweep``), print the tables and the verdict, write the JSON
-    document."""
+    ``spacing``: ``spacing_sweep``; ``nominal``: parts against their nominal and the
+    distance beside CloudCompare's and Open3D's on ``nominal_points`` points), print the
+    tables and the verdict, write the JSON document."""
     prepare_process()
     threads = available_cores()
     warm_up()  # compiling the numba passes is once per installation, not per m²
@@ -468,7 +477,13 @@ def run_defects_bench(
         )
         verdict |= _spacing_verdict(spacing_rows)
         parts["spacing_cases"] = spacing_rows
-    document = write_document(out, bench="defects", targets=TARGETS, verdict=verdict, **parts)
+    if "nominal" in sweeps:  # prints its own tables as it goes
+        nominal = run_nominal_sweep(seeds=seeds, seed=seed + 300, threads=threads,
+                                    points=nominal_points)  # fmt: skip
+        verdict |= nominal.pop("verdict")
+        parts |= nominal
+    targets = TARGETS | (NOMINAL_TARGETS if "nominal" in sweeps else {})
+    document = write_document(out, bench="defects", targets=targets, verdict=verdict, **parts)
     if "assemblies" in sweeps:
         print(
             f"\n## Accuracy against ground truth ({seeds} assemblies per case; peer in brackets)\n"

@@ -427,8 +427,13 @@ def bench_defects(
     sweep: list[str] = typer.Option(
         ["assemblies", "edges"],
         help="Which sweeps: `assemblies` (gap, step, taper, noise, curvature, density; "
-        "detection), `edges` (edge types, tilted views and sensor artefacts) and/or "
-        "`spacing` (every spacing × edge type × scan-grid angle × noise: 168 cells, hours).",
+        "detection), `edges` (edge types, tilted views and sensor artefacts), `spacing` "
+        "(every spacing × edge type × scan-grid angle × noise: 168 cells, hours) and/or "
+        "`nominal` (parts against their nominal; the distance beside CloudCompare's C2M "
+        "and Open3D's).",
+    ),
+    nominal_points: int = typer.Option(
+        10_000_000, min=1000, help="Points of the nominal sweep's distance comparison."
     ),
     spacing: list[float] = typer.Option(
         None,
@@ -476,7 +481,8 @@ def bench_defects(
         tuple(grid_angle or GRID_ANGLES_DEG),
         tuple(noise or SPACING_NOISE_MM),
     )
-    run_defects_bench(out, seeds=seeds, seed=seed, sweeps=tuple(sweep), spacing_sweep=cells)
+    run_defects_bench(out, seeds=seeds, seed=seed, sweeps=tuple(sweep), spacing_sweep=cells,
+                      nominal_points=nominal_points)  # fmt: skip
 
 
 def register(app: typer.Typer, simulate_app: typer.Typer, bench_app: typer.Typer) -> None:

@@ -159,6 +159,10 @@ COMPARE = JobKind(
         Inputs(("nominal",), "the part's nominal model"),
     ),
     outputs=(COMPARISON, DEVIATION_CLOUD, HISTOGRAM),
+    shows=Presentation(
+        page="services.defects.views:compare_view",
+        scene="services.defects.views:compare_scene",
+    ),
 )
 
 KINDS = (MEASURE, COMPARE)

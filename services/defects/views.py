@@ -3,15 +3,26 @@ its seams (sections measured and unmeasured with why, gap and step mean/min/max 
 σ, the limits), its surface findings and junctions, and each seam's cross-sections — the
 cloud's points across the seam at each section with the gap and step measured there, for
 the page to step through along the seam; and its 3D scene (``contract.scene``): the cloud,
-the panels' outlines and the seams."""
+the panels' outlines and the seams. A comparison's page and scene: its alignment, regions,
+findings and histogram; the scan coloured by deviation over its translucent nominal."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from contract.scene import JobScene, PointSet
-from contract.views import CrossSections, Figure, Figures, JobFiles, Table, Thumbnails
-from services.defects.kinds import RESULT
+from contract.scene import JobScene, PointSet, Surface
+from contract.views import (
+    ColourScale,
+    CrossSections,
+    Figure,
+    Figures,
+    JobFiles,
+    Picture,
+    Pictures,
+    Table,
+    Thumbnails,
+)
+from services.defects.kinds import COMPARISON, DEVIATION_CLOUD, HISTOGRAM, RESULT
 from services.defects.present import scene_lines
 
 SLAB_MM = 0.6
@@ -292,4 +303,155 @@ def measure_scene(files: JobFiles, max_points: int) -> JobScene:
         extras={  # the lines' colours are named by their materials
             "figures": {k: v for k, v in files.result.items() if not isinstance(v, dict | list)}
         },
+    )
+
+
+def compare_view(files: JobFiles) -> list:
+    """A comparison's page: the alignment, each region, the findings and the histogram."""
+    result = files.json(COMPARISON.file_name())
+    if result is None:
+        return []
+    alignment = result["alignment"]
+    sigma = alignment["pose_sigma"]
+    figures = Figures(
+        "Comparison with the nominal",
+        [
+            Figure("points", result["points"]),
+            Figure("point spacing", result["spacing_mm"], "mm"),
+            Figure("strays (beyond 25 mm)", result["strays"]),
+            Figure(
+                "nominal",
+                f"{result['nominal']['file']} ({result['nominal']['format']}, "
+                f"{result['nominal']['triangles']} triangles)",
+            ),  # fmt: skip
+            Figure("profile band", "{:+.3f} … {:+.3f}".format(*result["profile_band_mm"]), "mm"),
+            Figure("alignment", alignment["method"]),
+            Figure("residual, robust σ", alignment["residual_robust_mm"], "mm"),
+            Figure("residual, RMS", alignment["residual_rms_mm"], "mm"),
+            Figure(
+                "moved / turned by the fit",
+                f"{alignment['moved_mm']:.3f} mm / {alignment['turned_deg']:.4f}°",
+            ),  # fmt: skip
+            Figure("pose 1σ", ", ".join(f"{k} {v:.2g}" for k, v in sigma.items())),
+            Figure("beyond the band", len(result["defects"])),
+            Figure("uncertain (within 2σ of the band)", len(result["uncertain"])),
+        ],
+    )
+    panels: list = [figures]
+    if alignment["warnings"]:
+        panels.append(
+            Table("Alignment warnings", ["warning"], [[w] for w in alignment["warnings"]])
+        )
+    panels.append(
+        Table(
+            "Regions of the nominal",
+            ["region", "points", "mean mm", "σ mm", "min mm", "max mm", "within band", "covered"],
+            [
+                [
+                    r["region"],
+                    r["points"],
+                    r["mean_mm"],
+                    r["sigma_mm"],
+                    r["min_mm"],
+                    r["max_mm"],
+                    _share(r["within_share"]),
+                    _share(r["coverage_share"]),
+                ]
+                for r in result["regions"]
+            ],  # fmt: skip
+            note="covered: the share of the region's area within three point spacings of a "
+            "scan point",
+        )
+    )
+    findings = result["defects"] + result["uncertain"]
+    if findings:
+        panels.append(
+            Table(
+                "Deviations beyond the band",
+                ["region", "peak mm", "where (mm)", "mean mm", "area mm²", "severity", "state"],
+                [
+                    [
+                        f["region"],
+                        f["value"],
+                        ", ".join(f"{v:.1f}" for v in f["location"]),
+                        f["mean_mm"],
+                        f["area_mm2"],
+                        f["severity"],
+                        f["tolerance_state"],
+                    ]
+                    for f in findings
+                ],  # fmt: skip
+            )
+        )
+    scale = result["color_scale_mm"]
+    panels.append(
+        Pictures(
+            "Deviation",
+            [
+                Picture(
+                    "histogram of the deviations, the band dashed",
+                    [HISTOGRAM.file_name()],
+                    ["histogram"],
+                    layer_scales=[
+                        ColourScale(list(DEVIATION_COLOURS), f"−{scale:g} mm", f"+{scale:g} mm")
+                    ],
+                )
+            ],
+        )
+    )
+    return panels
+
+
+DEVIATION_COLOURS = ("#2166ac", "#f7f7f7", "#b2182b")
+"""The deviation's colours, below the nominal to above it (``compare.deviation_colours``)."""
+NOMINAL_RGBA = (0.75, 0.78, 0.82, 0.35)
+"""The nominal, translucent behind the scan's colours."""
+MOST_TRIANGLES = 1_000_000
+"""A nominal shown in 3D has at most this many triangles (beyond, it is left out, said so)."""
+
+
+def _share(value: float | None) -> str:
+    return "–" if value is None else f"{100 * value:.1f} %"
+
+
+def compare_scene(files: JobFiles, max_points: int) -> JobScene:
+    """The aligned scan coloured by its deviation (at most ``max_points``, seeded) and the
+    nominal, translucent, in the nominal's frame."""
+    from services.lib.pointcloud.nominal import read_nominal
+    from services.lib.pointcloud.ply import read_ply
+
+    cloud_path = files.outputs.get(DEVIATION_CLOUD.file_name())
+    result = files.json(COMPARISON.file_name())
+    if cloud_path is None or result is None:
+        raise ValueError("the run wrote no deviation.ply")
+    cloud = read_ply(cloud_path)
+    keep = np.arange(len(cloud.points))
+    if len(keep) > max_points:
+        keep = np.sort(np.random.default_rng(0).choice(len(keep), max_points, replace=False))
+    points = PointSet("deviation", cloud.points[keep].astype(np.float64), cloud.colors[keep])
+    surfaces: tuple[Surface, ...] = ()
+    extras: dict = {
+        "deviation_scale_mm": [-result["color_scale_mm"], result["color_scale_mm"]],
+        "deviation_colours": list(DEVIATION_COLOURS),
+        "profile_band_mm": result["profile_band_mm"],
+        "alignment": result["alignment"]["method"],
+        "residual_mm": result["alignment"]["residual_robust_mm"],
+    }
+    nominals = list(files.inputs_of_kind("nominal").values())
+    if len(nominals) == 1:
+        nominal = read_nominal(nominals[0])
+        if len(nominal.mesh.faces) <= MOST_TRIANGLES:
+            surfaces = (
+                Surface("nominal", np.asarray(nominal.mesh.vertices_mm), np.asarray(nominal.mesh.faces),
+                        NOMINAL_RGBA, {"regions": list(nominal.regions[:200])}),
+            )  # fmt: skip
+        else:
+            extras["nominal"] = (
+                f"{len(nominal.mesh.faces)} triangles: not drawn (at most {MOST_TRIANGLES})"
+            )
+    return JobScene(
+        points=(points,),
+        surfaces=surfaces,
+        frame="the nominal's frame (mm)",
+        extras=extras,
     )

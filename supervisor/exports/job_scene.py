@@ -84,6 +84,18 @@ def job_scene_glb(scene: JobScene, about: dict) -> bytes:
     nodes: list[Node] = [root]
     channels: list[Channel] = []
     add_line_groups(scene.lines, meshes, materials, nodes, root.children)
+    for surface in scene.surfaces:
+        materials.append(Material(surface.name, surface.colour_rgba, double_sided=True))
+        meshes.append(
+            Mesh(
+                surface.name,
+                base_to_gltf(np.asarray(surface.vertices_mm, np.float64)),
+                indices=np.asarray(surface.faces, np.uint32),
+                material=len(materials) - 1,
+            )
+        )
+        root.children.append(len(nodes))
+        nodes.append(Node(surface.name, mesh=len(meshes) - 1, extras=surface.extras))
     for points in scene.points:
         _add_points(points, scene.frame_s, meshes, nodes, root.children, channels)
     wire_boxes: dict[tuple, int] = {}  # a box's colour → the wire box mesh boxes of it share
