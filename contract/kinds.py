@@ -70,7 +70,11 @@ class Presenter:
     over: str = "cloud"
     """The artifact kind of the input drawn as points beneath the lines."""
     surfaces: tuple[str, ...] = ()
-    """Artifact kinds drawn as surfaces (the nominal panels of a measurement)."""
+    """Artifact kinds drawn as surfaces (the nominal panels of a measurement, a part's
+    nominal model)."""
+    points: Output | None = None
+    """An output drawn as the points instead of the input it read (a comparison's scan,
+    aligned to its nominal and coloured by its deviation); None: the input."""
 
     def load(self) -> Present:
         return load_hook(self.hook)

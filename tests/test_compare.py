@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pygltflib import GLTF2
 from vista_client import VistaClient
 
 from contract.tolerances import Limits, Tolerances, limits_of
@@ -27,6 +28,7 @@ from services.lib.pointcloud.stl import write_stl
 from services.lib.pointcloud.transforms import apply, from_rotvec
 from tests.conftest import add_user, make_settings, wait_for
 from tests.test_mesh_distance import box_mesh
+from tests.test_scene_export import validate
 
 VISTA = str(Path(__file__).resolve().parents[1] / ".venv" / "bin" / "vista")
 
@@ -299,6 +301,34 @@ def test_compared_through_the_api_judged_again_and_carried(start_server, tmp_pat
         return done
 
     first = compare()
+    # its page: the alignment, the regions, the findings, the histogram
+    view = client.request("GET", f"/jobs/{first['id']}/view").json()
+    titles = [panel["title"] for panel in view["panels"]]
+    assert titles[:2] == ["Comparison with the nominal", "Regions of the nominal"]
+    assert "Deviations beyond the band" in titles and titles[-1] == "Deviation"
+    regions = next(p for p in view["panels"] if p["title"] == "Regions of the nominal")
+    assert [row[0] for row in regions["rows"]] == ["top", "edges", "hole"]
+    # its scene: the coloured scan over the translucent nominal, valid glTF
+    scene = tmp_path / "compare.glb"
+    scene.write_bytes(client.request("GET", f"/jobs/{first['id']}/scene.glb").content)
+    assert validate(scene)["issues"]["numErrors"] == 0
+    gltf = GLTF2().load(str(scene))
+    names = {node.name for node in gltf.nodes}
+    assert {"deviation", "nominal"} <= names
+    nominal = next(m for m in gltf.materials if m.name == "nominal")
+    assert nominal.alphaMode == "BLEND"
+    root = next(node for node in gltf.nodes if node.name.startswith("job-"))
+    assert root.extras["deviation_scale_mm"] == [-0.25, 0.25]
+    # the inspection's scene (the dashboard's and the headsets'): the scan as compared, its
+    # nominal and the findings' rings, all in the nominal's frame
+    whole = tmp_path / "inspection.glb"
+    whole.write_bytes(client.request("GET", f"/inspections/{inspection}/scene.glb").content)
+    assert validate(whole)["issues"]["numErrors"] == 0
+    gltf = GLTF2().load(str(whole))
+    names = {node.name for node in gltf.nodes}
+    assert f"panels-{nominal_id}" in names and "marker-deviation" in {m.name for m in gltf.meshes}
+    outputs = {a["name"]: a["id"] for a in client.artifacts(inspection)}
+    assert gltf.asset.extras["cloud"]["artifact_id"] == outputs["deviation.ply"]
     found = list(client.defects(inspection, type="deviation"))
     assert len(found) == first["result"]["defects"] + first["result"]["uncertain"] > 0
     dent = min(found, key=lambda d: d["value_mm"])

@@ -162,6 +162,12 @@ COMPARE = JobKind(
     shows=Presentation(
         page="services.defects.views:compare_view",
         scene="services.defects.views:compare_scene",
+        inspection=Presenter(
+            COMPARISON,
+            "services.defects.present:no_lines",
+            surfaces=("nominal",),
+            points=DEVIATION_CLOUD,
+        ),
     ),
 )
 

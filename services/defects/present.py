@@ -67,3 +67,9 @@ def scene_lines(result_path: Path) -> tuple[LineGroup, ...]:
             tuple(s for s in seams if "unmeasured" in s.extras),
         ),
     )
+
+
+def no_lines(result_path: Path) -> tuple[LineGroup, ...]:
+    """A comparison draws no lines in the inspection's scene: its scan (coloured by its
+    deviation), its nominal and its findings' rings are the scene."""
+    return ()

@@ -71,6 +71,9 @@ TYPE_COLORS = {
 }
 """One distinct colour per type (the dashboard's legend uses the same ones)."""
 PANEL_COLOR = (0.78, 0.80, 0.84, 0.55)
+MOST_SURFACE_TRIANGLES = 1_000_000
+"""A surface (nominal panels, a part's nominal) of more triangles is not drawn: its id is
+in the scene's ``not_drawn``."""
 
 
 def rgba(hex_colour: str) -> tuple[float, float, float, float]:
@@ -209,7 +212,6 @@ def gather(
         .where(
             Artifact.inspection_id == inspection.id,
             Artifact.kind.in_({kind for p in presenters for kind in p.surfaces}),
-            Artifact.media_type == PLY_MEDIA_TYPE,
             or_(Artifact.job_id.is_(None), Artifact.job_id.in_(run_jobs)),
         )
         .order_by(Artifact.id)
@@ -225,6 +227,16 @@ def gather(
     else:
         cloud = session.scalar(clouds.where(Artifact.id == run.cloud_artifact_id))
         reads = Artifact.job_id == run.job_id
+        drawn = presenters[0].points if presenters else None
+        if drawn is not None:  # the run's own points: its scan as it compared it
+            cloud = (
+                session.scalar(
+                    select(Artifact).where(
+                        reads, Artifact.kind == drawn.kind, Artifact.name == drawn.file_name()
+                    )  # fmt: skip
+                )
+                or cloud
+            )
     presented = []
     for presenter in presenters:
         newest = session.scalar(
@@ -335,7 +347,8 @@ def _add_lines(
 
 def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
     """The GLB of ``source`` (see the module docstring for its layout)."""
-    from services.lib.pointcloud.ply import read_mesh, read_ply_sample
+    from services.lib.pointcloud.nominal import read_nominal
+    from services.lib.pointcloud.ply import read_ply_sample
 
     meshes: list[Mesh] = []
     used = {d["type"] for d in source.defects}
@@ -366,12 +379,15 @@ def build_scene(source: SceneSource, *, max_points: int, etag: str) -> bytes:
     if source.meshes:
         materials.append(Material("panel", PANEL_COLOR, double_sided=True))
     for artifact_id, path in source.meshes:
-        vertices, faces = read_mesh(path)
+        nominal = read_nominal(path)  # a PLY mesh, or a part's nominal in any format
+        if len(nominal.mesh.faces) > MOST_SURFACE_TRIANGLES:
+            extras.setdefault("not_drawn", []).append(artifact_id)
+            continue
         meshes.append(
             Mesh(
                 f"panels-{artifact_id}",
-                base_to_gltf(vertices.points),
-                indices=faces,
+                base_to_gltf(np.asarray(nominal.mesh.vertices_mm)),
+                indices=np.asarray(nominal.mesh.faces),
                 material=len(materials) - 1,
             )
         )
