@@ -37,9 +37,9 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         "/api/v1/inspections", json={"title": "perception", "area": "component"}
     ).json()["id"]
 
-    def upload(path: Path, kind: str, media_type: str) -> int:
+    def upload(path: Path, kind: str, media_type: str, into: int | None = None) -> int:
         response = http.post(
-            f"/api/v1/inspections/{inspection}/artifacts",
+            f"/api/v1/inspections/{into or inspection}/artifacts",
             params={"kind": kind, "name": path.name},
             content=path.read_bytes(),
             headers={"content-type": media_type},
@@ -80,8 +80,21 @@ def finished_jobs(start_server, tmp_path, sqlite_url):
         truth = upload(KITTI_IMAGES.parent / "depth" / "000000.png", "depth", "image/png")
         steps.append({"name": "depth", "kind": "depth.predict", "inputs": [*images, truth]})
     run = http.post(f"/api/v1/inspections/{inspection}/runs", json={"steps": steps}).json()
+    # a part compared with its nominal, in an inspection of its own (the one above holds
+    # perception runs only)
+    from tests.test_compare import _write_plate
+
+    part = http.post("/api/v1/inspections", json={"title": "plate", "area": "component"})
+    part = part.json()["id"]
+    cloud, nominal = _write_plate(tmp_path)
+    plate = [
+        upload(cloud, "cloud", "application/x-ply", part),
+        upload(nominal, "nominal", "model/stl", part),
+    ]
+    compare = {"name": "compare", "kind": "defects.compare", "inputs": plate}
+    compared = http.post(f"/api/v1/inspections/{part}/runs", json={"steps": [compare]}).json()
     jobs = {}
-    for job in run["jobs"]:
+    for job in run["jobs"] + compared["jobs"]:
         jobs[job["step"]] = wait_for(
             lambda j=job: (
                 (d := http.get(f"/api/v1/jobs/{j['id']}").json())["status"]
@@ -224,6 +237,21 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
             assert page.get_attribute("#job-scene canvas", "data-shown") != shown
             assert "each image's own colours" in page.text_content(".player-legend")
             page.screenshot(path=str(tmp_path / "depth.png"), full_page=True)
+        # A comparison with its nominal: the alignment, the regions, the findings, the
+        # histogram with its colour bar, the coloured scan in 3D.
+        compare = jobs["compare"]
+        page = _open(browser, url, token, compare["inspection_id"], compare, errors)
+        page.wait_for_selector(".picture img")
+        figures = page.text_content(".panel-figures")
+        assert "best-fit" in figures and "residual, robust σ" in figures
+        tables = page.locator(".rows-table").all_text_contents()
+        assert any("top" in t and "edges" in t for t in tables)  # the regions
+        assert any("Deviations beyond the band" in t or "critical" in t for t in tables)
+        loaded = page.locator(".picture img").evaluate_all("(i) => i.map(x => x.naturalWidth)")
+        assert loaded and all(w > 0 for w in loaded)
+        assert "+0.5 mm" in page.text_content(".picture")  # the bar: the default ±0.5 band
+        page.wait_for_selector("#scene-note:has-text('drag to turn')")
+        page.screenshot(path=str(tmp_path / "compare.png"), full_page=True)
         # The inspection of perception runs only: its page asks for no measurement and
         # counts no panels.
         page = browser.new_page(viewport={"width": 1024, "height": 768})
@@ -304,7 +332,7 @@ def _check_scenes(url: str, token: str, jobs: dict, tmp_path: Path) -> None:
 
     http = httpx.Client(base_url=url, headers=auth(token), timeout=60)
     documents = {}
-    for step in ("odometry", "track", "depth", "real-track", "detect", "camera-detect"):
+    for step in ("odometry", "track", "depth", "real-track", "detect", "camera-detect", "compare"):
         if step not in jobs:
             continue
         response = http.get(f"/api/v1/jobs/{jobs[step]['id']}/scene.glb", params={"points": 50_000})
@@ -382,15 +410,21 @@ def _check_headset_reads_the_scenes(url: str, inspection: int, jobs: dict, tmp_p
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert built.returncode == 0, built.stdout + built.stderr
-    done = subprocess.run(
-        [mono, str(exe), url, "perception", "perception-pw", str(inspection)],
-        capture_output=True, encoding="utf-8", timeout=60,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    listed = json.loads(done.stdout.strip().splitlines()[-1])["scenes"]
-    scenes = {s["job_id"]: s for s in listed}
-    with_scenes = [j for step, j in jobs.items() if step != "train"]
+
+    def listed(inspection_id: int) -> dict:
+        done = subprocess.run(
+            [mono, str(exe), url, "perception", "perception-pw", str(inspection_id)],
+            capture_output=True, encoding="utf-8", timeout=60,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        return {s["job_id"]: s for s in json.loads(done.stdout.strip().splitlines()[-1])["scenes"]}
+
+    scenes = listed(inspection)
+    with_scenes = [j for step, j in jobs.items() if step not in ("train", "compare")]
     assert sorted(scenes) == sorted(j["id"] for j in with_scenes)
+    compare = jobs["compare"]  # a comparison's scene: the coloured scan and the nominal
+    compared = listed(compare["inspection_id"])[compare["id"]]
+    assert compared["kind"] == "defects.compare" and "alignment" in compared["figures"]
     track = scenes[jobs["track"]["id"]]
     assert track["kind"] == "tracking.track" and track["units"] == "metre"
     assert track["root"] == f"job-{jobs['track']['id']}"

@@ -159,7 +159,8 @@ def compare_job(ctx: JobContext) -> dict:
     except CompareError as exc:
         raise JobInputError(in_user_words(str(exc), ctx, [cloud, nominal])) from exc
     ctx.progress(0.92, "storing results")
-    document = compared.document
+    document = compared.document  # the inputs by the names people gave them
+    document["cloud"], document["nominal"]["file"] = cloud.name, nominal.name
     ctx.add_artifact_json(document, kind=COMPARISON.kind, name=COMPARISON.file_name())
     for output, write, media_type in (
         (DEVIATION_CLOUD, compared.write_cloud, PLY_MEDIA_TYPE),

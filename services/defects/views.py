@@ -431,6 +431,7 @@ def compare_scene(files: JobFiles, max_points: int) -> JobScene:
     points = PointSet("deviation", cloud.points[keep].astype(np.float64), cloud.colors[keep])
     surfaces: tuple[Surface, ...] = ()
     extras: dict = {
+        "figures": {k: v for k, v in files.result.items() if not isinstance(v, dict | list)},
         "deviation_scale_mm": [-result["color_scale_mm"], result["color_scale_mm"]],
         "deviation_colours": list(DEVIATION_COLOURS),
         "profile_band_mm": result["profile_band_mm"],
