@@ -7,6 +7,7 @@ and the benches live outside the product's packages."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,6 +59,20 @@ def test_the_python_clients_word_lists_are_the_servers():
     from supervisor.models.defects import VERDICTS
 
     assert headset.VERDICTS == VERDICTS and headset.DEFECT_TYPES == DEFECT_TYPES
+
+
+def test_the_headsets_and_the_dashboards_finding_types_are_the_servers():
+    """The Unity core and the dashboard list the finding types too (a reclassification to
+    a type they lack would be refused on the headset, drawn without its colour on the
+    page): the same words, in the server's order."""
+    from contract.vocabulary import DEFECT_TYPES
+
+    models = (ROOT / "clients/unity/Runtime/Core/Models.cs").read_text()
+    unity = re.search(r"class DefectTypes.*?All = \{([^}]*)\}", models, re.S).group(1)
+    assert tuple(re.findall(r'"(\w+)"', unity)) == DEFECT_TYPES
+    web = (ROOT / "clients/web/src/main.js").read_text()
+    listed = re.search(r"const TYPES = \[([^\]]*)\]", web).group(1)
+    assert tuple(re.findall(r'"(\w+)"', listed)) == DEFECT_TYPES
 
 
 def module_names() -> dict[str, Path]:

@@ -186,6 +186,10 @@ def compare(
         typer.echo(f"wrote {path}")
 
 
+ECHOED_REGIONS = 12
+"""Regions printed (the most scanned first); a STEP may have hundreds."""
+
+
 def _echo_comparison(document: dict) -> None:
     """RESULT.json in lines: the alignment, each region, the findings."""
     alignment = document["alignment"]
@@ -204,7 +208,8 @@ def _echo_comparison(document: dict) -> None:
     for warning in alignment["warnings"]:
         typer.echo(f"WARNING: {warning}")
     band = document["profile_band_mm"]
-    for region in document["regions"]:
+    regions = sorted(document["regions"], key=lambda r: -r["points"])
+    for region in regions[:ECHOED_REGIONS]:
         if not region["points"]:
             typer.echo(
                 f"  {region['region']}: not scanned (coverage {region['coverage_share']:.0%})"
@@ -215,6 +220,12 @@ def _echo_comparison(document: dict) -> None:
             f"σ {region['sigma_mm']:.3f}, {region['min_mm']:+.3f} … {region['max_mm']:+.3f} mm; "
             f"{region['within_share']:.1%} within {region['band_mm'][0]:+.2f} … "
             f"{region['band_mm'][1]:+.2f}; covered {region['coverage_share']:.0%}"
+        )
+    if len(regions) > ECHOED_REGIONS:
+        rest = regions[ECHOED_REGIONS:]
+        typer.echo(
+            f"  … and {len(rest)} more regions with {sum(r['points'] for r in rest)} points "
+            "(every region: RESULT.regions.csv)"
         )
     found = document["defects"]
     typer.echo(
