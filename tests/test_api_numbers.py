@@ -7,11 +7,12 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
 import pytest
 from sqlalchemy import func, select
 
 from supervisor.db import Base
-from supervisor.demo import TOLERANCES
+from supervisor.demo import TOLERANCES as DEMO_TOLERANCES
 from tests.conftest import auth
 from tests.depthfiles import pack_drive, small_drive, tiny_depth_model
 from tests.lidarfiles import pack_sequence
@@ -40,6 +41,10 @@ REQUIRED_PARAMS = {
 """The params a job kind cannot run without (all others have defaults), in each of the
 ways it takes them: each way's numbers are checked on a body holding it."""
 MARKER = [[1.0, 0.0, 0.0, 10.0], [0.0, 1.0, 0.0, 20.0], [0.0, 0.0, 1.0, 30.0], [0, 0, 0, 1.0]]
+
+
+TOLERANCES = {**DEMO_TOLERANCES, "profile_mm": {"min": -0.3, "max": 0.4}}
+"""Every limit, the profile band's too."""
 
 
 def _bodies(ids: dict[str, int]) -> dict[tuple[str, str], dict]:
@@ -144,8 +149,13 @@ def seeded(client, tokens, tmp_path):
         "/api/v1/inspections", json={"title": "numbers", "area": "cabin"}, headers=headers
     ).json()
     artifacts = {}
+    from services.lib.pointcloud.stl import write_stl
+    from tests.test_mesh_distance import box_mesh
+
+    write_stl(tmp_path / "nominal.stl", box_mesh(np.array([10.0, 10.0, 2.0])))
     for kind, content in (
         ("cloud", ply_bytes(tmp_path)),
+        ("nominal", (tmp_path / "nominal.stl").read_bytes()),
         ("scan", ply_bytes(tmp_path)),
         ("pairs", b"{}"),
         ("scans", b"{}"),
