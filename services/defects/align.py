@@ -51,6 +51,9 @@ part's shape cannot tell them apart."""
 UNFIXED = 1.0
 """A pose parameter's 1σ (degrees or mm) beyond which the surface does not fix it."""
 POSE_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+UNFIXED_EIGENVALUE = 1e-12
+"""An eigenvalue of the fit's information this small against the largest: a direction
+the surface does not fix."""
 DOMINATED_SHARE = 0.5
 """A pose direction whose information comes more than this share from 1 % of the points is
 decided by a few points."""
@@ -307,11 +310,13 @@ def _pose_sigma(information: np.ndarray, scale_mm: float) -> tuple[float, ...]:
     """1σ of (rx, ry, rz in degrees, tx, ty, tz in mm) from the information matrix of
     unit-σ residuals scaled by ``scale_mm``. Rotation about the origin: its σ mixes into
     the translation's for a part far from the origin, as the parameters do."""
-    try:
-        covariance = np.linalg.inv(information) * scale_mm**2
-    except np.linalg.LinAlgError:
-        return (float("inf"),) * 6
-    sigma = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    values, vectors = np.linalg.eigh(information)
+    unfixed = values <= UNFIXED_EIGENVALUE * max(float(values.max()), 1e-300)
+    weights = np.where(unfixed, 0.0, 1.0 / np.where(unfixed, 1.0, values))
+    variance = (vectors**2 * weights).sum(axis=1) * scale_mm**2
+    # a parameter that moves along a direction nothing fixes is not known at all
+    touched = (vectors[:, unfixed] ** 2).sum(axis=1) > 1e-9
+    sigma = np.where(touched, np.inf, np.sqrt(variance))
     sigma[:3] = np.degrees(sigma[:3])
     return tuple(float(s) for s in sigma)
 
