@@ -228,6 +228,9 @@ def test_a_dented_plate_with_a_misdrilled_hole_gives_its_findings():
         or any(np.linalg.norm(f.at_mm - d.centre_mm) < d.radius_mm for d in plate.dents)
     ]  # fmt: skip
     assert len(explained) == len(out)
+    # and they are told apart as strays (alone, beyond twice the band): not in the statistics
+    assert deviation.strays > 0.8 * 0.05 * len(plate.points_mm)
+    assert stats["top"].sigma_mm < 0.1  # the dents, the noise; not the strays (σ 1 mm with them)
 
 
 def test_a_regions_own_band_judges_its_findings():

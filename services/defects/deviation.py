@@ -32,7 +32,9 @@ COVER_SPACINGS = 3.0
 COVER_SAMPLES = 400_000
 """Points spread over the nominal to measure its coverage."""
 STRAY_MM = 25.0
-"""Points farther than this from the nominal are strays (not the part): not judged."""
+"""Points farther than this from the nominal are strays (not the part): not judged. So is
+a point beyond twice its band that is in no area (no neighbour out of the band with it):
+a surface is continuous, a stray is alone. Neither counts in a region's statistics."""
 
 
 @dataclass(frozen=True)
@@ -105,7 +107,7 @@ class DeviationFinding:
 @dataclass(frozen=True)
 class Deviation:
     deviation_mm: np.ndarray
-    """(N,) each point's signed distance to the nominal; NaN for strays."""
+    """(N,) each point's signed distance to the nominal; NaN for strays (``STRAY_MM``)."""
     region_of_point: np.ndarray
     """(N,) index into ``regions`` of the face nearest each point."""
     regions: tuple[RegionStats, ...]
@@ -134,30 +136,24 @@ def judge_deviation(
     spacing = point_spacing(points_mm[~stray])
     bands = np.array([limits.profile_band(name) for name in region_names]).reshape(-1, 2)
     low, high = bands[region, 0], bands[region, 1]
-    judged = ~stray
-    out_above = judged & (deviation > high)
-    out_below = judged & (deviation < low)
+    normals = face_normals(mesh)[distance.face]
+    findings, in_area = [], np.zeros(len(deviation), dtype=bool)
+    for out in (~stray & (deviation > high), ~stray & (deviation < low)):
+        for members in _areas(points_mm, out, region, spacing):
+            in_area[members] = True
+            name = region_names[region[members[0]]]
+            findings.append(
+                _finding(points_mm, deviation, members, name, normals, limits, spacing, sigma_mm)
+            )
+    # a point beyond twice its band that no neighbour follows is no surface: a stray too
+    reach = 2 * np.maximum(np.abs(low), np.abs(high))
+    stray |= ~in_area & (np.abs(np.nan_to_num(deviation)) > reach)
+    deviation[stray] = np.nan
     coverage = _coverage(mesh, region_of_face, len(region_names), points_mm[~stray], spacing)
     stats = tuple(
-        _region_stats(name, deviation[judged & (region == r)], low_high, coverage[r])
+        _region_stats(name, deviation[~stray & (region == r)], low_high, coverage[r])
         for r, (name, low_high) in enumerate(zip(region_names, map(tuple, bands), strict=True))
     )
-    normals = face_normals(mesh)
-    findings = []
-    for out in (out_above, out_below):
-        for members in _areas(points_mm, out & True, region, spacing):
-            findings.append(
-                _finding(
-                    points_mm,
-                    deviation,
-                    members,
-                    region_names[region[members[0]]],
-                    normals[distance.face],
-                    limits,
-                    spacing,
-                    sigma_mm,
-                )  # fmt: skip
-            )
     findings.sort(key=lambda f: -abs(f.value_mm))
     return Deviation(deviation, region, stats, tuple(findings), spacing, int(stray.sum()))
 
