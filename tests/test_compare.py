@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pygltflib import GLTF2
-from vista_client import VistaClient
+from vista_client import Headset, VistaClient
 
 from contract.tolerances import Limits, Tolerances, limits_of
 from services.defects.align import AlignError, best_fit, given, pose_difference, reference_points
@@ -338,6 +338,19 @@ def test_compared_through_the_api_judged_again_and_carried(start_server, tmp_pat
     assert dent["value_mm"] < -0.25 and dent["tolerance_mm"] == -0.25
     assert dent["measurements"]["region"] == "top" and dent["measurements"]["area_mm2"] > 0
     client.judge(dent["id"], "confirmed", comment="a dent, 0.6 mm")
+    # a headset syncs the deviations and the scene with the nominal, judges one offline
+    admin = VistaClient(server.url, add_user(server.app.state.runtime, "ada", "admin", "ada-pw"))
+    olga = next(u["id"] for u in admin.users() if u["username"] == "olga")
+    headset = Headset(VistaClient(server.url, admin.create_token(olga, "hl2")), inspection)
+    headset.sync()
+    assert {d["type"] for d in headset.defects.values()} == {"deviation"}
+    assert f"panels-{nominal_id}".encode() in headset.load_scene()
+    other = next(i for i in headset.defects if i != dent["id"])
+    headset.go_offline()
+    headset.judge(other, "rejected", comment="the hole: drilled where the drawing says")
+    headset.go_online()
+    assert headset.push().sent == 1
+    assert client.judgments(other)["judgments"][0]["verdict"] == "rejected"
     # a wider band: judged again, some now within it
     client.update_inspection(inspection, tolerances={"profile_mm": {"max": 5.0}})
     again = client.defect(dent["id"])
