@@ -244,14 +244,14 @@ def _true_areas(
     """Where the part is truly out of the band by more than ``margin_mm``, as (centre,
     radius): the connected areas of points whose true deviation is (clustered as the
     findings are), and the hole's leftover material."""
-    from services.defects.deviation import _areas
+    from services.defects.deviation import connected_areas
 
     true = part.deviation_mm
     beyond = np.isfinite(true) & (np.abs(true) > BAND_MM + margin_mm)
     region = np.zeros(len(true), dtype=np.int64)
     areas = []
     for side in (beyond & (true > 0), beyond & (true < 0)):
-        for members in _areas(aligned, side, region, spacing):
+        for members in connected_areas(aligned, side, region, spacing):
             low, high = aligned[members].min(axis=0), aligned[members].max(axis=0)
             areas.append(((low + high) / 2, float(np.linalg.norm(high - low)) / 2))
     if part.hole is not None:
@@ -277,7 +277,7 @@ def _scanned_area_m2(part: NominalPart, deviation) -> float:  # noqa: ANN001
 def _fine_panel(points: int, rng: np.random.Generator) -> tuple[TriangleMesh, np.ndarray]:
     """A 600 × 400 mm skin panel (1 m radius) of about ``PANEL_TRIANGLES`` triangles, and a
     scan of it: ``points`` points in scan lines, 0.02 mm noise, three dents."""
-    from services.defects.nominal_parts import _sheet
+    from services.defects.nominal_parts import grid_sheet
 
     radius = 1000.0
     columns = int(np.sqrt(PANEL_TRIANGLES / 2 * 1.5))
@@ -288,7 +288,7 @@ def _fine_panel(points: int, rng: np.random.Generator) -> tuple[TriangleMesh, np
             [radius * np.sin(u / radius), v, radius * np.cos(u / radius) - radius]
         )
 
-    vertices, faces = _sheet(
+    vertices, faces = grid_sheet(
         np.linspace(-300, 300, columns + 1), np.linspace(-200, 200, rows + 1), xyz
     )
     side = int(np.sqrt(points * 1.5))

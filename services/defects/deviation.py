@@ -139,7 +139,7 @@ def judge_deviation(
     normals = face_normals(mesh)[distance.face]
     findings, in_area = [], np.zeros(len(deviation), dtype=bool)
     for out in (~stray & (deviation > high), ~stray & (deviation < low)):
-        for members in _areas(points_mm, out, region, spacing):
+        for members in connected_areas(points_mm, out, region, spacing):
             in_area[members] = True
             name = region_names[region[members[0]]]
             findings.append(
@@ -187,7 +187,7 @@ def _region_stats(name: str, values: np.ndarray, band: tuple[float, float],
     )
 
 
-def _areas(points_mm: np.ndarray, out: np.ndarray, region: np.ndarray,
+def connected_areas(points_mm: np.ndarray, out: np.ndarray, region: np.ndarray,
            spacing: float) -> list[np.ndarray]:  # fmt: skip
     """The connected areas of the ``out`` points (each a region's), as index arrays."""
     chosen = np.flatnonzero(out)

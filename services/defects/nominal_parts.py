@@ -67,7 +67,7 @@ def make_part(
         raise ValueError(f"no part {name!r}: one of {', '.join(PARTS)}")
     rng = np.random.default_rng(seed)
     mesh, region_of_face, regions, surface = _NOMINALS[name]()
-    points, normals, faces = _surface_samples(mesh, spacing_mm, rng)
+    points, normals = _surface_samples(mesh, spacing_mm, rng)
     hole = None
     keep = np.ones(len(points), dtype=bool)
     extra = np.zeros((0, 3))
@@ -95,8 +95,10 @@ def make_part(
         low, high = actual.min(axis=0) - 5, actual.max(axis=0) + 5
         actual = np.vstack([actual, rng.uniform(low, high, (strays, 3))])
         deviation = np.concatenate([deviation, np.full(strays, np.nan)])
-    order = rng.permutation(len(actual))  # a real scan's order: along its lines
-    order = np.lexsort((actual[:, 0], np.round(actual[:, 1] / spacing_mm)))
+    rng.permutation(len(actual))  # drawn still: each seed makes the part the README measured
+    order = np.lexsort(  # a real scan's order: along its lines
+        (actual[:, 0], np.round(actual[:, 1] / spacing_mm))
+    )
     rotvec = rng.normal(size=3)
     rotvec *= np.radians(misalignment[1]) / np.linalg.norm(rotvec)
     shift = rng.normal(size=3)
@@ -116,7 +118,7 @@ def make_part(
     )
 
 
-def _sheet(u: np.ndarray, v: np.ndarray, to_xyz) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+def grid_sheet(u: np.ndarray, v: np.ndarray, to_xyz) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
     """A grid sheet: vertices ``to_xyz(u, v)`` over the grid of u × v, two faces a cell,
     counter-clockwise seen from +normal (u × v direction)."""
     gu, gv = np.meshgrid(u, v, indexing="ij")
@@ -141,7 +143,7 @@ def _panel() -> tuple:
         angle = u / radius
         return np.column_stack([radius * np.sin(angle), v, radius * np.cos(angle) - radius])
 
-    vertices, faces = _sheet(np.linspace(-300, 300, 241), np.linspace(-200, 200, 161), xyz)
+    vertices, faces = grid_sheet(np.linspace(-300, 300, 241), np.linspace(-200, 200, 161), xyz)
     return _with_walls(vertices, faces, (241, 161), 3.0, ("skin", "edges"), "panel")
 
 
@@ -149,8 +151,12 @@ def _angle() -> tuple:
     """An angle profile 500 mm long: a 60 mm flange (z up) and a 40 mm web (-y out), its
     outer faces and its two 3 mm thick ends."""
     length = np.linspace(0, 500, 201)
-    flange, ff = _sheet(length, np.linspace(0, 60, 25), lambda x, y: np.column_stack([x, y, 0 * x]))
-    web, wf = _sheet(length, np.linspace(0, 40, 17), lambda x, z: np.column_stack([x, 0 * x, -z]))
+    flange, ff = grid_sheet(
+        length, np.linspace(0, 60, 25), lambda x, y: np.column_stack([x, y, 0 * x])
+    )
+    web, wf = grid_sheet(
+        length, np.linspace(0, 40, 17), lambda x, z: np.column_stack([x, 0 * x, -z])
+    )
     wf = wf[:, ::-1]
     ends = []
     for x in (0.0, 500.0):
@@ -177,7 +183,7 @@ def _angle() -> tuple:
 def _plate() -> tuple:
     """A 300 × 200 mm plate's top with a 20 mm hole at its centre (its wall follows the
     top's grid round it), and its 5 mm edges."""
-    vertices, faces = _sheet(
+    vertices, faces = grid_sheet(
         np.linspace(-150, 150, 151), np.linspace(-100, 100, 101),
         lambda x, y: np.column_stack([x, y, 0 * x]),
     )  # fmt: skip
@@ -255,7 +261,7 @@ def _surface_samples(mesh: TriangleMesh, spacing_mm: float, rng: np.random.Gener
     c = corners[face]
     points = c[:, 0] + r1[:, None] * (c[:, 1] - c[:, 0]) + r2[:, None] * (c[:, 2] - c[:, 0])
     normals = cross[face] / (2 * area[face])[:, None]
-    return points, normals, face
+    return points, normals
 
 
 def _disc_samples(
