@@ -254,6 +254,42 @@ def _write_plate(folder: Path, seed: int = 2) -> tuple[Path, Path]:
     return cloud, nominal
 
 
+def test_a_comparison_that_judged_little_or_nothing_does_not_read_as_a_pass(tmp_path):
+    """The wrong nominal (nothing within 25 mm): refused, nothing compared. A scan mostly
+    of something else, or too noisy for its band: compared, with warnings that say so."""
+    from services.defects.compare import CompareError, compare_cloud
+    from services.defects.kinds import CompareParams
+
+    cloud, nominal = _write_plate(tmp_path)
+    points = read_ply_points(cloud)
+    given = CompareParams(align="given")
+    band = Tolerances.model_validate({"profile_mm": {"max": 0.25}})
+    far = tmp_path / "far.stl"
+    box = box_mesh(np.array([10.0, 10.0, 10.0]))
+    write_stl(far, TriangleMesh(np.asarray(box.vertices_mm) + 500.0, box.faces))
+    with pytest.raises(CompareError, match="nothing was compared"):
+        compare_cloud(cloud, far, band, given, threads=2)
+    rng = np.random.default_rng(0)
+    elsewhere = np.vstack([points, rng.uniform(-150, 150, (2 * len(points), 3)) + [0, 0, 400]])
+    write_ply(tmp_path / "mixed.ply", PointCloud(elsewhere.astype(np.float32)))
+    mixed = compare_cloud(tmp_path / "mixed.ply", nominal, band, given, threads=2)
+    assert any("lies off the nominal" in w for w in mixed.document["warnings"])
+    noisy = points + rng.normal(0, 0.3, points.shape)
+    write_ply(tmp_path / "noisy.ply", PointCloud(noisy.astype(np.float32)))
+    shaky = compare_cloud(tmp_path / "noisy.ply", nominal, band, given, threads=2)
+    assert any("cannot be told from it" in w for w in shaky.document["warnings"])
+    clean = compare_cloud(cloud, nominal, band, given, threads=2)
+    assert clean.document["warnings"] == []
+    # the residual is the judged points' (strays out), not the fit sample's with them
+    assert clean.alignment.residual_rms_mm < 0.2  # the dents; with the strays it read 1.06 mm
+
+
+def read_ply_points(path: Path) -> np.ndarray:
+    from services.lib.pointcloud.ply import read_ply
+
+    return read_ply(path).points.astype(np.float64)
+
+
 def test_the_command_writes_the_result_the_cloud_the_regions_and_the_histogram(tmp_path):
     cloud, nominal = _write_plate(tmp_path)
     config = tmp_path / "config.json"

@@ -19,15 +19,16 @@ The transform returned is ``nominal_T_cloud`` (maps the cloud into the nominal's
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from services.lib.pointcloud.mesh_distance import MeshIndex, signed_distance
-from services.lib.pointcloud.transforms import apply, from_rotvec, invert, to_rotvec
+from services.lib.pointcloud.transforms import apply, from_rotvec, invert, kabsch, to_rotvec
 
 FIT_POINTS = 60_000
-"""Points a best fit iterates on (a seeded even sample); the residual is the whole cloud's."""
+"""Points a best fit iterates on, and an alignment's residual is measured on (a seeded
+even sample)."""
 MAX_ITERATIONS = 60
 TUKEY_C = 4.685
 MIN_SCALE_MM = 0.005
@@ -68,8 +69,9 @@ class Alignment:
     method: str
     nominal_T_cloud: np.ndarray
     residual_rms_mm: float
-    """RMS of the points' signed distance after alignment (all points; for reference
-    points, over the pairs)."""
+    """RMS of the points' signed distance after alignment: over an even sample of
+    ``FIT_POINTS`` (a comparison puts its own, over every point but the strays, with
+    ``measured_on``); for reference points, over the pairs."""
     residual_robust_mm: float
     """1.4826 × the median absolute residual: the noise the fit sees."""
     pose_sigma: tuple[float, ...]
@@ -85,6 +87,15 @@ class Alignment:
     warnings: tuple[str, ...] = ()
     pairs: list[dict] = field(default_factory=list)
     """Reference points: each pair's name and residual (mm)."""
+
+    def measured_on(self, residual_mm: np.ndarray) -> Alignment:
+        """The alignment with its residual measured on ``residual_mm`` (a comparison's
+        every point but the strays); reference points keep their pairs'."""
+        if self.method == "points" or len(residual_mm) == 0:
+            return self
+        return replace(
+            self, residual_rms_mm=_rms(residual_mm), residual_robust_mm=_robust_scale(residual_mm)
+        )
 
     def document(self) -> dict:
         return {
@@ -126,7 +137,7 @@ def best_fit(
 ) -> Alignment:
     """Robust point-to-plane ICP of ``points_mm`` onto ``mesh`` from ``start`` (a
     nominal_T_cloud), or from the principal axes when None."""
-    sample = _sample(points_mm, FIT_POINTS, seed)
+    sample = _sample(points_mm, seed)
     if len(sample) < 6:
         raise AlignError(f"a best fit needs at least 6 points, the cloud has {len(sample)}")
     starts = _principal_starts(mesh, sample) if start is None else [np.asarray(start, float)]
@@ -151,7 +162,7 @@ def best_fit(
             "plane slides in itself, a cylinder along and about its axis): fix it by "
             "reference points"
         )
-    residual = _residuals(mesh, apply(fit.pose, _sample(points_mm)), workers)
+    residual = _residuals(mesh, apply(fit.pose, sample), workers)
     centroid = sample.mean(axis=0)
     moved = float(np.linalg.norm(apply(fit.pose, centroid[None]) - apply(first, centroid[None])))
     turned = _angle_between(fit.pose, first)
@@ -210,17 +221,6 @@ def reference_points(nominal_points_mm: dict[str, list[float]],
         warnings=tuple(warnings),
         pairs=[{"name": n, "residual_mm": round(float(g), 4)} for n, g in zip(names, gaps, strict=True)],
     )  # fmt: skip
-
-
-def kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """target_T_source of least squares between paired (K, 3) points."""
-    a, b = source.mean(axis=0), target.mean(axis=0)
-    u, _, vt = np.linalg.svd((source - a).T @ (target - b))
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    rotation = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    pose = np.eye(4)
-    pose[:3, :3], pose[:3, 3] = rotation, b - rotation @ a
-    return pose
 
 
 @dataclass(frozen=True)
@@ -383,14 +383,14 @@ def _residuals(mesh: MeshIndex, points: np.ndarray, workers: int) -> np.ndarray:
     return signed_distance(mesh, points, workers).distance_mm
 
 
-def _sample(points: np.ndarray, most: int = 1_000_000, seed: int = 0) -> np.ndarray:
-    """At most ``most`` of the finite points, an even seeded sample."""
+def _sample(points: np.ndarray, seed: int = 0) -> np.ndarray:
+    """At most ``FIT_POINTS`` of the finite points, an even seeded sample."""
     points = np.asarray(points, dtype=np.float64)
     points = points[np.isfinite(points).all(axis=1)]
-    if len(points) <= most:
+    if len(points) <= FIT_POINTS:
         return points
     rng = np.random.default_rng(seed)
-    return points[np.sort(rng.choice(len(points), most, replace=False))]
+    return points[np.sort(rng.choice(len(points), FIT_POINTS, replace=False))]
 
 
 def _robust_scale(residual: np.ndarray) -> float:

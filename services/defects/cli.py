@@ -205,7 +205,7 @@ def _echo_comparison(document: dict) -> None:
         f"{alignment['moved_mm']:.3f} mm, turned {alignment['turned_deg']:.4f}°; pose 1σ "
         + ", ".join(f"{k} {v:.2g}" for k, v in sigma.items())
     )
-    for warning in alignment["warnings"]:
+    for warning in alignment["warnings"] + document["warnings"]:
         typer.echo(f"WARNING: {warning}")
     band = document["profile_band_mm"]
     regions = sorted(document["regions"], key=lambda r: -r["points"])

@@ -14,15 +14,22 @@ import numpy as np
 from contract.tolerances import Limits, Tolerances, limits_of
 from contract.vocabulary import Progress
 from services.defects.align import AlignError, Alignment, best_fit, given, reference_points
-from services.defects.deviation import Deviation, judge_deviation
+from services.defects.deviation import STRAY_MM, Deviation, judge_deviation
 from services.defects.kinds import CompareParams
-from services.lib.pointcloud.mesh_distance import index_mesh, signed_distance
+from services.lib.pointcloud.mesh_distance import MeshIndex, index_mesh, signed_distance
 from services.lib.pointcloud.nominal import Nominal, NominalError, read_nominal
 from services.lib.pointcloud.ply import PointCloud, write_ply
 from services.lib.pointcloud.scanner import load_cloud
 from services.lib.pointcloud.transforms import apply
 
 HISTOGRAM_BINS = 80
+OFF_NOMINAL_SHARE = 0.5
+"""More of the scan than this off the nominal (strays): a warning."""
+LEAST_COVERAGE = 0.1
+"""No region of the nominal covered more than this: a warning."""
+NOISE_SHARE = 0.5
+"""The scan's robust σ about the nominal over this share of the band's half-width: a
+warning."""
 
 
 class CompareError(ValueError):
@@ -48,9 +55,8 @@ class Compared:
         scalar field ``deviation``."""
         colours = deviation_colours(self.deviation.deviation_mm, self.color_scale_mm)
         cloud = PointCloud(self.aligned_mm.astype(np.float32), colors=colours)
-        values = np.nan_to_num(self.deviation.deviation_mm, nan=np.float32(np.nan))
-        write_ply(path, cloud, comments=("vista deviation from nominal, mm",),
-                  scalars={"deviation": values.astype(np.float32)})  # fmt: skip
+        write_ply(path, cloud, comments=("vista deviation from nominal, mm (strays NaN)",),
+                  scalars={"deviation": self.deviation.deviation_mm.astype(np.float32)})  # fmt: skip
 
     def write_histogram(self, path: Path) -> None:
         """The deviations' histogram with the profile band, as a PNG."""
@@ -140,12 +146,50 @@ def compare_cloud(
         sigma_mm=alignment.residual_robust_mm,
     )  # fmt: skip
     seconds["judge"] = time.perf_counter() - clock
+    judged = deviation.deviation_mm[np.isfinite(deviation.deviation_mm)]
+    if len(judged) == 0:
+        raise CompareError(
+            f"none of the {len(points)} points lies within {STRAY_MM:g} mm of the nominal "
+            f"after aligning ({params.align}): the wrong nominal, or the wrong units — "
+            "nothing was compared"
+        )
+    alignment = alignment.measured_on(judged)
+    warnings = trust_warnings(deviation, limits, alignment)
     scale = params.color_scale_mm or max(abs(limits.profile_min_mm), limits.profile_max_mm, 1e-3)
     document = _document(cloud, nominal, model, alignment, deviation, limits, scale, seconds)
+    document["warnings"] = warnings
     return Compared(model, alignment, deviation, limits, aligned, scale, seconds, document)
 
 
-def _align(index, points: np.ndarray, params: CompareParams, threads: int) -> Alignment:  # noqa: ANN001
+def trust_warnings(deviation: Deviation, limits: Limits, alignment: Alignment) -> list[str]:
+    """What a person must know before reading the comparison as a pass: most of the scan
+    off the nominal (its findings and statistics are of the rest only), the nominal
+    barely covered, or the scan's noise after alignment too close to the band for a
+    deviation near it to be told apart."""
+    warnings = []
+    points = len(deviation.deviation_mm)
+    if deviation.strays > OFF_NOMINAL_SHARE * points:
+        warnings.append(
+            f"{100 * deviation.strays / points:.0f} % of the scan lies off the nominal "
+            "(strays): the wrong nominal, or an alignment that failed — only the rest is judged"
+        )
+    covered = max((r.coverage_share for r in deviation.regions), default=0.0)
+    if covered < LEAST_COVERAGE:
+        warnings.append(
+            f"the scan covers at most {100 * covered:.0f} % of any region of the nominal: "
+            "what it did not cover is not judged"
+        )
+    half_band = min(-limits.profile_min_mm, limits.profile_max_mm)
+    if alignment.residual_robust_mm > NOISE_SHARE * half_band:
+        warnings.append(
+            f"the scan's spread about the nominal (robust σ {alignment.residual_robust_mm:.3f} "
+            f"mm) is over {NOISE_SHARE:g} of the band's half-width ({half_band:g} mm): a "
+            "deviation near the band cannot be told from it"
+        )
+    return warnings
+
+
+def _align(index: MeshIndex, points: np.ndarray, params: CompareParams, threads: int) -> Alignment:
     if params.align == "given":
         return given(index, points, workers=threads)
     if params.align == "points":

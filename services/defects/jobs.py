@@ -172,8 +172,9 @@ def compare_job(ctx: JobContext) -> dict:
     for finding in compared.deviation.findings:
         ctx.add_defect(_deviation_defect(finding.document(), compared.alignment.residual_robust_mm))
     alignment = document["alignment"]
-    for warning in alignment["warnings"]:
-        ctx.progress(0.97, f"alignment: {warning}")
+    warnings = [f"alignment: {w}" for w in alignment["warnings"]] + document["warnings"]
+    for warning in warnings:
+        ctx.progress(0.97, warning)
     found = document["defects"]
     ctx.progress(
         1.0,
@@ -183,7 +184,7 @@ def compare_job(ctx: JobContext) -> dict:
     )
     aligned = compared.aligned_mm
     return {
-        **({"warning": "; ".join(alignment["warnings"])} if alignment["warnings"] else {}),
+        **({"warning": "; ".join(warnings)} if warnings else {}),
         "points": document["points"],
         "alignment": alignment["method"],
         "residual_mm": alignment["residual_robust_mm"],

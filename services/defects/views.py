@@ -338,10 +338,9 @@ def compare_view(files: JobFiles) -> list:
         ],
     )
     panels: list = [figures]
-    if alignment["warnings"]:
-        panels.append(
-            Table("Alignment warnings", ["warning"], [[w] for w in alignment["warnings"]])
-        )
+    warnings = alignment["warnings"] + result.get("warnings", [])
+    if warnings:
+        panels.append(Table("Warnings", ["before reading it as a pass"], [[w] for w in warnings]))
     panels.append(
         Table(
             "Regions of the nominal",

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from services.lib.pointcloud.transforms import adjoint, apply, invert, make_transform
+from services.lib.pointcloud.transforms import adjoint, apply, invert, kabsch, make_transform
 from services.stitching.kinds import IcpAlgorithm, IcpStart, NoiseModel, StitchParams
 
 METHODS: tuple[str, ...] = get_args(IcpAlgorithm)
@@ -123,15 +123,6 @@ def transform_twist(a_T_b: np.ndarray, centre_mm: np.ndarray) -> np.ndarray:
     return np.concatenate([rotvec, apply(a_T_b, centre_mm[None])[0] - centre_mm])
 
 
-def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """The rigid transform minimising Σ‖T s − t‖² (Besl & McKay's step)."""
-    source_mean, target_mean = source.mean(0), target.mean(0)
-    u, _, vt = np.linalg.svd((source - source_mean).T @ (target - target_mean))
-    flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rotation = vt.T @ flip @ u.T
-    return make_transform(rotation, target_mean - rotation @ source_mean)
-
-
 def _plane_system(
     source: np.ndarray, target: np.ndarray, normals: np.ndarray, centre_mm: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -186,7 +177,7 @@ def align(
         p, q = moved[matched], tree.data[index[matched]]
         if config.method == "point-to-point":
             rmse = float(np.sqrt(np.mean(distance[matched] ** 2)))
-            step = _kabsch(p, q)
+            step = kabsch(p, q)
         else:
             jacobian, residual = _plane_system(p, q, target_normals[index[matched]], centre)
             rmse = float(np.sqrt(np.mean(residual**2)))

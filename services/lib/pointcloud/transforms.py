@@ -136,3 +136,13 @@ def check_rigid(matrix: object, name: str) -> np.ndarray:
 def to_json(a_T_b: np.ndarray) -> list[list[float]]:
     """4×4 row-major nested list, as the file formats carry it."""
     return [[float(v) for v in row] for row in a_T_b]
+
+
+def kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """target_T_source minimising Σ‖T s − t‖² over paired (K, 3) points (Kabsch; Besl &
+    McKay's step)."""
+    source_mean, target_mean = source.mean(0), target.mean(0)
+    u, _, vt = np.linalg.svd((source - source_mean).T @ (target - target_mean))
+    flip = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
+    rotation = vt.T @ flip @ u.T
+    return make_transform(rotation, target_mean - rotation @ source_mean)
