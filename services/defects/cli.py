@@ -100,6 +100,11 @@ def _simulate_part(out_dir: Path, name: str, spacing_mm: float, seed: int) -> No
     typer.echo(
         f"compare it: vista defects compare {written[0]} {written[1]} -o {out_dir}/result.json"
     )
+    if written[-1].suffix == ".step":  # a solid: its back faces are there too
+        typer.echo(
+            f"against the CAD solid: vista defects compare {written[0]} {written[-1]} "
+            f"--align points --reference-points {out_dir}/points.json -o {out_dir}/result.json"
+        )
 
 
 def _reference_points(path: str) -> dict:

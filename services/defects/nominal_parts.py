@@ -349,8 +349,9 @@ def part_shape(name: str) -> object:
 
 def write_part(folder: Path, part: NominalPart) -> list[Path]:
     """The part's scan (cloud.ply, the scanner's frame), nominal (nominal.stl, its regions
-    as solids; nominal.step where Open CASCADE is installed) and truth.json (the pose, the
-    dents, the hole, each point's true deviation's summary)."""
+    as solids; nominal.step where Open CASCADE is installed), truth.json (the pose, the
+    dents, the hole) and points.json (reference points, as `--reference-points` reads
+    them)."""
     from services.lib.pointcloud.ply import PointCloud, write_ply
     from services.lib.pointcloud.step import available, write_step
     from services.lib.pointcloud.stl import write_stl
@@ -370,7 +371,30 @@ def write_part(folder: Path, part: NominalPart) -> list[Path]:
         "hole": part.hole,
     }
     written[2].write_text(json.dumps(truth, indent=1) + "\n")
+    written.append(folder / "points.json")
+    written[-1].write_text(json.dumps(reference_points(part), indent=1) + "\n")
     if available():
         write_step(folder / "nominal.step", part_shape(part.name))
         written.append(folder / "nominal.step")
     return written
+
+
+PICK_MM = 0.05
+"""1σ of a reference point picked on the scan (a probed or targeted point)."""
+
+
+def reference_points(part: NominalPart, seed: int = 0) -> dict:
+    """Four reference points: the corners of the nominal's box nearest to its vertices on
+    the part (named A–D), and the same points as picked on the scan (in its frame, with
+    ``PICK_MM`` of picking error)."""
+    vertices = np.asarray(part.mesh.vertices_mm)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    targets = [low, [high[0], low[1], low[2]], [low[0], high[1], low[2]], high]
+    chosen = [vertices[np.argmin(np.linalg.norm(vertices - t, axis=1))] for t in targets]
+    picked = apply(invert(part.nominal_T_cloud), np.array(chosen))
+    picked += np.random.default_rng(seed).normal(0, PICK_MM, picked.shape)
+    names = "ABCD"
+    return {
+        "nominal": {n: np.round(c, 4).tolist() for n, c in zip(names, chosen, strict=True)},
+        "scan": {n: np.round(c, 4).tolist() for n, c in zip(names, picked, strict=True)},
+    }
