@@ -252,6 +252,11 @@ def test_run_pages_and_scenes_of_each_result(finished_jobs, tmp_path):
         assert "+0.5 mm" in page.text_content(".picture")  # the bar: the default ±0.5 band
         page.wait_for_selector("#scene-note:has-text('drag to turn')")
         page.screenshot(path=str(tmp_path / "compare.png"), full_page=True)
+        # its inspection: the deviation findings listed, the scan over its nominal in 3D
+        page.goto(f"{url}/#/inspections/{compare['inspection_id']}")
+        page.wait_for_selector("#scene-status:has-text('markers')")
+        page.wait_for_selector("#defect-list:has-text('deviation')")
+        page.screenshot(path=str(tmp_path / "compare-inspection.png"), full_page=True)
         # The inspection of perception runs only: its page asks for no measurement and
         # counts no panels.
         page = browser.new_page(viewport={"width": 1024, "height": 768})
